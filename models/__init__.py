@@ -1,0 +1,5 @@
+"""hmpc offline math: ingest, signals, identification, plant and diagnosis.
+
+Nothing here imports ``controller`` or ``tools``; everything is testable without a bus.
+"""
+__version__ = "0.1.0"

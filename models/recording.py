@@ -1,0 +1,185 @@
+"""The canonical recording: one table, a column per channel, on a uniform time grid.
+
+Channel names and units are those of ``../shared/CONVENTIONS.md`` (see ``models.channels``).
+Columns not available are absent, never zero-filled. Samples inside a gap longer than the
+ingest threshold are NaN (``""`` for ``gear``), and the gaps are listed in ``meta['gaps']``.
+The raw, un-resampled samples of each channel stay available in ``raw``.
+"""
+from __future__ import annotations
+
+import csv
+import gzip
+import io
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .channels import CHANNELS, STRING_CHANNELS
+from .errors import InputError
+
+
+@dataclass
+class Recording:
+    """A canonical recording.
+
+    Attributes:
+        channels: name -> 1-D array on the grid ``channels['time']`` [SI units, see CHANNELS].
+        raw: name -> (t_s, values) as sampled by the source, before resampling (may be empty).
+        meta: free-form provenance: sources, clock offsets, gaps, rate.
+    """
+
+    channels: dict[str, np.ndarray]
+    raw: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.channels["time"]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.channels
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.channels[name]
+        except KeyError:
+            raise InputError("required channel is absent from the recording",
+                             self.meta.get("path"), channel=name) from None
+
+    def require(self, *names: str) -> None:
+        """Raise InputError naming the first of ``names`` that the recording lacks."""
+        for n in names:
+            if n not in self.channels:
+                raise InputError("required channel is absent from the recording",
+                                 self.meta.get("path"), channel=n)
+
+    def __len__(self) -> int:
+        return int(self.time.shape[0])
+
+    @property
+    def rate_hz(self) -> float:
+        t = self.time
+        return float(1.0 / np.median(np.diff(t))) if len(t) > 1 else float("nan")
+
+    def slice(self, mask) -> "Recording":
+        """A new recording holding the rows in ``mask`` (raw samples are not sliced)."""
+        return Recording({k: v[mask] for k, v in self.channels.items()}, self.raw, dict(self.meta))
+
+    # ------------------------------------------------------------------ I/O
+    def to_csv(self, path: str | Path) -> None:
+        """Write the canonical CSV (columns in CONVENTIONS order, unknown extras last)."""
+        names = [c for c in CHANNELS if c in self.channels]
+        names += [c for c in self.channels if c not in CHANNELS]
+        path = Path(path)
+        opener = gzip.open if path.suffix == ".gz" else open
+        with opener(path, "wt", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(names)
+            cols = []
+            for n in names:
+                v = self.channels[n]
+                if n in STRING_CHANNELS:
+                    cols.append([str(s) for s in v])
+                elif n == "time":
+                    cols.append([f"{x:.6f}" for x in v])
+                else:
+                    cols.append([("" if math.isnan(x) else repr(float(x))) for x in v.astype(float)])
+            w.writerows(zip(*cols))
+
+    def to_parquet(self, path: str | Path) -> None:
+        try:
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+        except ImportError:  # optional dependency
+            raise InputError("writing Parquet needs pyarrow (pip install 'hmpc[parquet]')",
+                             str(path)) from None
+        pq.write_table(pa.table({k: v for k, v in self.channels.items()}), str(path))
+
+    def save(self, path: str | Path) -> None:
+        """Write CSV, or Parquet when the name ends in .parquet."""
+        if str(path).endswith(".parquet"):
+            self.to_parquet(path)
+        else:
+            self.to_csv(path)
+
+    @classmethod
+    def load(cls, path: str | Path, *, allow_extra: bool = False) -> "Recording":
+        """Read a canonical recording (CSV, CSV.gz or Parquet).
+
+        Raises InputError for a missing or empty file, unknown columns (unless
+        ``allow_extra``), non-numeric values, or a time column that is not strictly increasing.
+        """
+        path = Path(path)
+        if not path.exists():
+            raise InputError("no such file", str(path))
+        if path.suffix == ".parquet":
+            try:
+                import pyarrow.parquet as pq
+            except ImportError:
+                raise InputError("reading Parquet needs pyarrow", str(path)) from None
+            tab = pq.read_table(str(path))
+            cols = {n: tab.column(n).to_numpy() for n in tab.column_names}
+            header = list(cols)
+            rows_as_cols = {n: [str(x) for x in cols[n]] for n in header}
+            first_line = None
+        else:
+            opener = gzip.open if path.suffix == ".gz" else open
+            try:
+                with opener(path, "rt", newline="") as fh:
+                    text = fh.read()
+            except (OSError, UnicodeDecodeError) as exc:
+                raise InputError(f"cannot read as text ({exc.__class__.__name__})", str(path)) from None
+            reader = csv.reader(io.StringIO(text))
+            try:
+                header = [h.strip() for h in next(reader)]
+            except StopIteration:
+                raise InputError("empty file", str(path)) from None
+            rows = list(reader)
+            first_line = 2
+            for i, r in enumerate(rows):
+                if len(r) != len(header):
+                    raise InputError(f"expected {len(header)} fields, found {len(r)}", str(path),
+                                     line=i + 2)
+            rows_as_cols = {n: [r[j] for r in rows] for j, n in enumerate(header)}
+        if "time" not in header:
+            raise InputError("no 'time' column: not a canonical recording", str(path), channel="time")
+        unknown = [h for h in header if h not in CHANNELS]
+        if unknown and not allow_extra:
+            raise InputError("unknown column (not a canonical channel)", str(path), channel=unknown[0])
+        channels: dict[str, np.ndarray] = {}
+        for n in header:
+            vals = rows_as_cols[n]
+            if n in STRING_CHANNELS:
+                channels[n] = np.array(vals, dtype=object)
+                continue
+            try:
+                channels[n] = np.array([float(v) if v != "" else np.nan for v in vals])
+            except ValueError:
+                bad = next(i for i, v in enumerate(vals) if not _is_float(v))
+                raise InputError(f"value {vals[bad]!r} is not a number", str(path),
+                                 line=None if first_line is None else bad + first_line,
+                                 channel=n) from None
+        t = channels["time"]
+        if len(t) == 0:
+            raise InputError("no rows", str(path))
+        if not np.all(np.isfinite(t)):
+            bad = int(np.flatnonzero(~np.isfinite(t))[0])
+            raise InputError("time is not finite", str(path), line=bad + 2, channel="time")
+        d = np.diff(t)
+        if np.any(d <= 0):
+            bad = int(np.flatnonzero(d <= 0)[0]) + 1
+            raise InputError("time is not strictly increasing", str(path), line=bad + 2,
+                             channel="time")
+        return cls(channels, {}, {"path": str(path)})
+
+
+def _is_float(v: str) -> bool:
+    if v == "":
+        return True
+    try:
+        float(v)
+        return True
+    except ValueError:
+        return False

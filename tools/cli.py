@@ -1,0 +1,82 @@
+"""The ``hmpc`` console script: one module per subcommand, all logic in the library.
+
+Exit status (../shared/CONVENTIONS.md): 0 success, 2 bad input (one line on stderr naming
+the file and the line, frame or channel), 1 internal failure.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+import traceback
+
+from models import __version__
+from models.errors import HmpcError, InputError
+
+#: subcommand -> module under tools/ that provides ``add_arguments(p)`` and ``run(args) -> int``.
+SUBCOMMANDS = {
+    "info": ("tools.cmd_info", "what a CAN log holds: frames and rates per bus/ID, gaps, clock problems"),
+    "ingest": ("tools.cmd_ingest", "raw CAN/nav/IMU logs to one canonical recording"),
+    "identify": ("tools.cmd_identify", "recover the report's steering and accelerator models"),
+    "simulate": ("tools.cmd_simulate", "simulate an experiment or run the closed loop"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="hmpc", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"hmpc {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (modname, helptext) in SUBCOMMANDS.items():
+        try:
+            mod = importlib.import_module(modname)
+        except ModuleNotFoundError as exc:
+            if exc.name != modname:
+                raise
+            continue  # subcommand not built yet
+        p = sub.add_parser(name, help=helptext, description=helptext)
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def write_json(path: str | None, payload: dict) -> None:
+    """Write a ``--json`` result (stable keys, SI units)."""
+    if path:
+        with open(path, "w", encoding="utf-8") as fh:
+            json.dump(payload, fh, indent=2, sort_keys=False, default=_jsonable)
+            fh.write("\n")
+
+
+def _jsonable(obj):
+    import numpy as np
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return str(obj)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except InputError as exc:
+        print(f"hmpc {args.command}: error: {exc.one_line()}", file=sys.stderr)
+        return 2
+    except HmpcError as exc:
+        print(f"hmpc {args.command}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"hmpc {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception:  # internal failure: keep the traceback for the bug report
+        traceback.print_exc()
+        print(f"hmpc {args.command}: internal error (a bug in hmpc; please report it)",
+              file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
