@@ -1,0 +1,31 @@
+"""The gzip copies under tools/data are byte-identical to ../shared/data (when it is beside us)."""
+import gzip
+from pathlib import Path
+
+import pytest
+
+from tools.datafiles import DATA_DIR, REPO_DIR
+
+SHARED = REPO_DIR.parent / "shared" / "data"
+BUNDLED = sorted(p.relative_to(DATA_DIR) for p in DATA_DIR.rglob("*.gz"))
+
+
+def test_bundle_is_complete_and_small():
+    names = {str(p) for p in BUNDLED}
+    for need in ("dbc/toyota_rav4_2017.dbc.gz", "dbc/toyota_rav4_2019_tss2.dbc.gz",
+                 "rav4-comma2k19/can.log.gz", "rav4-comma2k19/nav.csv.gz",
+                 "rav4-comma2k19/imu.csv.gz", "rav4-comma2k19/reference_decoded.csv.gz",
+                 "rav4-comma2k19/reference_steering.csv.gz", "rav4-2019-verifiedcan/drive.csv.gz"):
+        assert need in names
+    for lic in ("dbc/LICENSE.opendbc", "rav4-comma2k19/LICENSE.comma2k19",
+                "rav4-2019-verifiedcan/LICENSE.VerifiedCAN"):
+        assert (DATA_DIR / lic).is_file()
+    total = sum(p.stat().st_size for p in DATA_DIR.rglob("*") if p.is_file())
+    assert total <= 3 * 1024 * 1024
+
+
+@pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/data is not beside this clone")
+@pytest.mark.parametrize("rel", BUNDLED, ids=str)
+def test_bundled_copy_equals_shared(rel):
+    original = SHARED / str(rel)[: -len(".gz")]
+    assert gzip.decompress((DATA_DIR / rel).read_bytes()) == original.read_bytes()

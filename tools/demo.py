@@ -1,0 +1,71 @@
+"""`make demo`: hmpc's main job on the real recordings bundled in tools/data.
+
+Runs the same subcommands a user would (`hmpc info`, `hmpc ingest`, ...) on the comma2k19
+RAV4 minute and the VerifiedCAN stop-and-go drive, and saves tables, JSON and plots in --out.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from tools import cli
+from tools.datafiles import PARAMS_DIR, bundled
+
+COMMA = "rav4-comma2k19"
+VCAN = "rav4-2019-verifiedcan"
+
+
+def steps(out: Path) -> list[tuple[str, list[str]]]:
+    comma_log, comma_dbc = bundled(f"{COMMA}/can.log.gz"), bundled("dbc/toyota_rav4_2017.dbc.gz")
+    vcan_log, vcan_dbc = bundled(f"{VCAN}/drive.csv.gz"), bundled("dbc/toyota_rav4_2019_tss2.dbc.gz")
+    return [
+        ("info: comma2k19 RAV4 minute", ["info", str(comma_log), "--dbc", str(comma_dbc),
+                                         "--json", str(out / "comma_info.json")]),
+        ("ingest: comma2k19 RAV4 minute (CAN + INS + IMU)",
+         ["ingest", str(comma_log), "--dbc", str(comma_dbc),
+          "--signals", str(PARAMS_DIR / "toyota_rav4_2017.signals.yaml"),
+          "--nav", str(bundled(f"{COMMA}/nav.csv.gz")), "--imu", str(bundled(f"{COMMA}/imu.csv.gz")),
+          "--out", str(out / "comma_rec.csv"), "--json", str(out / "comma_ingest.json")]),
+        ("info: VerifiedCAN RAV4 stop-and-go", ["info", str(vcan_log), "--dbc", str(vcan_dbc),
+                                                "--json", str(out / "vcan_info.json")]),
+        ("ingest: VerifiedCAN RAV4 stop-and-go (CAN only)",
+         ["ingest", str(vcan_log), "--dbc", str(vcan_dbc),
+          "--signals", str(PARAMS_DIR / "toyota_rav4_2019.signals.yaml"),
+          "--out", str(out / "vcan_rec.csv"), "--json", str(out / "vcan_ingest.json")]),
+    ]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    failed = []
+    for title, argv_ in steps(out):
+        print(f"\n=== {title}\n$ hmpc {' '.join(argv_)}", flush=True)
+        t0 = time.perf_counter()
+        rc = cli.main(argv_)
+        print(f"--- exit {rc} in {time.perf_counter() - t0:.1f} s", flush=True)
+        if rc != 0:
+            failed.append(title)
+    from models.recording import Recording
+    from models.recording_plots import plot_overview
+    for name, label in (("comma_rec", "comma2k19 RAV4 2017, I-280 minute"),
+                        ("vcan_rec", "VerifiedCAN RAV4 2019, stop-and-go")):
+        rec_path = out / f"{name}.csv"
+        if rec_path.exists():
+            png = plot_overview(Recording.load(rec_path), str(out / f"{name}.png"), label)
+            print(f"plot: {png}")
+    print(f"\nDemo outputs in {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())))
+    if failed:
+        print("FAILED: " + "; ".join(failed), file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
