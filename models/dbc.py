@@ -1,0 +1,62 @@
+"""Load a CAN database (DBC) with cantools, turning its errors into hmpc's :class:`InputError`.
+
+``load_dbc("toyota_rav4_2017.dbc.gz")`` -> ``cantools.database.can.Database``. Gzip files are
+decompressed; the text is parsed with ``cantools.database.load_string(text, database_format="dbc",
+strict=False)`` (opendbc's DBCs hold overlapping mux-free signals that strict mode rejects;
+the data README prescribes ``strict=False``).
+"""
+from __future__ import annotations
+
+import gzip
+import re
+import zlib
+from pathlib import Path
+
+from models.errors import InputError
+
+
+def load_dbc(path, *, strict: bool = False):
+    """Load a DBC file (optionally ``.gz``).
+
+    Args:
+        path: the DBC file.
+        strict: cantools' strict mode (rejects overlapping signals and signals outside the
+            message); off by default, as the shared data README prescribes.
+
+    Returns:
+        The cantools database.
+
+    Raises:
+        InputError: missing, empty, not a DBC, or a syntax error (naming the line when cantools
+            gives it), or a database without any message.
+    """
+    import cantools  # heavy import, only when a DBC is used
+
+    p = Path(path)
+    spath = str(path)
+    if not p.is_file():
+        raise InputError("no such DBC file" if not p.exists() else "not a regular file", spath)
+    try:
+        raw = p.read_bytes()
+        if raw[:2] == b"\x1f\x8b":
+            raw = gzip.decompress(raw)
+    except (OSError, EOFError, zlib.error) as exc:
+        raise InputError(f"cannot read DBC: {exc}", spath) from None
+    if not raw.strip():
+        raise InputError("empty DBC file", spath)
+    if b"\0" in raw[:4096]:
+        raise InputError("not a DBC file (binary content)", spath)
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        text = raw.decode("cp1252", errors="replace")  # cantools' own default for DBC files
+    try:
+        db = cantools.database.load_string(text, database_format="dbc", strict=strict)
+    except Exception as exc:  # cantools raises ParseError, ValueError, KeyError, ... on bad DBCs
+        msg = " ".join(str(exc).split())
+        m = re.search(r"line (\d+)", msg)
+        raise InputError(f"not a valid DBC: {msg}", spath,
+                         line=int(m.group(1)) if m else None) from None
+    if not db.messages:
+        raise InputError("DBC defines no message", spath)
+    return db

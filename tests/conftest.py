@@ -1,0 +1,30 @@
+"""Shared fixtures: paths of the real data bundled under tools/data (gzip copies of ../shared/data)."""
+from pathlib import Path
+
+import pytest
+
+from tools.datafiles import bundled
+
+
+@pytest.fixture(scope="session")
+def comma_log() -> Path:
+    """One real minute of a 2017 RAV4, candump -L (comma2k19), gzip."""
+    return bundled("rav4-comma2k19/can.log.gz")
+
+
+@pytest.fixture(scope="session")
+def comma_dbc() -> Path:
+    """The 2017 RAV4 powertrain DBC (opendbc), gzip."""
+    return bundled("dbc/toyota_rav4_2017.dbc.gz")
+
+
+@pytest.fixture(scope="session")
+def vcan_log() -> Path:
+    """115 s of a 2019 RAV4 (VerifiedCAN), libpanda CSV, gzip."""
+    return bundled("rav4-2019-verifiedcan/drive.csv.gz")
+
+
+@pytest.fixture(scope="session")
+def vcan_dbc() -> Path:
+    """The 2019 RAV4 TSS2 DBC (opendbc), gzip."""
+    return bundled("dbc/toyota_rav4_2019_tss2.dbc.gz")
