@@ -1,0 +1,427 @@
+"""Raw logs to one canonical recording: CAN (+ DBC + signal map), GPS/INS and IMU.
+
+:func:`ingest_files` does, in order:
+
+1. load the DBC (``models.dbc``) and the vehicle's signal map (``models.signalmap``), validated
+   against each other;
+2. read the CAN log (``models.canlog``) and decode only the messages the map uses
+   (``models.decode``), on the buses it names; evaluate each channel's expression, convert to SI
+   and apply its sign. A required channel without a sample raises :class:`InputError` naming the
+   channel and the log;
+3. read the nav file (``models.nav``) and put it on the CAN clock: the offset is given, or
+   estimated by cross-correlating CAN ``speed`` with GNSS ground speed (``models.align``);
+4. estimate the heading mount offset (device heading minus course over ground above
+   :data:`MOUNT_MIN_SPEED_MPS`) and, unless ``mount_correction=False``, subtract it from
+   ``heading`` and rotate the IMU's horizontal accelerations by it, so both describe the car body;
+5. read the IMU, put it on the CAN clock (same device as the nav file: the nav offset; without
+   nav: yaw-rate cross-correlation with CAN; or given) and convert it to ISO body axes, removing
+   gravity with the nav attitude;
+6. choose one source per channel (:data:`DEFAULT_PREFERENCE`), resample everything onto a
+   uniform grid spanning the time all required CAN channels cover (``models.resample``) and
+   mark gaps.
+
+The result carries the recording (``raw`` keeps each chosen channel's samples, on the CAN clock,
+before resampling), the recoverable problems, and a summary with stable keys (see
+:func:`ingest_files`) that ``hmpc ingest --json`` writes as is.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from . import __version__
+from .align import OffsetEstimate, estimate_offset
+from .canlog import read_log
+from .channels import CHANNELS, STRING_CHANNELS
+from .dbc import load_dbc
+from .decode import decode_frames
+from .errors import InputError, Problems
+from .nav import ImuColumns, NavColumns, imu_to_body, read_imu_raw, read_nav
+from .recording import Recording
+from .resample import gap_threshold_s, make_grid, resample
+from .signalmap import load_signal_map
+
+#: samples above this ground speed [m/s] estimate the heading mount offset (course over ground
+#: is meaningless when nearly stopped; 5 m/s is the acceptance criterion's threshold).
+MOUNT_MIN_SPEED_MPS = 5.0
+#: fewer samples than this above the speed threshold: no mount estimate (1 s of 20 Hz nav).
+MOUNT_MIN_SAMPLES = 20
+#: search window of the clock estimates [s]: loggers on one car rarely disagree by more.
+MAX_LAG_S = 5.0
+
+#: channel -> sources in order of preference, for channels several sources can give.
+#: The INS yaw rate (when the nav file has one) and the IMU beat CAN KINEMATICS, whose yaw rate
+#: is biased (-0.41 deg/s on the comma RAV4) and whose accelerations include road grade.
+DEFAULT_PREFERENCE: dict[str, tuple[str, ...]] = {
+    "yaw_rate": ("nav", "imu", "can"),
+    "accel_x": ("imu", "can"),
+    "accel_y": ("imu", "can"),
+}
+SOURCES = ("can", "nav", "imu")
+
+KIND_NONFINITE_EXPR = "signal map expression gave NaN/inf (sample dropped)"
+KIND_UNKNOWN_GEAR = "gear value not in the map's gear table (sample dropped)"
+KIND_NO_CLOCK = "clock offset not estimated (0 s used)"
+
+
+@dataclass
+class IngestResult:
+    """What :func:`ingest_files` returns."""
+
+    recording: Recording
+    problems: Problems
+    summary: dict
+
+
+def sha256_file(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _source(path) -> dict | None:
+    if path is None:
+        return None
+    return {"path": str(path), "sha256": sha256_file(path)}
+
+
+def _wrap(a):
+    return np.mod(np.asarray(a, float) + np.pi, 2 * np.pi) - np.pi
+
+
+def estimate_heading_mount(t_s, heading_rad, vel_east, vel_north, *,
+                           min_speed_mps: float = MOUNT_MIN_SPEED_MPS) -> dict | None:
+    """Constant offset between the device heading and the course over ground (ENU).
+
+    Args:
+        t_s: sample times [s] (same rows for all arrays).
+        heading_rad: ENU heading [rad].
+        vel_east, vel_north: ground velocity [m/s].
+        min_speed_mps: only samples faster than this are used.
+
+    Returns:
+        ``{offset_rad, offset_deg, samples, residual_rms_deg, residual_max_deg,
+        min_speed_mps}`` (offset = heading - course, circular mean), or None with too few
+        samples.
+    """
+    ve, vn, h = (np.asarray(a, float) for a in (vel_east, vel_north, heading_rad))
+    m = np.hypot(ve, vn) > min_speed_mps
+    m &= np.isfinite(h)
+    if int(m.sum()) < MOUNT_MIN_SAMPLES:
+        return None
+    d = _wrap(h[m] - np.arctan2(vn[m], ve[m]))
+    off = float(np.arctan2(np.mean(np.sin(d)), np.mean(np.cos(d))))
+    res = _wrap(d - off)
+    return {"offset_rad": off, "offset_deg": math.degrees(off), "samples": int(m.sum()),
+            "residual_rms_deg": math.degrees(float(np.sqrt(np.mean(res ** 2)))),
+            "residual_max_deg": math.degrees(float(np.max(np.abs(res)))),
+            "min_speed_mps": float(min_speed_mps)}
+
+
+def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
+                 rate_hz: float = 50.0, clock_offset_s: float | None = None,
+                 imu_offset_s: float | None = None, nav_columns: NavColumns | None = None,
+                 gap_s: float | None = None, problems: Problems | None = None, *,
+                 imu_columns: ImuColumns | None = None, mount_correction: bool = True,
+                 prefer: dict[str, str] | None = None, max_lag_s: float = MAX_LAG_S,
+                 progress: Callable[[str], None] | None = None) -> IngestResult:
+    """Ingest a CAN log (+ optional nav and IMU CSVs) into a canonical recording.
+
+    Args:
+        log_path: CAN log (any format ``models.canlog`` reads).
+        dbc_path: the car's DBC (optionally .gz).
+        signals_path: the vehicle's signal map YAML.
+        nav_path: GPS/INS CSV (columns: ``nav_columns``), optional.
+        imu_path: IMU CSV (columns: ``imu_columns``), optional.
+        rate_hz: grid rate of the recording [Hz].
+        clock_offset_s: nav clock offset [s] added to nav times to reach the CAN clock; None
+            estimates it by cross-correlating CAN speed with GNSS speed.
+        imu_offset_s: IMU clock offset [s] to the CAN clock; None: the nav offset (same device)
+            when there is a nav file, else estimated from yaw rate against CAN.
+        nav_columns, imu_columns: column layouts (default: the comma2k19 files).
+        gap_s: gap threshold [s] for every channel; None: per channel, see ``models.resample``.
+        problems: collector to add to (a new one by default).
+        mount_correction: subtract the estimated heading mount offset from ``heading`` and rotate
+            the IMU accelerations by it (reported either way).
+        prefer: channel -> source ("can", "nav", "imu") overriding :data:`DEFAULT_PREFERENCE`.
+        max_lag_s: search window of the clock estimates [s].
+        progress: called with a short text at each stage (the CLI prints it on stderr).
+
+    Returns:
+        :class:`IngestResult`. Summary keys: ``hmpc_version, vehicle, sources`` (path +
+        sha256 of log, dbc, signals, nav, imu), ``start_s, end_s, duration_s, rate_hz,
+        samples, channels`` (name -> unit, source, resample, raw_samples, raw_rate_hz,
+        valid_fraction, gap_threshold_s), ``channels_absent, speed_source, speed_vs_gps,
+        clock`` (reference, nav, imu: offset_s, correlation_peak, method, ok; checks),
+        ``heading_mount`` (offset_rad/deg, residual, applied; None without nav heading),
+        ``imu_gravity, nav_origin, gaps`` (channel -> [{start_s, end_s, duration_s}]),
+        ``problems`` (total, items). Times are on the CAN log's clock [s].
+
+    Raises:
+        InputError: unreadable/empty inputs, a required channel absent from the log, a message
+            on several buses without ``bus:`` in the map, nothing usable in nav/IMU.
+        ParamError: a bad signal map (unknown key/channel/message/signal/unit).
+        ValueError: a non-positive ``rate_hz`` or ``gap_s``, unknown ``prefer`` entries.
+    """
+    if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f"rate_hz must be a positive number, got {rate_hz!r}")
+    if gap_s is not None and not (math.isfinite(gap_s) and gap_s > 0):
+        raise ValueError(f"gap_s must be a positive number, got {gap_s!r}")
+    preference = dict(DEFAULT_PREFERENCE)
+    for ch, src in (prefer or {}).items():
+        if ch not in DEFAULT_PREFERENCE or src not in DEFAULT_PREFERENCE[ch]:
+            raise ValueError(f"cannot prefer {src!r} for {ch!r}; choices: "
+                             + ", ".join(f"{c}: {'/'.join(s)}" for c, s in DEFAULT_PREFERENCE.items()))
+        preference[ch] = (src,) + tuple(s for s in DEFAULT_PREFERENCE[ch] if s != src)
+    problems = Problems() if problems is None else problems
+    say = progress or (lambda _msg: None)
+    log_s = str(log_path)
+
+    # ------------------------------------------------------------- CAN
+    say(f"loading DBC {dbc_path} and signal map {signals_path}")
+    db = load_dbc(dbc_path)
+    smap = load_signal_map(signals_path, db)
+    say(f"reading CAN log {log_path}")
+    frames = read_log(log_path, problems)
+    say(f"decoding {len(frames)} frames ({', '.join(smap.messages())})")
+    decoded = decode_frames(frames, db, problems, names=smap.messages(), buses=smap.buses(),
+                            dbc_path=str(dbc_path))
+    can: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    can_desc: dict[str, str] = {}
+    absent: list[str] = []
+    for ch, cm in smap.channels.items():
+        dm = decoded[cm.message] if cm.message in decoded else None
+        if dm is None or len(dm) == 0:
+            sel = np.zeros(0, bool)
+        elif cm.bus is None:
+            sel = np.ones(len(dm), bool)
+            buses = np.unique(dm.bus)
+            if len(buses) > 1:
+                raise InputError(
+                    f"message {cm.message} is on buses {', '.join(str(int(b)) for b in buses)}; "
+                    f"say which with 'bus:' in {smap.path}", log_s, channel=ch)
+        else:
+            sel = dm.bus == cm.bus
+        if not sel.any():
+            bus = "" if cm.bus is None else f" on bus {cm.bus}"
+            if cm.required:
+                raise InputError(f"required channel has no sample: message {cm.message}{bus} "
+                                 "is not in the log", log_s, channel=ch)
+            absent.append(ch)
+            continue
+        vals = cm.evaluate({s: dm.signals[s][sel] for s in cm.expr.signals})
+        t = dm.t_s[sel]
+        where = dm.where[sel]
+        if cm.gear is not None:
+            bad = vals == ""
+            if bad.any():
+                raw_bad = np.unique(np.rint(cm.expr({s: dm.signals[s][sel][bad]
+                                                     for s in cm.expr.signals})))
+                problems.add(KIND_UNKNOWN_GEAR, log_s, where[bad][:Problems.MAX_FIRST],
+                             count=int(bad.sum()),
+                             detail=f"{ch}: raw value(s) {', '.join(f'{v:g}' for v in raw_bad[:8])}")
+        else:
+            bad = ~np.isfinite(vals)
+            if bad.any():
+                problems.add(KIND_NONFINITE_EXPR, log_s, where[bad][:Problems.MAX_FIRST],
+                             count=int(bad.sum()), detail=f"{ch} = {cm.expr.text}")
+        if bad.all():
+            if cm.required:
+                raise InputError("required channel has no valid sample (every value was dropped)",
+                                 log_s, channel=ch)
+            absent.append(ch)
+            continue
+        can[ch] = (t[~bad], vals[~bad])
+        can_desc[ch] = "can: " + cm.describe()
+    if not can:
+        raise InputError("no channel of the signal map is in the log", log_s)
+
+    # ------------------------------------------------------------- nav
+    nav = None
+    navc: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    clock: dict = {"reference": "CAN log", "nav": None, "imu": None, "checks": {}}
+    mount = None
+    nav_off = 0.0
+    if nav_path is not None:
+        say(f"reading nav {nav_path}")
+        nav = read_nav(nav_path, problems, nav_columns)
+        if clock_offset_s is not None:
+            est = OffsetEstimate(float(clock_offset_s), method="given")
+        elif "speed" in can and "gps_speed" in nav:
+            est = estimate_offset(*can["speed"], *nav["gps_speed"], max_lag_s=max_lag_s,
+                                  what="CAN speed vs GNSS speed")
+        else:
+            est = OffsetEstimate(0.0, method="none", ok=False,
+                                 note="no CAN speed or no GNSS speed to correlate")
+        if not est.ok:
+            problems.add(KIND_NO_CLOCK, str(nav_path), count=1, detail=est.note)
+            est = OffsetEstimate(0.0, est.peak, est.samples, est.method, False, est.note)
+        nav_off = est.offset_s
+        clock["nav"] = est.to_dict()
+        for ch, (t, v) in nav.items():
+            navc[ch] = (t + nav_off, v)
+        if "heading" in nav and nav.velocity is not None:
+            tv, ve, vn = nav.velocity
+            mount = estimate_heading_mount(tv, nav["heading"][1], ve, vn)
+            if mount is not None:
+                mount["applied"] = bool(mount_correction)
+                if mount_correction:
+                    th, h = navc["heading"]
+                    navc["heading"] = (th, _wrap(h - mount["offset_rad"]))
+        if "heading" in navc and "yaw_rate" in can:
+            th, h = navc["heading"]
+            hr = np.gradient(np.unwrap(h), th)
+            chk = estimate_offset(*can["yaw_rate"], th, hr, max_lag_s=max_lag_s,
+                                  what="CAN yaw rate vs nav heading rate")
+            clock["checks"]["nav_residual_by_yaw_rate"] = chk.to_dict()
+
+    # ------------------------------------------------------------- IMU
+    imuc: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    gravity = None
+    if imu_path is not None:
+        say(f"reading IMU {imu_path}")
+        raw_imu = read_imu_raw(imu_path, problems, imu_columns)
+        if imu_offset_s is not None:
+            iest = OffsetEstimate(float(imu_offset_s), method="given")
+        elif nav is not None:
+            iest = OffsetEstimate(nav_off, clock["nav"]["correlation_peak"] or float("nan"),
+                                  method="same device as nav", ok=True)
+        elif "yaw_rate" in can:
+            iest = estimate_offset(*can["yaw_rate"], raw_imu.t_s, raw_imu.yaw_rate_device(),
+                                   max_lag_s=max_lag_s, what="CAN yaw rate vs IMU yaw rate")
+        else:
+            iest = OffsetEstimate(0.0, method="none", ok=False,
+                                  note="no nav file and no CAN yaw rate to correlate")
+        if not iest.ok:
+            problems.add(KIND_NO_CLOCK, str(imu_path), count=1, detail=iest.note)
+            iest = OffsetEstimate(0.0, iest.peak, iest.samples, iest.method, False, iest.note)
+        imu_off = iest.offset_s
+        clock["imu"] = iest.to_dict()
+        attitude = None
+        if nav is not None and "roll" in nav and "pitch" in nav:
+            tr = nav["roll"][0] + nav_off - imu_off  # nav times on the IMU's clock
+            attitude = (tr, nav["roll"][1], nav["pitch"][1])
+        body = imu_to_body(raw_imu, attitude)
+        gravity = body.gravity
+        for ch, (t, v) in body.items():
+            imuc[ch] = (t + imu_off, v)
+        if mount is not None and mount_correction:
+            d = mount["offset_rad"]
+            t, ax = imuc["accel_x"]
+            _, ay = imuc["accel_y"]
+            c, s = math.cos(d), math.sin(d)
+            imuc["accel_x"] = (t, c * ax - s * ay)
+            imuc["accel_y"] = (t, s * ax + c * ay)
+        if "heading" in navc:
+            th, h = navc["heading"]
+            chk = estimate_offset(th, np.gradient(np.unwrap(h), th), *imuc["yaw_rate"],
+                                  max_lag_s=max_lag_s, what="nav heading rate vs IMU yaw rate")
+            clock["checks"]["imu_residual_vs_nav_by_yaw_rate"] = chk.to_dict()
+
+    # ------------------------------------------------------------- choose sources
+    by_source = {"can": can, "nav": navc, "imu": imuc}
+    raw: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    origin: dict[str, str] = {}
+    names = set(can) | set(navc) | set(imuc)
+    for ch in [c for c in CHANNELS if c in names]:
+        order = preference.get(ch, SOURCES)
+        for src in order:
+            if ch in by_source[src]:
+                raw[ch] = by_source[src][ch]
+                origin[ch] = can_desc[ch] if src == "can" else f"{src}: {_path_of(src, nav_path, imu_path)}"
+                break
+
+    # ------------------------------------------------------------- grid and resampling
+    say(f"resampling {len(raw)} channels at {rate_hz:g} Hz")
+    # the grid spans the required CAN channels (all CAN channels if none is required), so its
+    # first and last rows hold every required channel; other channels are NaN outside their span
+    core = [can[c] for c in smap.required() if c in can] or list(can.values())
+    t_start = max(float(t[0]) for t, _ in core)
+    t_end = min(float(t[-1]) for t, _ in core)
+    if t_end <= t_start:
+        raise InputError("the required channels do not overlap in time", log_s)
+    grid = make_grid(t_start, t_end, float(rate_hz))
+    for src, chans, path in (("nav", navc, nav_path), ("IMU", imuc, imu_path)):
+        if chans:
+            t = next(iter(chans.values()))[0]
+            if t[-1] < t_start or t[0] > t_end:
+                raise InputError(
+                    f"the {src} file does not overlap the CAN log in time ({src} "
+                    f"{t[0]:.3f}..{t[-1]:.3f} s, CAN {t_start:.3f}..{t_end:.3f} s on the CAN clock); "
+                    "give the clock offset (--clock-offset / --imu-offset)", str(path))
+    channels: dict[str, np.ndarray] = {"time": grid}
+    gaps: dict[str, list] = {}
+    chan_info: dict[str, dict] = {}
+    for ch, (t, v) in raw.items():
+        if ch in STRING_CHANNELS:
+            kind = "string"
+        elif ch == "heading":
+            kind = "angle"
+        elif ch in smap.channels and origin[ch].startswith("can"):
+            kind = smap.channels[ch].resample
+        else:
+            kind = "linear"
+        out, g = resample(t, v, grid, kind, gap_s)
+        channels[ch] = out
+        if g:
+            gaps[ch] = [x.to_dict() for x in g]
+        valid = (out != "") if ch in STRING_CHANNELS else np.isfinite(out)
+        d = np.diff(t)
+        chan_info[ch] = {
+            "unit": CHANNELS[ch], "source": origin[ch], "resample": kind,
+            "raw_samples": int(len(t)),
+            "raw_rate_hz": float(1.0 / np.median(d)) if len(d) and np.median(d) > 0 else None,
+            "valid_fraction": float(np.mean(valid)) if len(valid) else 0.0,
+            "gap_threshold_s": gap_threshold_s(t, gap_s),
+        }
+
+    # ------------------------------------------------------------- summary
+    speed_vs_gps = None
+    if "speed" in raw and "gps_speed" in raw:
+        a, b = channels["speed"], channels["gps_speed"]
+        m = np.isfinite(a) & np.isfinite(b) & (b > MOUNT_MIN_SPEED_MPS)
+        if m.sum() >= 10:
+            speed_vs_gps = {"ratio_mean": float(np.mean(a[m]) / np.mean(b[m])),
+                            "rms_difference_mps": float(np.sqrt(np.mean((a[m] - b[m]) ** 2))),
+                            "samples": int(m.sum())}
+    speed_source = None
+    if "speed" in smap.channels:
+        speed_source = smap.channels["speed"].describe()
+    summary = {
+        "hmpc_version": __version__,
+        "vehicle": smap.vehicle,
+        "sources": {"log": _source(log_path), "dbc": _source(dbc_path),
+                    "signals": _source(signals_path), "nav": _source(nav_path),
+                    "imu": _source(imu_path)},
+        "start_s": float(grid[0]),
+        "end_s": float(grid[-1]),
+        "duration_s": float(grid[-1] - grid[0]),
+        "rate_hz": float(rate_hz),
+        "samples": int(len(grid)),
+        "channels": chan_info,
+        "channels_absent": absent,
+        "speed_source": speed_source,
+        "speed_vs_gps": speed_vs_gps,
+        "clock": clock,
+        "heading_mount": mount,
+        "imu_gravity": gravity,
+        "nav_origin": None if nav is None or nav.origin is None else
+        {"lat_deg": nav.origin[0], "lon_deg": nav.origin[1], "alt_m": nav.origin[2]},
+        "gaps": gaps,
+        "problems": {"total": int(problems.total()), "items": problems.to_list()},
+    }
+    meta = dict(summary)
+    meta["path"] = log_s
+    rec = Recording(channels, raw, meta)
+    return IngestResult(rec, problems, summary)
+
+
+def _path_of(src: str, nav_path, imu_path) -> str:
+    return str(nav_path) if src == "nav" else str(imu_path)
