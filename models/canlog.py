@@ -49,10 +49,10 @@ FORMATS = TEXT_FORMATS + tuple(PYTHON_CAN_FORMATS)
 _SUFFIX_FORMAT = {".asc": "asc", ".blf": "blf", ".trc": "trc", ".mf4": "mf4", ".db": "sqlite"}
 
 # Problem kinds (stable strings: ``hmpc info`` and --json key on them).
-KIND_MALFORMED = "malformed line"
-KIND_REMOTE = "remote frame (no payload)"
-KIND_ERROR_FRAME = "error frame"
-KIND_DUPLICATE = "duplicate frame (same time, bus, id and payload)"
+KIND_MALFORMED = "malformed line (skipped)"
+KIND_REMOTE = "remote frame (no payload, dropped)"
+KIND_ERROR_FRAME = "error frame (dropped)"
+KIND_DUPLICATE = "duplicate frame (same time, bus, id and payload; dropped)"
 KIND_BACKWARDS = "timestamp earlier than the previous frame (frames re-sorted by time, kept)"
 KIND_JUMP = "clock jump forward (frames kept)"
 #: kinds whose frames were dropped (the rest are kept and only reported)

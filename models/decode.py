@@ -34,10 +34,10 @@ import numpy as np
 from models.errors import InputError, Problems
 from models.frames import FrameTable
 
-KIND_SHORT = "payload shorter than DBC length"
+KIND_SHORT = "payload shorter than DBC length (not decoded)"
 KIND_LONG = "payload longer than DBC length (extra bytes ignored)"
 KIND_UNKNOWN_ID = "frame id not in the DBC (not decoded)"
-KIND_UNDECODABLE = "frame does not decode (cantools DecodeError)"
+KIND_UNDECODABLE = "frame does not decode (cantools DecodeError; not decoded)"
 
 #: at most this many messages are selected by one boolean mask each; more -> one sort
 _MASK_MESSAGES = 12

@@ -120,5 +120,5 @@ class Problems:
             first = ", ".join(str(x) for x in p.first)
             at = f" (first at {first})" if first else ""
             det = f": {p.detail}" if p.detail else ""
-            out.append(f"{p.path}: skipped {p.count} x {p.kind}{at}{det}")
+            out.append(f"{p.path}: {p.count} x {p.kind}{at}{det}")
         return out

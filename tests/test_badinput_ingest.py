@@ -165,7 +165,7 @@ def test_nan_inf_in_nav_is_recoverable(tmp_path, comma_log, comma_dbc, capsys):
     rc, err = cli_run(["ingest", comma_log, "--dbc", comma_dbc, "--signals", MAP17, "--nav", nav,
                        "--out", tmp_path / "r.csv", "--json", js], capsys)
     assert rc == 0
-    assert "skipped 4 x row with NaN or inf" in err and "4, 101, 102, 501" in err
+    assert "4 x row with NaN or inf (skipped)" in err and "4, 101, 102, 501" in err
     summary = json.loads(js.read_text())
     assert any(i["count"] == 4 and i["file"] == str(nav) for i in summary["problems"]["items"])
 

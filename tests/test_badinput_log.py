@@ -73,7 +73,7 @@ def test_truncated_and_garbled_lines_are_skipped_and_counted(tmp_path, real_line
     assert 81 in ft.where and 11 not in ft.where
     rc, out, err = _cli(capsys, p, "--json", tmp_path / "info.json")
     assert rc == 0
-    assert "skipped 7 x malformed line (first at 11, 21, 31, 41, 51)" in err
+    assert "7 x malformed line (skipped) (first at 11, 21, 31, 41, 51)" in err
     info = json.loads((tmp_path / "info.json").read_text())
     assert info["malformed_lines"] == 7 and info["malformed_where"] == [11, 21, 31, 41, 51]
     assert info["frames"] == N_LINES - 7

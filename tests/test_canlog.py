@@ -16,7 +16,7 @@ import can
 import numpy as np
 import pytest
 
-from models.canlog import read_log
+from models.canlog import KIND_REMOTE, read_log
 from models.errors import InputError, Problems
 
 
@@ -141,7 +141,7 @@ def test_candump_variants_and_bus_names(tmp_path):
     assert list(ft.bus) == [0, 1, 1, 0, 2]  # slcan: next free number
     assert list(ft.where) == [1, 2, 3, 4, 7]
     assert [(q.kind, q.count, q.first) for q in problems] == [
-        ("remote frame (no payload)", 1, [5])]
+        (KIND_REMOTE, 1, [5])]
 
 
 def test_format_detection_by_content(tmp_path, comma_log):

@@ -33,8 +33,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
-if str(REPO) not in sys.path:  # run as a script from a checkout: make `models` importable
-    sys.path.insert(0, str(REPO))
 
 from models.canlog import read_log  # noqa: E402
 from models.dbc import load_dbc  # noqa: E402
@@ -86,7 +84,6 @@ def build_log(out: Path, minutes: int) -> tuple[int, float]:
 
 CHILD = r"""
 import json, sys, time
-sys.path.insert(0, sys.argv[4])
 t0 = time.perf_counter()
 from models.ingest import ingest_files
 t1 = time.perf_counter()
@@ -104,7 +101,7 @@ def run_ingest(log: Path, dbc: Path, signals: Path) -> dict:
     """``ingest_files`` in a child process: wall time and peak RSS of the child."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", CHILD, str(log), str(dbc), str(signals), str(REPO)],
+    proc = subprocess.run([sys.executable, "-c", CHILD, str(log), str(dbc), str(signals)],
                           capture_output=True, text=True)
     wall = time.perf_counter() - t0
     peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
