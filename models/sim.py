@@ -499,6 +499,13 @@ class TruthPlant:
         return TruthStep(res, u_e, self.plant.accel(res.zone, th_e, br_e), a_x)
 
 
+def _phase_segment(ph: _Phase, t0_s: float, t1_s: float) -> dict:
+    what = {"throttle": f"throttle {ph.level:.2f}", "sweep": f"throttle sweep {ph.level:.2f}-"
+            f"{ph.level_end:.2f}", "brake": f"brake {ph.level:.2f}", "hold": f"hold brake "
+            f"{ph.level:.2f} at rest", "coast": "coast (no pedal)"}[ph.kind]
+    return {"label": f"open loop {what}", "t_start_s": round(t0_s, 6), "t_end_s": round(t1_s, 6)}
+
+
 def _drive(params: Params, plan: _Plan, dt: float, rng, effects: list[Effect],
            driver: DriverConfig, psi0: float) -> Truth:
     """Run the driver and the plant; return the truth on the internal grid."""
@@ -563,11 +570,13 @@ def _drive(params: Params, plan: _Plan, dt: float, rng, effects: list[Effect],
                 else:
                     done = el >= ph.dur_s
                 if done and phase_i + 1 < len(plan.program):
+                    plan.segments.append(_phase_segment(ph, phase_t0, t))
                     phase_i += 1
                     phase_t0 = t
                     continue
                 break
             if done:  # programme finished
+                plan.segments.append(_phase_segment(ph, phase_t0, t))
                 n = k
                 break
             if kind == "throttle":
@@ -783,9 +792,6 @@ def run_experiment(name: str, params: Params, *, seed: int = 0, rate_hz: float =
     truth = _drive(params, plan, dt, rng_drive, effects, driver, psi0)
     ch, raw, sensor_truth, idx = measure(truth, params, rate_hz, noise, effects, rng_can, rng_ins)
     segments = plan.segments
-    if plan.program is not None:
-        segments = [{"label": "open-loop pedal programme", "t_start_s": 0.0,
-                     "t_end_s": round(float(truth["t_s"][-1]), 6)}]
     meta = {
         "source": "hmpc simulator (models.sim)",
         "experiment": name,

@@ -4,6 +4,7 @@ covering what each of the report's experiments should, and effects doing what th
 Seeds are fixed (printed in the parametrisation). Noise level "none" gives ideal sensors, on
 which the report's eqs. 1, 7 and 8 must hold exactly; "typical" is what identification sees.
 """
+import json
 import math
 
 import numpy as np
@@ -60,6 +61,7 @@ def test_same_seed_same_recording_and_different_seed_differs(report):
     assert not np.array_equal(a["x"], c["x"])
     assert a.meta["seed"] == 7 and a.meta["experiment"] == "figure8"
     assert a.meta["params"] == report.to_dict() and a.meta["effects"] == []
+    assert json.loads(json.dumps(a.meta)) == a.meta  # plain JSON: the CLI can write it as is
 
 
 def test_effect_objects_are_reusable_between_runs(report):
