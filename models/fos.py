@@ -1,0 +1,272 @@
+"""Fast Orthogonal Search (FOS): hmpc's term-selection engine.
+
+Korenberg, "A robust orthogonal algorithm for system identification and time-series
+analysis", Biol. Cybern. 60 (1989) 267-276 (the report's ref. [6]); applied to identification
+by Eklund, Korenberg and McLellan, J. Process Control 17 (2007) 742-754 (ref. [5]).
+
+Given a target ``y`` [N] and a matrix of candidate terms ``P`` [N, M] with names, FOS builds
+the model ``y ~ sum_k a_k p_{m_k}`` one term at a time, each time adding the candidate whose
+orthogonal component gives the largest reduction of the mean-squared error. The
+orthogonalisation is *implicit*: only the time averages of products of candidates
+(``G = P'P/N``), and of candidates with the target (``P'y/N``), are formed, once. The
+Gram-Schmidt quantities follow by Korenberg's recursions, for a selected set ``m_0..m_{r-1}``
+and any remaining candidate ``m``::
+
+    D(m, 0) = G[m, m_0]
+    D(m, r) = G[m, m_r] - sum_{i<r} alpha(r, i) D(m, i)          alpha(m, r) = D(m, r) / D(r, r)
+    C(m)    = (P'y/N)[m] - sum_{r} alpha(m, r) C(r)
+    g_m     = C(m) / D(m, m)          error reduction  Q(m) = g_m^2 D(m, m) = C(m)^2 / D(m, m)
+
+so choosing a term costs O(M K) per candidate, never a pass over the N samples. The
+coefficients of the selected terms follow from the orthogonal ones by back-substitution and
+equal ordinary least squares on the selected columns (tested in ``tests/test_fos.py``).
+
+Stopping: a term is added only while (1) fewer than ``max_terms`` are selected, (2) its error
+reduction is at least ``min_reduction`` times the target's mean square (the training MSE of the
+empty model) and at least Korenberg's noise threshold ``4 / (N_train + 1)`` times the current
+MSE (a white-noise candidate would reduce the MSE by about ``1/(N+1)`` of it; he uses 4x), and
+(3) the MSE on held-out data keeps falling: after ``patience`` terms that do not lower the
+held-out MSE by ``min_holdout_gain`` (relative), the search stops, and the selection is cut back
+to the prefix with the lowest held-out MSE. Held-out samples are whole blocks of consecutive
+samples (``block_len``): with time series, neighbouring samples are correlated, so a randomly
+interleaved hold-out would not test generalisation.
+
+The module is generic (a matrix and names in, a selection out): the steering and accelerator
+identification use it now, the mismatch diagnosis will reuse it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+
+@dataclass
+class FosResult:
+    """Outcome of :func:`fos`.
+
+    Attributes:
+        terms: names of the selected terms, in order of selection.
+        indices: their column indices in the candidate matrix.
+        coefficients: coefficient of each selected term (same order); equal to ordinary least
+            squares of the training target on the selected training columns.
+        error_reduction: mean-squared-error reduction of each term when it was added [unit of
+            y, squared] (training data).
+        error_reduction_fraction: the same, as a fraction of the training target's mean square.
+        train_mse_path: training MSE after 0, 1, ..., K terms (K = all terms tried).
+        holdout_mse_path: held-out MSE after 0, 1, ..., K terms (empty without a hold-out).
+        tried: names of all terms added before the stop (``terms`` is a prefix of it).
+        stop_reason: why the search stopped (text).
+        train_mask: boolean mask of the samples used to fit (all True without a hold-out).
+    """
+
+    terms: list[str]
+    indices: list[int]
+    coefficients: np.ndarray
+    error_reduction: np.ndarray
+    error_reduction_fraction: np.ndarray
+    train_mse_path: np.ndarray
+    holdout_mse_path: np.ndarray
+    tried: list[str]
+    stop_reason: str
+    train_mask: np.ndarray = field(repr=False)
+
+    def predict(self, P: np.ndarray) -> np.ndarray:
+        """Model output for a candidate matrix with the same columns as the one searched."""
+        P = np.asarray(P, dtype=float)
+        if not self.indices:
+            return np.zeros(P.shape[0])
+        return P[:, self.indices] @ self.coefficients
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (names, coefficients, reductions, MSE paths)."""
+        return {
+            "terms": list(self.terms),
+            "coefficients": [float(c) for c in self.coefficients],
+            "error_reduction_fraction": [float(q) for q in self.error_reduction_fraction],
+            "train_mse_path": [float(x) for x in self.train_mse_path],
+            "holdout_mse_path": [float(x) for x in self.holdout_mse_path],
+            "tried": list(self.tried),
+            "stop_reason": self.stop_reason,
+        }
+
+
+def block_holdout(n: int, *, fraction: float = 0.25, block_len: int = 250) -> np.ndarray:
+    """Boolean mask of held-out samples: every ``round(1/fraction)``-th block of ``block_len``.
+
+    Deterministic (no randomness): blocks 0..k-2 train, block k-1 is held out, and so on, so
+    every part of a recording contributes to both sets. Returns all False when ``n`` is too short
+    to hold out at least one block and keep three for training.
+    """
+    if not 0.0 < fraction < 1.0:
+        raise ValueError(f"fraction must be in (0, 1), got {fraction}")
+    if block_len < 1:
+        raise ValueError(f"block_len must be >= 1, got {block_len}")
+    period = max(int(round(1.0 / fraction)), 2)
+    block = np.arange(n) // block_len
+    mask = (block % period) == (period - 1)
+    if mask.sum() == 0 or (~mask).sum() < 3 * block_len:
+        return np.zeros(n, dtype=bool)
+    return mask
+
+
+def fos(P: np.ndarray, y: np.ndarray, names: list[str] | None = None, *,
+        holdout: np.ndarray | None | str = "blocks", holdout_fraction: float = 0.25,
+        block_len: int = 250, max_terms: int | None = None, min_reduction: float = 1e-4,
+        noise_threshold: bool = True, patience: int = 2, min_holdout_gain: float = 1e-3,
+        force: list[str] | tuple[str, ...] = (), collinear_tol: float = 1e-9) -> FosResult:
+    """Select terms of ``y ~ P[:, S] a`` greedily by error reduction (see the module doc).
+
+    Args:
+        P: candidate matrix [N, M]; a constant term is a column of ones.
+        y: target [N].
+        names: a name per column (default ``p0..p{M-1}``).
+        holdout: boolean mask [N] of held-out samples, ``"blocks"`` for
+            :func:`block_holdout` (``holdout_fraction``, ``block_len``), or None for no
+            hold-out (all samples fit; the held-out rule is then off).
+        max_terms: at most this many terms (default: all candidates).
+        min_reduction: smallest error reduction accepted, as a fraction of mean(y^2).
+        noise_threshold: apply Korenberg's 4/(N+1) rule.
+        patience: stop after this many consecutive terms that fail to lower the held-out MSE.
+        min_holdout_gain: relative held-out MSE decrease that counts as lowering it.
+        force: names selected first, in this order, whatever their error reduction (e.g. the
+            constant). They are never cut back.
+        collinear_tol: a candidate whose orthogonal component has a mean square below this
+            fraction of its own mean square is linearly dependent on the selection: skipped.
+
+    Raises:
+        ValueError: shapes that do not match, non-finite values, unknown ``force`` names.
+    """
+    P = np.asarray(P, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if P.ndim != 2 or y.ndim != 1 or P.shape[0] != y.shape[0]:
+        raise ValueError(f"expected P [N, M] and y [N], got {P.shape} and {y.shape}")
+    n, m = P.shape
+    if names is None:
+        names = [f"p{i}" for i in range(m)]
+    names = list(names)
+    if len(names) != m or len(set(names)) != m:
+        raise ValueError("names must be unique, one per column of P")
+    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(y))):
+        raise ValueError("P and y must be finite (drop NaN rows before calling fos)")
+    if isinstance(holdout, str):
+        if holdout != "blocks":
+            raise ValueError(f"holdout must be a mask, 'blocks' or None, got {holdout!r}")
+        hmask = block_holdout(n, fraction=holdout_fraction, block_len=block_len)
+    elif holdout is None:
+        hmask = np.zeros(n, dtype=bool)
+    else:
+        hmask = np.asarray(holdout, dtype=bool)
+        if hmask.shape != (n,):
+            raise ValueError(f"holdout mask must have shape ({n},)")
+    train = ~hmask
+    use_holdout = bool(hmask.any())
+    if train.sum() < 2:
+        raise ValueError("fewer than 2 training samples")
+    for f in force:
+        if f not in names:
+            raise ValueError(f"force names an unknown term {f!r}")
+    max_terms = m if max_terms is None else min(int(max_terms), m)
+
+    Pt, yt = P[train], y[train]
+    nt = Pt.shape[0]
+    # The only passes over the data: time averages of products (Korenberg's correlations).
+    G = (Pt.T @ Pt) / nt          # [M, M]
+    c0 = (Pt.T @ yt) / nt         # [M]
+    y2 = float(yt @ yt) / nt      # mean square of the target = MSE of the empty model
+    Ph, yh = P[hmask], y[hmask]
+
+    sel: list[int] = []
+    D = np.zeros((max_terms, m))               # D[r, j] = D(j, r) = mean(p_j w_r), all candidates
+    alpha = np.zeros((max_terms, max_terms))   # alpha[r, i] = alpha(m_r, i), i < r
+    Dd = np.zeros(max_terms)                   # D(m_r, m_r) = mean(w_r^2)
+    g = np.zeros(max_terms)                    # weights of the orthogonal functions w_r
+    # For every candidate j, the mean square of its component orthogonal to the selection so
+    # far, and that component's mean product with y (Korenberg's D(j, j) and C(j)); one
+    # recursion step per selected term keeps them current.
+    diagG = np.diag(G).copy()
+    Djj = diagG.copy()
+    Cj = c0.copy()
+    available = np.ones(m, dtype=bool)
+    forced = [names.index(f) for f in force]
+
+    mse = y2
+    train_path = [mse]
+    hold_path = [float(np.mean(yh ** 2))] if use_holdout else []
+    reductions: list[float] = []
+    best_k, best_hold, bad = 0, (hold_path[0] if use_holdout else np.inf), 0
+    stop = "all candidates used" if max_terms >= m else f"max_terms ({max_terms}) reached"
+
+    while len(sel) < max_terms:
+        r = len(sel)
+        ok = available & (Djj > collinear_tol * np.maximum(diagG, 1e-300))
+        if r < len(forced):
+            j = forced[r]
+            if not ok[j]:
+                raise ValueError(f"forced term {names[j]!r} is linearly dependent on the others")
+        else:
+            if not ok.any():
+                stop = "remaining candidates are linearly dependent on the selection"
+                break
+            q = np.full(m, -np.inf)
+            q[ok] = Cj[ok] ** 2 / Djj[ok]
+            j = int(np.argmax(q))
+            if q[j] < min_reduction * y2:
+                stop = f"best error reduction {q[j] / y2:.2e} of mean(y^2) is below min_reduction"
+                break
+            if noise_threshold and q[j] < 4.0 / (nt + 1) * mse:
+                stop = "best error reduction is below Korenberg's 4/(N+1) noise threshold"
+                break
+        # ---- accept candidate j as term r
+        for i in range(r):                       # alpha(m_r, i) = D(m_r, i) / D(i, i)
+            alpha[r, i] = D[i, j] / Dd[i]
+        D[r] = G[:, j] - alpha[r, :r] @ D[:r]    # D(:, r) by the recursion
+        Dd[r] = D[r, j]
+        g[r] = Cj[j] / Dd[r]
+        a_col = D[r] / Dd[r]                     # alpha(j', r) for every candidate j'
+        Djj = Djj - a_col * D[r]
+        Cj = Cj - a_col * Cj[j]
+        sel.append(j)
+        available[j] = False
+        reductions.append(g[r] ** 2 * Dd[r])
+        mse = max(mse - reductions[-1], 0.0)
+        train_path.append(mse)
+        k = len(sel)
+        if not use_holdout:
+            best_k = k
+            continue
+        coef = _coefficients(g[:k], alpha[:k, :k])
+        h = float(np.mean((yh - Ph[:, sel] @ coef) ** 2))
+        hold_path.append(h)
+        if k <= len(forced) or h < best_hold * (1.0 - min_holdout_gain):
+            best_k, best_hold, bad = k, h, 0
+        else:
+            bad += 1
+            if bad >= patience:
+                stop = (f"held-out MSE did not fall by {min_holdout_gain:g} (relative) for "
+                        f"{patience} term(s)")
+                break
+
+    k = best_k
+    coef = _coefficients(g[:k], alpha[:k, :k])
+    red = np.array(reductions[:k])
+    return FosResult(
+        terms=[names[i] for i in sel[:k]], indices=sel[:k], coefficients=coef,
+        error_reduction=red, error_reduction_fraction=(red / y2) if y2 > 0 else np.zeros(k),
+        train_mse_path=np.array(train_path), holdout_mse_path=np.array(hold_path),
+        tried=[names[i] for i in sel], stop_reason=stop, train_mask=train)
+
+
+def _coefficients(g: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """Coefficients of the selected terms from the weights g of the orthogonal functions.
+
+    With ``w_r = p_{m_r} - sum_{i<r} alpha(r, i) w_i``, the selected columns are
+    ``P_S = W L'`` where L is unit lower triangular with ``L[r, i] = alpha(r, i)``. So
+    ``y ~ W g = P_S (L')^-1 g`` and the coefficients solve the upper-triangular ``L' a = g``.
+    """
+    k = len(g)
+    if k == 0:
+        return np.zeros(0)
+    L = np.tril(alpha[:k, :k], -1) + np.eye(k)
+    return scipy.linalg.solve_triangular(L.T, g, lower=False, unit_diagonal=True)

@@ -1,0 +1,173 @@
+"""``identify``: the report's steering map (eq. 7) and zone accelerator models (eq. 8) from a
+recording, as a parameter set the controller loads, plus a report of every figure.
+
+Steps: :func:`models.steering_id.identify_steering` (wheel-speed and yaw-rate fits, eq. 1
+position replay, dead time, intervals, identifiability) and
+:func:`models.longitudinal_id.identify_longitudinal` (per-zone eq. 8 with brake, FOS term
+selection, NMSE%, speed RMSE, intervals). The geometry (wheelbase, track) comes from the
+vehicle file and is copied to the result unchanged.
+
+The result's ``params`` holds the keys of ``../shared/CONVENTIONS.md`` and the optional keys of
+``models.params`` (delays, intervals, fit metrics, identifiability flags and notes,
+provenance); ``report`` holds the same figures and more, JSON-ready, with stable keys.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .channels import STRING_CHANNELS
+from .errors import InputError
+from .longitudinal_id import LongitudinalIdConfig, LongitudinalResult, identify_longitudinal
+from .params import Params, Steering, Vehicle
+from .recording import Recording
+from .steering_id import SteeringIdConfig, SteeringResult, identify_steering
+
+
+@dataclass
+class IdentifyResult:
+    """``params``: the identified model; ``report``: every figure (JSON-ready);
+    ``steering``/``longitudinal``: the detailed results (with time series for plots)."""
+
+    params: Params
+    report: dict
+    steering: SteeringResult
+    longitudinal: LongitudinalResult
+
+
+def sha256_file(path: str | Path) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def concat_recordings(recs: list[Recording], gap_s: float = 2.0) -> Recording:
+    """Join recordings on one uniform grid, separated by ``gap_s`` of missing samples.
+
+    All must share one rate (within 0.1%). Every channel present in any recording is kept
+    (NaN, or "" for strings, where a recording lacks it). The gap keeps smoothing windows and
+    replay windows from bridging two recordings; positions may jump across it.
+
+    Raises:
+        ValueError: no recordings, or different rates.
+    """
+    if not recs:
+        raise ValueError("no recordings to join")
+    rate = recs[0].rate_hz
+    for r in recs[1:]:
+        if abs(r.rate_hz - rate) > 1e-3 * rate:
+            raise ValueError(f"rates differ: {rate} Hz and {r.rate_hz} Hz")
+    dt = 1.0 / rate
+    names: list[str] = []
+    for r in recs:
+        names += [k for k in r.channels if k not in names]
+    gap_n = max(int(round(gap_s / dt)), 1)
+    cols: dict[str, list] = {k: [] for k in names}
+    t_next = 0.0
+    for i, r in enumerate(recs):
+        n = len(r)
+        tt = t_next + np.arange(n) * dt
+        for k in names:
+            if k == "time":
+                cols[k].append(tt)
+            elif k in r.channels:
+                cols[k].append(np.asarray(r.channels[k]))
+            else:
+                cols[k].append(np.full(n, "", dtype=object) if k in STRING_CHANNELS
+                               else np.full(n, np.nan))
+        t_next = tt[-1] + dt
+        if i < len(recs) - 1:
+            gt = t_next + np.arange(gap_n) * dt
+            for k in names:
+                if k == "time":
+                    cols[k].append(gt)
+                else:
+                    cols[k].append(np.full(gap_n, "", dtype=object) if k in STRING_CHANNELS
+                                   else np.full(gap_n, np.nan))
+            t_next = gt[-1] + dt
+    channels = {k: np.concatenate(v) for k, v in cols.items()}
+    meta = {"joined": [r.meta.get("experiment") or r.meta.get("path") for r in recs],
+            "gaps": [], "path": "+".join(str(r.meta.get("path", "?")) for r in recs)}
+    return Recording(channels, {}, meta)
+
+
+def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
+             steering_config: SteeringIdConfig | None = None,
+             longitudinal_config: LongitudinalIdConfig | None = None,
+             sources: dict | None = None, progress=None) -> IdentifyResult:
+    """Identify eq. 7 and eq. 8 (+ brake) per zone from ``recording``.
+
+    Args:
+        recording: a canonical recording (``models.recording``).
+        vehicle: the measured geometry (``load_params(path).vehicle``).
+        zones: speed zones as ``[(name, v_min_mps, v_max_mps), ...]`` (default idle [0, 2],
+            low (2, 5], high (5, 20] m/s); overrides ``longitudinal_config.zones``.
+        steering_config, longitudinal_config: thresholds (defaults documented there).
+        sources: provenance of the input files, ``{role: path}``; hashed into the result.
+        progress: callable receiving progress lines (the CLI prints them on stderr).
+
+    Raises:
+        InputError: a required channel is absent, or the recording has too little usable data.
+    """
+    say = progress or (lambda msg: None)
+    lcfg = longitudinal_config or LongitudinalIdConfig()
+    if zones is not None:
+        lcfg = replace(lcfg, zones=tuple((str(n), float(a), float(b)) for n, a, b in zones))
+    if len(recording) < 10:
+        raise InputError(f"the recording has only {len(recording)} samples",
+                         recording.meta.get("path"))
+    say(f"identify: {len(recording)} samples at {recording.rate_hz:.3g} Hz")
+    st = identify_steering(recording, vehicle, steering_config, progress=say)
+    lo = identify_longitudinal(recording, vehicle, lcfg, progress=say)
+
+    steering = Steering(
+        offset_rad=float(st.offset_rad), scale=float(st.scale), dead_time_s=float(st.dead_time_s),
+        offset_ci95_rad=tuple(float(x) for x in st.offset_ci95_rad),
+        scale_ci95=tuple(float(x) for x in st.scale_ci95),
+        rms_error_rad=float(st.rms_error_rad), method=st.method,
+        identifiable=bool(st.identifiable), note=st.note)
+    t = recording.time
+    prov: dict = {"hmpc_version": __version__,
+                  "time_start_s": float(t[0]), "time_end_s": float(t[-1]),
+                  "duration_s": float(t[-1] - t[0]), "samples": int(len(t)),
+                  "rate_hz": float(round(recording.rate_hz, 6))}
+    for role, path in (sources or {}).items():
+        if path:
+            prov[f"{role}_file"] = str(path)
+            prov[f"{role}_sha256"] = sha256_file(path)
+    params = Params(vehicle=replace(vehicle), steering=steering, zones=lo.zones,
+                    longitudinal_dead_time_s=float(lo.dead_time_s),
+                    hysteresis_mps=lcfg.hysteresis_mps if lcfg.hysteresis_mps > 0 else None,
+                    accel_source=lo.accel_source, provenance=prov)
+    report = {
+        "hmpc_version": __version__,
+        "provenance": prov,
+        "vehicle": {"wheelbase_m": vehicle.wheelbase_m, "track_front_m": vehicle.track_front_m},
+        "steering": st.report,
+        "longitudinal": lo.report,
+    }
+    return IdentifyResult(params, _finite_json(report), st, lo)
+
+
+def _finite_json(obj):
+    """Replace NaN/inf by None and numpy scalars by Python numbers (JSON has no NaN)."""
+    if isinstance(obj, dict):
+        return {k: _finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_json(v) for v in obj]
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    return obj

@@ -1,0 +1,638 @@
+"""Steering map identification: road-wheel angle = offset + scale * steering-wheel angle (eq. 7).
+
+Geometry (ISO 8855; the report's eq. 1 point F is the front-axle centre, moving at speed v in
+the direction heading + delta, yaw rate r = v sin(delta) / b, b = wheelbase): with no tyre
+slip, the front wheels at F +- T_f/2 move at ``fl, fr = |(v cos(delta) -+ r T_f/2, v sin(delta))|``
+and the rear-axle centre at ``v_R = v cos(delta) = (rl + rr) / 2``. Two measurements of the
+road-wheel angle delta of the virtual middle tyre follow:
+
+(a) **front wheel-speed difference** (the report's eqs. 2-6): eq. 5 gives the turn rate
+    ``omega = (fr - fl) / T_f``. Eq. 6 as printed, ``delta_t = omega / v``, is the path
+    *curvature* [1/m], not an angle; the angle follows from the kinematic relation with the
+    wheelbase, ``sin(delta) = b omega / v``. hmpc inverts the exact rigid-body relations above,
+    ``fr^2 - fl^2 = T_f v^2 sin(2 delta) / b`` and ``fl^2 + fr^2 = 2 v^2 (1 + T_f^2 sin^2(delta) /
+    (4 b^2))`` (closed form), which reduce to eqs. 5-6 with the wheelbase for small
+    angles and stay exact at full lock (0.66 rad), where eq. 5 alone is 5-20% off.
+(b) **yaw rate and speed**: ``tan(delta) = b r / v_R`` (= atan(L r / v) with v the rear-axle
+    speed; equivalently sin(delta) = b r / v with the front-axle speed). Fitted in the rate
+    domain, ``r = r_bias + v_R tan(offset + scale * sw) / b``, where the yaw-rate noise is white
+    and a gyro bias ``r_bias`` [rad/s] is estimated with the map: at 2.4 m/s a 0.002 rad/s bias
+    would otherwise shift the offset by 0.0022 rad. Separating the bias from the offset needs
+    a range of speeds (the parameter correlation is reported).
+
+**Trustworthy samples** (:class:`SteeringIdConfig`, each threshold with its reason): moving
+(front-axle speed >= ``v_min_mps``), forward gear, finite channels, no wheel slip (rear-axle
+speed within ``slip_max`` of ``v cos(delta)``), longitudinal acceleration within
+``accel_max_mps2`` and lateral acceleration within ``lat_accel_max_mps2`` (the tyres' linear
+range), and, for the least-squares fits, no transients (steering-wheel rate below
+``sw_rate_max_radps``); every excluded sample also excludes ``guard_s`` around it.
+
+**Dead time**: cross-correlation of the Savitzky-Golay derivatives of the steering-wheel angle
+and of the measured road-wheel angle, peak interpolated by a parabola. The fits use the
+steering-wheel angle delayed by it.
+
+**Refinement** (the report's "compare the actual position with our estimate"): the bicycle model
+(eq. 1) is replayed over non-overlapping windows of ``window_s`` from the measured position and
+heading at each window's start, driven by the measured front-axle speed and the delayed
+steering-wheel angle, and offset and scale minimise the position error
+(``scipy.optimize.least_squares``). Needs ``x``, ``y``, ``heading``.
+
+**Intervals**: 95%, from sandwich covariances that allow correlated residuals
+(``models.stats``): time-block clusters for the direct fits, replay windows as clusters for the
+refinement, Student-t critical values.
+
+**Identifiability** (:func:`identifiability`): the final estimate is called identifiable only
+when enough trustworthy samples exist, the steering-wheel range is wide enough, offset and
+scale are not too correlated, their intervals are narrow, and some steering happened at speeds
+where the kinematic (no side-slip) assumption holds. Otherwise ``identifiable`` is False and the
+note says plainly what the recording cannot separate.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import t as student_t
+
+from .errors import InputError
+from .params import Vehicle
+from .recording import Recording
+from .stats import Z95, block_cov, cluster_cov, dilate, ols_hac, savgol_derivative
+
+
+@dataclass(frozen=True)
+class SteeringIdConfig:
+    """Thresholds of steering identification (the reason for each number in its comment)."""
+
+    #: [m/s] below this the 0.01 km/h wheel-speed step is > 0.4% of the speed difference a
+    #: 1 deg road-wheel angle makes; the report's slowest arcs run at 2.4 m/s.
+    v_min_mps: float = 1.5
+    #: [1] rear-axle speed vs front-axle speed x cos(delta): 3% is well above the 0.01 km/h
+    #: quantisation at 1.5 m/s (0.2%) and below the slip of hard traction or braking.
+    slip_max: float = 0.03
+    #: [m/s^2] |dv/dt| above this (about 0.3 g) means longitudinal tyre slip.
+    accel_max_mps2: float = 3.0
+    #: [m/s^2] lateral acceleration above 0.4 g leaves the tyres' linear range (side slip).
+    lat_accel_max_mps2: float = 4.0
+    #: [rad/s] steering-wheel rate above ~86 deg/s: transients (tyre relaxation, yaw lag, message
+    #: timing) dominate; excluded from the direct fits only (the replay handles dynamics).
+    sw_rate_max_radps: float = 1.5
+    #: [s] excluded margin around every excluded sample (resampling and smoothing spread).
+    guard_s: float = 0.3
+    #: [s] Savitzky-Golay window for the steering rate, accelerations and the dead time.
+    smooth_s: float = 0.5
+    #: [s] dead-time search range (negative: measurement leads, a clock problem).
+    dead_time_min_s: float = -0.2
+    dead_time_max_s: float = 1.0
+    #: [1] dead time is used only when the cross-correlation peak reaches this.
+    dead_time_min_corr: float = 0.3
+    #: [s] replay window of the refinement: long enough for a heading error to show in
+    #: position, short enough that INS drift and model error stay small.
+    window_s: float = 5.0
+    #: [samples] position residual every this many samples (0.1 s at 50 Hz).
+    replay_stride: int = 5
+    # ---- identifiability
+    #: [samples] fewest trustworthy samples (10 s at 50 Hz).
+    min_samples: int = 500
+    #: [rad] steering-wheel range (2.5-97.5 percentile) needed: below ~29 deg at the wheel the
+    #: road-wheel angle is < ~1.7 deg, comparable to sensor biases (tyre radius mismatch,
+    #: gyro bias, angle-sensor zero).
+    min_sw_range_rad: float = 0.5
+    #: [1] |correlation| of the offset and scale estimates above this: not separable.
+    max_param_corr: float = 0.95
+    #: [1] relative half-width of the scale's 95% interval above this: gain not determined.
+    max_scale_rel_ci: float = 0.10
+    #: [rad] half-width of the offset's 95% interval above this (0.3 deg) : offset not determined.
+    max_offset_ci_rad: float = 0.005
+    #: [m/s] the kinematic map (no side slip) is checked only with steering below this speed.
+    kinematic_speed_mps: float = 10.0
+    #: [s] of trustworthy steering below ``kinematic_speed_mps`` needed.
+    min_kinematic_s: float = 5.0
+
+
+@dataclass
+class MapFit:
+    """One fit of eq. 7: estimates, 95% intervals, and how they were obtained."""
+
+    method: str
+    offset_rad: float
+    scale: float
+    offset_ci95_rad: tuple[float, float]
+    scale_ci95: tuple[float, float]
+    corr: float
+    samples: int
+    rms_error: float
+    rms_unit: str
+    ci_method: str
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"method": self.method, "offset_rad": self.offset_rad, "scale": self.scale,
+                "offset_ci95_rad": list(self.offset_ci95_rad), "scale_ci95": list(self.scale_ci95),
+                "offset_scale_correlation": self.corr, "samples": self.samples,
+                f"rms_error_{self.rms_unit}": self.rms_error, "ci_method": self.ci_method,
+                **self.extra}
+
+
+@dataclass
+class SteeringResult:
+    """Outcome of :func:`identify_steering`.
+
+    ``offset_rad``/``scale`` are the final estimate: the first *identifiable* fit in the order
+    position replay (the refinement), yaw rate, wheel speeds; when none is, the fit with the
+    narrowest scale interval (flagged). ``fits`` holds all fits by name, ``report`` the
+    JSON-ready figures, ``series`` time series for plots (road-wheel angle estimates etc.).
+    """
+
+    offset_rad: float
+    scale: float
+    offset_ci95_rad: tuple[float, float]
+    scale_ci95: tuple[float, float]
+    dead_time_s: float
+    identifiable: bool
+    note: str
+    method: str
+    rms_error_rad: float
+    fits: dict[str, MapFit]
+    report: dict
+    series: dict = field(default_factory=dict, repr=False)
+
+
+# ----------------------------------------------------------------------------- kinematics
+def road_wheel_angle_from_front(fl_mps, fr_mps, wheelbase_m: float,
+                                track_front_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(a) Road-wheel angle [rad] and front-axle-centre speed [m/s] from the front wheel speeds.
+
+    Exact inverse of the no-slip rigid-body relations (module doc), in closed form: with
+    ``k = 2 b (fr^2 - fl^2) / (T (fl^2 + fr^2)) = sin(2 delta) / (1 + c s)``, ``c = T^2/(4 b^2)``
+    and ``s = sin^2(delta)``, ``k^2 (1 + c s)^2 = 4 s (1 - s)`` is a quadratic in s whose
+    smaller root belongs to |delta| < 45 deg. The angle is NaN at rest (both wheels at 0) and
+    the speed 0; both are NaN where a wheel speed is NaN.
+    """
+    fl = np.asarray(fl_mps, dtype=float)
+    fr = np.asarray(fr_mps, dtype=float)
+    b, T = float(wheelbase_m), float(track_front_m)
+    S, Q = fr * fr - fl * fl, fl * fl + fr * fr
+    c = T * T / (4.0 * b * b)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = 2.0 * b * S / (T * Q)
+        k2 = k * k
+        A, B = k2 * c * c + 4.0, 2.0 * k2 * c - 4.0
+        disc = np.maximum(B * B - 4.0 * A * k2, 0.0)
+        sq = np.clip((-B - np.sqrt(disc)) / (2.0 * A), 0.0, 0.5)
+        delta = np.sign(k) * np.arcsin(np.sqrt(sq))
+        v = np.sqrt(Q / (2.0 * (1.0 + c * np.nan_to_num(sq))))
+    moving = Q > 0
+    return np.where(moving, delta, np.nan), np.where(np.isfinite(Q), v, np.nan)
+
+
+def road_wheel_angle_from_yaw(yaw_rate_radps, v_rear_mps, wheelbase_m: float,
+                              yaw_bias_radps: float = 0.0) -> np.ndarray:
+    """(b) Road-wheel angle [rad] = atan(b (r - bias) / v_R), v_R the rear-axle speed [m/s]."""
+    r = np.asarray(yaw_rate_radps, dtype=float) - yaw_bias_radps
+    v = np.asarray(v_rear_mps, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(v > 0, np.arctan(wheelbase_m * r / v), np.nan)
+
+
+def delayed(x: np.ndarray, delay_s: float, dt_s: float) -> np.ndarray:
+    """``x(t - delay_s)`` on the same grid, linear interpolation; NaN where it reaches before t0."""
+    x = np.asarray(x, dtype=float)
+    if delay_s == 0.0:
+        return x.copy()
+    idx = np.arange(len(x)) - delay_s / dt_s
+    out = np.interp(idx, np.arange(len(x)), x, left=np.nan, right=np.nan)
+    lo = np.floor(idx).astype(int)
+    hi = lo + 1
+    ok = (lo >= 0) & (hi < len(x))
+    nan_src = ~np.isfinite(x)
+    bad = ~ok
+    bad[ok] |= nan_src[lo[ok]] | nan_src[hi[ok]]
+    out[bad] = np.nan
+    return out
+
+
+def xcorr_dead_time(u: np.ndarray, y: np.ndarray, mask: np.ndarray, dt_s: float, *,
+                    min_lag_s: float, max_lag_s: float) -> tuple[float, float]:
+    """Lag [s] at which ``corr(u(t - lag), y(t))`` peaks over ``mask``, and the peak correlation.
+
+    Both series are mean-removed over ``mask`` and zero elsewhere; the correlation at each lag
+    is normalised by the energy of the overlapping parts. Sub-sample by a parabola.
+    """
+    m = np.asarray(mask, dtype=bool) & np.isfinite(u) & np.isfinite(y)
+    if m.sum() < 50:
+        return float("nan"), float("nan")
+    a = np.where(m, u - np.mean(u[m]), 0.0)
+    c = np.where(m, y - np.mean(y[m]), 0.0)
+    n = len(a)
+    lags = np.arange(int(np.floor(min_lag_s / dt_s)), int(np.ceil(max_lag_s / dt_s)) + 1)
+    nfft = 1 << int(np.ceil(np.log2(2 * n)))
+    A, C = np.fft.rfft(a, nfft), np.fft.rfft(c, nfft)
+    cc = np.fft.irfft(C * np.conj(A), nfft)       # cc[l] = sum_t y[t] u[t - l]
+    a2 = np.fft.irfft(np.fft.rfft(a * a, nfft) * np.conj(np.fft.rfft(m.astype(float), nfft)), nfft)
+    c2 = np.fft.irfft(np.fft.rfft(c * c, nfft) * np.conj(np.fft.rfft(m.astype(float), nfft)), nfft)
+    # energy of u over samples t-l with t in mask and of y over t with t-l in mask
+    vals = []
+    for lag in lags:
+        num = cc[lag % nfft]
+        ea = a2[(-lag) % nfft]   # sum_t a[t-l]^2 m[t]
+        ec = c2[lag % nfft]      # sum_t c[t]^2 m[t-l]
+        vals.append(num / np.sqrt(ea * ec) if ea > 0 and ec > 0 else 0.0)
+    vals = np.array(vals)
+    k = int(np.argmax(vals))
+    lag = float(lags[k])
+    if 0 < k < len(vals) - 1:
+        y0, y1, y2 = vals[k - 1], vals[k], vals[k + 1]
+        den = y0 - 2 * y1 + y2
+        if den < 0:
+            lag += 0.5 * (y0 - y2) / den
+    return lag * dt_s, float(vals[k])
+
+
+# ------------------------------------------------------------------------------ replay
+def _windows(ok: np.ndarray, n_win: int) -> list[tuple[int, int]]:
+    """Non-overlapping windows [i0, i1) of ``n_win`` samples inside the True runs of ``ok``."""
+    out = []
+    idx = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
+    for s, e in zip(idx[::2], idx[1::2]):
+        for i0 in range(s, e - n_win + 1, n_win):
+            out.append((i0, i0 + n_win))
+    return out
+
+
+class _Replay:
+    """Vectorised eq. 1 replay over windows; residuals are predicted minus measured (x, y)."""
+
+    def __init__(self, windows, x, y, psi, v, sw, dt_s, b, stride):
+        self.dt, self.b = dt_s, b
+        self.win_id = np.full(len(x), -1)
+        self.start = np.zeros(len(x), dtype=int)
+        for w, (i0, i1) in enumerate(windows):
+            self.win_id[i0:i1] = w
+            self.start[i0:i1] = i0
+        self.inwin = self.win_id >= 0
+        sel = np.zeros(len(x), dtype=bool)
+        for i0, i1 in windows:
+            sel[i0 + stride:i1:stride] = True
+        self.res_idx = np.flatnonzero(sel)
+        self.groups = np.concatenate([self.win_id[self.res_idx]] * 2)
+        self.x, self.y, self.psi, self.v = x, y, psi, v
+        self.sw = np.where(self.inwin, sw, 0.0)
+        self.vz = np.where(self.inwin, v, 0.0)
+
+    def predict(self, theta):
+        off, sc = theta
+        delta = off + sc * self.sw
+        w = self.vz * np.sin(delta) / self.b
+        cw = np.concatenate([[0.0], np.cumsum(0.5 * self.dt * (w[1:] + w[:-1]))])
+        psi = self.psi[self.start] + cw - cw[self.start]
+        ang = psi + delta
+        fx, fy = self.vz * np.cos(ang), self.vz * np.sin(ang)
+        cx = np.concatenate([[0.0], np.cumsum(0.5 * self.dt * (fx[1:] + fx[:-1]))])
+        cy = np.concatenate([[0.0], np.cumsum(0.5 * self.dt * (fy[1:] + fy[:-1]))])
+        xp = self.x[self.start] + cx - cx[self.start]
+        yp = self.y[self.start] + cy - cy[self.start]
+        return xp, yp
+
+    def residuals(self, theta):
+        xp, yp = self.predict(theta)
+        i = self.res_idx
+        return np.concatenate([xp[i] - self.x[i], yp[i] - self.y[i]])
+
+
+# -------------------------------------------------------------------------------- main
+def _need(rec: Recording, *names: str) -> None:
+    rec.require(*names)
+
+
+def _fit_front(delta_a, sw_d, steady) -> MapFit:
+    X = np.column_stack([np.ones_like(sw_d), sw_d])
+    r = ols_hac(X, delta_a, steady)
+    return MapFit("wheel_speed_difference", float(r.coef[0]), float(r.coef[1]),
+                  (float(r.ci95[0, 0]), float(r.ci95[0, 1])),
+                  (float(r.ci95[1, 0]), float(r.ci95[1, 1])), float(r.corr[0, 1]), r.n,
+                  r.rmse, "rad", r.method, {"condition_number": r.cond})
+
+
+def _fit_yaw(yaw, v_rear, sw_d, steady, b, x0) -> MapFit:
+    i = np.flatnonzero(steady & np.isfinite(yaw) & np.isfinite(v_rear) & np.isfinite(sw_d))
+    if len(i) < 10:
+        raise ValueError("too few samples")
+    r, v, s = yaw[i], v_rear[i], sw_d[i]
+
+    def res(th):
+        return r - th[2] - v * np.tan(th[0] + th[1] * s) / b
+
+    sol = least_squares(res, np.array([x0[0], x0[1], 0.0]), method="lm")
+    th = sol.x
+    full = np.zeros(len(yaw))
+    full[i] = sol.fun
+    J = np.zeros((len(yaw), 3))
+    J[i] = sol.jac
+    m = np.zeros(len(yaw), dtype=bool)
+    m[i] = True
+    cov, _, G = block_cov(J, full, m)
+    se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    crit = float(student_t.ppf(0.975, max(G - 1, 1)))
+    d = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    corr = np.divide(cov, d, out=np.zeros_like(cov), where=d > 0)
+    return MapFit("yaw_rate", float(th[0]), float(th[1]),
+                  (float(th[0] - crit * se[0]), float(th[0] + crit * se[0])),
+                  (float(th[1] - crit * se[1]), float(th[1] + crit * se[1])), float(corr[0, 1]),
+                  len(i), float(np.sqrt(np.mean(sol.fun ** 2))), "radps",
+                  f"time-block cluster-robust sandwich (Jacobian), t({G - 1})",
+                  {"yaw_rate_bias_radps": float(th[2]),
+                   "yaw_rate_bias_ci95_radps": [float(th[2] - crit * se[2]),
+                                                float(th[2] + crit * se[2])],
+                   "offset_bias_correlation": float(corr[0, 2])})
+
+
+def _fit_replay(rec, v_front, sw_d, usable, dt, b, cfg, x0):
+    x, y, psi = (np.asarray(rec[c], dtype=float) for c in ("x", "y", "heading"))
+    ok = usable & np.isfinite(x) & np.isfinite(y) & np.isfinite(psi) & np.isfinite(sw_d)
+    n_win = int(round(cfg.window_s / dt))
+    wins = _windows(ok, n_win)
+    if len(wins) < 3:
+        return None, 0
+    rp = _Replay(wins, x, y, np.unwrap(np.nan_to_num(psi)), np.nan_to_num(v_front),
+                 np.nan_to_num(sw_d), dt, b, max(1, cfg.replay_stride))
+    sol = least_squares(rp.residuals, np.asarray(x0, dtype=float), method="lm",
+                        x_scale=np.array([0.01, 0.01]))
+    cov = cluster_cov(sol.jac, sol.fun, rp.groups)
+    G = len(wins)
+    crit = float(student_t.ppf(0.975, max(G - 1, 1)))
+    se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    d = np.sqrt(cov[0, 0] * cov[1, 1])
+    corr = float(cov[0, 1] / d) if d > 0 else 0.0
+    fit = MapFit("position_replay", float(sol.x[0]), float(sol.x[1]),
+                 (float(sol.x[0] - crit * se[0]), float(sol.x[0] + crit * se[0])),
+                 (float(sol.x[1] - crit * se[1]), float(sol.x[1] + crit * se[1])), corr,
+                 len(rp.res_idx), float(np.sqrt(np.mean(sol.fun ** 2))), "m",
+                 f"cluster-robust sandwich over {G} replay windows, t({G - 1})",
+                 {"windows": G, "window_s": cfg.window_s, "status": int(sol.status),
+                  "initial": [float(v) for v in x0]})
+    return (fit, rp, sol.x), G
+
+
+def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt_s: float,
+                    cfg: SteeringIdConfig, steering_ratio: float | None = None) -> dict:
+    """Checks that decide whether a recording separates offset from scale (module doc).
+
+    Returns ``{"identifiable", "offset_identifiable", "scale_identifiable", "checks": [...],
+    "note"}``; each check has name, value, threshold, passed.
+    """
+    checks = []
+
+    def add(name, value, threshold, passed, text):
+        checks.append({"name": name, "value": float(value), "threshold": float(threshold),
+                       "passed": bool(passed), "text": text})
+
+    n = len(sw_steady)
+    add("samples", n, cfg.min_samples, n >= cfg.min_samples,
+        f"{n} trustworthy samples (need {cfg.min_samples})")
+    rng = float(np.subtract(*np.percentile(sw_steady, [97.5, 2.5]))) if n else 0.0
+    add("steering_range_rad", rng, cfg.min_sw_range_rad, rng >= cfg.min_sw_range_rad,
+        f"steering-wheel range {np.degrees(rng):.1f} deg (2.5-97.5%; need "
+        f"{np.degrees(cfg.min_sw_range_rad):.0f} deg)")
+    add("offset_scale_correlation", abs(fit.corr), cfg.max_param_corr,
+        abs(fit.corr) <= cfg.max_param_corr, f"|corr(offset, scale)| = {abs(fit.corr):.3f}")
+    half_s = 0.5 * (fit.scale_ci95[1] - fit.scale_ci95[0])
+    rel = half_s / abs(fit.scale) if fit.scale != 0 else float("inf")
+    add("scale_rel_ci95", rel, cfg.max_scale_rel_ci, rel <= cfg.max_scale_rel_ci,
+        f"scale 95% interval +-{100 * rel:.1f}% (need <= {100 * cfg.max_scale_rel_ci:.0f}%)")
+    half_o = 0.5 * (fit.offset_ci95_rad[1] - fit.offset_ci95_rad[0])
+    add("offset_ci95_rad", half_o, cfg.max_offset_ci_rad, half_o <= cfg.max_offset_ci_rad,
+        f"offset 95% interval +-{half_o:.4f} rad (need <= {cfg.max_offset_ci_rad} rad)")
+    slow_s = float(np.sum(v_steady <= cfg.kinematic_speed_mps) * dt_s)
+    add("kinematic_speed_s", slow_s, cfg.min_kinematic_s, slow_s >= cfg.min_kinematic_s,
+        f"{slow_s:.1f} s of trustworthy steering at or below {cfg.kinematic_speed_mps:g} m/s "
+        f"(need {cfg.min_kinematic_s:g} s)")
+    bias_corr = fit.extra.get("offset_bias_correlation")
+    if bias_corr is not None:
+        add("offset_gyro_bias_correlation", abs(bias_corr), cfg.max_param_corr,
+            abs(bias_corr) <= cfg.max_param_corr,
+            f"|corr(offset, yaw-rate bias)| = {abs(bias_corr):.3f}")
+    ok = {c["name"]: c["passed"] for c in checks}
+    base = ok["samples"] and ok["steering_range_rad"] and ok["offset_scale_correlation"]
+    scale_ok = base and ok["scale_rel_ci95"] and ok["kinematic_speed_s"]
+    offset_ok = base and ok["offset_ci95_rad"] and ok.get("offset_gyro_bias_correlation", True)
+    notes = []
+    if not ok["samples"]:
+        notes.append("too few trustworthy samples")
+    if not ok["steering_range_rad"]:
+        notes.append(f"the steering-wheel range ({np.degrees(rng):.1f} deg) is too small to "
+                     "separate the offset from sensor biases (tyre radius mismatch, gyro bias, "
+                     "angle-sensor zero) or the scale from noise")
+    if not ok["offset_scale_correlation"]:
+        notes.append("offset and scale estimates are strongly correlated (steering mostly to one "
+                     "side)")
+    if not ok["scale_rel_ci95"]:
+        notes.append(f"the scale is known only to +-{100 * rel:.0f}%")
+    if not ok["offset_ci95_rad"]:
+        notes.append(f"the offset is known only to +-{half_o:.4f} rad")
+    if not ok.get("offset_gyro_bias_correlation", True):
+        notes.append("the speed range is too narrow to separate the offset from the yaw-rate "
+                     "sensor's bias")
+    if not ok["kinematic_speed_s"]:
+        notes.append(f"all steering happened above {cfg.kinematic_speed_mps:g} m/s, where tyre "
+                     "side slip (understeer) is folded into the kinematic gain")
+    if notes:
+        note = "NOT identifiable: " + "; ".join(notes) + "."
+        if steering_ratio:
+            note += (f" For comparison, the maker's nominal 1/steering_ratio = "
+                     f"{1.0 / steering_ratio:.4f}.")
+    else:
+        note = "offset and scale identifiable from this recording"
+    return {"identifiable": bool(scale_ok and offset_ok), "offset_identifiable": bool(offset_ok),
+            "scale_identifiable": bool(scale_ok), "checks": checks, "note": note}
+
+
+def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig | None = None,
+                      progress=None) -> SteeringResult:
+    """Identify eq. 7 from a canonical recording (see the module doc).
+
+    Needs ``steering_wheel_angle`` and the four wheel speeds; uses ``yaw_rate`` and
+    ``x``/``y``/``heading`` when present, and ``gear`` to drop reverse.
+
+    Raises:
+        InputError: a required channel is absent, or no trustworthy samples remain.
+    """
+    cfg = config or SteeringIdConfig()
+    say = progress or (lambda msg: None)
+    _need(rec, "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
+          "wheel_speed_rr")
+    dt = 1.0 / rec.rate_hz
+    b, T = float(vehicle.wheelbase_m), float(vehicle.track_front_m)
+    sw = np.asarray(rec["steering_wheel_angle"], dtype=float)
+    fl, fr, rl, rr = (np.asarray(rec[c], dtype=float) for c in
+                      ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr"))
+    delta_a, v_front = road_wheel_angle_from_front(fl, fr, b, T)
+    v_rear = 0.5 * (rl + rr)
+    has_yaw = "yaw_rate" in rec
+    yaw = np.asarray(rec["yaw_rate"], dtype=float) if has_yaw else None
+
+    # ---- trustworthy samples
+    finite = np.isfinite(sw) & np.isfinite(delta_a) & np.isfinite(v_rear)
+    moving = finite & (np.nan_to_num(v_front) >= cfg.v_min_mps)
+    with np.errstate(invalid="ignore"):
+        slip = np.abs(v_rear - v_front * np.cos(delta_a)) / np.maximum(v_front, 1e-6)
+    accel = savgol_derivative(v_rear, dt, cfg.smooth_s)
+    lat = v_rear ** 2 * np.tan(np.nan_to_num(delta_a)) / b
+    sw_rate = savgol_derivative(sw, dt, cfg.smooth_s)
+    reverse = np.zeros(len(sw), dtype=bool)
+    if "gear" in rec:
+        reverse = np.asarray([str(g) == "R" for g in rec["gear"]])
+    bad_usable = ~(moving & (np.nan_to_num(slip, nan=1.0) <= cfg.slip_max)
+                   & (np.abs(np.nan_to_num(accel, nan=1e9)) <= cfg.accel_max_mps2)
+                   & (np.abs(lat) <= cfg.lat_accel_max_mps2) & ~reverse)
+    if has_yaw:
+        bad_usable |= ~np.isfinite(yaw)
+    guard = int(round(cfg.guard_s / dt))
+    usable = ~dilate(bad_usable, guard)
+    transient = np.abs(np.nan_to_num(sw_rate, nan=1e9)) > cfg.sw_rate_max_radps
+    steady0 = usable & ~dilate(transient, guard)
+    excluded = {
+        "not_moving_or_missing": int(np.sum(~moving)),
+        "wheel_slip": int(np.sum(moving & (np.nan_to_num(slip, nan=1.0) > cfg.slip_max))),
+        "longitudinal_accel": int(np.sum(moving & (np.abs(np.nan_to_num(accel, nan=0)) >
+                                                   cfg.accel_max_mps2))),
+        "lateral_accel": int(np.sum(moving & (np.abs(lat) > cfg.lat_accel_max_mps2))),
+        "reverse": int(np.sum(reverse)),
+        "steering_transient": int(np.sum(usable & ~steady0)),
+    }
+    if steady0.sum() < 20:
+        raise InputError(f"only {int(steady0.sum())} trustworthy steering samples (moving >= "
+                         f"{cfg.v_min_mps} m/s, no slip, no transients): cannot identify the "
+                         "steering map", rec.meta.get("path"), channel="steering_wheel_angle")
+    say(f"steering: {int(steady0.sum())} trustworthy samples of {len(sw)}")
+
+    # ---- dead time by cross-correlation of smoothed derivatives
+    d_sw = savgol_derivative(sw, dt, cfg.smooth_s)
+    dead = {}
+    da = savgol_derivative(delta_a, dt, cfg.smooth_s)
+    dead["wheel_speed_difference"] = xcorr_dead_time(d_sw, da, usable, dt,
+                                                     min_lag_s=cfg.dead_time_min_s,
+                                                     max_lag_s=cfg.dead_time_max_s)
+    delta_b_raw = None
+    if has_yaw:
+        delta_b_raw = road_wheel_angle_from_yaw(yaw, v_rear, b)
+        db = savgol_derivative(delta_b_raw, dt, cfg.smooth_s)
+        dead["yaw_rate"] = xcorr_dead_time(d_sw, db, usable, dt, min_lag_s=cfg.dead_time_min_s,
+                                           max_lag_s=cfg.dead_time_max_s)
+    best = max(dead.items(), key=lambda kv: (np.nan_to_num(kv[1][1], nan=-1)))
+    dead_time, dead_corr = best[1]
+    dead_ok = bool(np.isfinite(dead_time) and dead_corr >= cfg.dead_time_min_corr)
+    tau = float(dead_time) if dead_ok else 0.0
+    sw_d = delayed(sw, tau, dt)
+    steady = steady0 & np.isfinite(sw_d)
+    usable &= np.isfinite(sw_d)
+    say(f"steering: dead time {tau:.3f} s (cross-correlation peak {dead_corr:.2f}, "
+        f"from {best[0]})")
+
+    # ---- direct fits
+    fits: dict[str, MapFit] = {}
+    fits["wheel_speed_difference"] = _fit_front(delta_a, sw_d, steady)
+    start = fits["wheel_speed_difference"]
+    if has_yaw:
+        try:
+            fits["yaw_rate"] = _fit_yaw(yaw, v_rear, sw_d, steady, b,
+                                        (start.offset_rad, start.scale))
+            start = fits["yaw_rate"]
+        except ValueError:
+            pass
+    # ---- refinement by position replay
+    replay = None
+    if all(c in rec for c in ("x", "y", "heading")):
+        say("steering: refining by eq. 1 position replay")
+        out, _ = _fit_replay(rec, v_front, sw_d, usable, dt, b, cfg,
+                             (start.offset_rad, start.scale))
+        if out is not None:
+            fits["position_replay"], replay, _ = out
+    # ---- the final estimate: the first identifiable fit in the order refinement, yaw rate,
+    # wheel speeds; when none is identifiable, the one with the narrowest scale interval.
+    sw_st, v_st = sw_d[steady], v_front[steady]
+    idents = {k: identifiability(f, sw_st, v_st, dt, cfg, vehicle.steering_ratio)
+              for k, f in fits.items()}
+    order = [k for k in ("position_replay", "yaw_rate", "wheel_speed_difference") if k in fits]
+    chosen = next((k for k in order if idents[k]["identifiable"]), None)
+    if chosen is not None:
+        why = "first identifiable fit in the order position_replay, yaw_rate, wheel_speed_difference"
+    else:
+        def rel_width(k):
+            f = fits[k]
+            return (f.scale_ci95[1] - f.scale_ci95[0]) / abs(f.scale) if f.scale else np.inf
+        chosen = min(order, key=rel_width)
+        why = "no fit is identifiable: the one with the narrowest scale interval"
+    final = fits[chosen]
+
+    # ---- agreement of (a) and (b)
+    agreement = None
+    delta_b = None
+    if "yaw_rate" in fits:
+        bias = fits["yaw_rate"].extra["yaw_rate_bias_radps"]
+        delta_b = road_wheel_angle_from_yaw(yaw, v_rear, b, bias)
+        dd = (delta_a - delta_b)[steady]
+        fa, fb = fits["wheel_speed_difference"], fits["yaw_rate"]
+        agreement = {
+            "rms_difference_rad": float(np.sqrt(np.mean(dd ** 2))),
+            "mean_difference_rad": float(np.mean(dd)),
+            "correlation": float(np.corrcoef(delta_a[steady], delta_b[steady])[0, 1])
+            if np.std(delta_b[steady]) > 0 and np.std(delta_a[steady]) > 0 else float("nan"),
+            "offset_difference_rad": fa.offset_rad - fb.offset_rad,
+            "scale_ratio": fa.scale / fb.scale if fb.scale != 0 else float("nan"),
+        }
+    delta_model = final.offset_rad + final.scale * sw_d
+    ref = delta_b if delta_b is not None else delta_a
+    rms_rad = float(np.sqrt(np.mean((ref - delta_model)[steady] ** 2)))
+    ident = idents[chosen]
+
+    report = {
+        "offset_rad": final.offset_rad, "scale": final.scale,
+        "offset_ci95_rad": list(final.offset_ci95_rad), "scale_ci95": list(final.scale_ci95),
+        "method": final.method,
+        "method_selected_because": why,
+        "dead_time_s": tau,
+        "dead_time": {"estimate_s": float(dead_time) if np.isfinite(dead_time) else None,
+                      "peak_correlation": float(dead_corr) if np.isfinite(dead_corr) else None,
+                      "used": dead_ok, "source": best[0],
+                      "by_source": {k: {"lag_s": float(v[0]) if np.isfinite(v[0]) else None,
+                                        "peak_correlation": float(v[1]) if np.isfinite(v[1])
+                                        else None} for k, v in dead.items()},
+                      "method": "cross-correlation of Savitzky-Golay derivatives "
+                                f"({cfg.smooth_s} s), parabolic peak"},
+        "fits": {k: f.to_dict() for k, f in fits.items()},
+        "agreement_a_b": agreement,
+        "rms_error_rad": rms_rad,
+        "identifiability": ident,
+        "identifiability_by_fit": {k: {"identifiable": v["identifiable"],
+                                       "offset_identifiable": v["offset_identifiable"],
+                                       "scale_identifiable": v["scale_identifiable"]}
+                                   for k, v in idents.items()},
+        "samples": {"total": int(len(sw)), "usable": int(usable.sum()),
+                    "trustworthy": int(steady.sum()), "excluded": excluded},
+        "speed_range_mps": [float(np.percentile(v_front[steady], 2.5)),
+                            float(np.percentile(v_front[steady], 97.5))],
+        "steering_wheel_range_rad": [float(np.percentile(sw_d[steady], 2.5)),
+                                     float(np.percentile(sw_d[steady], 97.5))],
+        "thresholds": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
+    }
+    series = {"time": rec.time, "steering_wheel_angle": sw, "wheel_speed_fl": fl,
+              "wheel_speed_fr": fr, "turn_rate_wheels_radps": (fr - fl) / T,
+              "delta_wheels_rad": delta_a, "delta_yaw_rad": delta_b, "delta_model_rad": delta_model,
+              "trustworthy": steady}
+    if replay is not None:
+        xp, yp = replay.predict((final.offset_rad, final.scale))
+        series["replay"] = {"x_pred": np.where(replay.inwin, xp, np.nan),
+                            "y_pred": np.where(replay.inwin, yp, np.nan),
+                            "x": np.asarray(rec["x"], float), "y": np.asarray(rec["y"], float)}
+    return SteeringResult(
+        offset_rad=final.offset_rad, scale=final.scale, offset_ci95_rad=final.offset_ci95_rad,
+        scale_ci95=final.scale_ci95, dead_time_s=tau, identifiable=ident["identifiable"],
+        note=ident["note"], method=final.method, rms_error_rad=rms_rad, fits=fits,
+        report=report, series=series)
+
+
+__all__ = ["SteeringIdConfig", "SteeringResult", "MapFit", "identify_steering",
+           "identifiability", "road_wheel_angle_from_front", "road_wheel_angle_from_yaw",
+           "xcorr_dead_time", "delayed", "Z95"]

@@ -1,0 +1,129 @@
+"""Zone models (eq. 8 + brake): zone assignment, standstill and boundaries, the matched
+smoothing, dead time, FOS term choice, unexercised inputs and speeds above the last zone."""
+import numpy as np
+import pytest
+
+from models.effects import parse_effect
+from models.identify import concat_recordings
+from models.longitudinal_id import (LongitudinalIdConfig, assign_zones, identify_longitudinal,
+                                    speed_rmse)
+from models.params import load_params
+from models.sim import simulate_experiment
+from models.stats import apply_kernel, matched_kernels
+from tools.datafiles import PARAMS_DIR
+
+SEED = 9
+ZONES = (("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
+LONG_EXPS = ("ramps", "ramp_sequence", "open_loop")
+
+
+@pytest.fixture(scope="module")
+def truth():
+    return load_params(PARAMS_DIR / "report_2008.yaml")
+
+
+def test_zone_assignment_follows_the_report_boundaries():
+    v = np.array([0.0, 1.0, 2.0, 2.0001, 5.0, 5.01, 20.0, 20.5, np.nan])
+    assert assign_zones(v, ZONES).tolist() == [0, 0, 0, 1, 1, 2, 2, -1, -1]
+    # with hysteresis a speed hovering on a boundary keeps its zone
+    v = np.array([1.9, 2.05, 1.98, 2.1, 2.3, 2.05, 1.9, 1.7])
+    assert assign_zones(v, ZONES, 0.25).tolist() == [0, 0, 0, 0, 1, 1, 1, 0]
+
+
+def test_matched_kernel_makes_filtered_eq8_exact():
+    """d/dt of a speed driven by eq. 8 equals eq. 8 on the matched-smoothed pedal, even at
+    steps; the plain Savitzky-Golay smoother of the pedal does not."""
+    from scipy.signal import savgol_filter
+
+    dt = 0.02
+    u = np.zeros(1000)
+    u[200:400] = 0.4
+    u[600:650] = np.linspace(0, 0.3, 50)
+    u[650:800] = 0.3
+    a = 0.2 + 2.5 * u
+    v = 3.0 + np.concatenate([[0.0], np.cumsum(0.5 * dt * (a[1:] + a[:-1]))])
+    d, g = matched_kernels(dt, 0.5)
+    lhs, rhs = apply_kernel(v, d), 0.2 + 2.5 * apply_kernel(u, g)
+    ok = np.isfinite(lhs)
+    assert np.max(np.abs(lhs[ok] - rhs[ok])) < 1e-9
+    naive = 0.2 + 2.5 * savgol_filter(u, len(d), 2)
+    assert np.max(np.abs(lhs[ok] - naive[ok])) > 0.05
+
+
+def test_speed_rmse_is_zero_for_the_true_model_and_restarts_runs():
+    dt = 0.02
+    a = np.where(np.arange(600) < 300, 1.0, -0.5)
+    v = 2.0 + np.concatenate([[0.0], np.cumsum(0.5 * dt * (a[1:] + a[:-1]))])
+    m = np.ones(600, bool)
+    assert speed_rmse(v, a, m, dt, 10.0) < 1e-12
+    assert speed_rmse(v, a + 0.1, m, dt, 2.0) < speed_rmse(v, a + 0.1, m, dt, 10.0)
+
+
+def test_noise_free_recordings_give_the_truth_exactly(truth):
+    rec = concat_recordings([simulate_experiment(n, truth, seed=SEED, noise="none")
+                             for n in LONG_EXPS])
+    res = identify_longitudinal(rec, truth.vehicle)
+    for z, t in zip(res.zones, truth.zones):
+        assert z.offset_mps2 == pytest.approx(t.offset_mps2, abs=0.005), z.name
+        assert z.scale_mps2 == pytest.approx(t.scale_mps2, rel=0.005), z.name
+        assert z.brake_scale_mps2 == pytest.approx(t.brake_scale_mps2, rel=0.005), z.name
+    st = res.report["standstill"]
+    assert st["samples"] > 0 and "excluded" in st["note"]
+    assert res.report["boundary_samples_excluded"] > 0
+
+
+def test_speeds_above_the_last_zone_are_counted_not_dropped(truth):
+    rec = simulate_experiment("ramps", truth, seed=SEED)   # ramps reach 8 m/s
+    cfg = LongitudinalIdConfig(zones=(("idle", 0.0, 2.0), ("low", 2.0, 5.0)))
+    res = identify_longitudinal(rec, truth.vehicle, cfg)
+    above = res.report["above_last_zone"]
+    v = res.series["v_mps"]
+    assert above["samples"] == int(np.sum(v > 5.0)) > 0
+    assert above["seconds"] == pytest.approx(above["samples"] / rec.rate_hz)
+    assert [z.name for z in res.zones] == ["idle", "low"]
+
+
+def test_pedal_dead_time_and_drag_are_found(truth):
+    fx = [parse_effect("pedal_dead_time:delay_s=0.3"), parse_effect("aero_drag:coeff_per_m=0.0005")]
+    rec = concat_recordings([simulate_experiment(n, truth, seed=SEED, effects=fx)
+                             for n in LONG_EXPS])
+    res = identify_longitudinal(rec, truth.vehicle)
+    print("dead time", res.dead_time_s, [(z["name"], z["fos"]["terms"])
+                                         for z in res.report["zones"]])
+    assert res.dead_time_s == pytest.approx(0.3, abs=0.03)
+    high = next(z for z in res.report["zones"] if z["name"] == "high")
+    # drag ~ v^2: FOS picks a speed term in the high zone where drag matters
+    assert {"v^2", "v"} & set(high["fos"]["terms"])
+    assert high["fos"]["nmse_pct"] < high["nmse_pct"]
+
+
+def test_accel_x_source_is_used_and_named(truth):
+    rec = concat_recordings([simulate_experiment(n, truth, seed=SEED) for n in LONG_EXPS])
+    res = identify_longitudinal(rec, truth.vehicle, LongitudinalIdConfig(accel_source="accel_x"))
+    assert res.accel_source.startswith("accel_x")
+    for z, t in zip(res.zones, truth.zones):
+        # INS accel_x carries a bias of up to 0.02 m/s^2 and white noise
+        assert z.offset_mps2 == pytest.approx(t.offset_mps2, abs=0.05), z.name
+        assert z.scale_mps2 == pytest.approx(t.scale_mps2, rel=0.05), z.name
+
+
+def test_unexercised_brake_is_flagged_not_invented(truth):
+    rec = simulate_experiment("ramps", truth, seed=SEED)
+    rec.channels["brake_pedal"] = np.zeros(len(rec))
+    res = identify_longitudinal(rec, truth.vehicle)
+    for z in res.zones:
+        assert z.identifiable is False
+        assert "brake" in z.note and "prior" in z.note
+        assert z.brake_scale_mps2 == LongitudinalIdConfig().brake_scale_prior_mps2
+
+
+def test_bad_zones_and_missing_pedal_are_input_errors(truth):
+    from models.errors import InputError
+
+    rec = simulate_experiment("ramps", truth, seed=SEED)
+    with pytest.raises(InputError, match="contiguous"):
+        identify_longitudinal(rec, truth.vehicle,
+                              LongitudinalIdConfig(zones=(("a", 0.0, 2.0), ("b", 3.0, 5.0))))
+    del rec.channels["accel_pedal"]
+    with pytest.raises(InputError, match="accel_pedal"):
+        identify_longitudinal(rec, truth.vehicle)
