@@ -1,6 +1,6 @@
 """`make demo`: hmpc's main job on the real recordings bundled in tools/data.
 
-Runs the same subcommands a user would (`hmpc info`, `hmpc ingest`, ...) on the comma2k19
+Runs the same subcommands a user would (`hmpc info`, `ingest`, `identify`, ...) on the comma2k19
 RAV4 minute and the VerifiedCAN stop-and-go drive, and saves tables, JSON and plots in --out.
 """
 from __future__ import annotations
@@ -35,6 +35,14 @@ def steps(out: Path) -> list[tuple[str, list[str]]]:
          ["ingest", str(vcan_log), "--dbc", str(vcan_dbc),
           "--signals", str(PARAMS_DIR / "toyota_rav4_2019.signals.yaml"),
           "--out", str(out / "vcan_rec.csv"), "--json", str(out / "vcan_ingest.json")]),
+        ("identify: comma2k19 minute (steering map eq. 7, zone models eq. 8)",
+         ["identify", str(out / "comma_rec.csv"), "--vehicle", str(PARAMS_DIR / "toyota_rav4_2017.yaml"),
+          "--out", str(out / "comma_params.yaml"), "--plots", str(out / "comma_identify"),
+          "--json", str(out / "comma_identify.json")]),
+        ("identify: VerifiedCAN stop-and-go (car's own sensors, no GNSS)",
+         ["identify", str(out / "vcan_rec.csv"), "--vehicle", str(PARAMS_DIR / "toyota_rav4_2019.yaml"),
+          "--out", str(out / "vcan_params.yaml"), "--plots", str(out / "vcan_identify"),
+          "--json", str(out / "vcan_identify.json")]),
     ]
 
 
