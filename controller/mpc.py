@@ -1,0 +1,913 @@
+"""Hybrid-mode MPC, fast path: an OSQP linear time-varying QP (issue 4, report section VI).
+
+Prediction model: the hybrid plant (models/plant.py): kinematic bicycle (eq. 1), steering
+map (eq. 7), one linear accelerator model per speed zone (eq. 8, with brake). Every step:
+
+1. **Delay compensation.** The state is predicted forward through the commands still in
+   flight (``steering.dead_time_s``, ``longitudinal.dead_time_s``): the QP starts where
+   the car will be when this step's command takes effect.
+2. **Schedules.** Along the horizon, the zone of each stage follows the speed profile of
+   the previous solution (with the plant's hysteresis), and each stage gets ONE free
+   pedal (controller/modes.py): within one QP throttle and brake are never both free.
+3. **Re-linearisation** of eq. 1 about the previous solution (shifted in time),
+   discretised (2nd order), the zone's eq. 8 per stage. The QP's sparsity pattern is
+   built ONCE; each step writes new values in place (OSQP ``update(Px=, Ax=, q=, l=, u=)``)
+   and warm-starts from the previous solution.
+4. **Costs** (J = 1/2 z'Pz + q'z):
+   - lateral and heading error to the reference path, speed error to the speed profile;
+   - effort: pedal changes cost more than steering changes (report VI: "velocity control
+     should have a higher cost"; checked in :class:`MpcConfig`);
+   - terminal cost from python-control's ``dlqr`` on the path-error linearisation;
+   - soft limits (slack variables, exact L1 penalties): acceleration, jerk, speed >= 0;
+   - the report's two ways to stay in the most accurate zone (VI): a **minimum-speed
+     floor** (default: the preferred zone's lower bound) that applies while the reference
+     is at or above it and that a stop command or an obstacle overrides, and a
+     **zone-transition penalty**: the speed is kept inside the current zone's hysteresis
+     band unless the reference leaves the band AND the horizon shows no acceleration
+     change around the crossing (modes.transition_allowed). Entering the preferred
+     zone (the one with the lowest ``nmse_pct`` in the parameter file; default the
+     zone holding 2-5 m/s) is always allowed.
+5. **Constraints**: steering angle and rate; pedals in [0, 1], one free per stage.
+6. **Idle speed**: the pedal mode logic (hysteresis about the zone's coast acceleration,
+   minimum dwell) and the standstill HOLD mode keep the brake in charge below the idle
+   speed, so holding 1 m/s against idle creep does not chatter.
+7. **Failures**: a step never raises and never returns None. On a solver failure or
+   time-out the previous plan is shifted and followed; when it has run out, a controlled
+   stop (brake ramp, steering held). The status says which.
+
+The step RETURNS a command; it never sends it. Every command goes through
+``controller.limits.apply_limits`` before it is returned.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from models.params import Params
+from models.plant import HybridPlant
+from models.scenarios import Reference
+
+from .limits import Command, Limits, apply_limits
+from .modes import PEDAL_RELEASED, ModeConfig, PedalMode, PedalModeLogic, StandstillLogic, \
+    desired_accel, transition_allowed
+
+NX, NU, NS = 4, 3, 3  # state, input, slack (per stage)
+_UT4 = [(a, b) for a in range(4) for b in range(a, 4)]   # upper triangle of a 4x4 block
+_APAT = [(0, 0), (1, 1), (2, 2), (3, 3), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]  # A_d pattern
+_BPAT = [(i, j) for i in range(4) for j in range(3)]
+_STRICT_UPPER4 = np.triu(np.ones((4, 4)), 1)
+
+
+@dataclass(frozen=True)
+class MpcConfig:
+    """MPC tuning. Weights are per second of horizon (tracking) or per change (effort), so
+    the balance does not move when ``dt_s`` changes."""
+
+    horizon_s: float = 10.0        # issue 4: 10-15 s
+    dt_s: float = 0.2              # QP stage length: 0.1 or 0.2 s
+    # tracking
+    w_lateral: float = 4.0         # per m^2 of lateral error, per s
+    w_heading: float = 4.0         # per rad^2 of heading error, per s
+    w_speed: float = 10.0          # per (m/s)^2 of speed error, per s
+    # effort on the change of an input per stage, normalised to its range (steering-wheel
+    # angle / its max, pedals as fractions). Report VI: velocity effort above steering.
+    w_speed_effort: float = 4.0
+    w_steer_effort: float = 1.0
+    w_pedal_level: float = 0.02    # per pedal^2 per s: prefer the lighter pedal
+    w_steer_level: float = 0.02    # per (sw - feedforward)^2 / max^2 per s
+    # terminal LQR input weights (per rad^2 of steering wheel, per (m/s^2)^2)
+    r_terminal_steer: float = 0.05
+    r_terminal_accel: float = 2.0
+    # soft constraints: linear (exact) penalty per unit of violation per s
+    w_limit_violation: float = 100.0   # accel [m/s^2], jerk [m/s^2 per stage]
+    w_standstill: float = 500.0        # speed below 0 [m/s]
+    w_floor: float = 10.0              # speed below the minimum-speed floor [m/s]
+    w_transition: float = 10.0         # speed outside the current zone's band [m/s]; 0 = off
+    w_slack_quadratic: float = 1.0
+    w_speed_max: float = 100.0
+    # zone-transition rule (report VI)
+    transition_accel_tol_mps2: float = 0.2   # "no acceleration change": spread <= tol
+    transition_window_s: float = 1.0         # checked this long either side of the crossing
+    transition_dwell_s: float = 2.0          # the reference must stay in the new zone this long
+    # the band kept is the zone's hysteresis band narrowed by this margin [m/s], so that
+    # tracking error and the controller's 10 Hz view of the speed do not let the plant cross
+    transition_band_margin_mps: float = 0.15
+    # minimum-speed floor [m/s]; None: the preferred zone's lower bound; 0 disables
+    min_speed_mps: float | None = None
+    # stop command / obstacle: reference speed brought down at this deceleration [m/s^2]
+    stop_decel_mps2: float = 1.5
+    obstacle_margin_m: float = 3.0
+    # controlled stop after the plan ran out: brake decel target and ramp (jerk) [m/s^2, m/s^3]
+    stop_brake_decel_mps2: float = 2.0
+    # OSQP
+    max_iter: int = 4000
+    eps_abs: float = 1e-3          # 1 mm, 1 mm/s: far below what the plant can act on
+    eps_rel: float = 1e-3
+    check_termination: int = 25     # OSQP: test convergence every this many iterations
+    time_limit_s: float = 0.0      # 0: none (OSQP time_limit)
+    cold_start_iterations: int = 3  # SQP iterations when no previous plan exists
+    accept_inaccurate: bool = True  # OSQP "solved inaccurate" is used (status says so)
+    warm_start_shifted: bool = True  # warm-start x with the shifted plan (else OSQP's last x, y)
+
+    def __post_init__(self):
+        n = self.horizon_s / self.dt_s
+        if not (self.dt_s > 0 and self.horizon_s > 0 and abs(n - round(n)) < 1e-6 and round(n) >= 2):
+            raise ValueError("MpcConfig: horizon_s must be a whole number (>= 2) of dt_s steps")
+        if not self.w_speed_effort > self.w_steer_effort:
+            raise ValueError("MpcConfig: the report (section VI) weights velocity effort above "
+                             "steering effort: need w_speed_effort > w_steer_effort")
+        for name in ("w_lateral", "w_heading", "w_speed", "w_steer_effort", "w_slack_quadratic",
+                     "r_terminal_steer", "r_terminal_accel", "w_limit_violation", "w_standstill"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"MpcConfig.{name} must be positive")
+        for name in ("w_floor", "w_transition", "w_pedal_level", "w_steer_level"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"MpcConfig.{name} must be >= 0")
+        if self.max_iter < 1:
+            raise ValueError("MpcConfig.max_iter must be >= 1")
+
+    @property
+    def n_stages(self) -> int:
+        return int(round(self.horizon_s / self.dt_s))
+
+
+@dataclass
+class ControlResult:
+    """What a controller step returns: always a safe command and a status.
+
+    Attributes:
+        command: the command to apply now (limits applied).
+        status: "solved", "solved_inaccurate", "hold", "shifted_plan (...)",
+            "controlled_stop (...)".
+        ok: True when this step's optimisation succeeded (or HOLD, which needs none).
+        solve_time_s: time in the solver [s] (0 when it did not run).
+        step_time_s: wall time of the whole step [s].
+        plan: predicted states (N+1, 4) of the plan followed, or None.
+        plan_inputs: planned inputs (N, 3), or None.
+        zone_plan: zone index per stage (N,), or None.
+        mode_plan: pedal mode per stage (N,), or None.
+        zone: the zone the controller believes the car is in.
+        pedal_mode: the pedal mode of this command.
+        iterations: solver iterations (summed over SQP iterations).
+    """
+
+    command: Command
+    status: str
+    ok: bool
+    solve_time_s: float = 0.0
+    step_time_s: float = 0.0
+    plan: np.ndarray | None = None
+    plan_inputs: np.ndarray | None = None
+    zone_plan: np.ndarray | None = None
+    mode_plan: np.ndarray | None = None
+    zone: int = 0
+    pedal_mode: int = int(PedalMode.BRAKE)
+    iterations: int = 0
+    info: dict = field(default_factory=dict)
+
+
+def preferred_zone(params: Params) -> int:
+    """The most accurate zone: lowest ``nmse_pct``; without fit metrics, the zone that
+    holds 3.5 m/s (the report's low zone, 2-5 m/s, section VI)."""
+    scored = [(z.nmse_pct, i) for i, z in enumerate(params.zones) if z.nmse_pct is not None]
+    if scored:
+        return min(scored)[1]
+    for i, z in enumerate(params.zones):
+        if z.v_min_mps < 3.5 <= z.v_max_mps:
+            return i
+    return 0
+
+
+def jacobians_batch(plant: HybridPlant, X: np.ndarray, U: np.ndarray, zones: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """``plant.jacobians`` for many stages at once: A (n, 4, 4), B (n, 4, 3) continuous."""
+    n = len(X)
+    delta = plant.offset_rad + plant.scale * U[:, 0]
+    v, psi = X[:, 3], X[:, 2]
+    c, s = np.cos(psi + delta), np.sin(psi + delta)
+    A = np.zeros((n, 4, 4))
+    A[:, 0, 2], A[:, 0, 3] = -v * s, c
+    A[:, 1, 2], A[:, 1, 3] = v * c, s
+    A[:, 2, 3] = np.sin(delta) / plant.wheelbase_m
+    B = np.zeros((n, 4, 3))
+    B[:, 0, 0] = -v * s * plant.scale
+    B[:, 1, 0] = v * c * plant.scale
+    B[:, 2, 0] = v * np.cos(delta) * plant.scale / plant.wheelbase_m
+    B[:, 3, 1] = plant.z_scale[zones]
+    B[:, 3, 2] = -plant.z_brake[zones]
+    return A, B
+
+
+def derivative_batch(plant: HybridPlant, X: np.ndarray, U: np.ndarray, zones: np.ndarray
+                     ) -> np.ndarray:
+    """``plant.derivative`` for many stages at once (n, 4)."""
+    delta = plant.offset_rad + plant.scale * U[:, 0]
+    v, psi = X[:, 3], X[:, 2]
+    out = np.empty_like(X)
+    out[:, 0] = v * np.cos(psi + delta)
+    out[:, 1] = v * np.sin(psi + delta)
+    out[:, 2] = v * np.sin(delta) / plant.wheelbase_m
+    out[:, 3] = plant.z_offset[zones] + plant.z_scale[zones] * U[:, 1] - plant.z_brake[zones] * U[:, 2]
+    return out
+
+
+class _QpLayout:
+    """Index bookkeeping of the QP. Variables z = [x_0..x_N | u_0..u_{N-1} | s_0..s_{N-1}],
+    slack s_k = (dynamic limits, speed low, speed high) of the transition k -> k+1."""
+
+    def __init__(self, n_stages: int, dt_s: float):
+        N = self.N = n_stages
+        self.dt = dt_s
+        self.nx_all = NX * (N + 1)
+        self.nu_all = NU * N
+        self.n = self.nx_all + self.nu_all + NS * N
+        ix = lambda k, i: NX * k + i                        # noqa: E731
+        iu = lambda k, i: self.nx_all + NU * k + i          # noqa: E731
+        isl = lambda k, i: self.nx_all + self.nu_all + NS * k + i  # noqa: E731
+        self.ix, self.iu, self.isl = ix, iu, isl
+
+        # ---------------- P pattern (upper triangle), COO order = value order
+        pr, pc = [], []
+        for k in range(1, N + 1):
+            for a, b in _UT4:
+                pr.append(ix(k, a)); pc.append(ix(k, b))
+        for k in range(N):
+            for i in range(NU):
+                pr.append(iu(k, i)); pc.append(iu(k, i))
+        for k in range(1, N):
+            for i in range(NU):
+                pr.append(iu(k - 1, i)); pc.append(iu(k, i))
+        for k in range(N):
+            for i in range(NS):
+                pr.append(isl(k, i)); pc.append(isl(k, i))
+        self.p_seg = np.cumsum([0, 10 * N, NU * N, NU * (N - 1), NS * N])
+        self.P, self.P_perm = _pattern(pr, pc, self.n, self.n)
+
+        # ---------------- A pattern, rows by block
+        ar, ac, av = [], [], []
+        row = 0
+
+        def put(r, c, v):
+            ar.append(r); ac.append(c); av.append(v)
+        # dynamics: x_0 = x_init; x_{k+1} - Ad x_k - Bd u_k = c_k
+        for i in range(NX):
+            put(i, ix(0, i), 1.0)
+        for k in range(N):
+            for i in range(NX):
+                put(NX * (k + 1) + i, ix(k + 1, i), 1.0)
+        self.a_dynA = len(av)
+        for k in range(N):
+            for i, j in _APAT:
+                put(NX * (k + 1) + i, ix(k, j), 0.0)
+        self.a_dynB = len(av)
+        for k in range(N):
+            for i, j in _BPAT:
+                put(NX * (k + 1) + i, iu(k, j), 0.0)
+        self.a_dyn_end = len(av)
+        row = NX * (N + 1)
+        self.r_dyn = slice(0, row)
+        # input bounds
+        self.r_u = slice(row, row + NU * N)
+        for k in range(N):
+            for i in range(NU):
+                put(row + NU * k + i, iu(k, i), 1.0)
+        row += NU * N
+        # steering rate
+        self.r_sr = slice(row, row + N)
+        for k in range(N):
+            put(row + k, iu(k, 0), 1.0)
+            if k:
+                put(row + k, iu(k - 1, 0), -1.0)
+        row += N
+        inv = 1.0 / dt_s
+        # acceleration low / high: a_k = (v_{k+1} - v_k)/dt, +- slack 0
+        for sign, name in ((1.0, "r_al"), (-1.0, "r_ah")):
+            setattr(self, name, slice(row, row + N))
+            for k in range(N):
+                put(row + k, ix(k + 1, 3), inv)
+                put(row + k, ix(k, 3), -inv)
+                put(row + k, isl(k, 0), sign)
+            row += N
+        # jerk low / high (per stage): a_k - a_{k-1}; a_{-1} enters the bounds
+        for sign, name in ((1.0, "r_jl"), (-1.0, "r_jh")):
+            setattr(self, name, slice(row, row + N))
+            for k in range(N):
+                if k == 0:
+                    put(row, ix(1, 3), inv)
+                    put(row, ix(0, 3), -inv)
+                else:
+                    put(row + k, ix(k + 1, 3), inv)
+                    put(row + k, ix(k, 3), -2 * inv)
+                    put(row + k, ix(k - 1, 3), inv)
+                put(row + k, isl(k, 0), sign)
+            row += N
+        # speed low: v_{k+1} + s1 >= lo ; speed high: v_{k+1} - s2 <= hi
+        self.r_vl = slice(row, row + N)
+        for k in range(N):
+            put(row + k, ix(k + 1, 3), 1.0)
+            put(row + k, isl(k, 1), 1.0)
+        row += N
+        self.r_vh = slice(row, row + N)
+        for k in range(N):
+            put(row + k, ix(k + 1, 3), 1.0)
+            put(row + k, isl(k, 2), -1.0)
+        row += N
+        # slacks >= 0
+        self.r_s = slice(row, row + NS * N)
+        for k in range(N):
+            for i in range(NS):
+                put(row + NS * k + i, isl(k, i), 1.0)
+        row += NS * N
+        self.m = row
+        self.A_vals = np.array(av)
+        self.A, self.A_perm = _pattern(ar, ac, self.m, self.n)
+
+
+def _pattern(rows, cols, m, n):
+    """CSC matrix of the pattern and the permutation CSC-data-order -> value order."""
+    ids = np.arange(1, len(rows) + 1, dtype=float)
+    M = sp.coo_matrix((ids, (np.array(rows), np.array(cols))), shape=(m, n)).tocsc()
+    M.sort_indices()
+    if M.nnz != len(rows):
+        raise RuntimeError("duplicate entries in a QP pattern")  # a bug in _QpLayout
+    perm = (M.data - 1).astype(np.int64)
+    return M, perm
+
+
+class MpcController:
+    """The OSQP fast path. ``step`` returns a :class:`ControlResult`; see the module doc.
+
+    Args:
+        params: the model the controller believes (a complete parameter file).
+        config: tuning (:class:`MpcConfig`).
+        limits: actuator/comfort limits (default: from ``params``).
+        mode_config: pedal/standstill mode logic tuning.
+    """
+
+    name = "mpc"
+
+    def __init__(self, params: Params, config: MpcConfig | None = None,
+                 limits: Limits | None = None, mode_config: ModeConfig | None = None):
+        if not params.is_model:
+            raise ValueError("MpcController needs a complete model (steering and zones)")
+        self.params = params
+        self.config = config or MpcConfig()
+        self.limits = limits or Limits.from_params(params)
+        self.mode_config = mode_config or ModeConfig()
+        self.plant = HybridPlant(params)
+        self.N = self.config.n_stages
+        self.dt = self.config.dt_s
+        self.layout = _QpLayout(self.N, self.dt)
+        self.pref_zone = preferred_zone(params)
+        floor = self.config.min_speed_mps
+        self.floor_mps = params.zones[self.pref_zone].v_min_mps if floor is None else float(floor)
+        self.dead_time_steer_s = float(params.steering.dead_time_s or 0.0)
+        self.dead_time_long_s = float(params.longitudinal_dead_time_s or 0.0)
+        self._lqr_cache: dict = {}
+        self._solver = None
+        self._update_s = 0.0
+        self._pedal = PedalModeLogic(self.mode_config)
+        self._standstill = StandstillLogic(self.mode_config)
+        self._build_constant_parts()
+        self.reset()
+
+    # ----------------------------------------------------------------- state
+    def reset(self) -> None:
+        """Forget the plan, the history and the modes (a new run)."""
+        self._plan = None          # (t0_s, X, U) of the last good solution
+        self._history: deque = deque(maxlen=256)  # (t_issue_s, Command)
+        self._last_cmd: Command | None = None
+        self._last_t: float | None = None
+        self._zone: int | None = None
+        self._s_prog: float | None = None
+        self._pedal.reset()
+        self._standstill.reset()
+        self._fixed = (0, np.zeros(0), 0, np.zeros((0, 2)))
+        self._warm = None
+
+    def _build_constant_parts(self) -> None:
+        L, N, dt = self.layout, self.N, self.dt
+        lim = self.limits
+        self._l0 = np.full(L.m, -np.inf)
+        self._u0 = np.full(L.m, np.inf)
+        self._l0[L.r_sr] = -lim.steering_wheel_rate_max_radps * dt
+        self._u0[L.r_sr] = lim.steering_wheel_rate_max_radps * dt
+        self._l0[L.r_al] = -lim.decel_max_mps2
+        self._u0[L.r_ah] = lim.accel_max_mps2
+        self._l0[L.r_jl] = -lim.jerk_max_mps3 * dt
+        self._u0[L.r_jh] = lim.jerk_max_mps3 * dt
+        self._u0[L.r_vh] = lim.speed_max_mps
+        self._l0[L.r_s] = 0.0
+        # input bounds: steering
+        swmax = lim.steering_wheel_angle_max_rad
+        self._u_lo = np.zeros((N, NU))
+        self._u_hi = np.zeros((N, NU))
+        self._u_lo[:, 0], self._u_hi[:, 0] = -swmax, swmax
+        c = self.config
+        sw_n = 1.0 / swmax ** 2
+        self._w_sr = c.w_steer_effort * sw_n / dt       # per rad^2 of change per stage
+        self._w_pr = c.w_speed_effort / dt               # per pedal^2 of change per stage
+        self._w_sl = c.w_steer_level * sw_n * dt
+        self._w_pl = c.w_pedal_level * dt
+        # constant part of P values: inputs and slacks
+        ud = np.empty((N, NU))
+        ud[:, 0] = self._w_sl + 2 * self._w_sr
+        ud[:, 1:] = self._w_pl + 2 * self._w_pr
+        ud[-1, 0] -= self._w_sr
+        ud[-1, 1:] -= self._w_pr
+        uo = np.empty((N - 1, NU))
+        uo[:, 0] = -self._w_sr
+        uo[:, 1:] = -self._w_pr
+        self._P_u = np.concatenate([ud.ravel(), uo.ravel(),
+                                    np.full(NS * N, c.w_slack_quadratic * dt)])
+        self._Px_vals = np.zeros(L.P.nnz)
+
+    # ------------------------------------------------------------------ step
+    def step(self, state, reference: Reference, t_s: float, *, stop: bool = False,
+             obstacle_distance_m: float | None = None) -> ControlResult:
+        """One control step at time ``t_s`` from the measured ``state`` [x, y, psi, v].
+
+        Args:
+            state: measured state (local ENU, front-wheel point, m, m, rad, m/s).
+            reference: the trajectory to follow.
+            t_s: time [s] on the reference's clock.
+            stop: a stop command (overrides the minimum-speed floor).
+            obstacle_distance_m: distance to an obstacle ahead on the path [m] (overrides
+                the floor; the speed reference comes down to stop before it).
+
+        Returns a ControlResult; never raises, never None.
+        """
+        t_wall = time.perf_counter()
+        try:
+            x = np.asarray(state, dtype=float).reshape(-1)
+            if x.shape != (4,) or not np.all(np.isfinite(x)):
+                res = self._fallback(float(t_s), "invalid state")
+            else:
+                res = self._step(x, reference, float(t_s), bool(stop), obstacle_distance_m)
+        except Exception as exc:  # never raise into the loop: say so, stay safe
+            res = self._fallback(float(t_s), f"internal error {type(exc).__name__}: {exc}")
+        res.step_time_s = time.perf_counter() - t_wall
+        return res
+
+    # -------------------------------------------------------------- internals
+    def _finish(self, cmd: Command, t_s: float, zone: int) -> Command:
+        dt = self.dt if self._last_t is None else max(t_s - self._last_t, 1e-3)
+        z = self.params.zones[zone]
+        out = apply_limits(cmd, self._last_cmd, self.limits, dt, zone=z)
+        self._last_cmd = out
+        self._last_t = t_s
+        self._history.append((t_s, out))
+        return out
+
+    def _fallback(self, t_s: float, reason: str) -> ControlResult:
+        """Shift the previous plan; when none remains, a controlled stop."""
+        zone = self._zone if self._zone is not None else 0
+        if self._plan is not None:
+            t0, X, U, zones, modes = self._plan
+            k = int(math.floor((t_s - t0) / self.dt + 1e-9))
+            k_s, _, k_l, _ = self._fixed
+            if 0 <= k and k + max(k_s, k_l) < self.N - 1:
+                sw, ap, bp = U[k + k_s, 0], U[k + k_l, 1], U[k + k_l, 2]
+                cmd = self._finish(Command(float(sw), float(ap), float(bp)), t_s, zone)
+                return ControlResult(cmd, f"shifted_plan ({reason})", False, plan=X,
+                                     plan_inputs=U, zone_plan=zones, mode_plan=modes,
+                                     zone=zone, pedal_mode=int(modes[k]))
+            self._plan = None
+        return self._controlled_stop(t_s, reason, zone)
+
+    def _controlled_stop(self, t_s: float, reason: str, zone: int) -> ControlResult:
+        """Brake ramp to a moderate deceleration, throttle released, steering held."""
+        z = self.params.zones[zone]
+        prev = self._last_cmd
+        dt = self.dt if self._last_t is None else max(t_s - self._last_t, 1e-3)
+        target = min(1.0, max(z.offset_mps2 + self.config.stop_brake_decel_mps2, 0.0)
+                     / max(z.brake_scale_mps2, 1e-6))
+        ramp = self.limits.jerk_max_mps3 / max(z.brake_scale_mps2, 1e-6) * dt
+        bp0 = prev.brake_pedal if prev is not None else 0.0
+        bp = min(target, bp0 + ramp) if bp0 < target else bp0
+        sw = prev.steering_wheel_angle_rad if prev is not None else 0.0
+        cmd = self._finish(Command(sw, 0.0, bp), t_s, zone)
+        return ControlResult(cmd, f"controlled_stop ({reason})", False, zone=zone,
+                             pedal_mode=int(PedalMode.BRAKE))
+
+    def _predict_through_delay(self, x: np.ndarray, t_s: float) -> tuple[np.ndarray, float]:
+        """Predict through the inputs in flight.
+
+        With dead times d_s (steering) and d_l (pedals), the QP starts at t + d0,
+        d0 = min(d_s, d_l): the state is predicted to then with the commands already issued
+        (both channels are known up to t + d0). The channel with the longer dead time has
+        its first round((d_c - d0) / dt) QP stages fixed to its in-flight commands
+        (``self._fixed``); its command now is the QP input at the stage where it will act.
+        Returns (state at t + d0, d0).
+        """
+        ds, dl = self.dead_time_steer_s, self.dead_time_long_s
+        d0 = min(ds, dl)
+        hist = list(self._history)
+        last = self._last_cmd or Command(0.0, 0.0, 0.0)
+
+        def issued_at(tq: float) -> Command:
+            cmd = None
+            for ti, c in hist:
+                if ti <= tq + 1e-9:
+                    cmd = c
+                else:
+                    break
+            return cmd if cmd is not None else (hist[0][1] if hist else last)
+        dt = self.dt
+        k_s = int(round((ds - d0) / dt))
+        k_l = int(round((dl - d0) / dt))
+        t0 = t_s + d0
+        steer = np.array([issued_at(t0 + k * dt - ds).steering_wheel_angle_rad
+                          for k in range(k_s)])
+        ped = np.array([[issued_at(t0 + k * dt - dl).accel_pedal,
+                         issued_at(t0 + k * dt - dl).brake_pedal] for k in range(k_l)])
+        self._fixed = (k_s, steer, k_l, ped.reshape(k_l, 2))
+        if d0 <= 0:
+            return x, 0.0
+        n_sub = max(int(math.ceil(d0 / 0.05)), 1)
+        h = d0 / n_sub
+        s = x.copy()
+        zone = self._zone
+        for j in range(n_sub):
+            tau = t_s + (j + 0.5) * h
+            cs, cl = issued_at(tau - ds), issued_at(tau - dl)
+            u = np.array([cs.steering_wheel_angle_rad, cl.accel_pedal, cl.brake_pedal])
+            r = self.plant.step(s, u, h, zone)
+            s, zone = r.state, r.zone
+        return s, d0
+
+    def _input_bounds(self, modes: np.ndarray):
+        """Input bounds (N, 3) and steering-rate row bounds (N,): pedal modes, in-flight
+        inputs fixed, rate relative to the last command."""
+        N, dt = self.N, self.dt
+        ulo, uhi = self._u_lo.copy(), self._u_hi.copy()
+        thr = modes == PedalMode.THROTTLE
+        uhi[:, 1] = np.where(thr, 1.0, 0.0)
+        uhi[:, 2] = np.where(thr, 0.0, 1.0)
+        r = self.limits.steering_wheel_rate_max_radps * dt
+        srlo, srhi = np.full(N, -r), np.full(N, r)
+        prev = self._last_cmd
+        if prev is not None:
+            srlo[0] += prev.steering_wheel_angle_rad
+            srhi[0] += prev.steering_wheel_angle_rad
+        else:
+            srlo[0], srhi[0] = -np.inf, np.inf
+        k_s, steer, k_l, ped = self._fixed
+        if k_s:
+            ulo[:k_s, 0] = uhi[:k_s, 0] = steer
+            srlo[:k_s], srhi[:k_s] = -np.inf, np.inf
+        if k_l:
+            ulo[:k_l, 1:] = uhi[:k_l, 1:] = ped
+        return ulo, uhi, srlo, srhi
+
+    def _lqr_terminal(self, v_mps: float, delta_rad: float) -> np.ndarray:
+        """3x3 DARE solution on (lateral, heading, speed) errors, from control.dlqr."""
+        vq = max(round(v_mps * 2) / 2, 0.5)
+        dq = round(delta_rad * 20) / 20
+        key = (vq, dq)
+        P3 = self._lqr_cache.get(key)
+        if P3 is None:
+            import control  # python-control: dlqr
+            c, dt, pl = self.config, self.dt, self.plant
+            Ac = np.array([[0.0, vq, 0.0], [0.0, 0.0, math.sin(dq) / pl.wheelbase_m],
+                           [0.0, 0.0, 0.0]])
+            Bc = np.array([[vq * pl.scale, 0.0],
+                           [vq * math.cos(dq) * pl.scale / pl.wheelbase_m, 0.0], [0.0, 1.0]])
+            Ad = np.eye(3) + Ac * dt + Ac @ Ac * dt * dt / 2
+            Bd = (np.eye(3) * dt + Ac * dt * dt / 2) @ Bc
+            Q = np.diag([c.w_lateral, c.w_heading, c.w_speed]) * dt
+            R = np.diag([c.r_terminal_steer, c.r_terminal_accel]) * dt
+            _K, P3, _E = control.dlqr(Ad, Bd, Q, R)
+            P3 = np.asarray(P3)
+            if len(self._lqr_cache) > 512:
+                self._lqr_cache.clear()
+            self._lqr_cache[key] = P3
+        return P3
+
+    def _speed_reference(self, ref: Reference, tk: np.ndarray, v0: float, stop: bool,
+                         obstacle_m: float | None, s_rel: np.ndarray) -> np.ndarray:
+        v_r = ref.speed_at(tk)
+        dec = self.config.stop_decel_mps2
+        if stop:
+            v_r = np.minimum(v_r, np.maximum(v0 - dec * (tk - tk[0]), 0.0))
+        if obstacle_m is not None and math.isfinite(obstacle_m):
+            room = np.maximum(obstacle_m - self.config.obstacle_margin_m - s_rel, 0.0)
+            v_r = np.minimum(v_r, np.sqrt(2 * dec * room))
+        return v_r
+
+    def _step(self, x_meas: np.ndarray, ref: Reference, t: float, stop: bool,
+              obstacle_m: float | None) -> ControlResult:
+        cfg, L, N, dt, pl = self.config, self.layout, self.N, self.dt, self.plant
+        x0, d = self._predict_through_delay(x_meas, t)
+        k_s, _steer_fixed, k_l, ped_fixed = self._fixed
+        x0[3] = max(x0[3], 0.0)
+        self._zone = pl.select_zone(float(x_meas[3]), self._zone)
+        zone0 = pl.select_zone(float(x0[3]), self._zone)
+        tk = t + d + dt * np.arange(N + 1)
+        override = stop or (obstacle_m is not None and obstacle_m < 1e9)
+
+        # ---- standstill HOLD (mode logic; no QP needed while the car is held)
+        look = ref.speed_at(np.linspace(t, t + d + self.mode_config.hold_lookahead_s, 6))
+        stop_now = stop or (obstacle_m is not None and obstacle_m <= cfg.obstacle_margin_m)
+        if self._standstill.update(float(x_meas[3]), float(look.max()), stop_now):
+            self._pedal.hold(t)
+            self._plan = None
+            self._warm = None
+            z = self.params.zones[0]
+            hold_bp = self._standstill.hold_brake(z.offset_mps2, z.brake_scale_mps2)
+            prev = self._last_cmd
+            sw = prev.steering_wheel_angle_rad if prev is not None else 0.0
+            cmd = self._finish(Command(sw, 0.0, hold_bp), t, zone0)
+            if self._s_prog is not None:
+                self._s_prog = ref.project(float(x_meas[0]), float(x_meas[1]), self._s_prog,
+                                           5.0)[0]
+            return ControlResult(cmd, "hold", True, zone=zone0, pedal_mode=int(PedalMode.HOLD))
+
+        # ---- progress along the path
+        if self._s_prog is None:
+            hint = float(ref.s_at_time(t))
+            window = 30.0
+        else:
+            hint = self._s_prog
+            window = 5.0 + 3.0 * float(x0[3]) * max(t - (self._last_t or t), dt)
+        s0, _lat = ref.project(float(x0[0]), float(x0[1]), hint, window)
+        self._s_prog = s0
+
+        # ---- nominal trajectory: previous plan shifted in time, or a cold guess
+        cold = self._plan is None
+        if not cold:
+            t0p, Xp, Up, _zp, _mp = self._plan
+            tp = t0p + dt * np.arange(N + 1)
+            Xb = np.column_stack([np.interp(tk, tp, Xp[:, j]) for j in range(NX)])
+            Ub = np.column_stack([np.interp(tk[:-1], tp[:-1], Up[:, j]) for j in range(NU)])
+            a_prev = float(np.interp(tk[0], tp[:-1], np.diff(Xp[:, 3]) / dt))
+        else:
+            v_r0 = ref.speed_at(tk)
+            vb = np.empty(N + 1)
+            vb[0] = x0[3]
+            for k in range(N):
+                vb[k + 1] = max(vb[k] + np.clip(v_r0[k + 1] - vb[k], -1.5 * dt, 1.0 * dt), 0.0)
+            Xb = np.zeros((N + 1, NX))
+            Xb[:, 3] = vb
+            Ub = np.zeros((N, NU))
+            a_prev = 0.0
+
+        # the pedal-mode decision uses the speed the last plan predicted for now, not the
+        # raw measurement: a noise spike must not switch pedals (the QP itself starts from
+        # the measurement)
+        v_mode = float(x0[3]) if cold else float(Xb[0, 3])
+        Xb[0] = x0
+        iters = cfg.cold_start_iterations if cold else 1
+        total_solve, total_update, total_it = 0.0, 0.0, 0
+        status = "solved"
+        for it in range(iters):
+            vb = np.maximum(Xb[:, 3], 0.0)
+            s_k = s0 + np.concatenate([[0.0], np.cumsum(0.5 * (vb[1:] + vb[:-1]) * dt)])
+            xr, yr, th, kap = ref.point_at(s_k)
+            dref = np.arcsin(np.clip(kap * pl.wheelbase_m, -0.95, 0.95))
+            psi_r = th - dref
+            if cold and it == 0:  # the cold guess lies on the path
+                Xb[1:, 0], Xb[1:, 1], Xb[1:, 2] = xr[1:], yr[1:], psi_r[1:]
+                Xb[1:, 2] += 2 * np.pi * np.round((x0[2] - psi_r[0]) / (2 * np.pi))
+            psi_r = psi_r + 2 * np.pi * np.round((Xb[:, 2] - psi_r) / (2 * np.pi))
+            sw_max = self.limits.steering_wheel_angle_max_rad
+            sw_ff = np.clip((dref - pl.offset_rad) / pl.scale, -sw_max, sw_max)
+            if cold and it == 0:
+                Ub[:, 0] = sw_ff[:-1]
+            v_r = self._speed_reference(ref, tk, float(x0[3]), stop, obstacle_m, s_k - s0)
+
+            # ---- zone schedule along the nominal speed profile (plant hysteresis)
+            zones = self._zone_schedule(zone0, vb)
+            # ---- pedal modes (one free pedal per stage)
+            vb_mode = vb.copy()
+            vb_mode[0] = v_mode  # the switching signal is filtered; the QP is not
+            a_des = desired_accel(v_r, vb_mode, dt, self.mode_config.error_time_constant_s)
+            coast = pl.z_offset[zones]
+            if it == 0:
+                exhausted = True
+                cur = self._pedal.mode
+                if not cold and cur in (PedalMode.THROTTLE, PedalMode.BRAKE):
+                    k_ex = max(int(round(self.mode_config.exhausted_lookahead_s / dt)), 1)
+                    exhausted = bool(np.all(Ub[k_l:k_l + k_ex, 1 + int(cur)] <= PEDAL_RELEASED))
+                first = self._pedal.first(float(a_des[k_l]), float(coast[k_l]), t, exhausted)
+            modes = np.empty(N, dtype=np.int8)
+            modes[k_l:] = self._pedal.schedule(first, a_des[k_l:], coast[k_l:], dt,
+                                               self._pedal.since_switch_s(t),
+                                               None if cold else Ub[k_l:, 1:])
+            if k_l:  # pedals in flight: their own modes
+                modes[:k_l] = np.where(ped_fixed[:, 0] > 0, PedalMode.THROTTLE, PedalMode.BRAKE)
+            # ---- speed band: floor, zone-transition rule, standstill
+            v_lo, w_lo, v_hi, w_hi = self._speed_band(zone0, v_r, override)
+
+            sol, info = self._solve(x0, Xb, Ub, zones, modes, xr, yr, th, psi_r, dref, sw_ff,
+                                    v_r, v_lo, w_lo, v_hi, w_hi, a_prev)
+            total_solve += info["solve_time_s"]
+            total_update += info.get("update_time_s", 0.0)
+            total_it += info["iter"]
+            status = info["status"]
+            if sol is None:
+                break
+            Xb = sol[:L.nx_all].reshape(N + 1, NX).copy()
+            Ub = sol[L.nx_all:L.nx_all + L.nu_all].reshape(N, NU).copy()
+
+        if sol is None:
+            res = self._fallback(t, f"osqp: {status}")
+            res.solve_time_s, res.iterations = total_solve, total_it
+            return res
+        self._warm = sol
+        # each channel's command is the QP input at the stage where it will act; the QP's
+        # bounds make the non-free pedal exactly 0 (clean solver round-off)
+        ap = float(Ub[k_l, 1]) if modes[k_l] == PedalMode.THROTTLE else 0.0
+        bp = float(Ub[k_l, 2]) if modes[k_l] == PedalMode.BRAKE else 0.0
+        cmd = self._finish(Command(float(Ub[k_s, 0]), ap, bp), t, zone0)
+        self._plan = (float(tk[0]), Xb, Ub, zones, modes)
+        return ControlResult(cmd, status, True, solve_time_s=total_solve, plan=Xb,
+                             plan_inputs=Ub, zone_plan=zones, mode_plan=modes, zone=zone0,
+                             pedal_mode=int(modes[k_l]), iterations=total_it,
+                             info={"v_ref_mps": v_r, "s0_m": s0,
+                                   "update_time_s": total_update})
+
+    def _zone_schedule(self, zone0: int, vb: np.ndarray) -> np.ndarray:
+        pl = self.plant
+        lo = (pl.v_min - pl.hysteresis_mps).tolist()
+        hi = (pl.v_max + pl.hysteresis_mps).tolist()
+        lo[0] = -np.inf
+        hi[-1] = np.inf
+        vmax = pl.v_max.tolist()
+        nz = pl.n_zones
+        out = np.empty(self.N, dtype=np.int64)
+        z = zone0
+        out[0] = z
+        for k, v in enumerate(vb[1:self.N].tolist(), start=1):
+            if not (lo[z] <= v <= hi[z]):
+                z = 0
+                while z < nz - 1 and v > vmax[z]:
+                    z += 1
+            out[k] = z
+        return out
+
+    def _speed_band(self, zone0: int, v_r: np.ndarray, override: bool):
+        """Lower/upper speed targets of stages 1..N and the weights of their slacks."""
+        cfg, pl, N, dt = self.config, self.plant, self.N, self.dt
+        vr = v_r[1:]
+        v_lo = np.zeros(N)
+        # speed >= 0: an exact (L1) penalty while the reference moves; where it asks for
+        # standstill the quadratic slack term alone keeps the plan at 0 (the brake may
+        # press harder than needed at rest; an L1 kink there only slows the solver down)
+        w_lo = np.where(vr > self.mode_config.standstill_speed_mps, cfg.w_standstill * dt, 0.0)
+        v_hi = np.full(N, self.limits.speed_max_mps)
+        w_hi = np.full(N, cfg.w_speed_max * dt)
+        if self.floor_mps > 0 and cfg.w_floor > 0 and not override:
+            on = vr >= self.floor_mps
+            v_lo = np.where(on, self.floor_mps, v_lo)
+            w_lo = np.where(on, cfg.w_floor * dt, w_lo)
+        if cfg.w_transition > 0:
+            m = cfg.transition_band_margin_mps
+            lo = pl.v_min[zone0] - pl.hysteresis_mps + m if zone0 > 0 else 0.0
+            hi = pl.v_max[zone0] + pl.hysteresis_mps - m if zone0 < pl.n_zones - 1 else np.inf
+            outside = (v_r < lo) | (v_r > hi)
+            allowed = True
+            if outside.any():
+                k = int(np.argmax(outside))
+                target = pl.zone_by_speed(float(v_r[k]))
+                # a reference that comes to a standstill is a stop command: it overrides
+                # the band like the floor (report VI), whatever the acceleration does
+                stopping = float(v_r[k:].min()) <= self.mode_config.standstill_speed_mps
+                if target != self.pref_zone and not stopping:
+                    a_ref = np.diff(v_r) / dt
+                    win = max(int(round(cfg.transition_window_s / dt)), 1)
+                    dwell = max(int(round(cfg.transition_dwell_s / dt)), 1)
+                    stays = bool(np.all(outside[k:min(k + dwell, N + 1)]))
+                    allowed = stays and transition_allowed(a_ref, k, win,
+                                                           cfg.transition_accel_tol_mps2)
+            else:
+                allowed = False  # no transition demanded: leaving the band is penalised
+            if not allowed and not override:
+                if lo > 0:
+                    use = lo > v_lo
+                    v_lo = np.where(use, lo, v_lo)
+                    w_lo = np.where(use, cfg.w_transition * dt, w_lo)
+                if np.isfinite(hi):
+                    use = hi < v_hi
+                    v_hi = np.where(use, hi, v_hi)
+                    w_hi = np.where(use, cfg.w_transition * dt, w_hi)
+        return v_lo, w_lo, v_hi, w_hi
+
+    def _solve(self, x0, Xb, Ub, zones, modes, xr, yr, th, psi_r, dref, sw_ff, v_r,
+               v_lo, w_lo, v_hi, w_hi, a_prev):
+        cfg, L, N, dt, pl = self.config, self.layout, self.N, self.dt, self.plant
+        # ---- linearise and discretise about the nominal
+        A, B = jacobians_batch(pl, Xb[:N], Ub, zones)
+        A2 = A @ A
+        Ad = np.eye(NX) + A * dt + A2 * (dt * dt / 2)
+        Bd = (dt * B) + (dt * dt / 2) * (A @ B)
+        f1 = derivative_batch(pl, Xb[:N], Ub, zones)
+        f2 = derivative_batch(pl, Xb[:N] + 0.5 * dt * f1, Ub, zones)
+        xnext = Xb[:N] + dt * f2
+        ck = xnext - np.einsum("kij,kj->ki", Ad, Xb[:N]) - np.einsum("kij,kj->ki", Bd, Ub)
+
+        # ---- P values (state blocks from the path geometry; terminal from dlqr)
+        nxv, nyv = -np.sin(th[1:]), np.cos(th[1:])
+        wl, wh, wv = cfg.w_lateral * dt, cfg.w_heading * dt, cfg.w_speed * dt
+        Q = np.zeros((N, 4, 4))
+        Q[:, 0, 0] = wl * nxv * nxv
+        Q[:, 0, 1] = wl * nxv * nyv
+        Q[:, 1, 1] = wl * nyv * nyv
+        Q[:, 2, 2] = wh
+        Q[:, 3, 3] = wv
+        T = np.array([[nxv[-1], nyv[-1], 0.0, 0.0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
+        P3 = self._lqr_terminal(float(Xb[-1, 3]), float(dref[-1]))
+        PT = T.T @ P3 @ T
+        Q[-1] += np.triu(PT)  # blocks are stored as their upper triangle
+        Qfull = Q + (Q * _STRICT_UPPER4).transpose(0, 2, 1)
+        qv = np.array([Q[:, a, b] for a, b in _UT4]).T.ravel()
+        Px = self._Px_vals
+        Px[:L.p_seg[1]] = qv
+        Px[L.p_seg[1]:] = self._P_u
+        # slack quadratic weights stay constant; P in CSC order
+        Pdata = Px[L.P_perm]
+
+        # ---- q
+        q = np.zeros(L.n)
+        rk = np.column_stack([xr[1:], yr[1:], psi_r[1:], v_r[1:]])
+        q[NX:L.nx_all] = -np.einsum("kij,kj->ki", Qfull, rk).ravel()
+        qu = np.zeros((N, NU))
+        qu[:, 0] = -self._w_sl * sw_ff[:N]
+        prev = self._last_cmd
+        if prev is not None:
+            qu[0, 0] -= self._w_sr * prev.steering_wheel_angle_rad
+            qu[0, 1] -= self._w_pr * prev.accel_pedal
+            qu[0, 2] -= self._w_pr * prev.brake_pedal
+        q[L.nx_all:L.nx_all + L.nu_all] = qu.ravel()
+        qs = np.empty((N, NS))
+        qs[:, 0] = cfg.w_limit_violation * dt
+        qs[:, 1] = w_lo
+        qs[:, 2] = w_hi
+        q[L.nx_all + L.nu_all:] = qs.ravel()
+
+        # ---- A values: dynamics
+        Av = L.A_vals
+        Av[L.a_dynA:L.a_dynB] = -np.array([Ad[:, i, j] for i, j in _APAT]).T.ravel()
+        Av[L.a_dynB:L.a_dyn_end] = -np.array([Bd[:, i, j] for i, j in _BPAT]).T.ravel()
+        Adata = Av[L.A_perm]
+
+        # ---- bounds
+        lo, hi = self._l0.copy(), self._u0.copy()
+        lo[:NX] = hi[:NX] = x0
+        lo[NX:L.nx_all] = hi[NX:L.nx_all] = ck.ravel()
+        ulo, uhi, srlo, srhi = self._input_bounds(modes)
+        lo[L.r_u] = ulo.ravel()
+        hi[L.r_u] = uhi.ravel()
+        lo[L.r_sr] = srlo
+        hi[L.r_sr] = srhi
+        jd = self.limits.jerk_max_mps3 * dt
+        lo[L.r_jl.start] = a_prev - jd
+        hi[L.r_jh.start] = a_prev + jd
+        lo[L.r_vl] = v_lo
+        hi[L.r_vh] = v_hi
+
+        # ---- solve
+        if self._solver is None:
+            import osqp
+            Pm = L.P.copy()
+            Pm.data = Pdata
+            Am = L.A.copy()
+            Am.data = Adata
+            self._solver = osqp.OSQP()
+            settings = dict(verbose=False, warm_starting=True, polishing=False,
+                            eps_abs=cfg.eps_abs, eps_rel=cfg.eps_rel, max_iter=cfg.max_iter,
+                            adaptive_rho=True, check_termination=cfg.check_termination)
+            if cfg.time_limit_s > 0:
+                settings["time_limit"] = cfg.time_limit_s
+            self._solver.setup(Pm, q, Am, lo, hi, **settings)
+        else:
+            t_up = time.perf_counter()
+            self._solver.update(Px=Pdata, Ax=Adata, q=q, l=lo, u=hi)  # values in place
+            self._update_s = time.perf_counter() - t_up  # includes OSQP's KKT refactorisation
+        if self._warm is not None and self.config.warm_start_shifted:
+            xw = self._warm_start_vector(Xb, Ub)
+            self._solver.warm_start(x=xw)
+        t0 = time.perf_counter()
+        res = self._solver.solve(raise_error=False)
+        solve_s = time.perf_counter() - t0
+        st = str(res.info.status)
+        sv = int(res.info.status_val)
+        info = {"solve_time_s": solve_s, "iter": int(res.info.iter), "status": st,
+                "update_time_s": self._update_s}
+        ok = sv == 1 or (sv == 2 and cfg.accept_inaccurate)
+        if not ok or res.x is None or not np.all(np.isfinite(res.x)):
+            return None, info
+        info["status"] = "solved" if sv == 1 else "solved_inaccurate"
+        return np.array(res.x), info
+
+    def _warm_start_vector(self, Xb: np.ndarray, Ub: np.ndarray) -> np.ndarray:
+        L = self.layout
+        z = np.zeros(L.n)
+        z[:L.nx_all] = Xb.ravel()
+        z[L.nx_all:L.nx_all + L.nu_all] = Ub.ravel()
+        return z

@@ -1,0 +1,170 @@
+"""Hybrid-mode MPC, reference path: the same problem as a CasADi nonlinear program.
+
+Everything outside the optimisation is shared with the fast path
+(:class:`controller.mpc.MpcController`): delay compensation, zone and pedal-mode
+schedules, the speed band (floor, zone-transition rule), the dlqr terminal cost, limits,
+failure handling. Only the solve differs: instead of a QP on the model linearised about
+the previous plan, a multiple-shooting NLP on the nonlinear bicycle (eq. 1, integrated
+with the same explicit midpoint rule the QP is discretised from) is solved by IPOPT
+(CasADi ``Opti``), warm-started from the previous plan. The NLP is built once; each step
+sets its parameters.
+
+It is used to check the fast path (tests: both agree on simple cases) and as the
+baseline of ``tools/bench_mpc.py``.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from models.params import Params
+
+from .limits import Limits
+from .modes import ModeConfig
+from .mpc import NS, NU, NX, MpcConfig, MpcController
+
+
+class NmpcController(MpcController):
+    """CasADi/IPOPT nonlinear MPC with the step API of :class:`MpcController`.
+
+    Args: as :class:`MpcController`; ``ipopt_max_iter`` caps IPOPT's iterations.
+    """
+
+    name = "nmpc"
+
+    def __init__(self, params: Params, config: MpcConfig | None = None,
+                 limits: Limits | None = None, mode_config: ModeConfig | None = None,
+                 ipopt_max_iter: int = 200):
+        cfg = config or MpcConfig()
+        if cfg.cold_start_iterations != 1:  # the NLP needs no SQP iterations
+            from dataclasses import replace
+            cfg = replace(cfg, cold_start_iterations=1)
+        self.ipopt_max_iter = int(ipopt_max_iter)
+        self._opti = None
+        super().__init__(params, cfg, limits, mode_config)
+
+    # ------------------------------------------------------------- the NLP
+    def _build(self) -> None:
+        import casadi as ca
+
+        cfg, N, dt, pl = self.config, self.N, self.dt, self.plant
+        lim = self.limits
+        o = ca.Opti()
+        X = o.variable(NX, N + 1)
+        U = o.variable(NU, N)
+        S = o.variable(NS, N)
+        p = {
+            "x0": o.parameter(NX), "ref": o.parameter(NX, N), "nvec": o.parameter(2, N),
+            "PT": o.parameter(NX, NX), "rN": o.parameter(NX), "sw_ff": o.parameter(N),
+            "z_off": o.parameter(N), "z_scale": o.parameter(N), "z_brake": o.parameter(N),
+            "u_lo": o.parameter(NU, N), "u_hi": o.parameter(NU, N), "sr_lo": o.parameter(N),
+            "sr_hi": o.parameter(N), "prev": o.parameter(NU),
+            "has_prev": o.parameter(), "a_prev": o.parameter(), "v_lo": o.parameter(N),
+            "v_hi": o.parameter(N), "w_lo": o.parameter(N), "w_hi": o.parameter(N),
+        }
+        b, off, sc = pl.wheelbase_m, pl.offset_rad, pl.scale
+
+        def f(x, u, k):
+            delta = off + sc * u[0]
+            return ca.vertcat(x[3] * ca.cos(x[2] + delta), x[3] * ca.sin(x[2] + delta),
+                              x[3] * ca.sin(delta) / b,
+                              p["z_off"][k] + p["z_scale"][k] * u[1] - p["z_brake"][k] * u[2])
+
+        J = 0
+        wl, wh, wv = cfg.w_lateral * dt, cfg.w_heading * dt, cfg.w_speed * dt
+        o.subject_to(X[:, 0] == p["x0"])
+        for k in range(N):
+            xk, uk = X[:, k], U[:, k]
+            xm = xk + 0.5 * dt * f(xk, uk, k)
+            o.subject_to(X[:, k + 1] == xk + dt * f(xm, uk, k))
+            r = p["ref"][:, k]
+            e_lat = p["nvec"][0, k] * (X[0, k + 1] - r[0]) + p["nvec"][1, k] * (X[1, k + 1] - r[1])
+            J += 0.5 * (wl * e_lat ** 2 + wh * (X[2, k + 1] - r[2]) ** 2
+                        + wv * (X[3, k + 1] - r[3]) ** 2)
+            up = U[:, k - 1] if k else p["prev"]
+            hp = 1 if k else p["has_prev"]
+            J += 0.5 * hp * (self._w_sr * (uk[0] - up[0]) ** 2
+                             + self._w_pr * ((uk[1] - up[1]) ** 2 + (uk[2] - up[2]) ** 2))
+            J += 0.5 * (self._w_sl * (uk[0] - p["sw_ff"][k]) ** 2
+                        + self._w_pl * (uk[1] ** 2 + uk[2] ** 2))
+            J += (cfg.w_limit_violation * dt * S[0, k] + p["w_lo"][k] * S[1, k]
+                  + p["w_hi"][k] * S[2, k]
+                  + 0.5 * cfg.w_slack_quadratic * dt * ca.sumsqr(S[:, k]))
+            o.subject_to(o.bounded(p["u_lo"][:, k], uk, p["u_hi"][:, k]))
+            # row 0's bounds already hold the last command (see MpcController._input_bounds)
+            o.subject_to(o.bounded(p["sr_lo"][k], uk[0] - U[0, k - 1] if k else uk[0],
+                                   p["sr_hi"][k]))
+            a_k = (X[3, k + 1] - X[3, k]) / dt
+            o.subject_to(a_k + S[0, k] >= -lim.decel_max_mps2)
+            o.subject_to(a_k - S[0, k] <= lim.accel_max_mps2)
+            a_km1 = (X[3, k] - X[3, k - 1]) / dt if k else p["a_prev"]
+            jd = lim.jerk_max_mps3 * dt
+            o.subject_to(a_k - a_km1 + S[0, k] >= -jd)
+            o.subject_to(a_k - a_km1 - S[0, k] <= jd)
+            o.subject_to(X[3, k + 1] + S[1, k] >= p["v_lo"][k])
+            o.subject_to(X[3, k + 1] - S[2, k] <= p["v_hi"][k])
+            o.subject_to(S[:, k] >= 0)
+        eN = X[:, N] - p["rN"]
+        J += 0.5 * ca.mtimes([eN.T, p["PT"], eN])
+        o.minimize(J)
+        o.solver("ipopt", {"print_time": False, "error_on_fail": False, "expand": True},
+                 {"print_level": 0, "max_iter": self.ipopt_max_iter, "sb": "yes",
+                  "tol": 1e-6, "acceptable_tol": 1e-4})
+        self._opti, self._X, self._U, self._S, self._p = o, X, U, S, p
+
+    def _solve(self, x0, Xb, Ub, zones, modes, xr, yr, th, psi_r, dref, sw_ff, v_r,
+               v_lo, w_lo, v_hi, w_hi, a_prev):
+        N, pl, L = self.N, self.plant, self.layout
+        if self._opti is None:
+            self._build()
+        o, p = self._opti, self._p
+        o.set_value(p["x0"], x0)
+        o.set_value(p["ref"], np.vstack([xr[1:], yr[1:], psi_r[1:], v_r[1:]]))
+        o.set_value(p["nvec"], np.vstack([-np.sin(th[1:]), np.cos(th[1:])]))
+        nx_, ny_ = -np.sin(th[-1]), np.cos(th[-1])
+        T = np.array([[nx_, ny_, 0.0, 0.0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
+        P3 = self._lqr_terminal(float(Xb[-1, 3]), float(dref[-1]))
+        o.set_value(p["PT"], T.T @ P3 @ T)
+        o.set_value(p["rN"], np.array([xr[-1], yr[-1], psi_r[-1], v_r[-1]]))
+        o.set_value(p["sw_ff"], sw_ff[:N])
+        o.set_value(p["z_off"], pl.z_offset[zones])
+        o.set_value(p["z_scale"], pl.z_scale[zones])
+        o.set_value(p["z_brake"], pl.z_brake[zones])
+        ulo, uhi, srlo, srhi = self._input_bounds(modes)
+        big = 1e4  # IPOPT takes finite bounds: "free" rate rows get a huge band
+        o.set_value(p["u_lo"], ulo.T)
+        o.set_value(p["u_hi"], uhi.T)
+        o.set_value(p["sr_lo"], np.maximum(srlo, -big))
+        o.set_value(p["sr_hi"], np.minimum(srhi, big))
+        prev = self._last_cmd
+        o.set_value(p["prev"], np.zeros(3) if prev is None else np.array(prev.as_tuple()))
+        o.set_value(p["has_prev"], 0.0 if prev is None else 1.0)
+        o.set_value(p["a_prev"], a_prev)
+        o.set_value(p["v_lo"], v_lo)
+        o.set_value(p["v_hi"], np.minimum(v_hi, 1e3))
+        o.set_value(p["w_lo"], w_lo)
+        o.set_value(p["w_hi"], w_hi)
+        o.set_initial(self._X, Xb.T)
+        o.set_initial(self._U, Ub.T)
+        o.set_initial(self._S, np.zeros((NS, N)))
+        t0 = time.perf_counter()
+        try:
+            sol = o.solve_limited()
+        except RuntimeError:  # IPOPT gave up: a status for the caller, not an exception
+            sol = None
+        solve_s = time.perf_counter() - t0
+        stats = o.stats()
+        status = str(stats.get("return_status", "unknown"))
+        info = {"solve_time_s": solve_s, "iter": int(stats.get("iter_count", 0)),
+                "status": f"ipopt {status}"}
+        if sol is None or not stats.get("success", False):
+            return None, info
+        z = np.zeros(L.n)
+        z[:L.nx_all] = np.asarray(sol.value(self._X)).T.ravel()
+        z[L.nx_all:L.nx_all + L.nu_all] = np.asarray(sol.value(self._U)).T.ravel()
+        z[L.nx_all + L.nu_all:] = np.asarray(sol.value(self._S)).T.ravel()
+        if not np.all(np.isfinite(z)):
+            return None, info
+        info["status"] = "solved"
+        return z, info

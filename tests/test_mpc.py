@@ -1,0 +1,216 @@
+"""The OSQP fast path (controller/mpc.py): structure, modes, failure handling."""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from controller.limits import Limits
+from controller.modes import ModeConfig, PedalMode, PedalModeLogic, transition_allowed
+from controller.mpc import MpcConfig, MpcController, jacobians_batch, preferred_zone
+from models.params import load_params
+from models.plant import HybridPlant
+from models.scenarios import Reference
+
+SEED = 11
+
+
+@pytest.fixture(scope="module")
+def params():
+    return load_params("params/report_2008.yaml", require_model=True)
+
+
+def straight(v_mps: float, seconds: float = 20.0, v_end: float | None = None) -> Reference:
+    t = np.arange(0.0, seconds, 0.02)
+    v = np.full(len(t), v_mps) if v_end is None else np.linspace(v_mps, v_end, len(t))
+    x = np.concatenate([[0.0], np.cumsum(v[1:] * 0.02)])
+    return Reference(t, x, 0 * t, 0 * t, v, name="straight")
+
+
+def drive(ctl, ref, params, seconds, *, x0=None, plant_params=None, stop_at=None,
+          obstacle_x=None, period=0.1):
+    """A minimal loop (the real one is controller.closed_loop): returns states, results."""
+    plant = HybridPlant(plant_params or params)
+    s = ref.initial_state(params) if x0 is None else np.array(x0, float)
+    zone, out = None, []
+    for i in range(int(round(seconds / period))):
+        t = i * period
+        kw = {}
+        if stop_at is not None and t >= stop_at:
+            kw["stop"] = True
+        if obstacle_x is not None:
+            kw["obstacle_distance_m"] = obstacle_x - s[0]
+        r = ctl.step(s, ref, t, **kw)
+        assert r is not None and isinstance(r.status, str)
+        u = np.array(r.command.as_tuple())
+        for _ in range(5):
+            st = plant.step(s, u, period / 5, zone)
+            s, zone = st.state, st.zone
+        out.append((t, s.copy(), r))
+    return out
+
+
+def test_vectorised_jacobians_equal_the_plants(params):
+    plant = HybridPlant(params)
+    rng = np.random.default_rng(SEED)
+    X = np.column_stack([rng.normal(0, 20, 30), rng.normal(0, 20, 30), rng.uniform(-4, 4, 30),
+                         rng.uniform(0, 15, 30)])
+    U = np.column_stack([rng.uniform(-7, 7, 30), rng.uniform(0, 1, 30), rng.uniform(0, 1, 30)])
+    zones = np.array([plant.zone_by_speed(v) for v in X[:, 3]])
+    A, B = jacobians_batch(plant, X, U, zones)
+    for k in range(30):
+        Ak, Bk = plant.jacobians(X[k], U[k], int(zones[k]))
+        assert np.allclose(A[k], Ak) and np.allclose(B[k], Bk)
+
+
+def test_qp_pattern_is_built_once_and_updated_in_place(params):
+    ctl = MpcController(params)
+    ref = straight(3.0)
+    ctl.step(ref.initial_state(params), ref, 0.0)
+    solver = ctl._solver
+    nnz = (ctl.layout.P.nnz, ctl.layout.A.nnz)
+    x = ref.initial_state(params)
+    for i in range(1, 6):
+        x = x + np.array([0.3, 0.0, 0.0, 0.0])
+        r = ctl.step(x, ref, 0.1 * i)
+        assert r.status == "solved"
+    assert ctl._solver is solver                      # one OSQP object, never rebuilt
+    assert (ctl.layout.P.nnz, ctl.layout.A.nnz) == nnz
+    # horizon 10 s at 0.2 s; the same at 0.1 s has twice the stages
+    assert ctl.N == 50 and MpcController(params, MpcConfig(dt_s=0.1)).N == 100
+
+
+def test_terminal_cost_is_the_dare_solution(params):
+    ctl = MpcController(params)
+    for v, d in ((3.0, 0.0), (8.0, 0.1)):
+        P3 = ctl._lqr_terminal(v, d)
+        c, dt, pl = ctl.config, ctl.dt, ctl.plant
+        Ac = np.array([[0, v, 0], [0, 0, np.sin(d) / pl.wheelbase_m], [0, 0, 0]])
+        Bc = np.array([[v * pl.scale, 0], [v * np.cos(d) * pl.scale / pl.wheelbase_m, 0], [0, 1]])
+        Ad = np.eye(3) + Ac * dt + Ac @ Ac * dt * dt / 2
+        Bd = (np.eye(3) * dt + Ac * dt * dt / 2) @ Bc
+        Q = np.diag([c.w_lateral, c.w_heading, c.w_speed]) * dt
+        R = np.diag([c.r_terminal_steer, c.r_terminal_accel]) * dt
+        assert np.allclose(P3, scipy.linalg.solve_discrete_are(Ad, Bd, Q, R), rtol=1e-6)
+
+
+def test_config_follows_the_report(params):
+    with pytest.raises(ValueError):  # velocity effort must cost more than steering effort
+        MpcConfig(w_speed_effort=1.0, w_steer_effort=2.0)
+    with pytest.raises(ValueError):
+        MpcConfig(horizon_s=10.0, dt_s=0.3)
+    assert preferred_zone(params) == 1  # no fit metrics: the low zone (2-5 m/s)
+    p = copy.deepcopy(params)
+    for z, nmse in zip(p.zones, (50.8, 71.0, 33.8)):
+        z.nmse_pct = nmse
+    assert preferred_zone(p) == 2       # the lowest NMSE wins
+    assert MpcController(p).floor_mps == p.zones[2].v_min_mps
+
+
+def test_one_pedal_per_stage_and_hysteresis():
+    logic = PedalModeLogic(ModeConfig(min_dwell_s=1.0, accel_hysteresis_mps2=0.15))
+    assert logic.first(0.0, 0.3, 0.0) == PedalMode.BRAKE      # idle creep: hold needs brake
+    assert logic.first(0.4, 0.3, 0.1) == PedalMode.BRAKE      # inside the band: keep
+    assert logic.first(0.5, 0.3, 0.5) == PedalMode.BRAKE      # dwell not over
+    assert logic.first(0.5, 0.3, 1.2) == PedalMode.THROTTLE   # dwell over, beyond the band
+    assert logic.first(0.5, 0.3, 1.3, exhausted=True) == PedalMode.THROTTLE
+    assert logic.first(-1.0, 0.3, 1.4) == PedalMode.BRAKE     # urgent braking skips the dwell
+    logic2 = PedalModeLogic(ModeConfig())
+    logic2.first(1.0, 0.0, 0.0)
+    assert logic2.first(-0.5, 0.0, 5.0, exhausted=False) == PedalMode.THROTTLE  # throttle not yet released
+    sched = logic.schedule(PedalMode.BRAKE, np.array([0, 0, 1, 1, 1, 1, 1, 1]), np.zeros(8),
+                           0.2, since_switch_s=0.0)
+    assert list(sched[:5]) == [1, 1, 1, 1, 1] and sched[-1] == PedalMode.THROTTLE
+
+
+def test_transition_rule():
+    steady = -np.ones(50)
+    assert transition_allowed(steady, 10, 5, 0.2)
+    reversal = np.concatenate([np.ones(12), -np.ones(38)])
+    assert not transition_allowed(reversal, 10, 5, 0.2)
+    assert not transition_allowed(np.concatenate([np.zeros(45), np.ones(5)]), 49, 5, 0.2)
+
+
+def test_standstill_hold_uses_the_brake_and_no_qp(params):
+    ref = straight(0.0, seconds=10.0)
+    ctl = MpcController(params)
+    out = drive(ctl, ref, params, 3.0)
+    assert all(r.status == "hold" for _, _, r in out[1:])
+    assert all(r.command.accel_pedal == 0 and r.command.brake_pedal > 0 for _, _, r in out[1:])
+    assert max(s[3] for _, s, _ in out) == 0.0                  # idle creep held
+
+
+def test_stop_command_and_obstacle_override_the_floor(params):
+    ref = straight(4.0, seconds=30.0)
+    out = drive(MpcController(params), ref, params, 12.0, stop_at=2.0)
+    assert out[-1][1][3] == 0.0 and out[-1][2].status == "hold"
+    out = drive(MpcController(params), ref, params, 15.0, obstacle_x=30.0)
+    x_end, v_end = out[-1][1][0], out[-1][1][3]
+    assert v_end == 0.0 and x_end < 30.0
+
+
+def test_solver_failure_shifts_the_plan_then_stops(params):
+    ref = straight(5.0, seconds=40.0)
+    ctl = MpcController(params)
+    out = drive(ctl, ref, params, 2.0)
+    assert out[-1][2].status == "solved"
+    ctl._solver.update_settings(max_iter=1)  # force every later solve to fail
+    later = drive_from(ctl, ref, params, out[-1][1], t0=2.1, seconds=12.0)
+    st = [r.status for _, _, r in later]
+    assert st[0].startswith("shifted_plan") and "maximum iterations" in st[0]
+    assert any(s.startswith("controlled_stop") for s in st)
+    first_stop = next(i for i, s in enumerate(st) if s.startswith("controlled_stop"))
+    assert all(s.startswith("shifted_plan") for s in st[:first_stop])
+    assert first_stop * 0.1 <= ctl.config.horizon_s  # the plan ran out within one horizon
+    stops = [r.command for _, _, r in later[first_stop:]]
+    assert all(c.accel_pedal == 0.0 for c in stops)
+    bp = [c.brake_pedal for c in stops]
+    assert bp[-1] > 0 and np.all(np.diff(bp) >= -1e-12)                   # a brake ramp
+    assert len({round(c.steering_wheel_angle_rad, 9) for c in stops}) == 1  # steering held
+    assert later[-1][1][3] < out[-1][1][3]                                 # slowing down
+    assert all(not r.ok for _, _, r in later)
+
+
+def drive_from(ctl, ref, params, s, t0, seconds, period=0.1):
+    plant = HybridPlant(params)
+    zone, out = None, []
+    for i in range(int(round(seconds / period))):
+        t = t0 + i * period
+        r = ctl.step(s, ref, t)
+        u = np.array(r.command.as_tuple())
+        st = plant.step(s, u, period, zone)
+        s, zone = st.state, st.zone
+        out.append((t, s.copy(), r))
+    return out
+
+
+def test_failure_without_plan_and_bad_state_is_a_controlled_stop(params):
+    ref = straight(5.0)
+    ctl = MpcController(params, MpcConfig(max_iter=1, cold_start_iterations=1))
+    r = ctl.step(ref.initial_state(params), ref, 0.0)
+    assert r.status.startswith("controlled_stop") and not r.ok
+    assert r.command.accel_pedal == 0.0 and r.command.brake_pedal > 0.0
+    ctl = MpcController(params)
+    r = ctl.step([np.nan, 0, 0, 3.0], ref, 0.0)
+    assert r.status.startswith("controlled_stop (invalid state")
+    r = ctl.step([0, 0, 0], ref, 0.1)  # wrong length: still a result, never an exception
+    assert r.command is not None and not r.ok
+
+
+def test_commands_respect_limits_every_step(params):
+    lim = Limits(steering_wheel_rate_max_radps=1.0, accel_pedal_rate_max_ps=0.5)
+    t = np.arange(0.0, 15.0, 0.02)
+    v = np.full(len(t), 4.0)
+    th = np.where(t > 3.0, 0.6, 0.0)  # a sharp corner in the path: the limits must bind
+    x = np.concatenate([[0.0], np.cumsum(v[1:] * np.cos(th[1:]) * 0.02)])
+    y = np.concatenate([[0.0], np.cumsum(v[1:] * np.sin(th[1:]) * 0.02)])
+    ref = Reference(t, x, y, th, v)
+    ctl = MpcController(params, limits=lim)
+    out = drive(ctl, ref, params, 10.0)
+    cmds = [r.command for _, _, r in out]
+    sw = np.array([c.steering_wheel_angle_rad for c in cmds])
+    assert np.max(np.abs(np.diff(sw))) <= 1.0 * 0.1 + 1e-9
+    assert np.max(np.abs(np.diff(sw))) >= 0.099  # it did bind
+    assert all(not (c.accel_pedal > 0 and c.brake_pedal > 0) for c in cmds)

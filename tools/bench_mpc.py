@@ -1,0 +1,131 @@
+"""Benchmark: per-step solve time of the OSQP MPC against the CasADi/IPOPT NMPC.
+
+In one run, on the same scenario and the same closed loop (plant at 50 Hz, controller at
+10 Hz, seeded wheel-speed noise), horizon 10 s at 0.2 s stages (50) and at 0.1 s stages
+(100): the solve time p50/p99/max of each controller (the solver call: OSQP ``solve()``,
+IPOPT through CasADi ``Opti.solve``), their ratio, the OSQP data update done before each
+solve (values written in place; OSQP refactorises its KKT matrix there) and the whole
+step time (delay prediction, schedules, linearisation, QP assembly, solve). Target for OSQP (issue 4):
+p50 <= 1 ms and p99 <= 5 ms, with PASS/MISS printed.
+
+    .venv/bin/python tools/bench_mpc.py [--scenario ramp_sequence] [--params P.yaml]
+        [--json FILE] [--skip-nmpc]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+TARGET_P50_MS = 1.0
+TARGET_P99_MS = 5.0
+
+
+def _stats(a_s: np.ndarray) -> dict:
+    a = np.asarray(a_s) * 1e3
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+            "max": float(a.max()), "n": int(len(a))}
+
+
+def run(scenario: str, params_path: str, skip_nmpc: bool = False) -> dict:
+    from controller.closed_loop import run_closed_loop
+    from controller.mpc import MpcConfig, MpcController
+    from controller.nmpc import NmpcController
+    from models.params import load_params
+    from models.scenarios import make_scenario
+
+    params = load_params(params_path, require_model=True)
+    ref = make_scenario(scenario, params)
+    out = {"scenario": scenario, "duration_s": ref.duration_s, "horizon_s": 10.0, "runs": {}}
+    for dt in (0.2, 0.1):
+        cfg = MpcConfig(horizon_s=10.0, dt_s=dt)
+        row = {}
+        kinds = [("osqp_mpc", MpcController)] + ([] if skip_nmpc else [("casadi_nmpc", NmpcController)])
+        for name, cls in kinds:
+            print(f"  {name}, dt {dt} s ({cfg.n_stages} stages) on {scenario} "
+                  f"({ref.duration_s:.0f} s) ...", file=sys.stderr, flush=True)
+            ctl = cls(params, cfg)
+            updates = []
+            inner = ctl.step
+
+            def step(*a, _inner=inner, _up=updates, **kw):
+                r = _inner(*a, **kw)
+                if r.status.startswith("solved"):
+                    _up.append(r.info.get("update_time_s", 0.0))
+                return r
+            ctl.step = step
+            t0 = time.perf_counter()
+            res = run_closed_loop(ctl, ref, params, speed_noise_mps=0.05, position_noise_m=0.02,
+                                  seed=0)
+            wall = time.perf_counter() - t0
+            solved = np.array([s for s, st in zip(res.solve_time_s, res.statuses)
+                               if st.startswith("solved")])
+            # the first solve (solver set-up, imports, cold start) is reported apart
+            row[name] = {"solve_ms": _stats(solved[1:]), "step_ms": _stats(res.step_time_s[1:]),
+                         "qp_update_ms": _stats(np.array(updates[1:]))
+                         if name == "osqp_mpc" else None,
+                         "first_step_ms": float(res.step_time_s[0] * 1e3),
+                         "failures": res.metrics["failures"],
+                         "speed_error_rms_mps": res.metrics["speed_error_rms_mps"],
+                         "lateral_error_rms_m": res.metrics["lateral_error_rms_m"],
+                         "wall_s": wall}
+        if "casadi_nmpc" in row:
+            a, b = row["osqp_mpc"]["solve_ms"], row["casadi_nmpc"]["solve_ms"]
+            row["ratio_nmpc_over_osqp"] = {k: b[k] / a[k] for k in ("p50", "p99", "max")}
+        o = row["osqp_mpc"]["solve_ms"]
+        row["target"] = {"p50_ms": TARGET_P50_MS, "p99_ms": TARGET_P99_MS,
+                         "p50": "PASS" if o["p50"] <= TARGET_P50_MS else "MISS",
+                         "p99": "PASS" if o["p99"] <= TARGET_P99_MS else "MISS"}
+        out["runs"][f"dt_{dt:g}"] = row
+    return out
+
+
+def report(out: dict) -> str:
+    lines = [f"hmpc bench_mpc: {out['scenario']} ({out['duration_s']:.0f} s closed loop), "
+             f"horizon {out['horizon_s']:g} s; per-step solve time [ms] (first step excluded)"]
+    for key, row in out["runs"].items():
+        dt = key.split("_")[1]
+        lines.append(f"  dt {dt} s ({int(round(10 / float(dt)))} stages)")
+        for name in ("osqp_mpc", "casadi_nmpc"):
+            if name not in row:
+                continue
+            s, st = row[name]["solve_ms"], row[name]["step_ms"]
+            lines.append(f"    {name:12s} solve p50 {s['p50']:8.3f}  p99 {s['p99']:8.3f}  max "
+                         f"{s['max']:8.3f} | whole step p50 {st['p50']:8.3f}  p99 {st['p99']:8.3f}"
+                         f" | speed RMS {row[name]['speed_error_rms_mps']:.3f} m/s, failures "
+                         f"{row[name]['failures']}")
+        up = row["osqp_mpc"]["qp_update_ms"]
+        lines.append(f"    (OSQP data update in place incl. KKT refactorisation, before each solve: "
+                     f"p50 {up['p50']:.3f} p99 {up['p99']:.3f} ms)")
+        if "ratio_nmpc_over_osqp" in row:
+            r = row["ratio_nmpc_over_osqp"]
+            lines.append(f"    ratio NMPC/OSQP   p50 {r['p50']:8.1f}x p99 {r['p99']:8.1f}x max "
+                         f"{r['max']:8.1f}x")
+        t = row["target"]
+        lines.append(f"    OSQP target p50 <= {t['p50_ms']:g} ms: {t['p50']}; "
+                     f"p99 <= {t['p99_ms']:g} ms: {t['p99']}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="ramp_sequence")
+    ap.add_argument("--params", default=str(Path(__file__).resolve().parents[1] / "params"
+                                            / "report_2008.yaml"))
+    ap.add_argument("--json", metavar="FILE")
+    ap.add_argument("--skip-nmpc", action="store_true", help="OSQP only (quick)")
+    args = ap.parse_args(argv)
+    out = run(args.scenario, args.params, args.skip_nmpc)
+    print(report(out))
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump(out, fh, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

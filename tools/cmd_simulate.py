@@ -1,0 +1,218 @@
+"""``hmpc simulate``: the report's experiments on the ground-truth simulator, or the closed loop.
+
+Two uses:
+
+- ``hmpc simulate --experiment NAME --params P.yaml --out rec.csv [--seed N] [--json F]``:
+  a canonical recording of one of the report's experiments (section III) on a plant with
+  known parameters (``models.sim``), for ``hmpc identify``.
+- ``hmpc simulate --params P.yaml (--scenario NAME | --reference REF.csv)
+  [--controller mpc|nmpc|pid] [--plant-params OTHER.yaml] [--out RUN.csv] [--plots DIR]
+  [--json FILE] [--seed N]``: a controller drives the hybrid plant along a reference. The
+  JSON holds ``speed_error_rms_mps``, ``lateral_error_rms_m``, ``pedal_switches_per_min``,
+  ``zone_transitions_per_min``, ``solve_time_ms`` {p50, p99, max}, ``steps``, ``failures``
+  (and, under ``details``, more).
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from models.errors import InputError
+
+CONTROLLERS = ("mpc", "nmpc", "pid")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--params", required=True, metavar="P.yaml",
+                   help="parameter file: the controller's model (and the plant's)")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--scenario", metavar="NAME",
+                      help="closed loop on a named scenario: arcs, circles, figure8, ramps, "
+                           "ramp_sequence, idle_hold")
+    what.add_argument("--reference", metavar="REF.csv",
+                      help="closed loop on a reference CSV: time, x, y, speed[, heading]")
+    what.add_argument("--experiment", metavar="NAME",
+                      help="simulate one of the report's experiments (open loop driver) into a "
+                           "canonical recording: arcs, circles, figure8, ramps, ramp_sequence, "
+                           "open_loop")
+    p.add_argument("--controller", choices=CONTROLLERS, default="mpc",
+                   help="closed-loop controller (default mpc)")
+    p.add_argument("--plant-params", metavar="OTHER.yaml",
+                   help="run the controller against a plant built from these parameters "
+                        "(model mismatch)")
+    p.add_argument("--out", metavar="RUN.csv", help="write the canonical recording here")
+    p.add_argument("--plots", metavar="DIR", help="write labelled PNG plots into DIR")
+    p.add_argument("--json", metavar="FILE", help="write the figures as JSON")
+    p.add_argument("--seed", type=int, default=0, help="seed of the noise (default 0)")
+    p.add_argument("--dt", type=float, default=0.2, choices=(0.1, 0.2),
+                   help="MPC stage length [s] (default 0.2)")
+    p.add_argument("--horizon", type=float, default=10.0, metavar="S",
+                   help="MPC horizon [s] (default 10)")
+    p.add_argument("--control-period", type=float, default=0.1, metavar="S",
+                   help="controller period [s]; the plant runs at 50 Hz (default 0.1)")
+    p.add_argument("--speed-noise", type=float, default=0.05, metavar="MPS",
+                   help="std of the measured-speed noise [m/s] (default 0.05, wheel-speed "
+                        "noise of a real car)")
+    p.add_argument("--no-transition-penalty", action="store_true",
+                   help="MPC without the zone-transition penalty (for comparison)")
+    p.add_argument("--noise", choices=("typical", "quantised", "none"), default="typical",
+                   help="--experiment: sensor noise level (default typical)")
+    p.add_argument("--rate", type=float, default=50.0, metavar="HZ",
+                   help="--experiment: recording rate [Hz] (default 50)")
+
+
+def run(args) -> int:
+    from models.params import load_params
+    from tools.cli import write_json
+
+    params = load_params(args.params, require_model=True)
+    if args.experiment is not None:
+        return _run_experiment(args, params, write_json)
+    return _run_closed_loop(args, params, write_json)
+
+
+def _run_experiment(args, params, write_json) -> int:
+    from models import sim  # written alongside (models/sim.py); imported only when used
+
+    if args.experiment not in sim.EXPERIMENTS:
+        raise InputError(f"unknown experiment '{args.experiment}' (choose from "
+                         f"{', '.join(sim.EXPERIMENTS)})")
+    if not args.out:
+        raise InputError("--experiment needs --out REC.csv")
+    if args.plant_params or args.plots:
+        raise InputError("--plant-params and --plots belong to closed-loop runs "
+                         "(--scenario/--reference)")
+    rec = sim.simulate_experiment(args.experiment, params, seed=args.seed, rate_hz=args.rate,
+                                  noise=args.noise)
+    rec.save(args.out)
+    t = rec.channels["time"]
+    summary = {"experiment": args.experiment, "seed": args.seed, "noise": args.noise,
+               "rate_hz": args.rate, "rows": int(len(t)),
+               "duration_s": float(t[-1] - t[0]) if len(t) else 0.0,
+               "channels": [c for c in rec.channels if c != "time"], "out": str(args.out)}
+    print(f"hmpc simulate: experiment {args.experiment}: {summary['rows']} rows, "
+          f"{summary['duration_s']:.1f} s -> {args.out}")
+    write_json(args.json, summary)
+    return 0
+
+
+def make_controller(name: str, params, *, dt_s: float = 0.2, horizon_s: float = 10.0,
+                    transition_penalty: bool = True):
+    """The controller ``name`` (mpc, nmpc, pid) for ``params``."""
+    from controller.mpc import MpcConfig, MpcController
+
+    if name == "pid":
+        from controller.pid import PidController
+        return PidController(params)
+    kw = {"dt_s": dt_s, "horizon_s": horizon_s}
+    if not transition_penalty:
+        kw["w_transition"] = 0.0
+    cfg = MpcConfig(**kw)
+    if name == "nmpc":
+        from controller.nmpc import NmpcController
+        return NmpcController(params, cfg)
+    return MpcController(params, cfg)
+
+
+def _run_closed_loop(args, params, write_json) -> int:
+    from controller.closed_loop import run_closed_loop
+    from models.params import load_params
+    from models.scenarios import load_reference_csv, make_scenario
+
+    if args.horizon <= 0 or abs(args.horizon / args.dt - round(args.horizon / args.dt)) > 1e-6:
+        raise InputError(f"--horizon {args.horizon} must be a positive multiple of --dt {args.dt}")
+    if args.speed_noise < 0:
+        raise InputError("--speed-noise must be >= 0")
+    plant_params = load_params(args.plant_params, require_model=True) if args.plant_params \
+        else None
+    ref = make_scenario(args.scenario, params) if args.scenario is not None \
+        else load_reference_csv(args.reference)
+    ctl = make_controller(args.controller, params, dt_s=args.dt, horizon_s=args.horizon,
+                          transition_penalty=not args.no_transition_penalty)
+    print(f"hmpc simulate: {args.controller} on {ref.name} ({ref.duration_s:.1f} s), "
+          f"seed {args.seed}", file=sys.stderr)
+    res = run_closed_loop(ctl, ref, params, plant_params=plant_params,
+                          control_period_s=args.control_period, seed=args.seed,
+                          speed_noise_mps=args.speed_noise,
+                          position_noise_m=0.4 * args.speed_noise, progress=True)
+    m = res.metrics
+    if args.out:
+        res.recording.save(args.out)
+    payload = {k: m[k] for k in ("speed_error_rms_mps", "lateral_error_rms_m",
+                                 "pedal_switches_per_min", "zone_transitions_per_min",
+                                 "solve_time_ms", "steps", "failures")}
+    payload.update({"controller": args.controller, "reference": ref.name,
+                    "plant_params": args.plant_params, "seed": args.seed,
+                    "details": {k: v for k, v in m.items() if k not in payload}})
+    if args.plots:
+        payload["plots"] = _plots(res, ref, args.plots, args.controller,
+                                  plant_params or params)
+    _print_summary(payload)
+    write_json(args.json, payload)
+    return 0
+
+
+def _print_summary(p: dict) -> None:
+    st = p["solve_time_ms"]
+    print(f"controller {p['controller']} on {p['reference']}: "
+          f"speed error RMS {p['speed_error_rms_mps']:.3f} m/s, "
+          f"lateral error RMS {p['lateral_error_rms_m']:.3f} m, "
+          f"pedal switches {p['pedal_switches_per_min']:.1f}/min, "
+          f"zone transitions {p['zone_transitions_per_min']:.1f}/min, "
+          f"solve time p50/p99/max {st['p50']:.2f}/{st['p99']:.2f}/{st['max']:.2f} ms, "
+          f"{p['steps']} steps, {p['failures']} failures")
+
+
+def _plots(res, ref, out_dir: str, controller: str, params) -> list[str]:
+    """Labelled PNGs (units on every axis); returns the file names."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ch = res.recording.channels
+    t = ch["time"]
+    files = []
+    fig, ax = plt.subplots(5, 1, figsize=(10, 12), sharex=True)
+    ax[0].plot(t, res.speed_ref_mps, "k--", label="reference")
+    ax[0].plot(t, ch["speed"], label="speed")
+    ax[0].set_ylabel("speed [m/s]")
+    ax[0].legend(loc="best")
+    ax[1].plot(t, res.lateral_error_m)
+    ax[1].set_ylabel("lateral error [m]")
+    ax[2].plot(t, ch["accel_pedal_cmd"], label="accelerator (cmd)")
+    ax[2].plot(t, ch["brake_pedal_cmd"], label="brake (cmd)")
+    ax[2].set_ylabel("pedal [0..1]")
+    ax[2].legend(loc="best")
+    ax[3].plot(t, ch["steering_cmd"], label="command")
+    ax[3].plot(t, ch["steering_wheel_angle"], label="applied")
+    ax[3].set_ylabel("steering-wheel angle [rad]")
+    ax[3].legend(loc="best")
+    ax[4].step(t, res.zone, where="post")
+    ax[4].set_yticks(range(len(params.zones)), [f"{z.name} ({z.v_min_mps:g}-{z.v_max_mps:g} m/s)"
+                                         for z in params.zones])
+    ax[4].set_ylabel("plant zone")
+    ax[4].set_xlabel("time [s]")
+    m = res.metrics
+    fig.suptitle(f"{controller} on {ref.name}: speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
+                 f"lateral RMS {m['lateral_error_rms_m']:.3f} m, "
+                 f"{m['pedal_switches_per_min']:.1f} pedal switches/min")
+    fig.tight_layout()
+    f = out / "closed_loop.png"
+    fig.savefig(f, dpi=90)
+    plt.close(fig)
+    files.append(str(f))
+    fig, ax = plt.subplots(figsize=(7, 7))
+    ax.plot(ref.x_m, ref.y_m, "k--", label="reference path")
+    ax.plot(ch["x"], ch["y"], label="driven")
+    ax.set_xlabel("x (east) [m]")
+    ax.set_ylabel("y (north) [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(loc="best")
+    ax.set_title(f"{controller} on {ref.name}: path")
+    f = out / "path.png"
+    fig.savefig(f, dpi=90)
+    plt.close(fig)
+    files.append(str(f))
+    return files
