@@ -43,6 +43,20 @@ def steps(out: Path) -> list[tuple[str, list[str]]]:
          ["identify", str(out / "vcan_rec.csv"), "--vehicle", str(PARAMS_DIR / "toyota_rav4_2019.yaml"),
           "--out", str(out / "vcan_params.yaml"), "--plots", str(out / "vcan_identify"),
           "--json", str(out / "vcan_identify.json")]),
+        ("simulate: ground-truth 'arcs' experiment (report section III) with the report's parameters",
+         ["simulate", "--experiment", "arcs", "--params", str(PARAMS_DIR / "report_2008.yaml"),
+          "--out", str(out / "sim_arcs.csv"), "--json", str(out / "sim_arcs.json")]),
+        ("simulate: hybrid MPC holding 1 m/s at idle, then stop and go",
+         ["simulate", "--params", str(PARAMS_DIR / "report_2008.yaml"), "--scenario", "idle_hold",
+          "--controller", "mpc", "--out", str(out / "mpc_idle_hold.csv"),
+          "--plots", str(out / "mpc_idle_hold"), "--json", str(out / "mpc_idle_hold.json")]),
+        ("simulate: naive PID on the same scenario, for comparison",
+         ["simulate", "--params", str(PARAMS_DIR / "report_2008.yaml"), "--scenario", "idle_hold",
+          "--controller", "pid", "--json", str(out / "pid_idle_hold.json")]),
+        ("simulate: hybrid MPC on figure eights against a plant with 20% weaker zones",
+         ["simulate", "--params", str(PARAMS_DIR / "report_2008.yaml"), "--scenario", "figure8",
+          "--plant-params", str(PARAMS_DIR / "report_2008_weak_zones.yaml"), "--controller", "mpc",
+          "--plots", str(out / "mpc_figure8_mismatch"), "--json", str(out / "mpc_figure8_mismatch.json")]),
     ]
 
 
