@@ -141,7 +141,6 @@ def _message_codes(frames: FrameTable, db) -> np.ndarray:
 
 
 def _decode(frames, db, problems, names, buses, dbc_path, fast):
-    path = frames.path
     index = {m.name: i for i, m in enumerate(db.messages)}
     if names is None:
         wanted = list(range(len(db.messages)))

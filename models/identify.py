@@ -13,16 +13,15 @@ provenance); ``report`` holds the same figures and more, JSON-ready, with stable
 """
 from __future__ import annotations
 
-import hashlib
 import math
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
 from . import __version__
 from .channels import STRING_CHANNELS
 from .errors import InputError
+from .ingest import sha256_file
 from .longitudinal_id import LongitudinalIdConfig, LongitudinalResult, identify_longitudinal
 from .params import Params, Steering, Vehicle
 from .recording import Recording
@@ -38,15 +37,6 @@ class IdentifyResult:
     report: dict
     steering: SteeringResult
     longitudinal: LongitudinalResult
-
-
-def sha256_file(path: str | Path) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def concat_recordings(recs: list[Recording], gap_s: float = 2.0) -> Recording:

@@ -79,6 +79,7 @@ class IngestResult:
 
 
 def sha256_file(path: str | Path) -> str:
+    """Hex SHA-256 of a file's bytes (provenance of every input hmpc reads)."""
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):

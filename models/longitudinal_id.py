@@ -330,7 +330,6 @@ def identify_longitudinal(rec: Recording, vehicle: Vehicle,
         cand["accel_cmd"] = smooth(np.asarray(rec["accel_cmd"], dtype=float))
     names = list(cand)
     P_all = np.column_stack([cand[k] for k in names])
-    cand_ok = np.all(np.isfinite(P_all), axis=1)
 
     fits: list[ZoneFit] = []
     for zi, (zname, lo, hi) in enumerate(zones):

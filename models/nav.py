@@ -424,7 +424,7 @@ def imu_to_body(raw: ImuRaw, attitude: tuple | None = None) -> ImuData:
         attitude: ``(t_s, roll_rad, pitch_rad)`` of the same device in the IMU's clock
             (roll right side down, pitch nose up), or None (see module docstring).
     """
-    t, p, q, r, fx, fy, fz = raw.t_s, raw.p, raw.q, raw.r, raw.fx, raw.fy, raw.fz
+    t, q, r, fx, fy, fz = raw.t_s, raw.q, raw.r, raw.fx, raw.fy, raw.fz
     out = ImuData()
     out.path = raw.path
     out.rows = int(len(t))

@@ -131,16 +131,22 @@ def hac_cov(X: np.ndarray, resid: np.ndarray, mask: np.ndarray | None = None,
         mask: samples used in the fit (default all); others count as zero scores.
         bandwidth: lag truncation [samples]; default :func:`andrews_bandwidth`.
     """
+    Xm, u, m, L = _scores(X, resid, mask, bandwidth)
+    S = long_run_cov(u, L)
+    XtX_inv = np.linalg.pinv(Xm.T @ Xm)
+    return XtX_inv @ S @ XtX_inv, L
+
+
+def _scores(X, resid, mask, bandwidth):
+    """Masked regressors, scores u = X * e, the mask and the lag bandwidth (shared by the
+    covariance estimators): samples outside ``mask`` count as zero scores."""
     X = np.asarray(X, dtype=float)
-    n = X.shape[0]
-    m = np.ones(n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    m = np.ones(X.shape[0], dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
     e = np.where(m, np.nan_to_num(np.asarray(resid, dtype=float)), 0.0)
     Xm = np.where(m[:, None], np.nan_to_num(X), 0.0)
     u = Xm * e[:, None]
     L = andrews_bandwidth(u, m) if bandwidth is None else int(bandwidth)
-    S = long_run_cov(u, L)
-    XtX_inv = np.linalg.pinv(Xm.T @ Xm)
-    return XtX_inv @ S @ XtX_inv, L
+    return Xm, u, m, L
 
 
 def _corr(cov: np.ndarray) -> np.ndarray:
@@ -166,20 +172,14 @@ def block_cov(X: np.ndarray, resid: np.ndarray, mask: np.ndarray | None = None,
 
     Args as :func:`hac_cov`. See the module doc for the block length and G.
     """
-    X = np.asarray(X, dtype=float)
-    n = X.shape[0]
-    m = np.ones(n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
-    e = np.where(m, np.nan_to_num(np.asarray(resid, dtype=float)), 0.0)
-    Xm = np.where(m[:, None], np.nan_to_num(X), 0.0)
-    u = Xm * e[:, None]
-    L = andrews_bandwidth(u, m) if bandwidth is None else int(bandwidth)
+    Xm, u, m, L = _scores(X, resid, mask, bandwidth)
     idx = np.flatnonzero(m)
     span = idx[-1] - idx[0] + 1
     G = int(np.clip(span // (2 * (L + 1)), MIN_BLOCKS, MAX_BLOCKS))
-    g = np.minimum((np.arange(n) - idx[0]) * G // span, G - 1)
+    g = np.minimum((np.arange(Xm.shape[0]) - idx[0]) * G // span, G - 1)
     labels, inv = np.unique(g[m], return_inverse=True)
     G = len(labels)
-    scores = np.zeros((G, X.shape[1]))
+    scores = np.zeros((G, Xm.shape[1]))
     np.add.at(scores, inv, u[m])
     bread = np.linalg.pinv(Xm.T @ Xm)
     adj = G / (G - 1.0) if G > 1 else 1.0

@@ -1,6 +1,5 @@
 """The gzip copies under tools/data are byte-identical to ../shared/data (when it is beside us)."""
 import gzip
-from pathlib import Path
 
 import pytest
 

@@ -7,7 +7,6 @@ INS noise and biases); the recordings are joined and identified in one run.
 Tolerances (issue 3): steering offset +-0.002 rad, scale +-2%; every zone's throttle scale
 +-5% and offset +-0.05 m/s^2; brake scale +-5% (the same relative tolerance as the throttle).
 """
-import numpy as np
 import pytest
 
 from models.identify import concat_recordings, identify

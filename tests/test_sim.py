@@ -232,7 +232,7 @@ def test_longitudinal_experiments_exercise_every_zone_with_both_pedals(report, n
 def test_arcs_run_at_the_reports_speeds_with_steps_both_ways(report):
     run = run_experiment("arcs", report, seed=1)
     r = run.recording
-    t, v, sw = r["time"], r["gps_speed"], r["steering_wheel_angle"]
+    t, v = r["time"], r["gps_speed"]
     found = set()
     for seg in r.meta["segments"]:
         if not seg["label"].startswith("arc "):

@@ -6,7 +6,6 @@ RAV4 minute and the VerifiedCAN stop-and-go drive, and saves tables, JSON and pl
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
