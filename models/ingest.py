@@ -78,6 +78,14 @@ class IngestResult:
     summary: dict
 
 
+def _usable_offset(est: OffsetEstimate, path, problems: Problems) -> OffsetEstimate:
+    """An estimate that failed falls back to 0 s, and the fallback is reported for ``path``."""
+    if est.ok:
+        return est
+    problems.add(KIND_NO_CLOCK, str(path), count=1, detail=est.note)
+    return OffsetEstimate(0.0, est.peak, est.samples, est.method, False, est.note)
+
+
 def sha256_file(path: str | Path) -> str:
     """Hex SHA-256 of a file's bytes (provenance of every input hmpc reads)."""
     h = hashlib.sha256()
@@ -261,9 +269,7 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
         else:
             est = OffsetEstimate(0.0, method="none", ok=False,
                                  note="no CAN speed or no GNSS speed to correlate")
-        if not est.ok:
-            problems.add(KIND_NO_CLOCK, str(nav_path), count=1, detail=est.note)
-            est = OffsetEstimate(0.0, est.peak, est.samples, est.method, False, est.note)
+        est = _usable_offset(est, nav_path, problems)
         nav_off = est.offset_s
         clock["nav"] = est.to_dict()
         for ch, (t, v) in nav.items():
@@ -300,9 +306,7 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
         else:
             iest = OffsetEstimate(0.0, method="none", ok=False,
                                   note="no nav file and no CAN yaw rate to correlate")
-        if not iest.ok:
-            problems.add(KIND_NO_CLOCK, str(imu_path), count=1, detail=iest.note)
-            iest = OffsetEstimate(0.0, iest.peak, iest.samples, iest.method, False, iest.note)
+        iest = _usable_offset(iest, imu_path, problems)
         imu_off = iest.offset_s
         clock["imu"] = iest.to_dict()
         attitude = None

@@ -66,10 +66,7 @@ def plot_steering(result, path: str | Path) -> str:
                  f"[{st.offset_ci95_rad[0]:+.4f}, {st.offset_ci95_rad[1]:+.4f}], scale "
                  f"{st.scale:.4f} [{st.scale_ci95[0]:.4f}, {st.scale_ci95[1]:.4f}] "
                  f"({st.method}, {verdict}); model shown on trustworthy samples", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return str(path)
+    return _save(fig, path)
 
 
 def plot_replay(result, path: str | Path) -> str | None:
@@ -89,10 +86,7 @@ def plot_replay(result, path: str | Path) -> str | None:
     if fit is not None:
         ax.set_title(f"position replay: rms position error {fit.rms_error:.3f} m over "
                      f"{fit.extra['windows']} windows of {fit.extra['window_s']:g} s")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return str(path)
+    return _save(fig, path)
 
 
 def plot_zone(result, zone_index: int, path: str | Path) -> str | None:
@@ -157,6 +151,11 @@ def plot_zone(result, zone_index: int, path: str | Path) -> str | None:
                  f"{z.offset_mps2:+.3f} + {z.scale_mps2:.3f} accel - {z.brake_scale_mps2:.3f} "
                  f"brake [m/s^2]; NMSE {nm}, speed RMSE {sr}"
                  f"{'' if z.identifiable else ' (NOT identifiable)'}", fontsize=9)
+    return _save(fig, path)
+
+
+def _save(fig, path: str | Path) -> str:
+    """Lay out, write the PNG and free the figure."""
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
