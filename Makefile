@@ -14,13 +14,13 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python -m tools.demo --out out/demo
+	$(BIN)/python -m hmpc.tools.demo --out out/demo
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 tests
 
 bench: $(STAMP)
-	$(BIN)/python tools/bench_ingest.py
+	$(BIN)/python -m hmpc.tools.bench_ingest
 
 clean:
 	rm -rf $(VENV) out

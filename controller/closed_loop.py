@@ -17,12 +17,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.params import Params
-from models.plant import DelayLine, HybridPlant
-from models.recording import Recording
-from models.scenarios import Reference
+from hmpc.models.params import Params
+from hmpc.models.plant import DelayLine, HybridPlant
+from hmpc.models.logs.recording import Recording
+from hmpc.models.sim.scenarios import Reference
 
-from .limits import Command, Limits, apply_limits
+from hmpc.controller.limits import Command, Limits, apply_limits
 
 
 @dataclass

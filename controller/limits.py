@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from models.params import Params, Zone
+from hmpc.models.params import Params, Zone
 
 
 @dataclass(frozen=True)

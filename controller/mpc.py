@@ -50,12 +50,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from models.params import Params
-from models.plant import HybridPlant
-from models.scenarios import Reference
+from hmpc.models.params import Params
+from hmpc.models.plant import HybridPlant
+from hmpc.models.sim.scenarios import Reference
 
-from .limits import Command, Limits, apply_limits
-from .modes import PEDAL_RELEASED, ModeConfig, PedalMode, PedalModeLogic, StandstillLogic, \
+from hmpc.controller.limits import Command, Limits, apply_limits
+from hmpc.controller.modes import PEDAL_RELEASED, ModeConfig, PedalMode, PedalModeLogic, StandstillLogic, \
     desired_accel, transition_allowed
 
 NX, NU, NS = 4, 3, 3  # state, input, slack (per stage)

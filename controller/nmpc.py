@@ -18,11 +18,11 @@ import time
 
 import numpy as np
 
-from models.params import Params
+from hmpc.models.params import Params
 
-from .limits import Limits
-from .modes import ModeConfig
-from .mpc import NS, NU, NX, MpcConfig, MpcController
+from hmpc.controller.limits import Limits
+from hmpc.controller.modes import ModeConfig
+from hmpc.controller.mpc import NS, NU, NX, MpcConfig, MpcController
 
 
 class NmpcController(MpcController):

@@ -13,12 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.params import Params
-from models.scenarios import Reference
+from hmpc.models.params import Params
+from hmpc.models.sim.scenarios import Reference
 
-from .limits import Command, Limits, apply_limits
-from .mpc import ControlResult
-from .modes import PedalMode
+from hmpc.controller.limits import Command, Limits, apply_limits
+from hmpc.controller.mpc import ControlResult
+from hmpc.controller.modes import PedalMode
 
 
 @dataclass(frozen=True)

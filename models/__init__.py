@@ -2,4 +2,4 @@
 
 Nothing here imports ``controller`` or ``tools``; everything is testable without a bus.
 """
-__version__ = "0.1.0"
+

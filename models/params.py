@@ -28,7 +28,7 @@ from typing import Any
 
 import yaml
 
-from .errors import ParamError
+from hmpc.models.errors import ParamError
 
 #: Unit suffixes a numeric key may carry.
 UNIT_SUFFIXES = ("_m", "_s", "_rad", "_mps", "_mps2", "_mps3", "_radps", "_pct", "_kg", "_hz")

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .params import Params
+from hmpc.models.params import Params
 
 NX = 4  #: state size: x, y, psi, v
 NU = 3  #: input size: steering-wheel angle, accel pedal, brake pedal

@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-from tools.datafiles import bundled
+from hmpc.tools.datafiles import bundled
 
 
 @pytest.fixture(scope="session")

@@ -2,14 +2,14 @@
 import numpy as np
 import pytest
 
-from models.align import estimate_offset
-from models.canlog import read_log
-from models.dbc import load_dbc
-from models.decode import decode_frames
-from models.errors import Problems
-from models.nav import read_imu_raw, read_nav
-from models.resample import find_gaps, gap_threshold_s, make_grid, resample
-from tools.datafiles import bundled
+from hmpc.models.logs.align import estimate_offset
+from hmpc.models.logs.canlog import read_log
+from hmpc.models.logs.dbc import load_dbc
+from hmpc.models.logs.decode import decode_frames
+from hmpc.models.errors import Problems
+from hmpc.models.logs.nav import read_imu_raw, read_nav
+from hmpc.models.logs.resample import find_gaps, gap_threshold_s, make_grid, resample
+from hmpc.tools.datafiles import bundled
 
 SEED = 20240611
 

@@ -9,12 +9,12 @@ import json
 import numpy as np
 import pytest
 
-from models.canlog import (KIND_BACKWARDS, KIND_DUPLICATE, KIND_JUMP, KIND_MALFORMED,
+from hmpc.models.logs.canlog import (KIND_BACKWARDS, KIND_DUPLICATE, KIND_JUMP, KIND_MALFORMED,
                            read_log)
-from models.dbc import load_dbc
-from models.decode import KIND_LONG, KIND_SHORT, KIND_UNKNOWN_ID, decode_frames
-from models.errors import InputError, Problems
-from tools.cli import main
+from hmpc.models.logs.dbc import load_dbc
+from hmpc.models.logs.decode import KIND_LONG, KIND_SHORT, KIND_UNKNOWN_ID, decode_frames
+from hmpc.models.errors import InputError, Problems
+from hmpc.tools.cli import main
 
 N_LINES = 400
 
@@ -344,7 +344,7 @@ def test_unknown_message_name_is_fatal(tmp_path, comma_log, comma_dbc):
 
 
 def test_huge_newline_free_garbage_keeps_line_numbers(tmp_path, real_lines):
-    import models.canlog as canlog
+    import hmpc.models.logs.canlog as canlog
     blob = bytes(np.random.default_rng(3).integers(0, 256, 3 * canlog.MAX_LINE_BYTES // 2,
                                                    dtype=np.uint8)).replace(b"\n", b"x")
     p = tmp_path / "blob.log"

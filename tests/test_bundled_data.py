@@ -3,7 +3,7 @@ import gzip
 
 import pytest
 
-from tools.datafiles import DATA_DIR, REPO_DIR
+from hmpc.tools.datafiles import DATA_DIR, REPO_DIR
 
 SHARED = REPO_DIR.parent / "shared" / "data"
 BUNDLED = sorted(p.relative_to(DATA_DIR) for p in DATA_DIR.rglob("*.gz"))

@@ -16,8 +16,8 @@ import can
 import numpy as np
 import pytest
 
-from models.canlog import KIND_REMOTE, read_log
-from models.errors import InputError, Problems
+from hmpc.models.logs.canlog import KIND_REMOTE, read_log
+from hmpc.models.errors import InputError, Problems
 
 
 def _messages(path, n=None):

@@ -12,13 +12,13 @@ import pytest
 from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
 
-from controller.closed_loop import pedal_switches, run_closed_loop
-from controller.limits import Limits
-from controller.mpc import MpcConfig, MpcController
-from controller.pid import PidController
-from models.params import load_params
-from models.recording import Recording
-from models.scenarios import Reference, make_scenario
+from hmpc.controller.closed_loop import pedal_switches, run_closed_loop
+from hmpc.controller.limits import Limits
+from hmpc.controller.mpc import MpcConfig, MpcController
+from hmpc.controller.pid import PidController
+from hmpc.models.params import load_params
+from hmpc.models.logs.recording import Recording
+from hmpc.models.sim.scenarios import Reference, make_scenario
 
 SEED = 7
 NOISE = dict(speed_noise_mps=0.05, position_noise_m=0.02, seed=SEED)

@@ -5,11 +5,11 @@ import json
 import pytest
 import yaml
 
-from models.identify import concat_recordings
-from models.params import load_params
-from models.sim import simulate_experiment
-from tools import cli
-from tools.datafiles import PARAMS_DIR, bundled
+from hmpc.models.identify.pipeline import concat_recordings
+from hmpc.models.params import load_params
+from hmpc.models.sim.simulator import simulate_experiment
+from hmpc.tools import cli
+from hmpc.tools.datafiles import PARAMS_DIR, bundled
 
 SEED = 4
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import yaml
 
-from models.errors import InputError
-from models.recording import Recording
-from models.scenarios import load_reference_csv, make_scenario, save_reference_csv
-from tools.cli import main
+from hmpc.models.errors import InputError
+from hmpc.models.logs.recording import Recording
+from hmpc.models.sim.scenarios import load_reference_csv, make_scenario, save_reference_csv
+from hmpc.tools.cli import main
 
 PARAMS = "params/report_2008.yaml"
 KEYS = ("speed_error_rms_mps", "lateral_error_rms_m", "pedal_switches_per_min",

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import cantools
 
-from models.canlog import read_log
-from models.dbc import load_dbc
-from models.decode import (KIND_UNKNOWN_ID, decode_frames, decode_frames_cantools)
-from models.errors import InputError, Problems
-from models.frames import FrameTable
+from hmpc.models.logs.canlog import read_log
+from hmpc.models.logs.dbc import load_dbc
+from hmpc.models.logs.decode import (KIND_UNKNOWN_ID, decode_frames, decode_frames_cantools)
+from hmpc.models.errors import InputError, Problems
+from hmpc.models.logs.frames import FrameTable
 
 SEED = 20240611
 
@@ -269,7 +269,7 @@ def test_bus_selection_and_time_order(syn_db):
 @pytest.mark.parametrize("names", [None, ["STEER_ANGLE_SENSOR", "WHEEL_SPEEDS", "GAS_PEDAL"]])
 def test_block_boundaries_do_not_change_results(comma_log, comma_dbc, monkeypatch, names):
     """The decoder works in blocks of rows; tiny blocks must give the same arrays and problems."""
-    import models.decode as decode
+    import hmpc.models.logs.decode as decode
 
     frames = read_log(comma_log, Problems())
     db = load_dbc(comma_dbc)

@@ -3,7 +3,7 @@ coefficients are ordinary least squares on the terms it selected."""
 import numpy as np
 import pytest
 
-from models.fos import block_holdout, fos
+from hmpc.models.identify.fos import block_holdout, fos
 
 SEED = 20240611
 

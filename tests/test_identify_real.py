@@ -5,10 +5,10 @@ import math
 
 import pytest
 
-from models.identify import identify
-from models.ingest import ingest_files
-from models.params import load_params
-from tools.datafiles import PARAMS_DIR, bundled
+from hmpc.models.identify.pipeline import identify
+from hmpc.models.logs.ingest import ingest_files
+from hmpc.models.params import load_params
+from hmpc.tools.datafiles import PARAMS_DIR, bundled
 
 
 @pytest.fixture(scope="module")

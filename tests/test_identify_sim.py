@@ -9,10 +9,10 @@ Tolerances (issue 3): steering offset +-0.002 rad, scale +-2%; every zone's thro
 """
 import pytest
 
-from models.identify import concat_recordings, identify
-from models.params import load_params
-from models.sim import EXPERIMENTS, random_params, simulate_experiment
-from tools.datafiles import PARAMS_DIR
+from hmpc.models.identify.pipeline import concat_recordings, identify
+from hmpc.models.params import load_params
+from hmpc.models.sim.simulator import EXPERIMENTS, random_params, simulate_experiment
+from hmpc.tools.datafiles import PARAMS_DIR
 
 SIM_SEED = 11
 SETS = ["report_2008", 1, 2, 3]

@@ -8,10 +8,10 @@ import can
 import numpy as np
 import pytest
 
-from models.dbc import load_dbc
-from models.errors import Problems
-from models.info import format_info, log_info
-from tools.cli import main
+from hmpc.models.logs.dbc import load_dbc
+from hmpc.models.errors import Problems
+from hmpc.models.logs.info import format_info, log_info
+from hmpc.tools.cli import main
 
 KEYS = ["file", "format", "frames", "start_s", "end_s", "duration_s", "rate_hz", "buses", "ids",
         "clock", "malformed_lines", "malformed_where", "remote_frames", "remote_where",

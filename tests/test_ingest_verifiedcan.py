@@ -4,9 +4,9 @@ import json
 import numpy as np
 import pytest
 
-from models.recording import Recording
-from tools import cli
-from tools.datafiles import PARAMS_DIR
+from hmpc.models.logs.recording import Recording
+from hmpc.tools import cli
+from hmpc.tools.datafiles import PARAMS_DIR
 
 MAP19 = PARAMS_DIR / "toyota_rav4_2019.signals.yaml"
 

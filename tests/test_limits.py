@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, seed, settings
 from hypothesis import strategies as st
 
-from controller.limits import Command, Limits, apply_limits
-from models.params import Limits as ParamLimits
-from models.params import load_params
+from hmpc.controller.limits import Command, Limits, apply_limits
+from hmpc.models.params import Limits as ParamLimits
+from hmpc.models.params import load_params
 
 
 @pytest.fixture(scope="module")

@@ -3,14 +3,14 @@ smoothing, dead time, FOS term choice, unexercised inputs and speeds above the l
 import numpy as np
 import pytest
 
-from models.effects import parse_effect
-from models.identify import concat_recordings
-from models.longitudinal_id import (LongitudinalIdConfig, assign_zones, identify_longitudinal,
+from hmpc.models.sim.effects import parse_effect
+from hmpc.models.identify.pipeline import concat_recordings
+from hmpc.models.identify.longitudinal import (LongitudinalIdConfig, assign_zones, identify_longitudinal,
                                     speed_rmse)
-from models.params import load_params
-from models.sim import simulate_experiment
-from models.stats import apply_kernel, matched_kernels
-from tools.datafiles import PARAMS_DIR
+from hmpc.models.params import load_params
+from hmpc.models.sim.simulator import simulate_experiment
+from hmpc.models.identify.stats import apply_kernel, matched_kernels
+from hmpc.tools.datafiles import PARAMS_DIR
 
 SEED = 9
 ZONES = (("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
@@ -118,7 +118,7 @@ def test_unexercised_brake_is_flagged_not_invented(truth):
 
 
 def test_bad_zones_and_missing_pedal_are_input_errors(truth):
-    from models.errors import InputError
+    from hmpc.models.errors import InputError
 
     rec = simulate_experiment("ramps", truth, seed=SEED)
     with pytest.raises(InputError, match="contiguous"):

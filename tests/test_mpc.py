@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from controller.limits import Limits
-from controller.modes import ModeConfig, PedalMode, PedalModeLogic, transition_allowed
-from controller.mpc import MpcConfig, MpcController, jacobians_batch, preferred_zone
-from models.params import load_params
-from models.plant import HybridPlant
-from models.scenarios import Reference
+from hmpc.controller.limits import Limits
+from hmpc.controller.modes import ModeConfig, PedalMode, PedalModeLogic, transition_allowed
+from hmpc.controller.mpc import MpcConfig, MpcController, jacobians_batch, preferred_zone
+from hmpc.models.params import load_params
+from hmpc.models.plant import HybridPlant
+from hmpc.models.sim.scenarios import Reference
 
 SEED = 11
 

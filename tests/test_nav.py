@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, seed, settings, strategies as st
 
-from models.errors import InputError, ParamError, Problems
-from models.nav import (ImuColumns, NavColumns, imu_to_body, load_columns, read_imu,
+from hmpc.models.errors import InputError, ParamError, Problems
+from hmpc.models.logs.nav import (ImuColumns, NavColumns, imu_to_body, load_columns, read_imu,
                         read_imu_raw, read_nav)
-from tools.datafiles import bundled
+from hmpc.tools.datafiles import bundled
 
 NAV = bundled("rav4-comma2k19/nav.csv.gz")
 IMU = bundled("rav4-comma2k19/imu.csv.gz")

@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.closed_loop import run_closed_loop
-from controller.mpc import MpcController
-from controller.nmpc import NmpcController
-from models.params import load_params
-from models.scenarios import Reference
+from hmpc.controller.closed_loop import run_closed_loop
+from hmpc.controller.mpc import MpcController
+from hmpc.controller.nmpc import NmpcController
+from hmpc.models.params import load_params
+from hmpc.models.sim.scenarios import Reference
 
 
 @pytest.fixture(scope="module")

@@ -2,10 +2,10 @@
 import pytest
 import yaml
 
-from models.errors import ParamError
-from models.params import dump_params, load_params, parse_params
-from tools import cli
-from tools.datafiles import PARAMS_DIR
+from hmpc.models.errors import ParamError
+from hmpc.models.params import dump_params, load_params, parse_params
+from hmpc.tools import cli
+from hmpc.tools.datafiles import PARAMS_DIR
 
 MINIMAL = {
     "vehicle": {"wheelbase_m": 2.65, "track_front_m": 1.6},

@@ -6,8 +6,8 @@ import copy
 import numpy as np
 import pytest
 
-from models.params import load_params
-from models.plant import IV, IX, DelayLine, HybridPlant
+from hmpc.models.params import load_params
+from hmpc.models.plant import IV, IX, DelayLine, HybridPlant
 
 SEED = 20240604
 

@@ -10,17 +10,17 @@ import math
 import numpy as np
 import pytest
 
-from models import effects as fx
-from models import sensors as sn
-from models.channels import CHANNELS
-from models.dbc import load_dbc
-from models.errors import InputError, ParamError
-from models.params import Params, dump_params, load_params
-from models.plant import HybridPlant
-from models.recording import Recording
-from models.sim import (DEFAULT_SW_MAX_RAD, EXPERIMENTS, random_params, run_experiment,
+from hmpc.models.sim import effects as fx
+from hmpc.models.sim import sensors as sn
+from hmpc.models.logs.channels import CHANNELS
+from hmpc.models.logs.dbc import load_dbc
+from hmpc.models.errors import InputError, ParamError
+from hmpc.models.params import Params, dump_params, load_params
+from hmpc.models.plant import HybridPlant
+from hmpc.models.logs.recording import Recording
+from hmpc.models.sim.simulator import (DEFAULT_SW_MAX_RAD, EXPERIMENTS, random_params, run_experiment,
                         simulate_experiment)
-from tools.datafiles import PARAMS_DIR, bundled
+from hmpc.tools.datafiles import PARAMS_DIR, bundled
 
 ALL_CHANNELS = ["time", "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr",
                 "wheel_speed_rl", "wheel_speed_rr", "speed", "accel_pedal", "brake_pedal", "gear",
@@ -382,7 +382,7 @@ def test_steering_nonlinearity_and_understeer_bend_the_steering_map(report):
 
 
 def test_truth_plant_applies_effects_step_by_step(report):
-    from models.sim import TruthPlant
+    from hmpc.models.sim.simulator import TruthPlant
     tp = TruthPlant(report, [fx.SteeringDeadTime(0.1), fx.AeroDrag(1e-3)], dt_s=0.01)
     s = np.array([0.0, 0.0, 0.0, 10.0])
     sw_eff = []

@@ -4,15 +4,15 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from models.effects import parse_effect
-from models.identify import concat_recordings
-from models.params import load_params
-from models.sensors import wheel_speeds
-from models.sim import simulate_experiment
-from models.stats import ols_hac
-from models.steering_id import (identify_steering, road_wheel_angle_from_front,
+from hmpc.models.sim.effects import parse_effect
+from hmpc.models.identify.pipeline import concat_recordings
+from hmpc.models.params import load_params
+from hmpc.models.sim.sensors import wheel_speeds
+from hmpc.models.sim.simulator import simulate_experiment
+from hmpc.models.identify.stats import ols_hac
+from hmpc.models.identify.steering import (identify_steering, road_wheel_angle_from_front,
                                 road_wheel_angle_from_yaw, xcorr_dead_time)
-from tools.datafiles import PARAMS_DIR
+from hmpc.tools.datafiles import PARAMS_DIR
 
 SEED = 5
 
@@ -117,7 +117,7 @@ def test_wide_steering_is_identifiable_and_replay_refines(truth):
 
 
 def test_missing_channel_is_an_input_error(truth):
-    from models.errors import InputError
+    from hmpc.models.errors import InputError
 
     rec = simulate_experiment("arcs", truth, seed=SEED)
     del rec.channels["wheel_speed_fl"]

@@ -34,11 +34,11 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
 
-from models.canlog import read_log  # noqa: E402
-from models.dbc import load_dbc  # noqa: E402
-from models.decode import decode_frames  # noqa: E402
-from models.errors import Problems  # noqa: E402
-from tools.datafiles import PARAMS_DIR, bundled  # noqa: E402
+from hmpc.models.logs.canlog import read_log  # noqa: E402
+from hmpc.models.logs.dbc import load_dbc  # noqa: E402
+from hmpc.models.logs.decode import decode_frames  # noqa: E402
+from hmpc.models.errors import Problems  # noqa: E402
+from hmpc.tools.datafiles import PARAMS_DIR, bundled  # noqa: E402
 
 TARGET_RATIO = 20.0      # issue 2: fast path at least 20x per-frame cantools
 TARGET_WALL_S = 30.0     # issue 2: the hour ingested in under 30 s
@@ -85,7 +85,7 @@ def build_log(out: Path, minutes: int) -> tuple[int, float]:
 CHILD = r"""
 import json, sys, time
 t0 = time.perf_counter()
-from models.ingest import ingest_files
+from hmpc.models.logs.ingest import ingest_files
 t1 = time.perf_counter()
 result = ingest_files(sys.argv[1], sys.argv[2], sys.argv[3], rate_hz=50.0)
 t2 = time.perf_counter()

@@ -32,11 +32,11 @@ def _stats(a_s: np.ndarray) -> dict:
 
 
 def run(scenario: str, params_path: str, skip_nmpc: bool = False) -> dict:
-    from controller.closed_loop import run_closed_loop
-    from controller.mpc import MpcConfig, MpcController
-    from controller.nmpc import NmpcController
-    from models.params import load_params
-    from models.scenarios import make_scenario
+    from hmpc.controller.closed_loop import run_closed_loop
+    from hmpc.controller.mpc import MpcConfig, MpcController
+    from hmpc.controller.nmpc import NmpcController
+    from hmpc.models.params import load_params
+    from hmpc.models.sim.scenarios import make_scenario
 
     params = load_params(params_path, require_model=True)
     ref = make_scenario(scenario, params)

@@ -11,15 +11,15 @@ import json
 import sys
 import traceback
 
-from models import __version__
-from models.errors import HmpcError, InputError
+from hmpc import __version__
+from hmpc.models.errors import HmpcError, InputError
 
 #: subcommand -> module under tools/ that provides ``add_arguments(p)`` and ``run(args) -> int``.
 SUBCOMMANDS = {
-    "info": ("tools.cmd_info", "what a CAN log holds: frames and rates per bus/ID, gaps, clock problems"),
-    "ingest": ("tools.cmd_ingest", "raw CAN/nav/IMU logs to one canonical recording"),
-    "identify": ("tools.cmd_identify", "recover the report's steering and accelerator models"),
-    "simulate": ("tools.cmd_simulate", "simulate an experiment or run the closed loop"),
+    "info": ("hmpc.tools.cmd_info", "what a CAN log holds: frames and rates per bus/ID, gaps, clock problems"),
+    "ingest": ("hmpc.tools.cmd_ingest", "raw CAN/nav/IMU logs to one canonical recording"),
+    "identify": ("hmpc.tools.cmd_identify", "recover the report's steering and accelerator models"),
+    "simulate": ("hmpc.tools.cmd_simulate", "simulate an experiment or run the closed loop"),
 }
 
 

@@ -7,11 +7,11 @@ import math
 import sys
 from dataclasses import replace
 
-from models.errors import InputError
-from models.identify import identify
-from models.longitudinal_id import ACCEL_SOURCES, LongitudinalIdConfig
-from models.params import dump_params, load_params
-from models.recording import Recording
+from hmpc.models.errors import InputError
+from hmpc.models.identify.pipeline import identify
+from hmpc.models.identify.longitudinal import ACCEL_SOURCES, LongitudinalIdConfig
+from hmpc.models.params import dump_params, load_params
+from hmpc.models.logs.recording import Recording
 
 
 def _zones(text: str) -> tuple:
@@ -45,7 +45,7 @@ def _nonneg(text: str) -> float:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from tools.cmd_ingest import add_ingest_options
+    from hmpc.tools.cmd_ingest import add_ingest_options
 
     p.add_argument("recording", metavar="REC",
                    help="canonical recording (.csv, .csv.gz, .parquet), or a raw CAN log when "
@@ -77,7 +77,7 @@ def _load_recording(args):
     if args.dbc or args.signals:
         if not (args.dbc and args.signals):
             raise InputError("a raw log needs both --dbc and --signals", args.recording)
-        from tools.cmd_ingest import ingest_from_args
+        from hmpc.tools.cmd_ingest import ingest_from_args
 
         _progress("ingesting the raw log")
         res = ingest_from_args(argparse.Namespace(**{**vars(args), "log": args.recording}),
@@ -145,8 +145,8 @@ def summary_lines(res) -> list[str]:
 
 
 def run(args) -> int:
-    from models.report_plots import write_plots
-    from tools.cli import write_json
+    from hmpc.models.report.identification import write_plots
+    from hmpc.tools.cli import write_json
 
     vehicle = load_params(args.vehicle).vehicle
     rec, sources, ingest_summary = _load_recording(args)

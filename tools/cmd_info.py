@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import sys
 
-from models.canlog import FORMATS
-from models.errors import Problems
-from models.info import format_info, log_info
+from hmpc.models.logs.canlog import FORMATS
+from hmpc.models.errors import Problems
+from hmpc.models.logs.info import format_info, log_info
 
 
 def add_arguments(p) -> None:
@@ -26,7 +26,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from tools.cli import write_json
+    from hmpc.tools.cli import write_json
 
     problems = Problems()
     info = log_info(args.log, problems, dbc_path=args.dbc, fmt=args.fmt, jump_s=args.jump_s)

@@ -5,9 +5,9 @@ import argparse
 import math
 import sys
 
-from models.errors import InputError
-from models.ingest import DEFAULT_PREFERENCE, ingest_files
-from models.nav import load_columns
+from hmpc.models.errors import InputError
+from hmpc.models.logs.ingest import DEFAULT_PREFERENCE, ingest_files
+from hmpc.models.logs.nav import load_columns
 
 
 def _positive(text: str) -> float:
@@ -126,7 +126,7 @@ def summary_lines(summary: dict) -> list[str]:
 
 
 def run(args) -> int:
-    from tools.cli import write_json
+    from hmpc.tools.cli import write_json
 
     res = ingest_from_args(args, progress=_progress)
     try:

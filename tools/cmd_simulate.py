@@ -17,7 +17,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from models.errors import InputError
+from hmpc.models.errors import InputError
 
 CONTROLLERS = ("mpc", "nmpc", "pid")
 
@@ -62,8 +62,8 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from models.params import load_params
-    from tools.cli import write_json
+    from hmpc.models.params import load_params
+    from hmpc.tools.cli import write_json
 
     params = load_params(args.params, require_model=True)
     if args.experiment is not None:
@@ -72,7 +72,7 @@ def run(args) -> int:
 
 
 def _run_experiment(args, params, write_json) -> int:
-    from models import sim  # written alongside (models/sim.py); imported only when used
+    from hmpc.models.sim import simulator as sim  # imported only when used
 
     if args.experiment not in sim.EXPERIMENTS:
         raise InputError(f"unknown experiment '{args.experiment}' (choose from "
@@ -99,25 +99,25 @@ def _run_experiment(args, params, write_json) -> int:
 def make_controller(name: str, params, *, dt_s: float = 0.2, horizon_s: float = 10.0,
                     transition_penalty: bool = True):
     """The controller ``name`` (mpc, nmpc, pid) for ``params``."""
-    from controller.mpc import MpcConfig, MpcController
+    from hmpc.controller.mpc import MpcConfig, MpcController
 
     if name == "pid":
-        from controller.pid import PidController
+        from hmpc.controller.pid import PidController
         return PidController(params)
     kw = {"dt_s": dt_s, "horizon_s": horizon_s}
     if not transition_penalty:
         kw["w_transition"] = 0.0
     cfg = MpcConfig(**kw)
     if name == "nmpc":
-        from controller.nmpc import NmpcController
+        from hmpc.controller.nmpc import NmpcController
         return NmpcController(params, cfg)
     return MpcController(params, cfg)
 
 
 def _run_closed_loop(args, params, write_json) -> int:
-    from controller.closed_loop import run_closed_loop
-    from models.params import load_params
-    from models.scenarios import load_reference_csv, make_scenario
+    from hmpc.controller.closed_loop import run_closed_loop
+    from hmpc.models.params import load_params
+    from hmpc.models.sim.scenarios import load_reference_csv, make_scenario
 
     if args.horizon <= 0 or abs(args.horizon / args.dt - round(args.horizon / args.dt)) > 1e-6:
         raise InputError(f"--horizon {args.horizon} must be a positive multiple of --dt {args.dt}")

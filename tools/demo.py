@@ -10,8 +10,8 @@ import sys
 import time
 from pathlib import Path
 
-from tools import cli
-from tools.datafiles import PARAMS_DIR, bundled
+from hmpc.tools import cli
+from hmpc.tools.datafiles import PARAMS_DIR, bundled
 
 COMMA = "rav4-comma2k19"
 VCAN = "rav4-2019-verifiedcan"
@@ -73,8 +73,8 @@ def main(argv=None) -> int:
         print(f"--- exit {rc} in {time.perf_counter() - t0:.1f} s", flush=True)
         if rc != 0:
             failed.append(title)
-    from models.recording import Recording
-    from models.recording_plots import plot_overview
+    from hmpc.models.logs.recording import Recording
+    from hmpc.models.report.recording import plot_overview
     for name, label in (("comma_rec", "comma2k19 RAV4 2017, I-280 minute"),
                         ("vcan_rec", "VerifiedCAN RAV4 2019, stop-and-go")):
         rec_path = out / f"{name}.csv"

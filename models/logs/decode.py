@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.errors import InputError, Problems
-from models.frames import FrameTable
+from hmpc.models.errors import InputError, Problems
+from hmpc.models.logs.frames import FrameTable
 
 KIND_SHORT = "payload shorter than DBC length (not decoded)"
 KIND_LONG = "payload longer than DBC length (extra bytes ignored)"

@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, ParamError, Problems
+from hmpc.models.errors import InputError, ParamError, Problems
 
 G_MPS2 = 9.80665  # standard gravity [m/s^2]
 

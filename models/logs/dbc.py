@@ -12,7 +12,7 @@ import re
 import zlib
 from pathlib import Path
 
-from models.errors import InputError
+from hmpc.models.errors import InputError
 
 
 def load_dbc(path, *, strict: bool = False):

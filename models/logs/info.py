@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.canlog import (KIND_BACKWARDS, KIND_DUPLICATE, KIND_ERROR_FRAME, KIND_JUMP,
+from hmpc.models.logs.canlog import (KIND_BACKWARDS, KIND_DUPLICATE, KIND_ERROR_FRAME, KIND_JUMP,
                            KIND_MALFORMED, KIND_REMOTE, detect_format, read_log)
-from models.errors import Problems
-from models.frames import FrameTable
+from hmpc.models.errors import Problems
+from hmpc.models.logs.frames import FrameTable
 
 #: an inter-frame interval longer than this many median periods counts as a gap
 GAP_FACTOR = 3.0
@@ -38,7 +38,7 @@ def log_info(path, problems: Problems, *, dbc_path=None, fmt: str | None = None,
     frames = read_log(path, problems, fmt=fmt, jump_s=jump_s)
     db = None
     if dbc_path is not None:
-        from models.dbc import load_dbc
+        from hmpc.models.logs.dbc import load_dbc
         db = load_dbc(dbc_path)
     return summarise(frames, problems, fmt=fmt, db=db, dbc_path=dbc_path)
 
@@ -60,7 +60,7 @@ def summarise(frames: FrameTable, problems: Problems, *, fmt: str = "", db=None,
     rate = n / duration if duration > 0 else 0.0
     names = None
     if db is not None:
-        from models.decode import message_index
+        from hmpc.models.logs.decode import message_index
         msg_index = message_index(frames, db)
         names = [m.name for m in db.messages]
         lengths = np.array([m.length for m in db.messages] + [0])

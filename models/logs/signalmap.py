@@ -47,8 +47,8 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
-from .channels import CHANNELS, STRING_CHANNELS, VALID_GEARS
-from .errors import InputError, ParamError
+from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS, VALID_GEARS
+from hmpc.models.errors import InputError, ParamError
 
 #: source unit -> (SI unit it converts to, factor: SI value = factor * source value)
 UNITS: dict[str, tuple[str, float]] = {

@@ -7,7 +7,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .recording import Recording  # noqa: E402
+from hmpc.models.logs.recording import Recording  # noqa: E402
 
 
 def plot_overview(rec: Recording, path: str, title: str = "") -> str:

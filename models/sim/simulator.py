@@ -49,13 +49,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from .channels import CHANNELS
-from .effects import Effect
-from .errors import InputError, ParamError
-from .params import Params, Steering, Vehicle, Zone
-from .plant import HybridPlant, StepResult
-from .recording import Recording
-from . import sensors as sn
+from hmpc.models.logs.channels import CHANNELS
+from hmpc.models.sim.effects import Effect
+from hmpc.models.errors import InputError, ParamError
+from hmpc.models.params import Params, Steering, Vehicle, Zone
+from hmpc.models.plant import HybridPlant, StepResult
+from hmpc.models.logs.recording import Recording
+from hmpc.models.sim import sensors as sn
 
 #: experiment name -> what it does (the report's section III).
 EXPERIMENTS: dict[str, str] = {
@@ -138,7 +138,7 @@ def random_params(seed: int, vehicle: Vehicle | None = None) -> Params:
     zones = [Zone(name=n, v_min_mps=lo, v_max_mps=hi, offset_mps2=u(*o), scale_mps2=u(*s),
                   brake_scale_mps2=u(*b)) for n, lo, hi, o, s, b in table]
     return Params(vehicle=veh, steering=steering, zones=zones,
-                  provenance={"source": "models.sim.random_params", "seed": int(seed)})
+                  provenance={"source": "hmpc.models.sim.simulator.random_params", "seed": int(seed)})
 
 
 # ------------------------------------------------------------------------------- plans

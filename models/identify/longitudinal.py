@@ -53,12 +53,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError
-from .fos import fos
-from .params import Vehicle, Zone
-from .recording import Recording
-from .stats import apply_kernel, dilate, matched_kernels, ols_hac
-from .steering_id import delayed, road_wheel_angle_from_front
+from hmpc.models.errors import InputError
+from hmpc.models.identify.fos import fos
+from hmpc.models.params import Vehicle, Zone
+from hmpc.models.logs.recording import Recording
+from hmpc.models.identify.stats import apply_kernel, dilate, matched_kernels, ols_hac
+from hmpc.models.identify.steering import delayed, road_wheel_angle_from_front
 
 #: default zones: the report's section V (name, v_min [m/s], v_max [m/s]).
 DEFAULT_ZONES: tuple[tuple[str, float, float], ...] = (

@@ -34,17 +34,17 @@ from typing import Callable
 
 import numpy as np
 
-from . import __version__
-from .align import OffsetEstimate, estimate_offset
-from .canlog import read_log
-from .channels import CHANNELS, STRING_CHANNELS
-from .dbc import load_dbc
-from .decode import decode_frames
-from .errors import InputError, Problems
-from .nav import ImuColumns, NavColumns, imu_to_body, read_imu_raw, read_nav
-from .recording import Recording
-from .resample import gap_threshold_s, make_grid, resample
-from .signalmap import load_signal_map
+from hmpc import __version__
+from hmpc.models.logs.align import OffsetEstimate, estimate_offset
+from hmpc.models.logs.canlog import read_log
+from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS
+from hmpc.models.logs.dbc import load_dbc
+from hmpc.models.logs.decode import decode_frames
+from hmpc.models.errors import InputError, Problems
+from hmpc.models.logs.nav import ImuColumns, NavColumns, imu_to_body, read_imu_raw, read_nav
+from hmpc.models.logs.recording import Recording
+from hmpc.models.logs.resample import gap_threshold_s, make_grid, resample
+from hmpc.models.logs.signalmap import load_signal_map
 
 #: samples above this ground speed [m/s] estimate the heading mount offset (course over ground
 #: is meaningless when nearly stopped; 5 m/s is the acceptance criterion's threshold).

@@ -18,14 +18,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import __version__
-from .channels import STRING_CHANNELS
-from .errors import InputError
-from .ingest import sha256_file
-from .longitudinal_id import LongitudinalIdConfig, LongitudinalResult, identify_longitudinal
-from .params import Params, Steering, Vehicle
-from .recording import Recording
-from .steering_id import SteeringIdConfig, SteeringResult, identify_steering
+from hmpc import __version__
+from hmpc.models.logs.channels import STRING_CHANNELS
+from hmpc.models.errors import InputError
+from hmpc.models.logs.ingest import sha256_file
+from hmpc.models.identify.longitudinal import LongitudinalIdConfig, LongitudinalResult, identify_longitudinal
+from hmpc.models.params import Params, Steering, Vehicle
+from hmpc.models.logs.recording import Recording
+from hmpc.models.identify.steering import SteeringIdConfig, SteeringResult, identify_steering
 
 
 @dataclass

@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from collections import deque
 
-from .errors import InputError
+from hmpc.models.errors import InputError
 
 G_MPS2 = 9.80665  #: standard gravity [m/s^2]
 

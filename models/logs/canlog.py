@@ -36,8 +36,8 @@ from pathlib import Path
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from models.errors import InputError, Problems
-from models.frames import MAX_PAYLOAD, FrameTable
+from hmpc.models.errors import InputError, Problems
+from hmpc.models.logs.frames import MAX_PAYLOAD, FrameTable
 
 #: formats read by hmpc's own vectorised text readers
 TEXT_FORMATS = ("candump", "libpanda")

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .channels import CHANNELS, STRING_CHANNELS
-from .errors import InputError
+from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS
+from hmpc.models.errors import InputError
 
 
 @dataclass

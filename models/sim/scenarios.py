@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-from .params import Params
+from hmpc.models.errors import InputError
+from hmpc.models.params import Params
 
 #: scenario names accepted by :func:`make_scenario`.
 SCENARIOS = ("arcs", "circles", "figure8", "ramps", "ramp_sequence", "idle_hold")

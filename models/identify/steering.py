@@ -55,10 +55,10 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import t as student_t
 
-from .errors import InputError
-from .params import Vehicle
-from .recording import Recording
-from .stats import Z95, block_cov, cluster_cov, dilate, ols_hac, savgol_derivative
+from hmpc.models.errors import InputError
+from hmpc.models.params import Vehicle
+from hmpc.models.logs.recording import Recording
+from hmpc.models.identify.stats import Z95, block_cov, cluster_cov, dilate, ols_hac, savgol_derivative
 
 
 @dataclass(frozen=True)
