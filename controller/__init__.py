@@ -1,4 +1,3 @@
-"""hmpc runtime: MPC, limits, actuation adapters and loops.
-
-Imports ``models``; never imported by it.
+"""hmpc runtime: the controller contract (base), MPC, NMPC, PID, limits, actuation adapters
+and loops. Imports ``models``; never imported by it.
 """

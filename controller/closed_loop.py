@@ -7,22 +7,27 @@ controller's model (``plant_params``: model mismatch, ``hmpc simulate --plant-pa
 
 The output is a canonical recording (``models.recording.Recording``) at the plant rate
 with the applied inputs, the commands (``steering_cmd``, ``accel_pedal_cmd``,
-``brake_pedal_cmd``) and the plant state, plus the metrics of issue 4.
+``brake_pedal_cmd``) and the plant state, plus the metrics of issue 4 and the controller's
+statuses: ``failures`` counts the steps whose own computation failed (any status but
+solved/ok/hold), ``internal_errors`` those that were bugs (their tracebacks are in
+``ClosedLoopResult.internal_errors``). The library prints nothing: progress goes to an
+optional callback (the CLI prints it).
 """
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
 from hmpc.models.params import Params
-from hmpc.models.plant import DelayLine, HybridPlant
+from hmpc.models.plant import DelayLine, HybridPlant, heading_rate
 from hmpc.models.logs.recording import Recording
 from hmpc.models.sim.scenarios import Reference
 
-from hmpc.controller.limits import Command, Limits, apply_limits
+from hmpc.controller.base import Controller, Status
+from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
 
 
 @dataclass
@@ -35,9 +40,12 @@ class ClosedLoopResult:
         zone: plant zone per sample.
         speed_ref_mps: reference speed per sample [m/s].
         lateral_error_m: signed distance to the path per sample [m].
-        statuses: controller status per control step.
+        statuses: controller status per control step (:class:`Status`).
+        reasons: the status reason per control step ("" when solved).
         solve_time_s: solver time per control step [s].
         step_time_s: wall time of each controller step [s].
+        control_time_s: time of each control step [s].
+        internal_errors: (time [s], traceback) of every step that was an internal error.
     """
 
     recording: Recording
@@ -49,19 +57,21 @@ class ClosedLoopResult:
     solve_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     step_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     control_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    reasons: list = field(default_factory=list)
+    internal_errors: list = field(default_factory=list)
 
 
-def run_closed_loop(controller, reference: Reference, params: Params, *,
+def run_closed_loop(controller: Controller, reference: Reference, params: Params, *,
                     plant_params: Params | None = None, control_period_s: float = 0.1,
                     plant_dt_s: float = 0.02, seed: int = 0, speed_noise_mps: float = 0.0,
                     position_noise_m: float = 0.0, extra_time_s: float = 0.0,
-                    limits: Limits | None = None, progress: bool = False,
+                    limits: ActuatorLimits | None = None,
+                    progress: Callable[[float, float], None] | None = None,
                     initial_state: np.ndarray | None = None) -> ClosedLoopResult:
     """Closed loop: ``controller.step(measured_state, reference, t)`` every control period.
 
     Args:
-        controller: anything with ``step(state, reference, t_s) -> ControlResult`` and
-            ``reset()``.
+        controller: a :class:`controller.base.Controller`.
         reference: the trajectory to follow.
         params: the controller's model (also the plant's, unless ``plant_params``).
         plant_params: a different plant (model mismatch).
@@ -71,7 +81,8 @@ def run_closed_loop(controller, reference: Reference, params: Params, *,
         speed_noise_mps, position_noise_m: white measurement noise std [m/s], [m].
         extra_time_s: run this long past the reference's end [s].
         limits: limits applied at the actuation boundary (default from ``params``).
-        progress: report progress on stderr.
+        progress: called as ``progress(fraction_done, t_s)`` (t_s since the start [s])
+            at every further tenth of the run; None: no reports.
         initial_state: plant start state (default: on the reference).
     """
     if not (plant_dt_s > 0 and control_period_s >= plant_dt_s - 1e-12):
@@ -79,10 +90,12 @@ def run_closed_loop(controller, reference: Reference, params: Params, *,
     ratio = control_period_s / plant_dt_s
     if abs(ratio - round(ratio)) > 1e-6:
         raise ValueError("control_period_s must be a whole number of plant_dt_s")
+    if progress is not None and not callable(progress):
+        raise ValueError("progress must be a callable progress(fraction, t_s) or None")
     every = int(round(ratio))
     pp = plant_params if plant_params is not None else params
     plant = HybridPlant(pp)
-    lim = limits or Limits.from_params(params)
+    lim = limits or ActuatorLimits.from_params(params)
     rng = np.random.default_rng(seed)
     d_steer = DelayLine(float(pp.steering.dead_time_s or 0.0), plant_dt_s)
     d_acc = DelayLine(float(pp.longitudinal_dead_time_s or 0.0), plant_dt_s)
@@ -98,7 +111,7 @@ def run_closed_loop(controller, reference: Reference, params: Params, *,
                                      "accel_pedal", "brake_pedal", "yaw_rate", "accel_x",
                                      "steering_cmd", "accel_pedal_cmd", "brake_pedal_cmd")}
     zones = np.zeros(n, dtype=np.int64)
-    statuses, solve_t, step_t, ctl_t, ok = [], [], [], [], []
+    statuses, reasons, errors, solve_t, step_t, ctl_t = [], [], [], [], [], []
     cmd = Command(0.0, 0.0, 0.0)
     prev_applied: Command | None = None
     last_report = -1
@@ -115,17 +128,19 @@ def run_closed_loop(controller, reference: Reference, params: Params, *,
             # the actuation boundary applies the limits again, whatever the controller did
             cmd = apply_limits(c, prev_applied, lim, control_period_s)
             prev_applied = cmd
-            statuses.append(res.status)
-            ok.append(bool(res.ok))
+            status = Status(res.status)
+            statuses.append(status)
+            reasons.append(res.reason)
+            if status is Status.INTERNAL_ERROR:
+                errors.append((t, res.traceback or res.reason))
             solve_t.append(float(res.solve_time_s))
             step_t.append(float(res.step_time_s))
             ctl_t.append(t)
-            if progress:
-                pct = int(100 * i / max(n - 1, 1)) // 10
-                if pct != last_report:
-                    last_report = pct
-                    print(f"  closed loop {reference.name}: {10 * pct:3d}% (t = {t - t0:.1f} s)",
-                          file=sys.stderr, flush=True)
+            if progress is not None:
+                tenth = int(100 * i / max(n - 1, 1)) // 10
+                if tenth != last_report:
+                    last_report = tenth
+                    progress(tenth / 10, t - t0)
         u = np.array([d_steer.push(cmd.steering_wheel_angle_rad), d_acc.push(cmd.accel_pedal),
                       d_brk.push(cmd.brake_pedal)])
         cols["time"][i] = t
@@ -135,7 +150,7 @@ def run_closed_loop(controller, reference: Reference, params: Params, *,
         cols["accel_pedal_cmd"][i] = cmd.accel_pedal
         cols["brake_pedal_cmd"][i] = cmd.brake_pedal
         delta = plant.road_wheel_angle(u[0])
-        cols["yaw_rate"][i] = s[3] * math.sin(float(delta)) / plant.wheelbase_m
+        cols["yaw_rate"][i] = heading_rate(s[3], float(delta), plant.wheelbase_m, ops=math)
         r = plant.step(s, u, plant_dt_s, zone)
         cols["accel_x"][i] = r.accel_mps2
         zones[i] = r.zone
@@ -147,8 +162,8 @@ def run_closed_loop(controller, reference: Reference, params: Params, *,
     v_ref = reference.speed_at(cols["time"])
     lat = reference.lateral_errors(cols["x"], cols["y"], cols["time"])
     result = ClosedLoopResult(rec, {}, zones, v_ref, lat, statuses, np.array(solve_t),
-                              np.array(step_t), np.array(ctl_t))
-    result.metrics = metrics_of(result, ok, lim)
+                              np.array(step_t), np.array(ctl_t), reasons, errors)
+    result.metrics = metrics_of(result, lim)
     result.metrics["seed"] = seed
     return result
 
@@ -168,8 +183,8 @@ def pedal_switches(accel_pedal: np.ndarray, brake_pedal: np.ndarray, deadband: f
     return count
 
 
-def metrics_of(res: ClosedLoopResult, ok: list, limits: Limits) -> dict:
-    """The issue 4 figures (stable keys, SI units)."""
+def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
+    """The issue 4 figures (stable keys, SI units), and the internal errors."""
     rec = res.recording
     t = rec.channels["time"]
     minutes = max((t[-1] - t[0]) / 60.0, 1e-9)
@@ -190,7 +205,8 @@ def metrics_of(res: ClosedLoopResult, ok: list, limits: Limits) -> dict:
         "solve_time_ms": {"p50": pct(solve_ms, 50), "p99": pct(solve_ms, 99),
                           "max": float(solve_ms.max()) if len(solve_ms) else 0.0},
         "steps": int(len(res.statuses)),
-        "failures": int(sum(1 for o in ok if not o)),
+        "failures": int(sum(1 for s in res.statuses if not Status(s).ok)),
+        "internal_errors": int(sum(1 for s in res.statuses if s == Status.INTERNAL_ERROR)),
         # extras (not in the issue's list, kept stable too)
         "step_time_ms": {"p50": pct(step_ms, 50), "p99": pct(step_ms, 99),
                          "max": float(step_ms.max()) if len(step_ms) else 0.0},
@@ -205,9 +221,10 @@ def metrics_of(res: ClosedLoopResult, ok: list, limits: Limits) -> dict:
     }
 
 
-def _count(items) -> dict:
+def _count(statuses) -> dict:
+    """Steps per status, keyed by the status value."""
     out: dict[str, int] = {}
-    for s in items:
-        key = s.split(" (")[0]
+    for s in statuses:
+        key = Status(s).value
         out[key] = out.get(key, 0) + 1
     return out

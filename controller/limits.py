@@ -5,6 +5,13 @@ default in a comment (STYLE.md 3). :func:`apply_limits` is applied after the opt
 again, independently of it: whatever a controller computes, the command that leaves the
 controller step has its steering angle and rate clamped, pedals in [0, 1] and rate-limited,
 and never throttle and brake together.
+
+Two deceleration limits, by situation: in normal driving the brake is capped at the comfort
+deceleration ``decel_max_mps2`` (3.5 m/s^2, ISO 15622); in a controlled stop (the
+controller's fallback after a failure: a minimum-risk manoeuvre) at
+``controlled_stop_decel_max_mps2`` (4.0 m/s^2, UN R157), see :class:`ActuatorLimits`.
+``ActuatorLimits`` is not ``models.params.VehicleLimits``: that is the optional ``limits:``
+section of a parameter file, which :meth:`ActuatorLimits.from_params` reads.
 """
 from __future__ import annotations
 
@@ -33,7 +40,7 @@ class Command:
 
 
 @dataclass(frozen=True)
-class Limits:
+class ActuatorLimits:
     """Limits every command must respect (SI units, in the names).
 
     Defaults and their reasons:
@@ -51,6 +58,13 @@ class Limits:
     accel_max_mps2: float = 2.0
     # Deceleration: 3.5 m/s^2, ISO 15622's bound for automated (non-emergency) braking.
     decel_max_mps2: float = 3.5
+    # Deceleration in a controlled stop (the fallback after a failed solve or an internal
+    # error, which brings the car to standstill): 4.0 m/s^2, the deceleration demand UN R157
+    # (ALKS) para. 5.5.1 allows in its minimum risk manoeuvre. A stop after a failure must
+    # not be held to the comfort figure above (ISO 15622 itself allows up to 5 m/s^2 at low
+    # speed), but it is still not an emergency brake: the car behind must be able to follow.
+    # The stop's own target (MpcConfig.stop_brake_decel_mps2, 2 m/s^2) is below both.
+    controlled_stop_decel_max_mps2: float = 4.0
     # Jerk: 2.5 m/s^3, ISO 15622's bound on the average rate of change of deceleration.
     jerk_max_mps3: float = 2.5
     # Speed: 20 m/s, the top of the report's highest zone (section V); above it the zone
@@ -70,16 +84,18 @@ class Limits:
 
     def __post_init__(self):
         for name in ("steering_wheel_angle_max_rad", "steering_wheel_rate_max_radps",
-                     "accel_max_mps2", "decel_max_mps2", "jerk_max_mps3", "speed_max_mps",
-                     "accel_pedal_rate_max_ps", "brake_pedal_rate_max_ps"):
+                     "accel_max_mps2", "decel_max_mps2", "controlled_stop_decel_max_mps2",
+                     "jerk_max_mps3", "speed_max_mps", "accel_pedal_rate_max_ps",
+                     "brake_pedal_rate_max_ps"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"Limits.{name} must be a positive finite number, got {v!r}")
+                raise ValueError(f"ActuatorLimits.{name} must be a positive finite number, "
+                                 f"got {v!r}")
         if not 0.0 <= self.pedal_min < self.pedal_max <= 1.0:
-            raise ValueError("Limits: need 0 <= pedal_min < pedal_max <= 1")
+            raise ValueError("ActuatorLimits: need 0 <= pedal_min < pedal_max <= 1")
 
     @classmethod
-    def from_params(cls, params: Params | None) -> "Limits":
+    def from_params(cls, params: Params | None) -> "ActuatorLimits":
         """Defaults overridden by ``params.limits`` and the vehicle's steering range/rate.
 
         ``limits:`` keys win over the ``vehicle:`` keys of the same meaning.
@@ -106,8 +122,8 @@ def _clamp(x: float, lo: float, hi: float) -> float:
     return lo if x < lo else hi if x > hi else x
 
 
-def apply_limits(command: Command, prev: Command | None, limits: Limits, dt_s: float,
-                 zone: Zone | None = None) -> Command:
+def apply_limits(command: Command, prev: Command | None, limits: ActuatorLimits, dt_s: float,
+                 zone: Zone | None = None, *, controlled_stop: bool = False) -> Command:
     """Return ``command`` made safe: the last line of defence, independent of any optimiser.
 
     In order:
@@ -116,7 +132,8 @@ def apply_limits(command: Command, prev: Command | None, limits: Limits, dt_s: f
       2. pedals clamped to [pedal_min, pedal_max]; pressing (not releasing) a pedal is
          rate-limited from ``prev``;
       3. with ``zone`` (the zone model eq. 8 in force), the throttle is capped so the model
-         acceleration stays <= accel_max and the brake so it stays >= -decel_max;
+         acceleration stays <= accel_max and the brake so it stays >= -decel_max (in a
+         ``controlled_stop``: >= -controlled_stop_decel_max);
       4. steering-wheel angle clamped to +-max and its change from ``prev`` to rate*dt;
       5. never throttle and brake together: if both are still pressed, the brake wins and
          the throttle is released (pedals below ``pedal_deadband`` count as released).
@@ -127,6 +144,9 @@ def apply_limits(command: Command, prev: Command | None, limits: Limits, dt_s: f
         limits: the limits.
         dt_s: time since ``prev`` [s] (> 0).
         zone: optional zone model for the acceleration caps.
+        controlled_stop: the command is a controlled stop (a failure's fallback): the brake
+            cap is ``limits.controlled_stop_decel_max_mps2`` instead of the comfort
+            ``limits.decel_max_mps2``.
     """
     if not (dt_s > 0 and math.isfinite(dt_s)):
         raise ValueError(f"dt_s must be positive and finite, got {dt_s!r}")
@@ -141,7 +161,10 @@ def apply_limits(command: Command, prev: Command | None, limits: Limits, dt_s: f
         if zone.scale_mps2 > 0:
             ap = min(ap, max((limits.accel_max_mps2 - zone.offset_mps2) / zone.scale_mps2, 0.0))
         if zone.brake_scale_mps2 > 0:
-            bp = min(bp, max((zone.offset_mps2 + limits.decel_max_mps2) / zone.brake_scale_mps2, 0.0))
+            decel = limits.decel_max_mps2
+            if controlled_stop:  # never below the comfort limit (a file may raise that)
+                decel = max(decel, limits.controlled_stop_decel_max_mps2)
+            bp = min(bp, max((zone.offset_mps2 + decel) / zone.brake_scale_mps2, 0.0))
     if prev is not None:  # rate limits on pressing only: releasing a pedal is always safe
         ap = min(ap, prev.accel_pedal + limits.accel_pedal_rate_max_ps * dt_s)
         bp = min(bp, prev.brake_pedal + limits.brake_pedal_rate_max_ps * dt_s)
@@ -159,6 +182,6 @@ def apply_limits(command: Command, prev: Command | None, limits: Limits, dt_s: f
     return Command(sw, ap, bp)
 
 
-def with_limits(limits: Limits, **changes) -> Limits:
+def with_limits(limits: ActuatorLimits, **changes) -> ActuatorLimits:
     """A copy of ``limits`` with some fields changed (validated again)."""
     return replace(limits, **changes)

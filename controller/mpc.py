@@ -35,28 +35,39 @@ map (eq. 7), one linear accelerator model per speed zone (eq. 8, with brake). Ev
    speed, so holding 1 m/s against idle creep does not chatter.
 7. **Failures**: a step never raises and never returns None. On a solver failure or
    time-out the previous plan is shifted and followed; when it has run out, a controlled
-   stop (brake ramp, steering held). The status says which.
+   stop (brake ramp, steering held). An unexpected exception (a bug, not a solver failure)
+   is an internal error: the plan is dropped, a controlled stop begins and the result
+   carries the traceback. The status (controller/base.py ``Status``) says which, and
+   ``reason`` why.
 
 The step RETURNS a command; it never sends it. Every command goes through
-``controller.limits.apply_limits`` before it is returned.
+``controller.limits.apply_limits`` before it is returned. The model's physics (eq. 1, 7, 8,
+the zone rule) is models/plant.py's; this module only discretises it.
 """
 from __future__ import annotations
 
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
 from hmpc.models.params import Params
-from hmpc.models.plant import HybridPlant
+from hmpc.models.plant import HybridPlant, bicycle_jacobian, derivative_batch, jacobians_batch, \
+    steering_wheel_angle_for
 from hmpc.models.sim.scenarios import Reference
 
-from hmpc.controller.limits import Command, Limits, apply_limits
+from hmpc.controller.base import ControlResult, Status, internal_error
+from hmpc.controller.horizon import InFlight, PathReference, Plan, SolveOutcome, SpeedBand, \
+    StageData
+from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
 from hmpc.controller.modes import PEDAL_RELEASED, ModeConfig, PedalMode, PedalModeLogic, StandstillLogic, \
     desired_accel, transition_allowed
+
+__all__ = ["ControlResult", "MpcConfig", "MpcController", "Status", "derivative_batch",
+           "jacobians_batch", "preferred_zone"]
 
 NX, NU, NS = 4, 3, 3  # state, input, slack (per stage)
 _UT4 = [(a, b) for a in range(4) for b in range(a, 4)]   # upper triangle of a 4x4 block
@@ -156,84 +167,13 @@ class MpcConfig:
         return int(round(self.horizon_s / self.dt_s))
 
 
-@dataclass
-class ControlResult:
-    """What a controller step returns: always a safe command and a status.
-
-    Attributes:
-        command: the command to apply now (limits applied).
-        status: "solved", "solved_inaccurate", "hold", "shifted_plan (...)",
-            "controlled_stop (...)".
-        ok: True when this step's optimisation succeeded (or HOLD, which needs none).
-        solve_time_s: time in the solver [s] (0 when it did not run).
-        step_time_s: wall time of the whole step [s].
-        plan: predicted states (N+1, 4) of the plan followed, or None.
-        plan_inputs: planned inputs (N, 3), or None.
-        zone_plan: zone index per stage (N,), or None.
-        mode_plan: pedal mode per stage (N,), or None.
-        zone: the zone the controller believes the car is in.
-        pedal_mode: the pedal mode of this command.
-        iterations: solver iterations (summed over SQP iterations).
-    """
-
-    command: Command
-    status: str
-    ok: bool
-    solve_time_s: float = 0.0
-    step_time_s: float = 0.0
-    plan: np.ndarray | None = None
-    plan_inputs: np.ndarray | None = None
-    zone_plan: np.ndarray | None = None
-    mode_plan: np.ndarray | None = None
-    zone: int = 0
-    pedal_mode: int = int(PedalMode.BRAKE)
-    iterations: int = 0
-    info: dict = field(default_factory=dict)
-
-
 def preferred_zone(params: Params) -> int:
     """The most accurate zone: lowest ``nmse_pct``; without fit metrics, the zone that
     holds 3.5 m/s (the report's low zone, 2-5 m/s, section VI)."""
     scored = [(z.nmse_pct, i) for i, z in enumerate(params.zones) if z.nmse_pct is not None]
     if scored:
         return min(scored)[1]
-    for i, z in enumerate(params.zones):
-        if z.v_min_mps < 3.5 <= z.v_max_mps:
-            return i
-    return 0
-
-
-def jacobians_batch(plant: HybridPlant, X: np.ndarray, U: np.ndarray, zones: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """``plant.jacobians`` for many stages at once: A (n, 4, 4), B (n, 4, 3) continuous."""
-    n = len(X)
-    delta = plant.offset_rad + plant.scale * U[:, 0]
-    v, psi = X[:, 3], X[:, 2]
-    c, s = np.cos(psi + delta), np.sin(psi + delta)
-    A = np.zeros((n, 4, 4))
-    A[:, 0, 2], A[:, 0, 3] = -v * s, c
-    A[:, 1, 2], A[:, 1, 3] = v * c, s
-    A[:, 2, 3] = np.sin(delta) / plant.wheelbase_m
-    B = np.zeros((n, 4, 3))
-    B[:, 0, 0] = -v * s * plant.scale
-    B[:, 1, 0] = v * c * plant.scale
-    B[:, 2, 0] = v * np.cos(delta) * plant.scale / plant.wheelbase_m
-    B[:, 3, 1] = plant.z_scale[zones]
-    B[:, 3, 2] = -plant.z_brake[zones]
-    return A, B
-
-
-def derivative_batch(plant: HybridPlant, X: np.ndarray, U: np.ndarray, zones: np.ndarray
-                     ) -> np.ndarray:
-    """``plant.derivative`` for many stages at once (n, 4)."""
-    delta = plant.offset_rad + plant.scale * U[:, 0]
-    v, psi = X[:, 3], X[:, 2]
-    out = np.empty_like(X)
-    out[:, 0] = v * np.cos(psi + delta)
-    out[:, 1] = v * np.sin(psi + delta)
-    out[:, 2] = v * np.sin(delta) / plant.wheelbase_m
-    out[:, 3] = plant.z_offset[zones] + plant.z_scale[zones] * U[:, 1] - plant.z_brake[zones] * U[:, 2]
-    return out
+    return max(params.zone_for(3.5), 0)
 
 
 class _QpLayout:
@@ -372,12 +312,12 @@ class MpcController:
     name = "mpc"
 
     def __init__(self, params: Params, config: MpcConfig | None = None,
-                 limits: Limits | None = None, mode_config: ModeConfig | None = None):
+                 limits: ActuatorLimits | None = None, mode_config: ModeConfig | None = None):
         if not params.is_model:
             raise ValueError("MpcController needs a complete model (steering and zones)")
         self.params = params
         self.config = config or MpcConfig()
-        self.limits = limits or Limits.from_params(params)
+        self.limits = limits or ActuatorLimits.from_params(params)
         self.mode_config = mode_config or ModeConfig()
         self.plant = HybridPlant(params)
         self.N = self.config.n_stages
@@ -399,7 +339,7 @@ class MpcController:
     # ----------------------------------------------------------------- state
     def reset(self) -> None:
         """Forget the plan, the history and the modes (a new run)."""
-        self._plan = None          # (t0_s, X, U) of the last good solution
+        self._plan: Plan | None = None  # the last good solution
         self._history: deque = deque(maxlen=256)  # (t_issue_s, Command)
         self._last_cmd: Command | None = None
         self._last_t: float | None = None
@@ -407,7 +347,7 @@ class MpcController:
         self._s_prog: float | None = None
         self._pedal.reset()
         self._standstill.reset()
-        self._fixed = (0, np.zeros(0), 0, np.zeros((0, 2)))
+        self._fixed = InFlight()  # inputs in flight at the start of the horizon
         self._warm = None          # (primal, dual) of the last good solution
         # stages elapsed since that solution's first stage (None: no plan to shift)
         self._shift_stages: float | None = None
@@ -470,16 +410,18 @@ class MpcController:
                 res = self._fallback(float(t_s), "invalid state")
             else:
                 res = self._step(x, reference, float(t_s), bool(stop), obstacle_distance_m)
-        except Exception as exc:  # never raise into the loop: say so, stay safe
-            res = self._fallback(float(t_s), f"internal error {type(exc).__name__}: {exc}")
+        except Exception as exc:  # never raise into the loop: a bug, recorded as one
+            res = internal_error(self._stop_after_error(t_s), exc)
         res.step_time_s = time.perf_counter() - t_wall
         return res
 
     # -------------------------------------------------------------- internals
-    def _finish(self, cmd: Command, t_s: float, zone: int) -> Command:
+    def _finish(self, cmd: Command, t_s: float, zone: int, *,
+                controlled_stop: bool = False) -> Command:
         dt = self.dt if self._last_t is None else max(t_s - self._last_t, 1e-3)
         z = self.params.zones[zone]
-        out = apply_limits(cmd, self._last_cmd, self.limits, dt, zone=z)
+        out = apply_limits(cmd, self._last_cmd, self.limits, dt, zone=z,
+                           controlled_stop=controlled_stop)
         self._last_cmd = out
         self._last_t = t_s
         self._history.append((t_s, out))
@@ -488,21 +430,40 @@ class MpcController:
     def _fallback(self, t_s: float, reason: str) -> ControlResult:
         """Shift the previous plan; when none remains, a controlled stop."""
         zone = self._zone if self._zone is not None else 0
-        if self._plan is not None:
-            t0, X, U, zones, modes = self._plan
-            k = int(math.floor((t_s - t0) / self.dt + 1e-9))
-            k_s, _, k_l, _ = self._fixed
+        plan = self._plan
+        if plan is not None:
+            k = int(math.floor((t_s - plan.t0_s) / self.dt + 1e-9))
+            k_s, k_l = self._fixed.steer_stages, self._fixed.pedal_stages
             if 0 <= k and k + max(k_s, k_l) < self.N - 1:
+                U = plan.inputs
                 sw, ap, bp = U[k + k_s, 0], U[k + k_l, 1], U[k + k_l, 2]
                 cmd = self._finish(Command(float(sw), float(ap), float(bp)), t_s, zone)
-                return ControlResult(cmd, f"shifted_plan ({reason})", False, plan=X,
-                                     plan_inputs=U, zone_plan=zones, mode_plan=modes,
-                                     zone=zone, pedal_mode=int(modes[k]))
+                return ControlResult(cmd, Status.SHIFTED_PLAN, reason, plan=plan.states,
+                                     plan_inputs=U, zone_plan=plan.zones,
+                                     mode_plan=plan.modes, zone=zone,
+                                     pedal_mode=int(plan.modes[k]))
             self._plan = None
         return self._controlled_stop(t_s, reason, zone)
 
+    def _stop_after_error(self, t_s) -> ControlResult:
+        """The command after an unexpected exception: the plan and warm start are dropped
+        (what raised may have left them half-written) and a controlled stop begins. Should
+        that raise too, the last resort: throttle released, brake pressed at its rate limit,
+        steering held (``apply_limits`` on a non-finite command)."""
+        self._plan = None
+        self._warm = None
+        try:
+            zone = self._zone if self._zone is not None else 0
+            return self._controlled_stop(float(t_s), "", zone)
+        except Exception:  # noqa: BLE001 - the caller records the first exception
+            prev = self._last_cmd
+            cmd = apply_limits(Command(math.nan, 0.0, 0.0), prev, self.limits, self.dt)
+            self._last_cmd = cmd
+            return ControlResult(cmd, Status.CONTROLLED_STOP, pedal_mode=int(PedalMode.BRAKE))
+
     def _controlled_stop(self, t_s: float, reason: str, zone: int) -> ControlResult:
-        """Brake ramp to a moderate deceleration, throttle released, steering held."""
+        """Brake ramp to a moderate deceleration (``config.stop_brake_decel_mps2``, capped by
+        ``limits.controlled_stop_decel_max_mps2``), throttle released, steering held."""
         z = self.params.zones[zone]
         prev = self._last_cmd
         dt = self.dt if self._last_t is None else max(t_s - self._last_t, 1e-3)
@@ -512,8 +473,8 @@ class MpcController:
         bp0 = prev.brake_pedal if prev is not None else 0.0
         bp = min(target, bp0 + ramp) if bp0 < target else bp0
         sw = prev.steering_wheel_angle_rad if prev is not None else 0.0
-        cmd = self._finish(Command(sw, 0.0, bp), t_s, zone)
-        return ControlResult(cmd, f"controlled_stop ({reason})", False, zone=zone,
+        cmd = self._finish(Command(sw, 0.0, bp), t_s, zone, controlled_stop=True)
+        return ControlResult(cmd, Status.CONTROLLED_STOP, reason, zone=zone,
                              pedal_mode=int(PedalMode.BRAKE))
 
     def _predict_through_delay(self, x: np.ndarray, t_s: float) -> tuple[np.ndarray, float]:
@@ -547,7 +508,7 @@ class MpcController:
                           for k in range(k_s)])
         ped = np.array([[issued_at(t0 + k * dt - dl).accel_pedal,
                          issued_at(t0 + k * dt - dl).brake_pedal] for k in range(k_l)])
-        self._fixed = (k_s, steer, k_l, ped.reshape(k_l, 2))
+        self._fixed = InFlight(k_s, steer, k_l, ped.reshape(k_l, 2))
         if d0 <= 0:
             return x, 0.0
         n_sub = max(int(math.ceil(d0 / 0.05)), 1)
@@ -599,16 +560,21 @@ class MpcController:
             srhi[0] += prev.steering_wheel_angle_rad
         else:
             srlo[0], srhi[0] = -np.inf, np.inf
-        k_s, steer, k_l, ped = self._fixed
+        f = self._fixed
+        k_s, k_l = f.steer_stages, f.pedal_stages
         if k_s:
-            ulo[:k_s, 0] = uhi[:k_s, 0] = steer
+            ulo[:k_s, 0] = uhi[:k_s, 0] = f.steer_rad
             srlo[:k_s], srhi[:k_s] = -np.inf, np.inf
         if k_l:
-            ulo[:k_l, 1:] = uhi[:k_l, 1:] = ped
+            ulo[:k_l, 1:] = uhi[:k_l, 1:] = f.pedals
         return ulo, uhi, srlo, srhi
 
     def _lqr_terminal(self, v_mps: float, delta_rad: float) -> np.ndarray:
-        """3x3 DARE solution on (lateral, heading, speed) errors, from control.dlqr."""
+        """3x3 DARE solution on (lateral, heading, speed) errors, from control.dlqr.
+
+        The error model is eq. 1 linearised in the path's frame (vehicle heading plus
+        road-wheel angle along the path tangent): the lateral error rate is the y' row of
+        ``models.plant.bicycle_jacobian`` there."""
         vq = max(round(v_mps * 2) / 2, 0.5)
         dq = round(delta_rad * 20) / 20
         key = (vq, dq)
@@ -616,10 +582,9 @@ class MpcController:
         if P3 is None:
             import control  # python-control: dlqr
             c, dt, pl = self.config, self.dt, self.plant
-            Ac = np.array([[0.0, vq, 0.0], [0.0, 0.0, math.sin(dq) / pl.wheelbase_m],
-                           [0.0, 0.0, 0.0]])
-            Bc = np.array([[vq * pl.scale, 0.0],
-                           [vq * math.cos(dq) * pl.scale / pl.wheelbase_m, 0.0], [0.0, 1.0]])
+            j = bicycle_jacobian(-dq, vq, dq, pl.wheelbase_m, pl.scale, ops=math)
+            Ac = np.array([[0.0, j.dy_dpsi, j.dy_dv], [0.0, 0.0, j.dpsi_dv], [0.0, 0.0, 0.0]])
+            Bc = np.array([[j.dy_du, 0.0], [j.dpsi_du, 0.0], [0.0, 1.0]])
             Ad = np.eye(3) + Ac * dt + Ac @ Ac * dt * dt / 2
             Bd = (np.eye(3) * dt + Ac * dt * dt / 2) @ Bc
             Q = np.diag([c.w_lateral, c.w_heading, c.w_speed]) * dt
@@ -644,63 +609,22 @@ class MpcController:
 
     def _step(self, x_meas: np.ndarray, ref: Reference, t: float, stop: bool,
               obstacle_m: float | None) -> ControlResult:
+        """One step in named stages: delay compensation, standstill hold, path progress,
+        nominal trajectory, then the SQP iterations (one when warm) of
+        :meth:`_stage_data` + :meth:`_solve`."""
         cfg, L, N, dt, pl = self.config, self.layout, self.N, self.dt, self.plant
         x0, d = self._predict_through_delay(x_meas, t)
-        k_s, _steer_fixed, k_l, ped_fixed = self._fixed
         x0[3] = max(x0[3], 0.0)
         self._zone = pl.select_zone(float(x_meas[3]), self._zone)
         zone0 = pl.select_zone(float(x0[3]), self._zone)
         tk = t + d + dt * np.arange(N + 1)
         override = stop or (obstacle_m is not None and obstacle_m < 1e9)
-
-        # ---- standstill HOLD (mode logic; no QP needed while the car is held)
-        look = ref.speed_at(np.linspace(t, t + d + self.mode_config.hold_lookahead_s, 6))
-        stop_now = stop or (obstacle_m is not None and obstacle_m <= cfg.obstacle_margin_m)
-        if self._standstill.update(float(x_meas[3]), float(look.max()), stop_now):
-            self._pedal.hold(t)
-            self._plan = None
-            self._warm = None
-            z = self.params.zones[0]
-            hold_bp = self._standstill.hold_brake(z.offset_mps2, z.brake_scale_mps2)
-            prev = self._last_cmd
-            sw = prev.steering_wheel_angle_rad if prev is not None else 0.0
-            cmd = self._finish(Command(sw, 0.0, hold_bp), t, zone0)
-            if self._s_prog is not None:
-                self._s_prog = ref.project(float(x_meas[0]), float(x_meas[1]), self._s_prog,
-                                           5.0)[0]
-            return ControlResult(cmd, "hold", True, zone=zone0, pedal_mode=int(PedalMode.HOLD))
-
-        # ---- progress along the path
-        if self._s_prog is None:
-            hint = float(ref.s_at_time(t))
-            window = 30.0
-        else:
-            hint = self._s_prog
-            window = 5.0 + 3.0 * float(x0[3]) * max(t - (self._last_t or t), dt)
-        s0, _lat = ref.project(float(x0[0]), float(x0[1]), hint, window)
-        self._s_prog = s0
-
-        # ---- nominal trajectory: previous plan shifted in time, or a cold guess
+        held = self._standstill_hold(x_meas, ref, t, d, stop, obstacle_m, zone0)
+        if held is not None:
+            return held
+        s0 = self._progress(x0, ref, t)
         cold = self._plan is None
-        if not cold:
-            t0p, Xp, Up, _zp, _mp = self._plan
-            tp = t0p + dt * np.arange(N + 1)
-            Xb = np.column_stack([np.interp(tk, tp, Xp[:, j]) for j in range(NX)])
-            Ub = np.column_stack([np.interp(tk[:-1], tp[:-1], Up[:, j]) for j in range(NU)])
-            a_prev = float(np.interp(tk[0], tp[:-1], np.diff(Xp[:, 3]) / dt))
-            self._shift_stages = (float(tk[0]) - t0p) / dt
-        else:
-            self._shift_stages = None
-            v_r0 = ref.speed_at(tk)
-            vb = np.empty(N + 1)
-            vb[0] = x0[3]
-            for k in range(N):
-                vb[k + 1] = max(vb[k] + np.clip(v_r0[k + 1] - vb[k], -1.5 * dt, 1.0 * dt), 0.0)
-            Xb = np.zeros((N + 1, NX))
-            Xb[:, 3] = vb
-            Ub = np.zeros((N, NU))
-            a_prev = 0.0
-
+        Xb, Ub, a_prev = self._nominal(x0, ref, tk)
         # the pedal-mode decision uses the speed the last plan predicted for now, not the
         # raw measurement: a noise spike must not switch pedals (the QP itself starts from
         # the measurement)
@@ -708,94 +632,176 @@ class MpcController:
         Xb[0] = x0
         iters = cfg.cold_start_iterations if cold else 1
         total_solve, total_update, total_it = 0.0, 0.0, 0
-        status = "solved"
+        first = None
         for it in range(iters):
-            vb = np.maximum(Xb[:, 3], 0.0)
-            s_k = s0 + np.concatenate([[0.0], np.cumsum(0.5 * (vb[1:] + vb[:-1]) * dt)])
-            xr, yr, th, kap = ref.point_at(s_k)
-            dref = np.arcsin(np.clip(kap * pl.wheelbase_m, -0.95, 0.95))
-            psi_r = th - dref
-            if cold and it == 0:  # the cold guess lies on the path
-                Xb[1:, 0], Xb[1:, 1], Xb[1:, 2] = xr[1:], yr[1:], psi_r[1:]
-                Xb[1:, 2] += 2 * np.pi * np.round((x0[2] - psi_r[0]) / (2 * np.pi))
-            psi_r = psi_r + 2 * np.pi * np.round((Xb[:, 2] - psi_r) / (2 * np.pi))
-            sw_max = self.limits.steering_wheel_angle_max_rad
-            sw_ff = np.clip((dref - pl.offset_rad) / pl.scale, -sw_max, sw_max)
-            if cold and it == 0:
-                Ub[:, 0] = sw_ff[:-1]
-            v_r = self._speed_reference(ref, tk, float(x0[3]), stop, obstacle_m, s_k - s0)
-
-            # ---- zone schedule along the nominal speed profile (plant hysteresis)
-            zones = self._zone_schedule(zone0, vb)
-            # ---- pedal modes (one free pedal per stage)
-            vb_mode = vb.copy()
-            vb_mode[0] = v_mode  # the switching signal is filtered; the QP is not
-            a_des = desired_accel(v_r, vb_mode, dt, self.mode_config.error_time_constant_s)
-            coast = pl.z_offset[zones]
-            if it == 0:
-                exhausted = True
-                cur = self._pedal.mode
-                if not cold and cur in (PedalMode.THROTTLE, PedalMode.BRAKE):
-                    k_ex = max(int(round(self.mode_config.exhausted_lookahead_s / dt)), 1)
-                    exhausted = bool(np.all(Ub[k_l:k_l + k_ex, 1 + int(cur)] <= PEDAL_RELEASED))
-                first = self._pedal.first(float(a_des[k_l]), float(coast[k_l]), t, exhausted)
-            modes = np.empty(N, dtype=np.int8)
-            modes[k_l:] = self._pedal.schedule(first, a_des[k_l:], coast[k_l:], dt,
-                                               self._pedal.since_switch_s(t),
-                                               None if cold else Ub[k_l:, 1:])
-            if k_l:  # pedals in flight: their own modes
-                modes[:k_l] = np.where(ped_fixed[:, 0] > 0, PedalMode.THROTTLE, PedalMode.BRAKE)
-            # ---- speed band: floor, zone-transition rule, standstill
-            v_lo, w_lo, v_hi, w_hi = self._speed_band(zone0, v_r, override)
-
-            sol, info = self._solve(x0, Xb, Ub, zones, modes, xr, yr, th, psi_r, dref, sw_ff,
-                                    v_r, v_lo, w_lo, v_hi, w_hi, a_prev)
-            total_solve += info["solve_time_s"]
-            total_update += info.get("update_time_s", 0.0)
-            total_it += info["iter"]
-            status = info["status"]
-            if sol is None:
+            stage, first = self._stage_data(
+                x0, Xb, Ub, a_prev, ref, tk, s0, zone0, v_mode, t, cold=cold,
+                seed_guess=cold and it == 0, first=first, stop=stop, obstacle_m=obstacle_m,
+                override=override)
+            out = self._solve(stage)
+            total_solve += out.solve_time_s
+            total_update += out.update_time_s
+            total_it += out.iterations
+            if out.solution is None:
                 break
+            sol = out.solution
             Xb = sol[:L.nx_all].reshape(N + 1, NX).copy()
             Ub = sol[L.nx_all:L.nx_all + L.nu_all].reshape(N, NU).copy()
 
-        if sol is None:
-            res = self._fallback(t, f"osqp: {status}")
+        if out.solution is None:
+            res = self._fallback(t, out.reason)
             res.solve_time_s, res.iterations = total_solve, total_it
             return res
-        self._warm = (sol, self._last_y)
+        self._warm = (out.solution, self._last_y)
         # each channel's command is the QP input at the stage where it will act; the QP's
         # bounds make the non-free pedal exactly 0 (clean solver round-off)
+        k_s, k_l = self._fixed.steer_stages, self._fixed.pedal_stages
+        modes, zones = stage.modes, stage.zones
         ap = float(Ub[k_l, 1]) if modes[k_l] == PedalMode.THROTTLE else 0.0
         bp = float(Ub[k_l, 2]) if modes[k_l] == PedalMode.BRAKE else 0.0
         cmd = self._finish(Command(float(Ub[k_s, 0]), ap, bp), t, zone0)
-        self._plan = (float(tk[0]), Xb, Ub, zones, modes)
-        return ControlResult(cmd, status, True, solve_time_s=total_solve, plan=Xb,
+        self._plan = Plan(float(tk[0]), Xb, Ub, zones, modes)
+        status = Status.SOLVED_INACCURATE if out.inaccurate else Status.SOLVED
+        return ControlResult(cmd, status, solve_time_s=total_solve, plan=Xb,
                              plan_inputs=Ub, zone_plan=zones, mode_plan=modes, zone=zone0,
                              pedal_mode=int(modes[k_l]), iterations=total_it,
-                             info={"v_ref_mps": v_r, "s0_m": s0,
+                             info={"v_ref_mps": stage.v_ref_mps, "s0_m": s0,
                                    "update_time_s": total_update})
 
-    def _zone_schedule(self, zone0: int, vb: np.ndarray) -> np.ndarray:
+    def _standstill_hold(self, x_meas: np.ndarray, ref: Reference, t: float, d: float,
+                         stop: bool, obstacle_m: float | None,
+                         zone0: int) -> ControlResult | None:
+        """Standstill HOLD (mode logic; no QP needed while the car is held): the result of
+        this step if the car is held, else None."""
+        cfg = self.config
+        look = ref.speed_at(np.linspace(t, t + d + self.mode_config.hold_lookahead_s, 6))
+        stop_now = stop or (obstacle_m is not None and obstacle_m <= cfg.obstacle_margin_m)
+        if not self._standstill.update(float(x_meas[3]), float(look.max()), stop_now):
+            return None
+        self._pedal.hold(t)
+        self._plan = None
+        self._warm = None
+        z = self.params.zones[0]
+        hold_bp = self._standstill.hold_brake(z.offset_mps2, z.brake_scale_mps2)
+        prev = self._last_cmd
+        sw = prev.steering_wheel_angle_rad if prev is not None else 0.0
+        cmd = self._finish(Command(sw, 0.0, hold_bp), t, zone0)
+        if self._s_prog is not None:
+            self._s_prog = ref.project(float(x_meas[0]), float(x_meas[1]), self._s_prog,
+                                       5.0)[0]
+        return ControlResult(cmd, Status.HOLD, zone=zone0, pedal_mode=int(PedalMode.HOLD))
+
+    def _progress(self, x0: np.ndarray, ref: Reference, t: float) -> float:
+        """Progress along the path [m]: the projection of the (delay-compensated) position,
+        searched near the last one."""
+        if self._s_prog is None:
+            hint = float(ref.s_at_time(t))
+            window = 30.0
+        else:
+            hint = self._s_prog
+            window = 5.0 + 3.0 * float(x0[3]) * max(t - (self._last_t or t), self.dt)
+        s0, _lat = ref.project(float(x0[0]), float(x0[1]), hint, window)
+        self._s_prog = s0
+        return s0
+
+    def _nominal(self, x0: np.ndarray, ref: Reference, tk: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+        """Nominal trajectory (states, inputs) and the acceleration before stage 0: the
+        previous plan shifted in time to the stage times ``tk``, or without one a cold
+        guess (a speed ramp towards the reference; :meth:`_path_reference` puts it on the
+        path). Sets the warm start's shift."""
+        N, dt = self.N, self.dt
+        plan = self._plan
+        if plan is not None:
+            Xp, Up = plan.states, plan.inputs
+            tp = plan.t0_s + dt * np.arange(N + 1)
+            Xb = np.column_stack([np.interp(tk, tp, Xp[:, j]) for j in range(NX)])
+            Ub = np.column_stack([np.interp(tk[:-1], tp[:-1], Up[:, j]) for j in range(NU)])
+            a_prev = float(np.interp(tk[0], tp[:-1], np.diff(Xp[:, 3]) / dt))
+            self._shift_stages = (float(tk[0]) - plan.t0_s) / dt
+            return Xb, Ub, a_prev
+        self._shift_stages = None
+        v_r0 = ref.speed_at(tk)
+        vb = np.empty(N + 1)
+        vb[0] = x0[3]
+        for k in range(N):
+            vb[k + 1] = max(vb[k] + np.clip(v_r0[k + 1] - vb[k], -1.5 * dt, 1.0 * dt), 0.0)
+        Xb = np.zeros((N + 1, NX))
+        Xb[:, 3] = vb
+        return Xb, np.zeros((N, NU)), 0.0
+
+    def _stage_data(self, x0, Xb, Ub, a_prev, ref, tk, s0, zone0, v_mode, t, *, cold,
+                    seed_guess, first, stop, obstacle_m, override
+                    ) -> tuple[StageData, PedalMode]:
+        """What one SQP iteration solves, about the nominal (Xb, Ub): the path at the
+        nominal positions, the speed reference, the zone and pedal-mode schedules and the
+        speed band. ``first`` is the pedal mode of the first free stage, decided on the
+        first iteration (None) and kept for the others; returned with the data."""
+        dt = self.dt
+        vb = np.maximum(Xb[:, 3], 0.0)
+        s_k = s0 + np.concatenate([[0.0], np.cumsum(0.5 * (vb[1:] + vb[:-1]) * dt)])
+        path = self._path_reference(ref, s_k, Xb, Ub, x0, seed_guess)
+        v_r = self._speed_reference(ref, tk, float(x0[3]), stop, obstacle_m, s_k - s0)
+        zones = self._zone_schedule(zone0, vb)
+        modes, first = self._pedal_modes(v_r, vb, v_mode, zones, Ub, t, cold, first)
+        band = self._speed_band(zone0, v_r, override)
+        return StageData(x0, Xb, Ub, zones, modes, path, v_r, band, a_prev), first
+
+    def _path_reference(self, ref: Reference, s_k: np.ndarray, Xb: np.ndarray,
+                        Ub: np.ndarray, x0: np.ndarray, seed_guess: bool) -> PathReference:
+        """The path at the stage positions ``s_k`` [m]. With ``seed_guess`` (the first
+        iteration of a cold start) the nominal states and steering are first put on the
+        path, in place."""
         pl = self.plant
-        lo = (pl.v_min - pl.hysteresis_mps).tolist()
-        hi = (pl.v_max + pl.hysteresis_mps).tolist()
-        lo[0] = -np.inf
-        hi[-1] = np.inf
-        vmax = pl.v_max.tolist()
-        nz = pl.n_zones
+        xr, yr, th, kap = ref.point_at(s_k)
+        dref = np.arcsin(np.clip(kap * pl.wheelbase_m, -0.95, 0.95))
+        psi_r = th - dref
+        if seed_guess:  # the cold guess lies on the path
+            Xb[1:, 0], Xb[1:, 1], Xb[1:, 2] = xr[1:], yr[1:], psi_r[1:]
+            Xb[1:, 2] += 2 * np.pi * np.round((x0[2] - psi_r[0]) / (2 * np.pi))
+        psi_r = psi_r + 2 * np.pi * np.round((Xb[:, 2] - psi_r) / (2 * np.pi))
+        sw_max = self.limits.steering_wheel_angle_max_rad
+        sw_ff = np.clip(steering_wheel_angle_for(dref, pl.offset_rad, pl.scale), -sw_max, sw_max)
+        if seed_guess:
+            Ub[:, 0] = sw_ff[:-1]
+        return PathReference(xr, yr, th, psi_r, dref, sw_ff)
+
+    def _pedal_modes(self, v_r: np.ndarray, vb: np.ndarray, v_mode: float,
+                     zones: np.ndarray, Ub: np.ndarray, t: float, cold: bool,
+                     first: PedalMode | None) -> tuple[np.ndarray, PedalMode]:
+        """Pedal mode per stage, one free pedal each (controller/modes.py); the stages
+        whose pedals are in flight keep theirs. Returns (modes, mode of the first free
+        stage), that mode decided here when ``first`` is None."""
+        N, dt = self.N, self.dt
+        k_l = self._fixed.pedal_stages
+        vb_mode = vb.copy()
+        vb_mode[0] = v_mode  # the switching signal is filtered; the QP is not
+        a_des = desired_accel(v_r, vb_mode, dt, self.mode_config.error_time_constant_s)
+        coast = self.plant.z_offset[zones]
+        if first is None:
+            exhausted = True
+            cur = self._pedal.mode
+            if not cold and cur in (PedalMode.THROTTLE, PedalMode.BRAKE):
+                k_ex = max(int(round(self.mode_config.exhausted_lookahead_s / dt)), 1)
+                exhausted = bool(np.all(Ub[k_l:k_l + k_ex, 1 + int(cur)] <= PEDAL_RELEASED))
+            first = self._pedal.first(float(a_des[k_l]), float(coast[k_l]), t, exhausted)
+        modes = np.empty(N, dtype=np.int8)
+        modes[k_l:] = self._pedal.schedule(first, a_des[k_l:], coast[k_l:], dt,
+                                           self._pedal.since_switch_s(t),
+                                           None if cold else Ub[k_l:, 1:])
+        if k_l:  # pedals in flight: their own modes
+            modes[:k_l] = np.where(self._fixed.pedals[:, 0] > 0, PedalMode.THROTTLE,
+                                   PedalMode.BRAKE)
+        return modes, first
+
+    def _zone_schedule(self, zone0: int, vb: np.ndarray) -> np.ndarray:
+        """Zone per stage along the nominal speeds, with the plant's hysteresis."""
         out = np.empty(self.N, dtype=np.int64)
-        z = zone0
-        out[0] = z
-        for k, v in enumerate(vb[1:self.N].tolist(), start=1):
-            if not (lo[z] <= v <= hi[z]):
-                z = 0
-                while z < nz - 1 and v > vmax[z]:
-                    z += 1
-            out[k] = z
+        out[0] = zone0
+        out[1:] = self.plant.zone_schedule(vb[1:self.N], zone0)
         return out
 
-    def _speed_band(self, zone0: int, v_r: np.ndarray, override: bool):
+    def _speed_band(self, zone0: int, v_r: np.ndarray, override: bool) -> SpeedBand:
         """Lower/upper speed targets of stages 1..N and the weights of their slacks."""
         cfg, pl, N, dt = self.config, self.plant, self.N, self.dt
         vr = v_r[1:]
@@ -840,12 +846,23 @@ class MpcController:
                     use = hi < v_hi
                     v_hi = np.where(use, hi, v_hi)
                     w_hi = np.where(use, cfg.w_transition * dt, w_hi)
-        return v_lo, w_lo, v_hi, w_hi
+        return SpeedBand(v_lo, w_lo, v_hi, w_hi)
 
-    def _solve(self, x0, Xb, Ub, zones, modes, xr, yr, th, psi_r, dref, sw_ff, v_r,
-               v_lo, w_lo, v_hi, w_hi, a_prev):
-        cfg, L, N, dt, pl = self.config, self.layout, self.N, self.dt, self.plant
-        # ---- linearise and discretise about the nominal
+    def _solve(self, stage: StageData) -> SolveOutcome:
+        """One QP about the nominal of ``stage``: linearise and discretise, write the new
+        values into the fixed pattern, solve (warm-started)."""
+        Ad, Bd, ck = self._linearise(stage.states, stage.inputs, stage.zones)
+        Pdata, q = self._qp_cost(stage)
+        Adata = self._qp_dynamics(Ad, Bd)
+        lo, hi = self._qp_bounds(stage, ck)
+        return self._osqp_solve(Pdata, q, Adata, lo, hi, stage.states, stage.inputs)
+
+    def _linearise(self, Xb: np.ndarray, Ub: np.ndarray, zones: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Discrete model about the nominal, per stage: x_{k+1} = Ad x_k + Bd u_k + c_k
+        (2nd-order discretisation of the plant's Jacobians; c_k from the explicit midpoint
+        step of the nonlinear model, the rule the NMPC integrates with)."""
+        N, dt, pl = self.N, self.dt, self.plant
         A, B = jacobians_batch(pl, Xb[:N], Ub, zones)
         A2 = A @ A
         Ad = np.eye(NX) + A * dt + A2 * (dt * dt / 2)
@@ -854,8 +871,14 @@ class MpcController:
         f2 = derivative_batch(pl, Xb[:N] + 0.5 * dt * f1, Ub, zones)
         xnext = Xb[:N] + dt * f2
         ck = xnext - np.einsum("kij,kj->ki", Ad, Xb[:N]) - np.einsum("kij,kj->ki", Bd, Ub)
+        return Ad, Bd, ck
 
-        # ---- P values (state blocks from the path geometry; terminal from dlqr)
+    def _qp_cost(self, stage: StageData) -> tuple[np.ndarray, np.ndarray]:
+        """P values (CSC order) and q: tracking (state blocks from the path geometry),
+        terminal cost from dlqr, input effort, slack penalties."""
+        cfg, L, N, dt = self.config, self.layout, self.N, self.dt
+        path = stage.path
+        th = path.heading_rad
         nxv, nyv = -np.sin(th[1:]), np.cos(th[1:])
         wl, wh, wv = cfg.w_lateral * dt, cfg.w_heading * dt, cfg.w_speed * dt
         Q = np.zeros((N, 4, 4))
@@ -865,7 +888,8 @@ class MpcController:
         Q[:, 2, 2] = wh
         Q[:, 3, 3] = wv
         T = np.array([[nxv[-1], nyv[-1], 0.0, 0.0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
-        P3 = self._lqr_terminal(float(Xb[-1, 3]), float(dref[-1]))
+        P3 = self._lqr_terminal(float(stage.states[-1, 3]),
+                                float(path.road_wheel_angle_rad[-1]))
         PT = T.T @ P3 @ T
         Q[-1] += np.triu(PT)  # blocks are stored as their upper triangle
         Qfull = Q + (Q * _STRICT_UPPER4).transpose(0, 2, 1)
@@ -876,12 +900,12 @@ class MpcController:
         # slack quadratic weights stay constant; P in CSC order
         Pdata = Px[L.P_perm]
 
-        # ---- q
         q = np.zeros(L.n)
-        rk = np.column_stack([xr[1:], yr[1:], psi_r[1:], v_r[1:]])
+        rk = np.column_stack([path.x_m[1:], path.y_m[1:], path.psi_rad[1:],
+                              stage.v_ref_mps[1:]])
         q[NX:L.nx_all] = -np.einsum("kij,kj->ki", Qfull, rk).ravel()
         qu = np.zeros((N, NU))
-        qu[:, 0] = -self._w_sl * sw_ff[:N]
+        qu[:, 0] = -self._w_sl * path.steering_ff_rad[:N]
         prev = self._last_cmd
         if prev is not None:
             qu[0, 0] -= self._w_sr * prev.steering_wheel_angle_rad
@@ -890,32 +914,43 @@ class MpcController:
         q[L.nx_all:L.nx_all + L.nu_all] = qu.ravel()
         qs = np.empty((N, NS))
         qs[:, 0] = cfg.w_limit_violation * dt
-        qs[:, 1] = w_lo
-        qs[:, 2] = w_hi
+        qs[:, 1] = stage.band.w_lo
+        qs[:, 2] = stage.band.w_hi
         q[L.nx_all + L.nu_all:] = qs.ravel()
+        return Pdata, q
 
-        # ---- A values: dynamics
+    def _qp_dynamics(self, Ad: np.ndarray, Bd: np.ndarray) -> np.ndarray:
+        """A values (CSC order): the dynamics blocks written into the fixed pattern."""
+        L = self.layout
         Av = L.A_vals
         Av[L.a_dynA:L.a_dynB] = -np.array([Ad[:, i, j] for i, j in _APAT]).T.ravel()
         Av[L.a_dynB:L.a_dyn_end] = -np.array([Bd[:, i, j] for i, j in _BPAT]).T.ravel()
-        Adata = Av[L.A_perm]
+        return Av[L.A_perm]
 
-        # ---- bounds
+    def _qp_bounds(self, stage: StageData, ck: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Row bounds: initial state, dynamics offsets, inputs and steering rate, jerk
+        from the acceleration before stage 0, the speed band."""
+        L = self.layout
         lo, hi = self._l0.copy(), self._u0.copy()
-        lo[:NX] = hi[:NX] = x0
+        lo[:NX] = hi[:NX] = stage.x0
         lo[NX:L.nx_all] = hi[NX:L.nx_all] = ck.ravel()
-        ulo, uhi, srlo, srhi = self._input_bounds(modes, zones)
+        ulo, uhi, srlo, srhi = self._input_bounds(stage.modes, stage.zones)
         lo[L.r_u] = ulo.ravel()
         hi[L.r_u] = uhi.ravel()
         lo[L.r_sr] = srlo
         hi[L.r_sr] = srhi
-        jd = self.limits.jerk_max_mps3 * dt
-        lo[L.r_jl.start] = a_prev - jd
-        hi[L.r_jh.start] = a_prev + jd
-        lo[L.r_vl] = v_lo
-        hi[L.r_vh] = v_hi
+        jd = self.limits.jerk_max_mps3 * self.dt
+        lo[L.r_jl.start] = stage.a_prev_mps2 - jd
+        hi[L.r_jh.start] = stage.a_prev_mps2 + jd
+        lo[L.r_vl] = stage.band.v_lo_mps
+        hi[L.r_vh] = stage.band.v_hi_mps
+        return lo, hi
 
-        # ---- solve
+    def _osqp_solve(self, Pdata: np.ndarray, q: np.ndarray, Adata: np.ndarray,
+                    lo: np.ndarray, hi: np.ndarray, Xb: np.ndarray,
+                    Ub: np.ndarray) -> SolveOutcome:
+        """Set up OSQP once (pattern), else update the values in place; warm start; solve."""
+        cfg, L = self.config, self.layout
         if self._solver is None:
             import osqp
             Pm = L.P.copy()
@@ -945,16 +980,16 @@ class MpcController:
         t0 = time.perf_counter()
         res = self._solver.solve(raise_error=False)
         solve_s = time.perf_counter() - t0
-        st = str(res.info.status)
         sv = int(res.info.status_val)
-        info = {"solve_time_s": solve_s, "iter": int(res.info.iter), "status": st,
-                "update_time_s": self._update_s}
+        out = SolveOutcome(None, str(res.info.status), "osqp", solve_time_s=solve_s,
+                           update_time_s=self._update_s, iterations=int(res.info.iter))
         ok = sv == 1 or (sv == 2 and cfg.accept_inaccurate)
         if not ok or res.x is None or not np.all(np.isfinite(res.x)):
-            return None, info
-        info["status"] = "solved" if sv == 1 else "solved_inaccurate"
+            return out
+        out.inaccurate = sv != 1
         self._last_y = np.array(res.y)
-        return np.array(res.x), info
+        out.solution = np.array(res.x)
+        return out
 
     def _warm_start_vectors(self, Xb: np.ndarray, Ub: np.ndarray
                             ) -> tuple[np.ndarray, np.ndarray | None]:

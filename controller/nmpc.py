@@ -10,7 +10,8 @@ with the same explicit midpoint rule the QP is discretised from) is solved by IP
 sets its parameters.
 
 It is used to check the fast path (tests: both agree on simple cases) and as the
-baseline of ``tools/bench_mpc.py``.
+baseline of ``tools/bench_mpc.py``. Its model is models/plant.py's eq. 1, 7 and 8, the same
+functions the plant and the fast path call, evaluated on CasADi symbols (``ops=casadi``).
 """
 from __future__ import annotations
 
@@ -19,8 +20,10 @@ import time
 import numpy as np
 
 from hmpc.models.params import Params
+from hmpc.models.plant import bicycle_rates, road_wheel_angle, zone_accel
 
-from hmpc.controller.limits import Limits
+from hmpc.controller.horizon import SolveOutcome, StageData
+from hmpc.controller.limits import ActuatorLimits
 from hmpc.controller.modes import ModeConfig
 from hmpc.controller.mpc import NS, NU, NX, MpcConfig, MpcController
 
@@ -34,7 +37,7 @@ class NmpcController(MpcController):
     name = "nmpc"
 
     def __init__(self, params: Params, config: MpcConfig | None = None,
-                 limits: Limits | None = None, mode_config: ModeConfig | None = None,
+                 limits: ActuatorLimits | None = None, mode_config: ModeConfig | None = None,
                  ipopt_max_iter: int = 200):
         cfg = config or MpcConfig()
         if cfg.cold_start_iterations != 1:  # the NLP needs no SQP iterations
@@ -65,11 +68,11 @@ class NmpcController(MpcController):
         }
         b, off, sc = pl.wheelbase_m, pl.offset_rad, pl.scale
 
-        def f(x, u, k):
-            delta = off + sc * u[0]
-            return ca.vertcat(x[3] * ca.cos(x[2] + delta), x[3] * ca.sin(x[2] + delta),
-                              x[3] * ca.sin(delta) / b,
-                              p["z_off"][k] + p["z_scale"][k] * u[1] - p["z_brake"][k] * u[2])
+        def f(x, u, k):  # the plant's eq. 1, 7, 8 on CasADi symbols
+            xd, yd, psid = bicycle_rates(x[2], x[3], road_wheel_angle(u[0], off, sc), b, ops=ca)
+            return ca.vertcat(xd, yd, psid,
+                              zone_accel(p["z_off"][k], p["z_scale"][k], p["z_brake"][k], u[1],
+                                         u[2]))
 
         J = 0
         wl, wh, wv = cfg.w_lateral * dt, cfg.w_heading * dt, cfg.w_speed * dt
@@ -113,40 +116,15 @@ class NmpcController(MpcController):
                   "tol": 1e-6, "acceptable_tol": 1e-4})
         self._opti, self._X, self._U, self._S, self._p = o, X, U, S, p
 
-    def _solve(self, x0, Xb, Ub, zones, modes, xr, yr, th, psi_r, dref, sw_ff, v_r,
-               v_lo, w_lo, v_hi, w_hi, a_prev):
-        N, pl, L = self.N, self.plant, self.layout
+    def _solve(self, stage: StageData) -> SolveOutcome:
+        """Set the NLP's parameters from ``stage``, warm-start from its nominal, solve."""
+        N, L = self.N, self.layout
         if self._opti is None:
             self._build()
-        o, p = self._opti, self._p
-        o.set_value(p["x0"], x0)
-        o.set_value(p["ref"], np.vstack([xr[1:], yr[1:], psi_r[1:], v_r[1:]]))
-        o.set_value(p["nvec"], np.vstack([-np.sin(th[1:]), np.cos(th[1:])]))
-        nx_, ny_ = -np.sin(th[-1]), np.cos(th[-1])
-        T = np.array([[nx_, ny_, 0.0, 0.0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
-        P3 = self._lqr_terminal(float(Xb[-1, 3]), float(dref[-1]))
-        o.set_value(p["PT"], T.T @ P3 @ T)
-        o.set_value(p["rN"], np.array([xr[-1], yr[-1], psi_r[-1], v_r[-1]]))
-        o.set_value(p["sw_ff"], sw_ff[:N])
-        o.set_value(p["z_off"], pl.z_offset[zones])
-        o.set_value(p["z_scale"], pl.z_scale[zones])
-        o.set_value(p["z_brake"], pl.z_brake[zones])
-        ulo, uhi, srlo, srhi = self._input_bounds(modes)
-        big = 1e4  # IPOPT takes finite bounds: "free" rate rows get a huge band
-        o.set_value(p["u_lo"], ulo.T)
-        o.set_value(p["u_hi"], uhi.T)
-        o.set_value(p["sr_lo"], np.maximum(srlo, -big))
-        o.set_value(p["sr_hi"], np.minimum(srhi, big))
-        prev = self._last_cmd
-        o.set_value(p["prev"], np.zeros(3) if prev is None else np.array(prev.as_tuple()))
-        o.set_value(p["has_prev"], 0.0 if prev is None else 1.0)
-        o.set_value(p["a_prev"], a_prev)
-        o.set_value(p["v_lo"], v_lo)
-        o.set_value(p["v_hi"], np.minimum(v_hi, 1e3))
-        o.set_value(p["w_lo"], w_lo)
-        o.set_value(p["w_hi"], w_hi)
-        o.set_initial(self._X, Xb.T)
-        o.set_initial(self._U, Ub.T)
+        o = self._opti
+        self._set_parameters(stage)
+        o.set_initial(self._X, stage.states.T)
+        o.set_initial(self._U, stage.inputs.T)
         o.set_initial(self._S, np.zeros((NS, N)))
         t0 = time.perf_counter()
         try:
@@ -155,16 +133,49 @@ class NmpcController(MpcController):
             sol = None
         solve_s = time.perf_counter() - t0
         stats = o.stats()
-        status = str(stats.get("return_status", "unknown"))
-        info = {"solve_time_s": solve_s, "iter": int(stats.get("iter_count", 0)),
-                "status": f"ipopt {status}"}
+        out = SolveOutcome(None, str(stats.get("return_status", "unknown")), "ipopt",
+                           solve_time_s=solve_s, iterations=int(stats.get("iter_count", 0)))
         if sol is None or not stats.get("success", False):
-            return None, info
+            return out
         z = np.zeros(L.n)
         z[:L.nx_all] = np.asarray(sol.value(self._X)).T.ravel()
         z[L.nx_all:L.nx_all + L.nu_all] = np.asarray(sol.value(self._U)).T.ravel()
         z[L.nx_all + L.nu_all:] = np.asarray(sol.value(self._S)).T.ravel()
-        if not np.all(np.isfinite(z)):
-            return None, info
-        info["status"] = "solved"
-        return z, info
+        if np.all(np.isfinite(z)):
+            out.solution = z
+        return out
+
+    def _set_parameters(self, stage: StageData) -> None:
+        """The NLP's per-step parameters: reference, terminal cost, zone models, bounds."""
+        N, pl = self.N, self.plant
+        o, p = self._opti, self._p
+        path, band, zones = stage.path, stage.band, stage.zones
+        xr, yr, th, psi_r, v_r = path.x_m, path.y_m, path.heading_rad, path.psi_rad, \
+            stage.v_ref_mps
+        o.set_value(p["x0"], stage.x0)
+        o.set_value(p["ref"], np.vstack([xr[1:], yr[1:], psi_r[1:], v_r[1:]]))
+        o.set_value(p["nvec"], np.vstack([-np.sin(th[1:]), np.cos(th[1:])]))
+        nx_, ny_ = -np.sin(th[-1]), np.cos(th[-1])
+        T = np.array([[nx_, ny_, 0.0, 0.0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
+        P3 = self._lqr_terminal(float(stage.states[-1, 3]),
+                                float(path.road_wheel_angle_rad[-1]))
+        o.set_value(p["PT"], T.T @ P3 @ T)
+        o.set_value(p["rN"], np.array([xr[-1], yr[-1], psi_r[-1], v_r[-1]]))
+        o.set_value(p["sw_ff"], path.steering_ff_rad[:N])
+        o.set_value(p["z_off"], pl.z_offset[zones])
+        o.set_value(p["z_scale"], pl.z_scale[zones])
+        o.set_value(p["z_brake"], pl.z_brake[zones])
+        ulo, uhi, srlo, srhi = self._input_bounds(stage.modes)
+        big = 1e4  # IPOPT takes finite bounds: "free" rate rows get a huge band
+        o.set_value(p["u_lo"], ulo.T)
+        o.set_value(p["u_hi"], uhi.T)
+        o.set_value(p["sr_lo"], np.maximum(srlo, -big))
+        o.set_value(p["sr_hi"], np.minimum(srhi, big))
+        prev = self._last_cmd
+        o.set_value(p["prev"], np.zeros(3) if prev is None else np.array(prev.as_tuple()))
+        o.set_value(p["has_prev"], 0.0 if prev is None else 1.0)
+        o.set_value(p["a_prev"], stage.a_prev_mps2)
+        o.set_value(p["v_lo"], band.v_lo_mps)
+        o.set_value(p["v_hi"], np.minimum(band.v_hi_mps, 1e3))
+        o.set_value(p["w_lo"], band.w_lo)
+        o.set_value(p["w_hi"], band.w_hi)

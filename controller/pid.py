@@ -3,7 +3,8 @@
 The speed PID's output u [1] is split by sign: u > 0 presses the throttle, u < 0 the
 brake. There is no mode logic and no hysteresis, on purpose: it is the controller the
 report's section II-D warns about (throttle-brake chatter near idle speed), shown beside
-the MPC on the same scenarios. Same step API as :class:`controller.mpc.MpcController`.
+the MPC on the same scenarios. It implements the controller contract
+(:class:`controller.base.Controller`); it ignores stop commands and obstacles.
 """
 from __future__ import annotations
 
@@ -14,10 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from hmpc.models.params import Params
+from hmpc.models.plant import steering_wheel_angle_for
 from hmpc.models.sim.scenarios import Reference
 
-from hmpc.controller.limits import Command, Limits, apply_limits
-from hmpc.controller.mpc import ControlResult
+from hmpc.controller.base import ControlResult, Status, internal_error
+from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
 from hmpc.controller.modes import PedalMode
 
 
@@ -39,12 +41,12 @@ class PidController:
     name = "pid"
 
     def __init__(self, params: Params, config: PidConfig | None = None,
-                 limits: Limits | None = None):
+                 limits: ActuatorLimits | None = None):
         if not params.is_model:
             raise ValueError("PidController needs a complete model (steering and zones)")
         self.params = params
         self.config = config or PidConfig()
-        self.limits = limits or Limits.from_params(params)
+        self.limits = limits or ActuatorLimits.from_params(params)
         self.wheelbase_m = params.vehicle.wheelbase_m
         self.reset()
 
@@ -55,19 +57,29 @@ class PidController:
         self._last: Command | None = None
         self._s: float | None = None
 
-    def step(self, state, reference: Reference, t_s: float, **_kw) -> ControlResult:
+    def step(self, state, reference: Reference, t_s: float, *, stop: bool = False,
+             obstacle_distance_m: float | None = None) -> ControlResult:
+        """One step (the contract of :class:`controller.base.Controller`; ``stop`` and
+        ``obstacle_distance_m`` are ignored: a naive baseline). Never raises."""
         t_wall = time.perf_counter()
         try:
-            res = self._step(np.asarray(state, dtype=float), reference, float(t_s))
-        except Exception as exc:  # never raise into the loop
-            prev = self._last or Command(0.0, 0.0, 0.0)
-            cmd = apply_limits(Command(prev.steering_wheel_angle_rad, 0.0, 0.3), prev,
-                               self.limits, 0.1)
-            self._last = cmd
-            res = ControlResult(cmd, f"controlled_stop (internal error {type(exc).__name__})",
-                                False)
+            x = np.asarray(state, dtype=float).reshape(-1)
+            if x.shape != (4,) or not np.all(np.isfinite(x)):
+                res = ControlResult(self._stop(), Status.CONTROLLED_STOP, "invalid state")
+            else:
+                res = self._step(x, reference, float(t_s))
+        except Exception as exc:  # never raise into the loop: a bug, recorded as one
+            res = internal_error(ControlResult(self._stop(), Status.CONTROLLED_STOP), exc)
         res.step_time_s = time.perf_counter() - t_wall
         return res
+
+    def _stop(self) -> Command:
+        """Stop command: throttle released, brake 0.3 (rate-limited), steering held."""
+        prev = self._last or Command(0.0, 0.0, 0.0)
+        cmd = apply_limits(Command(prev.steering_wheel_angle_rad, 0.0, 0.3), prev,
+                           self.limits, 0.1)
+        self._last = cmd
+        return cmd
 
     def _step(self, x: np.ndarray, ref: Reference, t: float) -> ControlResult:
         c = self.config
@@ -90,8 +102,8 @@ class PidController:
         dist = math.hypot(float(gx[0]) - rx, float(gy[0]) - ry)
         delta = math.atan2(2 * b * math.sin(alpha), max(dist, 1e-3))
         p = self.params.steering
-        sw = (delta - p.offset_rad) / p.scale
+        sw = steering_wheel_angle_for(delta, p.offset_rad, p.scale)
         cmd = apply_limits(Command(sw, ap, bp), self._last, self.limits, dt)
         self._last, self._t_prev, self._e_prev = cmd, t, e
         mode = PedalMode.THROTTLE if cmd.accel_pedal > 0 else PedalMode.BRAKE
-        return ControlResult(cmd, "ok", True, pedal_mode=int(mode))
+        return ControlResult(cmd, Status.OK, pedal_mode=int(mode))

@@ -15,7 +15,7 @@ Optional keys (all documented here, nowhere else):
 - ``longitudinal``: ``dead_time_s``, ``hysteresis_mps``, ``accel_source`` (text); per zone
   ``*_ci95_mps2`` ([low, high]), ``nmse_pct``, ``speed_rmse_mps``, ``samples``,
   ``identifiable``, ``note``.
-- ``limits``: actuator and comfort limits used by the controller (see ``Limits``).
+- ``limits``: actuator and comfort limits used by the controller (see ``VehicleLimits``).
 - ``provenance``: free text/number fields (input hashes, time span, hmpc version).
 """
 from __future__ import annotations
@@ -163,8 +163,10 @@ class Zone:
 
 @_typed
 @dataclass
-class Limits:
-    """Actuator and comfort limits the controller enforces (each optional, defaults in controller)."""
+class VehicleLimits:
+    """The ``limits:`` section of a parameter file: the limits recorded for this vehicle, each
+    optional. The controller's limits (``controller.limits.ActuatorLimits``) are its defaults
+    overridden by these."""
 
     steering_wheel_angle_max_rad: float | None = None
     steering_wheel_rate_max_radps: float | None = None
@@ -185,7 +187,7 @@ class Params:
     longitudinal_dead_time_s: float | None = None
     hysteresis_mps: float | None = None
     accel_source: str | None = None
-    limits: Limits | None = None
+    limits: VehicleLimits | None = None
     provenance: dict = field(default_factory=dict)
     path: str | None = None
 
@@ -194,11 +196,10 @@ class Params:
         return self.steering is not None and bool(self.zones)
 
     def zone_for(self, v_mps: float) -> int:
-        """Index of the zone whose (v_min, v_max] holds v; 0 for v <= first v_max; -1 above all."""
-        for i, z in enumerate(self.zones):
-            if v_mps <= z.v_max_mps:
-                return i
-        return -1
+        """Index of the zone whose (v_min, v_max] holds v; 0 for v <= first v_max; -1 above
+        all and for NaN (the zone rule of ``models.plant.zone_of_speed``)."""
+        from hmpc.models.plant import zone_of_speed  # plant imports this module
+        return zone_of_speed(v_mps, [z.v_max_mps for z in self.zones])
 
     def to_dict(self) -> dict:
         def clean(obj):
@@ -271,7 +272,7 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
         if "accel_source" in lon:
             p.accel_source = _text(path, "longitudinal.accel_source", lon["accel_source"])
     if "limits" in data:
-        p.limits = Limits(**_check_keys(path, "limits", data["limits"], Limits))
+        p.limits = VehicleLimits(**_check_keys(path, "limits", data["limits"], VehicleLimits))
     if "provenance" in data:
         if not isinstance(data["provenance"], dict):
             raise ParamError("section 'provenance' must be a mapping", path, key="provenance")

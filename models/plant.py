@@ -8,15 +8,35 @@ counter-clockwise), with (x, y) the front-wheel point as in eq. 1. Input
     x' = v cos(psi + delta),  y' = v sin(psi + delta),  psi' = v sin(delta) / b (eq. 1)
     v' = offset_z + scale_z * accel_pedal - brake_scale_z * brake_pedal       (eq. 8, zone z)
 
-The active zone is chosen by speed with hysteresis: the plant stays in its zone while the
-speed is within ``[v_min - h, v_max + h]`` and only then re-selects by speed, so noise on a
-boundary cannot make it chatter. Above the last zone the last zone's model is used and
-``above_last_zone`` says so. At standstill a negative acceleration holds the car at rest:
-it never rolls backwards under the brake.
+This module is the ONE place where this physics is written (STYLE.md 13): the plant, the
+MPC (:func:`derivative_batch`, :func:`jacobians_batch`), the CasADi NMPC
+(:func:`bicycle_rates` with ``ops=casadi``), identification (the steering replay, the
+longitudinal zone assignment) and ``Params.zone_for`` all call the functions below.
+
+- **Eq. 1, 7, 8** (:func:`road_wheel_angle`, :func:`bicycle_rates`,
+  :func:`bicycle_jacobian`, :func:`zone_accel`) are written with arithmetic operators and
+  the ``cos``/``sin`` of a namespace argument ``ops`` (``numpy`` by default; ``math`` or
+  ``casadi`` work too), so the same function serves a scalar, a numpy batch (arrays
+  broadcast element-wise) and a CasADi symbol.
+- **The zone rule** (:func:`zone_of_speed`, :func:`zones_of_speed`,
+  :func:`zone_with_hysteresis`, :func:`zones_with_hysteresis`): zone i holds the speeds in
+  ``(v_min_i, v_max_i]``; zones are contiguous, so the first zone takes every speed up to
+  its ``v_max`` (0 included). Above the last zone and for NaN there is no zone (-1); with
+  ``clamp=True`` (the plant, the MPC) the last zone's model is used there instead. With
+  hysteresis h the current zone is kept while the speed is within
+  ``[v_min - h, v_max + h]`` (the first zone has no lower edge; the last zone's upper edge
+  is its ``v_max``, or none with ``clamp``), and only then re-selected by speed, so noise
+  on a boundary cannot make it chatter.
+
+Above the last zone the plant uses the last zone's model and ``above_last_zone`` says so.
+At standstill a negative acceleration holds the car at rest: it never rolls backwards under
+the brake.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -28,6 +48,159 @@ IX, IY, IPSI, IV = range(NX)
 ISW, IAP, IBP = range(NU)
 
 
+# ------------------------------------------------------------------------- the zone rule
+def zone_of_speed(v_mps: float, v_max_mps: Sequence[float], *, clamp: bool = False) -> int:
+    """Index of the zone whose ``(v_min, v_max]`` holds ``v_mps`` (see the module doc).
+
+    Args:
+        v_mps: speed [m/s].
+        v_max_mps: upper bound of each zone, ascending [m/s] (zones are contiguous).
+        clamp: above the last zone (and for NaN) return the last zone instead of -1.
+    """
+    for i, hi in enumerate(v_max_mps):
+        if v_mps <= hi:
+            return i
+    return len(v_max_mps) - 1 if clamp else -1
+
+
+def zones_of_speed(v_mps: np.ndarray, v_max_mps: Sequence[float], *,
+                   clamp: bool = False) -> np.ndarray:
+    """:func:`zone_of_speed` for an array of speeds (vectorised), as int64."""
+    v = np.asarray(v_mps, dtype=float)
+    vmax = np.asarray(v_max_mps, dtype=float)
+    z = np.searchsorted(vmax, v, side="left")  # first i with v <= v_max[i]; NaN sorts last
+    return np.where(z < len(vmax), z, len(vmax) - 1 if clamp else -1).astype(np.int64)
+
+
+def zone_with_hysteresis(v_mps: float, current: int | None, v_min_mps: Sequence[float],
+                         v_max_mps: Sequence[float], hysteresis_mps: float, *,
+                         clamp: bool = False) -> int:
+    """Zone with hysteresis: ``current`` while ``v_mps`` is within its band widened by
+    ``hysteresis_mps`` [m/s], otherwise :func:`zone_of_speed`. ``current`` None or -1: no
+    zone yet (by speed). A NaN speed leaves every band."""
+    n = len(v_max_mps)
+    if current is not None and 0 <= current < n:
+        lo = -math.inf if current == 0 else v_min_mps[current] - hysteresis_mps
+        if current < n - 1:
+            hi = v_max_mps[current] + hysteresis_mps
+        else:  # above the last zone there is no zone to hand over to
+            hi = math.inf if clamp else v_max_mps[current]
+        if lo <= v_mps <= hi:
+            return current
+    return zone_of_speed(v_mps, v_max_mps, clamp=clamp)
+
+
+def zones_with_hysteresis(v_mps: np.ndarray, v_min_mps: Sequence[float],
+                          v_max_mps: Sequence[float], hysteresis_mps: float, *,
+                          start: int | None = None, clamp: bool = False) -> np.ndarray:
+    """:func:`zone_with_hysteresis` along a speed sequence, each sample starting from the
+    previous one's zone (the first from ``start``); int64 array. A loop by nature (each
+    sample depends on the last), on Python floats: a 50-stage MPC horizon takes ~20 us."""
+    vmin = [float(x) for x in v_min_mps]
+    vmax = [float(x) for x in v_max_mps]
+    h = float(hysteresis_mps)
+    vs = np.asarray(v_mps, dtype=float).reshape(-1).tolist()
+    out = np.empty(len(vs), dtype=np.int64)
+    cur = start
+    for i, v in enumerate(vs):
+        cur = zone_with_hysteresis(v, cur, vmin, vmax, h, clamp=clamp)
+        out[i] = cur
+    return out
+
+
+# ------------------------------------------------------------------ eq. 7, eq. 1, eq. 8
+def road_wheel_angle(steering_wheel_angle_rad, offset_rad, scale):
+    """Eq. 7: road-wheel angle [rad] from the steering-wheel angle [rad]."""
+    return offset_rad + scale * steering_wheel_angle_rad
+
+
+def steering_wheel_angle_for(road_wheel_angle_rad, offset_rad, scale):
+    """Eq. 7 inverted: the steering-wheel angle [rad] that gives ``road_wheel_angle_rad``."""
+    return (road_wheel_angle_rad - offset_rad) / scale
+
+
+def heading_rate(v_mps, delta_rad, wheelbase_m, ops=np):
+    """Eq. 1, psi' = v sin(delta) / b [rad/s] (b: wheelbase [m]).
+
+    With ``v_mps`` a distance travelled [m] instead of a speed, the heading change [rad].
+    ``ops``: the namespace that gives ``sin`` (numpy, math or casadi)."""
+    return v_mps * ops.sin(delta_rad) / wheelbase_m
+
+
+def position_rates(psi_rad, v_mps, delta_rad, ops=np):
+    """Eq. 1, (x', y') = v (cos, sin)(psi + delta) [m/s] of the front-wheel point.
+
+    With ``v_mps`` a distance travelled [m], the displacement [m]."""
+    ang = psi_rad + delta_rad
+    return v_mps * ops.cos(ang), v_mps * ops.sin(ang)
+
+
+def bicycle_rates(psi_rad, v_mps, delta_rad, wheelbase_m, ops=np):
+    """Eq. 1: (x' [m/s], y' [m/s], psi' [rad/s]) of the front-wheel point."""
+    xd, yd = position_rates(psi_rad, v_mps, delta_rad, ops)
+    return xd, yd, heading_rate(v_mps, delta_rad, wheelbase_m, ops)
+
+
+class BicycleJacobian(NamedTuple):
+    """The non-zero partial derivatives of eq. 1's (x', y', psi') with respect to the heading
+    psi, the speed v and the steering input u (``delta = offset + scale * u``)."""
+
+    dx_dpsi: object
+    dx_dv: object
+    dy_dpsi: object
+    dy_dv: object
+    dpsi_dv: object
+    dx_du: object
+    dy_du: object
+    dpsi_du: object
+
+
+def bicycle_jacobian(psi_rad, v_mps, delta_rad, wheelbase_m, scale=1.0,
+                     ops=np) -> BicycleJacobian:
+    """Eq. 1's Jacobian at (psi, v, delta); ``scale`` is d delta / d u (eq. 7's scale for
+    the steering-wheel angle; 1.0 for the road-wheel angle itself)."""
+    c, s = ops.cos(psi_rad + delta_rad), ops.sin(psi_rad + delta_rad)
+    return BicycleJacobian(-v_mps * s, c, v_mps * c, s, ops.sin(delta_rad) / wheelbase_m,
+                           -v_mps * s * scale, v_mps * c * scale,
+                           v_mps * ops.cos(delta_rad) * scale / wheelbase_m)
+
+
+def zone_accel(offset_mps2, scale_mps2, brake_scale_mps2, accel_pedal, brake_pedal):
+    """Eq. 8 with brake: v' [m/s^2] of a zone model (arrays broadcast: one zone per stage)."""
+    return offset_mps2 + scale_mps2 * accel_pedal - brake_scale_mps2 * brake_pedal
+
+
+def derivative_batch(plant: "HybridPlant", X: np.ndarray, U: np.ndarray,
+                     zones: np.ndarray) -> np.ndarray:
+    """Continuous-time ds/dt for many (state, input, zone) rows at once: (n, 4)."""
+    delta = road_wheel_angle(U[:, ISW], plant.offset_rad, plant.scale)
+    out = np.empty_like(X)
+    out[:, IX], out[:, IY], out[:, IPSI] = bicycle_rates(X[:, IPSI], X[:, IV], delta,
+                                                         plant.wheelbase_m)
+    out[:, IV] = zone_accel(plant.z_offset[zones], plant.z_scale[zones], plant.z_brake[zones],
+                            U[:, IAP], U[:, IBP])
+    return out
+
+
+def jacobians_batch(plant: "HybridPlant", X: np.ndarray, U: np.ndarray, zones: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous-time Jacobians for many rows at once: A = df/ds (n, 4, 4),
+    B = df/du (n, 4, 3)."""
+    n = len(X)
+    delta = road_wheel_angle(U[:, ISW], plant.offset_rad, plant.scale)
+    j = bicycle_jacobian(X[:, IPSI], X[:, IV], delta, plant.wheelbase_m, plant.scale)
+    A = np.zeros((n, NX, NX))
+    A[:, IX, IPSI], A[:, IX, IV] = j.dx_dpsi, j.dx_dv
+    A[:, IY, IPSI], A[:, IY, IV] = j.dy_dpsi, j.dy_dv
+    A[:, IPSI, IV] = j.dpsi_dv
+    B = np.zeros((n, NX, NU))
+    B[:, IX, ISW], B[:, IY, ISW], B[:, IPSI, ISW] = j.dx_du, j.dy_du, j.dpsi_du
+    B[:, IV, IAP] = plant.z_scale[zones]
+    B[:, IV, IBP] = -plant.z_brake[zones]
+    return A, B
+
+
+# ---------------------------------------------------------------------------- the plant
 @dataclass
 class StepResult:
     """One plant step: the new state, the zone used, and the acceleration applied [m/s^2]."""
@@ -62,42 +235,38 @@ class HybridPlant:
         self.z_scale = np.array([q.scale_mps2 for q in z])
         self.z_brake = np.array([q.brake_scale_mps2 for q in z])
         self.n_zones = len(z)
+        self._v_min_list = self.v_min.tolist()
+        self._v_max_list = self.v_max.tolist()
 
     # ----------------------------------------------------------------- zones
     def zone_by_speed(self, v_mps: float) -> int:
         """Zone whose (v_min, v_max] holds v (the first zone includes 0; last zone above all)."""
-        i = int(np.searchsorted(self.v_max, v_mps, side="left"))
-        return min(i, self.n_zones - 1)
+        return zone_of_speed(v_mps, self._v_max_list, clamp=True)
 
     def select_zone(self, v_mps: float, current: int | None) -> int:
         """Zone with hysteresis: keep ``current`` while v is within its band widened by h."""
-        if current is not None and 0 <= current < self.n_zones:
-            lo = self.v_min[current] - self.hysteresis_mps
-            hi = self.v_max[current] + self.hysteresis_mps
-            if current == 0:
-                lo = -np.inf
-            if current == self.n_zones - 1:
-                hi = np.inf
-            if lo <= v_mps <= hi:
-                return current
-        return self.zone_by_speed(v_mps)
+        return zone_with_hysteresis(v_mps, current, self._v_min_list, self._v_max_list,
+                                    self.hysteresis_mps, clamp=True)
+
+    def zone_schedule(self, v_mps: np.ndarray, start: int | None) -> np.ndarray:
+        """:meth:`select_zone` along a speed sequence, starting from zone ``start``."""
+        return zones_with_hysteresis(v_mps, self._v_min_list, self._v_max_list,
+                                     self.hysteresis_mps, start=start, clamp=True)
 
     # ------------------------------------------------------------- dynamics
     def road_wheel_angle(self, steering_wheel_angle_rad):
         """Eq. 7 [rad]."""
-        return self.offset_rad + self.scale * np.asarray(steering_wheel_angle_rad)
+        return road_wheel_angle(np.asarray(steering_wheel_angle_rad), self.offset_rad, self.scale)
 
     def accel(self, zone: int, accel_pedal: float, brake_pedal: float) -> float:
         """Eq. 8 with brake for ``zone`` [m/s^2]."""
-        return float(self.z_offset[zone] + self.z_scale[zone] * accel_pedal
-                     - self.z_brake[zone] * brake_pedal)
+        return float(zone_accel(self.z_offset[zone], self.z_scale[zone], self.z_brake[zone],
+                                accel_pedal, brake_pedal))
 
     def derivative(self, s: np.ndarray, u: np.ndarray, zone: int) -> np.ndarray:
-        """Continuous-time ds/dt (no standstill clamp)."""
-        delta = self.offset_rad + self.scale * u[ISW]
-        v = s[IV]
-        return np.array([v * np.cos(s[IPSI] + delta), v * np.sin(s[IPSI] + delta),
-                         v * np.sin(delta) / self.wheelbase_m, self.accel(zone, u[IAP], u[IBP])])
+        """Continuous-time ds/dt (no standstill clamp): :func:`derivative_batch` of one row."""
+        return derivative_batch(self, np.atleast_2d(np.asarray(s, dtype=float)),
+                                np.atleast_2d(np.asarray(u, dtype=float)), np.array([zone]))[0]
 
     def step(self, s: np.ndarray, u: np.ndarray, dt_s: float, zone: int | None = None,
              accel_extra_mps2: float = 0.0) -> StepResult:
@@ -105,7 +274,8 @@ class HybridPlant:
 
         ``accel_extra_mps2`` adds unmodelled acceleration (drag, grade: used by the simulator
         to conceal effects). Integration: exact in speed (piecewise-constant acceleration,
-        clamped at standstill), midpoint in heading and position.
+        clamped at standstill), midpoint in heading and position (eq. 1 over the distance
+        travelled: its rates are linear in v).
         """
         s = np.asarray(s, dtype=float)
         z = self.select_zone(float(s[IV]), zone)
@@ -120,29 +290,19 @@ class HybridPlant:
         else:
             dist = 0.5 * (v0 + v1) * dt_s
             a_eff = a
-        delta = self.offset_rad + self.scale * float(u[ISW])
-        dpsi = dist * np.sin(delta) / self.wheelbase_m
+        delta = road_wheel_angle(float(u[ISW]), self.offset_rad, self.scale)
+        dpsi = heading_rate(dist, delta, self.wheelbase_m)
         psi_mid = s[IPSI] + 0.5 * dpsi
-        out = np.array([s[IX] + dist * np.cos(psi_mid + delta), s[IY] + dist * np.sin(psi_mid + delta),
-                        s[IPSI] + dpsi, v1])
+        dx, dy = position_rates(psi_mid, dist, delta)
+        out = np.array([s[IX] + dx, s[IY] + dy, s[IPSI] + dpsi, v1])
         return StepResult(out, z, a_eff, bool(s[IV] > self.v_max[-1]))
 
     def jacobians(self, s: np.ndarray, u: np.ndarray, zone: int) -> tuple[np.ndarray, np.ndarray]:
-        """Continuous-time Jacobians (A = df/ds, B = df/du) at (s, u) in ``zone``."""
-        delta = self.offset_rad + self.scale * u[ISW]
-        v, psi, b = s[IV], s[IPSI], self.wheelbase_m
-        c, sn = np.cos(psi + delta), np.sin(psi + delta)
-        A = np.zeros((NX, NX))
-        A[IX, IPSI], A[IX, IV] = -v * sn, c
-        A[IY, IPSI], A[IY, IV] = v * c, sn
-        A[IPSI, IV] = np.sin(delta) / b
-        B = np.zeros((NX, NU))
-        B[IX, ISW] = -v * sn * self.scale
-        B[IY, ISW] = v * c * self.scale
-        B[IPSI, ISW] = v * np.cos(delta) * self.scale / b
-        B[IV, IAP] = self.z_scale[zone]
-        B[IV, IBP] = -self.z_brake[zone]
-        return A, B
+        """Continuous-time Jacobians (A = df/ds, B = df/du) at (s, u) in ``zone``:
+        :func:`jacobians_batch` of one row."""
+        A, B = jacobians_batch(self, np.atleast_2d(np.asarray(s, dtype=float)),
+                               np.atleast_2d(np.asarray(u, dtype=float)), np.array([zone]))
+        return A[0], B[0]
 
 
 class DelayLine:

@@ -12,8 +12,10 @@ import pytest
 from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
 
-from hmpc.controller.closed_loop import pedal_switches, run_closed_loop
-from hmpc.controller.limits import Limits
+from hmpc.controller.base import Status
+from hmpc.controller.closed_loop import pedal_switches
+from hmpc.controller.closed_loop import run_closed_loop as _run_closed_loop
+from hmpc.controller.limits import ActuatorLimits
 from hmpc.controller.mpc import MpcConfig, MpcController
 from hmpc.controller.pid import PidController
 from hmpc.models.params import load_params
@@ -27,6 +29,14 @@ NOISE = dict(speed_noise_mps=0.05, position_noise_m=0.02, seed=SEED)
 @pytest.fixture(scope="module")
 def params():
     return load_params("params/report_2008.yaml", require_model=True)
+
+
+def run_closed_loop(*args, **kwargs):
+    """The closed loop; every run in this file must be free of controller internal errors
+    (a bug turned into a controlled stop would otherwise pass as a mere failure)."""
+    res = _run_closed_loop(*args, **kwargs)
+    assert res.metrics["internal_errors"] == 0, res.internal_errors[0][1]
+    return res
 
 
 def _fig(m):
@@ -168,7 +178,7 @@ def test_property_limits_never_exceeded(params, speeds, curv, noise_seed):
     ctl = MpcController(params)
     res = run_closed_loop(ctl, ref, params, speed_noise_mps=0.05, position_noise_m=0.02,
                           seed=noise_seed)
-    lim = Limits.from_params(params)
+    lim = ActuatorLimits.from_params(params)
     rec = res.recording
     sw, ap, bp = rec["steering_cmd"], rec["accel_pedal_cmd"], rec["brake_pedal_cmd"]
     assert np.all(np.abs(sw) <= lim.steering_wheel_angle_max_rad + 1e-9)
@@ -178,6 +188,8 @@ def test_property_limits_never_exceeded(params, speeds, curv, noise_seed):
     assert np.all((ap >= 0) & (ap <= 1) & (bp >= 0) & (bp <= 1))
     assert not np.any((ap > 0) & (bp > 0))
     assert rec["speed"].min() >= 0.0
-    # statuses: every step returned something usable
+    # statuses: every step returned a Status, every solve succeeded, no internal error
     assert len(res.statuses) == res.metrics["steps"]
-    assert all(isinstance(s, str) and s for s in res.statuses)
+    assert all(isinstance(s, Status) for s in res.statuses)
+    assert res.metrics["failures"] == 0, res.metrics["statuses"]
+    assert res.metrics["internal_errors"] == 0 and res.internal_errors == []

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, seed, settings
 from hypothesis import strategies as st
 
-from hmpc.controller.limits import Command, Limits, apply_limits
-from hmpc.models.params import Limits as ParamLimits
+from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
+from hmpc.models.params import VehicleLimits
 from hmpc.models.params import load_params
 
 
@@ -19,34 +19,34 @@ def params():
 
 
 def test_limits_come_from_the_parameter_file(params):
-    assert Limits.from_params(None) == Limits()
+    assert ActuatorLimits.from_params(None) == ActuatorLimits()
     p = copy.deepcopy(params)
     p.vehicle.steering_wheel_angle_max_rad = 8.0
-    p.limits = ParamLimits(steering_wheel_rate_max_radps=3.0, accel_max_mps2=1.5,
+    p.limits = VehicleLimits(steering_wheel_rate_max_radps=3.0, accel_max_mps2=1.5,
                            jerk_max_mps3=1.0)
-    lim = Limits.from_params(p)
+    lim = ActuatorLimits.from_params(p)
     assert lim.steering_wheel_angle_max_rad == 8.0
     assert lim.steering_wheel_rate_max_radps == 3.0
     assert lim.accel_max_mps2 == 1.5 and lim.jerk_max_mps3 == 1.0
-    assert lim.decel_max_mps2 == Limits().decel_max_mps2
-    p.limits = ParamLimits(steering_wheel_angle_max_rad=6.0)  # limits: wins over vehicle:
-    assert Limits.from_params(p).steering_wheel_angle_max_rad == 6.0
+    assert lim.decel_max_mps2 == ActuatorLimits().decel_max_mps2
+    p.limits = VehicleLimits(steering_wheel_angle_max_rad=6.0)  # limits: wins over vehicle:
+    assert ActuatorLimits.from_params(p).steering_wheel_angle_max_rad == 6.0
 
 
 def test_limits_are_frozen_and_validated():
-    lim = Limits()
+    lim = ActuatorLimits()
     with pytest.raises(Exception):
         lim.accel_max_mps2 = 5.0  # frozen
     with pytest.raises(ValueError):
-        Limits(jerk_max_mps3=-1.0)
+        ActuatorLimits(jerk_max_mps3=-1.0)
     with pytest.raises(ValueError):
-        Limits(steering_wheel_angle_max_rad=float("nan"))
+        ActuatorLimits(steering_wheel_angle_max_rad=float("nan"))
     with pytest.raises(ValueError):
         apply_limits(Command(0, 0, 0), None, lim, 0.0)
 
 
 def test_clamps_rates_and_pedal_exclusion():
-    lim = Limits()
+    lim = ActuatorLimits()
     dt = 0.1
     out = apply_limits(Command(100.0, 2.0, 0.0), None, lim, dt)
     assert out == Command(lim.steering_wheel_angle_max_rad, 1.0, 0.0)
@@ -66,7 +66,7 @@ def test_clamps_rates_and_pedal_exclusion():
 
 
 def test_zone_model_caps_acceleration_and_deceleration(params):
-    lim = Limits()
+    lim = ActuatorLimits()
     z = params.zones[2]  # high: offset -0.25, scale 3.0, brake 6.0
     out = apply_limits(Command(0.0, 1.0, 0.0), None, lim, 0.1, zone=z)
     assert z.accel_mps2(out.accel_pedal, 0.0) == pytest.approx(lim.accel_max_mps2)
@@ -83,7 +83,7 @@ any_float = st.one_of(finite, st.just(float("nan")), st.just(float("inf")))
 @given(sw=any_float, ap=any_float, bp=any_float, psw=st.floats(-7.8, 7.8),
        pap=st.floats(0, 1), dt=st.floats(0.01, 0.5))
 def test_property_output_always_within_limits(sw, ap, bp, psw, pap, dt):
-    lim = Limits()
+    lim = ActuatorLimits()
     prev = Command(psw, pap, 0.0)
     out = apply_limits(Command(sw, ap, bp), prev, lim, dt)
     assert all(math.isfinite(v) for v in out.as_tuple())

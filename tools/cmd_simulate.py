@@ -9,8 +9,9 @@ Two uses:
   [--controller mpc|nmpc|pid] [--plant-params OTHER.yaml] [--out RUN.csv] [--plots DIR]
   [--json FILE] [--seed N]``: a controller drives the hybrid plant along a reference. The
   JSON holds ``speed_error_rms_mps``, ``lateral_error_rms_m``, ``pedal_switches_per_min``,
-  ``zone_transitions_per_min``, ``solve_time_ms`` {p50, p99, max}, ``steps``, ``failures``
-  (and, under ``details``, more).
+  ``zone_transitions_per_min``, ``solve_time_ms`` {p50, p99, max}, ``steps``, ``failures``,
+  ``internal_errors`` (controller bugs; the first traceback goes to stderr) and, under
+  ``details``, more.
 """
 from __future__ import annotations
 
@@ -131,16 +132,25 @@ def _run_closed_loop(args, params, write_json) -> int:
                           transition_penalty=not args.no_transition_penalty)
     print(f"hmpc simulate: {args.controller} on {ref.name} ({ref.duration_s:.1f} s), "
           f"seed {args.seed}", file=sys.stderr)
+    def progress(fraction: float, t_s: float) -> None:
+        print(f"  closed loop {ref.name}: {100 * fraction:3.0f}% (t = {t_s:.1f} s)",
+              file=sys.stderr, flush=True)
+
     res = run_closed_loop(ctl, ref, params, plant_params=plant_params,
                           control_period_s=args.control_period, seed=args.seed,
                           speed_noise_mps=args.speed_noise,
-                          position_noise_m=0.4 * args.speed_noise, progress=True)
+                          position_noise_m=0.4 * args.speed_noise, progress=progress)
     m = res.metrics
+    if res.internal_errors:
+        t_err, tb = res.internal_errors[0]
+        print(f"hmpc simulate: {len(res.internal_errors)} internal controller error(s), the "
+              f"first at t = {t_err:.2f} s (controlled stop each time):\n{tb}",
+              file=sys.stderr)
     if args.out:
         res.recording.save(args.out)
     payload = {k: m[k] for k in ("speed_error_rms_mps", "lateral_error_rms_m",
                                  "pedal_switches_per_min", "zone_transitions_per_min",
-                                 "solve_time_ms", "steps", "failures")}
+                                 "solve_time_ms", "steps", "failures", "internal_errors")}
     payload.update({"controller": args.controller, "reference": ref.name,
                     "plant_params": args.plant_params, "seed": args.seed,
                     "details": {k: v for k, v in m.items() if k not in payload}})
@@ -160,7 +170,8 @@ def _print_summary(p: dict) -> None:
           f"pedal switches {p['pedal_switches_per_min']:.1f}/min, "
           f"zone transitions {p['zone_transitions_per_min']:.1f}/min, "
           f"solve time p50/p99/max {st['p50']:.2f}/{st['p99']:.2f}/{st['max']:.2f} ms, "
-          f"{p['steps']} steps, {p['failures']} failures")
+          f"{p['steps']} steps, {p['failures']} failures, "
+          f"{p['internal_errors']} internal errors")
 
 
 def _plots(res, ref, out_dir: str, controller: str, params) -> list[str]:

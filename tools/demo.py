@@ -42,7 +42,8 @@ def steps(out: Path) -> list[tuple[str, list[str]]]:
          ["identify", str(out / "vcan_rec.csv"), "--vehicle", str(PARAMS_DIR / "toyota_rav4_2019.yaml"),
           "--out", str(out / "vcan_params.yaml"), "--plots", str(out / "vcan_identify"),
           "--json", str(out / "vcan_identify.json")]),
-        ("simulate: ground-truth 'arcs' experiment (report section III) with the report's parameters",
+        ("simulate: ground-truth 'arcs' experiment (report section III) with the report's steering "
+         "map and zone boundaries (its zone coefficients are placeholders: params/report_2008.yaml)",
          ["simulate", "--experiment", "arcs", "--params", str(PARAMS_DIR / "report_2008.yaml"),
           "--out", str(out / "sim_arcs.csv"), "--json", str(out / "sim_arcs.json")]),
         ("simulate: hybrid MPC holding 1 m/s at idle, then stop and go",

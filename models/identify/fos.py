@@ -138,28 +138,9 @@ def fos(P: np.ndarray, y: np.ndarray, names: list[str] | None = None, *,
     Raises:
         ValueError: shapes that do not match, non-finite values, unknown ``force`` names.
     """
-    P = np.asarray(P, dtype=float)
-    y = np.asarray(y, dtype=float)
-    if P.ndim != 2 or y.ndim != 1 or P.shape[0] != y.shape[0]:
-        raise ValueError(f"expected P [N, M] and y [N], got {P.shape} and {y.shape}")
+    P, y, names = _check_inputs(P, y, names)
     n, m = P.shape
-    if names is None:
-        names = [f"p{i}" for i in range(m)]
-    names = list(names)
-    if len(names) != m or len(set(names)) != m:
-        raise ValueError("names must be unique, one per column of P")
-    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(y))):
-        raise ValueError("P and y must be finite (drop NaN rows before calling fos)")
-    if isinstance(holdout, str):
-        if holdout != "blocks":
-            raise ValueError(f"holdout must be a mask, 'blocks' or None, got {holdout!r}")
-        hmask = block_holdout(n, fraction=holdout_fraction, block_len=block_len)
-    elif holdout is None:
-        hmask = np.zeros(n, dtype=bool)
-    else:
-        hmask = np.asarray(holdout, dtype=bool)
-        if hmask.shape != (n,):
-            raise ValueError(f"holdout mask must have shape ({n},)")
+    hmask = _holdout_mask(n, holdout, holdout_fraction, block_len)
     train = ~hmask
     use_holdout = bool(hmask.any())
     if train.sum() < 2:
@@ -176,19 +157,7 @@ def fos(P: np.ndarray, y: np.ndarray, names: list[str] | None = None, *,
     c0 = (Pt.T @ yt) / nt         # [M]
     y2 = float(yt @ yt) / nt      # mean square of the target = MSE of the empty model
     Ph, yh = P[hmask], y[hmask]
-
-    sel: list[int] = []
-    D = np.zeros((max_terms, m))               # D[r, j] = D(j, r) = mean(p_j w_r), all candidates
-    alpha = np.zeros((max_terms, max_terms))   # alpha[r, i] = alpha(m_r, i), i < r
-    Dd = np.zeros(max_terms)                   # D(m_r, m_r) = mean(w_r^2)
-    g = np.zeros(max_terms)                    # weights of the orthogonal functions w_r
-    # For every candidate j, the mean square of its component orthogonal to the selection so
-    # far, and that component's mean product with y (Korenberg's D(j, j) and C(j)); one
-    # recursion step per selected term keeps them current.
-    diagG = np.diag(G).copy()
-    Djj = diagG.copy()
-    Cj = c0.copy()
-    available = np.ones(m, dtype=bool)
+    st = _Search.start(G, c0, max_terms)
     forced = [names.index(f) for f in force]
 
     mse = y2
@@ -198,46 +167,27 @@ def fos(P: np.ndarray, y: np.ndarray, names: list[str] | None = None, *,
     best_k, best_hold, bad = 0, (hold_path[0] if use_holdout else np.inf), 0
     stop = "all candidates used" if max_terms >= m else f"max_terms ({max_terms}) reached"
 
-    while len(sel) < max_terms:
-        r = len(sel)
-        ok = available & (Djj > collinear_tol * np.maximum(diagG, 1e-300))
+    while len(st.sel) < max_terms:
+        r = len(st.sel)
+        ok = st.admissible(collinear_tol)
         if r < len(forced):
             j = forced[r]
             if not ok[j]:
                 raise ValueError(f"forced term {names[j]!r} is linearly dependent on the others")
         else:
-            if not ok.any():
-                stop = "remaining candidates are linearly dependent on the selection"
+            j, why = st.best(ok, min_reduction * y2, 4.0 / (nt + 1) * mse if noise_threshold
+                             else None, y2)
+            if why is not None:
+                stop = why
                 break
-            q = np.full(m, -np.inf)
-            q[ok] = Cj[ok] ** 2 / Djj[ok]
-            j = int(np.argmax(q))
-            if q[j] < min_reduction * y2:
-                stop = f"best error reduction {q[j] / y2:.2e} of mean(y^2) is below min_reduction"
-                break
-            if noise_threshold and q[j] < 4.0 / (nt + 1) * mse:
-                stop = "best error reduction is below Korenberg's 4/(N+1) noise threshold"
-                break
-        # ---- accept candidate j as term r
-        for i in range(r):                       # alpha(m_r, i) = D(m_r, i) / D(i, i)
-            alpha[r, i] = D[i, j] / Dd[i]
-        D[r] = G[:, j] - alpha[r, :r] @ D[:r]    # D(:, r) by the recursion
-        Dd[r] = D[r, j]
-        g[r] = Cj[j] / Dd[r]
-        a_col = D[r] / Dd[r]                     # alpha(j', r) for every candidate j'
-        Djj = Djj - a_col * D[r]
-        Cj = Cj - a_col * Cj[j]
-        sel.append(j)
-        available[j] = False
-        reductions.append(g[r] ** 2 * Dd[r])
+        reductions.append(st.accept(j))
         mse = max(mse - reductions[-1], 0.0)
         train_path.append(mse)
-        k = len(sel)
+        k = len(st.sel)
         if not use_holdout:
             best_k = k
             continue
-        coef = _coefficients(g[:k], alpha[:k, :k])
-        h = float(np.mean((yh - Ph[:, sel] @ coef) ** 2))
+        h = float(np.mean((yh - Ph[:, st.sel] @ st.coefficients(k)) ** 2))
         hold_path.append(h)
         if k <= len(forced) or h < best_hold * (1.0 - min_holdout_gain):
             best_k, best_hold, bad = k, h, 0
@@ -249,13 +199,111 @@ def fos(P: np.ndarray, y: np.ndarray, names: list[str] | None = None, *,
                 break
 
     k = best_k
-    coef = _coefficients(g[:k], alpha[:k, :k])
     red = np.array(reductions[:k])
     return FosResult(
-        terms=[names[i] for i in sel[:k]], indices=sel[:k], coefficients=coef,
+        terms=[names[i] for i in st.sel[:k]], indices=st.sel[:k], coefficients=st.coefficients(k),
         error_reduction=red, error_reduction_fraction=(red / y2) if y2 > 0 else np.zeros(k),
         train_mse_path=np.array(train_path), holdout_mse_path=np.array(hold_path),
-        tried=[names[i] for i in sel], stop_reason=stop, train_mask=train)
+        tried=[names[i] for i in st.sel], stop_reason=stop, train_mask=train)
+
+
+def _check_inputs(P, y, names) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """``P`` [N, M] and ``y`` [N] as finite float arrays, and one unique name per column."""
+    P = np.asarray(P, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if P.ndim != 2 or y.ndim != 1 or P.shape[0] != y.shape[0]:
+        raise ValueError(f"expected P [N, M] and y [N], got {P.shape} and {y.shape}")
+    m = P.shape[1]
+    names = [f"p{i}" for i in range(m)] if names is None else list(names)
+    if len(names) != m or len(set(names)) != m:
+        raise ValueError("names must be unique, one per column of P")
+    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(y))):
+        raise ValueError("P and y must be finite (drop NaN rows before calling fos)")
+    return P, y, names
+
+
+def _holdout_mask(n: int, holdout, fraction: float, block_len: int) -> np.ndarray:
+    """The held-out samples [N] for :func:`fos`'s ``holdout`` argument."""
+    if isinstance(holdout, str):
+        if holdout != "blocks":
+            raise ValueError(f"holdout must be a mask, 'blocks' or None, got {holdout!r}")
+        return block_holdout(n, fraction=fraction, block_len=block_len)
+    if holdout is None:
+        return np.zeros(n, dtype=bool)
+    hmask = np.asarray(holdout, dtype=bool)
+    if hmask.shape != (n,):
+        raise ValueError(f"holdout mask must have shape ({n},)")
+    return hmask
+
+
+@dataclass
+class _Search:
+    """Korenberg's recursions for the terms selected so far (module doc), over M candidates.
+
+    ``D[r, j] = D(j, r)`` = mean(p_j w_r) for all candidates, ``alpha[r, i] = alpha(m_r, i)``
+    (i < r), ``Dd[r] = D(m_r, m_r)`` = mean(w_r^2), ``g[r]`` the weight of the orthogonal
+    function w_r. For every candidate j, ``Djj[j]`` is the mean square of its component
+    orthogonal to the selection and ``Cj[j]`` that component's mean product with y (Korenberg's
+    D(j, j) and C(j)); one recursion step per selected term keeps them current.
+    """
+
+    G: np.ndarray
+    diagG: np.ndarray
+    D: np.ndarray
+    alpha: np.ndarray
+    Dd: np.ndarray
+    g: np.ndarray
+    Djj: np.ndarray
+    Cj: np.ndarray
+    available: np.ndarray
+    sel: list[int]
+
+    @classmethod
+    def start(cls, G: np.ndarray, c0: np.ndarray, max_terms: int) -> "_Search":
+        m = G.shape[0]
+        diagG = np.diag(G).copy()
+        return cls(G, diagG, np.zeros((max_terms, m)), np.zeros((max_terms, max_terms)),
+                   np.zeros(max_terms), np.zeros(max_terms), diagG.copy(), c0.copy(),
+                   np.ones(m, dtype=bool), [])
+
+    def admissible(self, collinear_tol: float) -> np.ndarray:
+        """Candidates not yet selected and not linearly dependent on the selection."""
+        return self.available & (self.Djj > collinear_tol * np.maximum(self.diagG, 1e-300))
+
+    def best(self, ok: np.ndarray, min_q: float, noise_q: float | None,
+             y2: float) -> tuple[int, str | None]:
+        """The admissible candidate with the largest error reduction, and why to stop instead
+        (None to accept it): nothing admissible, below ``min_q`` or below ``noise_q``."""
+        if not ok.any():
+            return -1, "remaining candidates are linearly dependent on the selection"
+        q = np.full(len(ok), -np.inf)
+        q[ok] = self.Cj[ok] ** 2 / self.Djj[ok]
+        j = int(np.argmax(q))
+        if q[j] < min_q:
+            return j, f"best error reduction {q[j] / y2:.2e} of mean(y^2) is below min_reduction"
+        if noise_q is not None and q[j] < noise_q:
+            return j, "best error reduction is below Korenberg's 4/(N+1) noise threshold"
+        return j, None
+
+    def accept(self, j: int) -> float:
+        """Select candidate ``j`` as the next term; return its error reduction."""
+        r = len(self.sel)
+        D, alpha, Dd = self.D, self.alpha, self.Dd
+        for i in range(r):                       # alpha(m_r, i) = D(m_r, i) / D(i, i)
+            alpha[r, i] = D[i, j] / Dd[i]
+        D[r] = self.G[:, j] - alpha[r, :r] @ D[:r]    # D(:, r) by the recursion
+        Dd[r] = D[r, j]
+        self.g[r] = self.Cj[j] / Dd[r]
+        a_col = D[r] / Dd[r]                     # alpha(j', r) for every candidate j'
+        self.Djj = self.Djj - a_col * D[r]
+        self.Cj = self.Cj - a_col * self.Cj[j]
+        self.sel.append(j)
+        self.available[j] = False
+        return self.g[r] ** 2 * Dd[r]
+
+    def coefficients(self, k: int) -> np.ndarray:
+        """Coefficients of the first ``k`` selected terms (:func:`_coefficients`)."""
+        return _coefficients(self.g[:k], self.alpha[:k, :k])
 
 
 def _coefficients(g: np.ndarray, alpha: np.ndarray) -> np.ndarray:

@@ -56,6 +56,7 @@ import numpy as np
 from hmpc.models.errors import InputError
 from hmpc.models.identify.fos import fos
 from hmpc.models.params import Vehicle, Zone
+from hmpc.models.plant import zones_of_speed, zones_with_hysteresis
 from hmpc.models.logs.recording import Recording
 from hmpc.models.identify.stats import apply_kernel, dilate, matched_kernels, ols_hac
 from hmpc.models.identify.steering import delayed, road_wheel_angle_from_front
@@ -134,30 +135,13 @@ class LongitudinalResult:
 def assign_zones(v_mps: np.ndarray, zones, hysteresis_mps: float = 0.0) -> np.ndarray:
     """Zone index per sample: (v_min, v_max], first zone includes 0; -1 above the last zone
     and for NaN. With hysteresis h, a sample stays in the previous sample's zone while v is
-    within [v_min - h, v_max + h] (as ``HybridPlant.select_zone``)."""
-    v = np.asarray(v_mps, dtype=float)
-    vmax = np.array([z[2] for z in zones])
-    vmin = np.array([z[1] for z in zones])
-    z = np.searchsorted(vmax, v, side="left")
-    z = np.where(np.isfinite(v) & (z < len(zones)), z, -1)
+    within [v_min - h, v_max + h]. The zone rule is the plant's (``models.plant``), without
+    its clamp: above the last zone is no zone here."""
+    vmin = [z[1] for z in zones]
+    vmax = [z[2] for z in zones]
     if hysteresis_mps <= 0:
-        return z
-    out = z.copy()
-    cur = -1
-    for i in range(len(v)):
-        if not np.isfinite(v[i]):
-            cur = -1
-            out[i] = -1
-            continue
-        if cur >= 0:
-            lo = -np.inf if cur == 0 else vmin[cur] - hysteresis_mps
-            hi = vmax[cur] + hysteresis_mps
-            if lo <= v[i] <= hi and not (cur == len(zones) - 1 and v[i] > vmax[-1]):
-                out[i] = cur
-                continue
-        cur = int(z[i])
-        out[i] = cur
-    return out
+        return zones_of_speed(v_mps, vmax)
+    return zones_with_hysteresis(v_mps, vmin, vmax, hysteresis_mps)
 
 
 def _runs(mask: np.ndarray, max_len: int):
@@ -204,6 +188,74 @@ def _nearest(i: int, candidates: list[int]) -> int | None:
     return min(candidates, key=lambda j: (abs(j - i), j))
 
 
+@dataclass
+class LongitudinalSignals:
+    """What eq. 8 is fitted to: speed, measured acceleration and the raw pedals.
+
+    Attributes:
+        v: eq. 1's speed [m/s]; speed_src: where it came from (text).
+        a_meas: measured acceleration [m/s^2]; accel_desc: how it was obtained (text).
+        d_ker, g_ker: the matched derivative and smoothing kernels (``models.stats``).
+        ap_raw, bp_raw: accelerator and brake pedal [0..1] (brake zeros when absent).
+        has_brake: the recording has ``brake_pedal``; dt_s: sample interval [s].
+    """
+
+    v: np.ndarray
+    speed_src: str
+    a_meas: np.ndarray
+    accel_desc: str
+    d_ker: np.ndarray
+    g_ker: np.ndarray
+    ap_raw: np.ndarray
+    bp_raw: np.ndarray
+    has_brake: bool
+    dt_s: float
+
+    def smooth(self, x) -> np.ndarray:
+        """``x`` smoothed with the kernel matched to the derivative filter."""
+        return apply_kernel(x, self.g_ker)
+
+
+@dataclass
+class ZoneMasks:
+    """Zone of each sample and which samples the fits may use (module doc).
+
+    Attributes:
+        zid: zone index per sample (-1: none); standstill: below ``v_stop_mps``;
+        above: faster than the last zone; boundary: within a smoothing window of a zone change;
+        base_bad: not finite, standing or in no zone; bad: excluded from the fits (``base_bad``
+            dilated by the smoothing window, or ``boundary``; pedals not finite after the delay).
+    """
+
+    zid: np.ndarray
+    standstill: np.ndarray
+    above: np.ndarray
+    boundary: np.ndarray
+    base_bad: np.ndarray
+    bad: np.ndarray
+
+
+@dataclass
+class PedalDeadTime:
+    """Pedal dead time: ``tau_s`` used [s], the grid search's ``estimate_s`` [s] and residual
+    reduction ``gain`` [1], and ``note`` saying why 0 is used (None when the estimate is)."""
+
+    tau_s: float
+    estimate_s: float
+    gain: float
+    note: str | None
+
+
+@dataclass
+class Pedals:
+    """The pedals at the dead time (``ap``, ``bp``) and smoothed (``aps``, ``bps``) [0..1]."""
+
+    ap: np.ndarray
+    bp: np.ndarray
+    aps: np.ndarray
+    bps: np.ndarray
+
+
 def identify_longitudinal(rec: Recording, vehicle: Vehicle,
                           config: LongitudinalIdConfig | None = None,
                           progress=None) -> LongitudinalResult:
@@ -218,20 +270,55 @@ def identify_longitudinal(rec: Recording, vehicle: Vehicle,
     """
     cfg = config or LongitudinalIdConfig()
     say = progress or (lambda msg: None)
+    zones = _check_config(cfg, rec.meta.get("path"))
+    rec.require("accel_pedal")
+    sig = longitudinal_signals(rec, vehicle, cfg)
+    masks = zone_masks(sig, zones, cfg)
+    say("longitudinal: estimating the pedal dead time")
+    dead = estimate_pedal_dead_time(sig, masks.bad, masks.zid, len(zones), cfg)
+    dt = sig.dt_s
+    ap, bp = delayed(sig.ap_raw, dead.tau_s, dt), delayed(sig.bp_raw, dead.tau_s, dt)
+    ped = Pedals(ap, bp, sig.smooth(ap), sig.smooth(bp))
+    masks.bad |= ~(np.isfinite(ped.aps) & np.isfinite(ped.bps))
+    say(f"longitudinal: pedal dead time {dead.tau_s:.2f} s; acceleration from {sig.accel_desc}")
+    names, P_all = fos_candidates(rec, sig, ped)
+    fits = [fit_zone(zi, zone, sig, masks, ped, names, P_all, cfg)
+            for zi, zone in enumerate(zones)]
+    fitted = [i for i, f in enumerate(fits) if f.fitted]
+    if not fitted:
+        raise InputError("no speed zone has enough usable samples (moving, finite, inside one "
+                         f"zone; need {cfg.min_samples} per zone): cannot identify eq. 8",
+                         rec.meta.get("path"), channel="accel_pedal")
+    out_zones = [zone_from_fit(i, fits, zones, cfg, sig.has_brake, rec.meta.get("path"))
+                 for i in range(len(fits))]
+    report = _report(sig, masks, dead, fits, zones, names, cfg)
+    series = {"time": rec.time, "v_mps": sig.v, "a_meas_mps2": sig.a_meas,
+              "accel_pedal": sig.ap_raw, "brake_pedal": sig.bp_raw if sig.has_brake else None,
+              "zone": masks.zid, "used": ~masks.bad,
+              "a_model_mps2": {zones[i][0]: f.a_model for i, f in enumerate(fits) if f.fitted}}
+    return LongitudinalResult(out_zones, dead.tau_s, sig.accel_desc, report, series)
+
+
+def _check_config(cfg: LongitudinalIdConfig, path) -> list[tuple[str, float, float]]:
+    """The zones as (name, v_min, v_max), checked contiguous from 0; the accel source checked."""
     zones = [(str(n), float(lo), float(hi)) for n, lo, hi in cfg.zones]
     if not zones:
-        raise InputError("no speed zones given", rec.meta.get("path"))
+        raise InputError("no speed zones given", path)
     for i, (n, lo, hi) in enumerate(zones):
         if not hi > lo or (i and abs(lo - zones[i - 1][2]) > 1e-9) or (i == 0 and lo != 0.0):
             raise InputError(f"zones must be contiguous from 0 m/s with v_max > v_min "
-                             f"(zone {n!r}: {lo}..{hi})", rec.meta.get("path"))
+                             f"(zone {n!r}: {lo}..{hi})", path)
     if cfg.accel_source not in ACCEL_SOURCES:
         raise InputError(f"unknown accel source {cfg.accel_source!r} (one of "
-                         f"{', '.join(ACCEL_SOURCES)})", rec.meta.get("path"))
-    rec.require("accel_pedal")
+                         f"{', '.join(ACCEL_SOURCES)})", path)
+    return zones
+
+
+def longitudinal_signals(rec: Recording, vehicle: Vehicle,
+                         cfg: LongitudinalIdConfig) -> LongitudinalSignals:
+    """Speed (eq. 1's v), the measured acceleration by ``cfg.accel_source`` with the matching
+    smoother, and the raw pedals (module doc). Raises InputError for an absent channel."""
     dt = 1.0 / rec.rate_hz
-    n = len(rec)
-    # ---- speed (eq. 1's v)
     if "wheel_speed_fl" in rec and "wheel_speed_fr" in rec:
         _, v = road_wheel_angle_from_front(rec["wheel_speed_fl"], rec["wheel_speed_fr"],
                                            vehicle.wheelbase_m, vehicle.track_front_m)
@@ -240,7 +327,6 @@ def identify_longitudinal(rec: Recording, vehicle: Vehicle,
         rec.require("speed")
         v = np.asarray(rec["speed"], dtype=float)
         speed_src = "CAN 'speed' channel"
-    # ---- acceleration, and the matching smoother for the regressors
     d_ker, g_ker = matched_kernels(dt, cfg.smooth_s)
     src = "speed" if cfg.accel_source == "auto" else cfg.accel_source
     sg = (f"Savitzky-Golay slope over {len(d_ker)} samples ({len(d_ker) * dt:.2f} s); "
@@ -257,247 +343,288 @@ def identify_longitudinal(rec: Recording, vehicle: Vehicle,
         rec.require("gps_speed")
         a_meas = apply_kernel(rec["gps_speed"], d_ker)
         accel_desc = f"d/dt of the GNSS ground speed ({sg})"
-
-    def smooth(x):
-        return apply_kernel(x, g_ker)
-
-    ap_raw = np.asarray(rec["accel_pedal"], dtype=float)
     has_brake = "brake_pedal" in rec
-    bp_raw = np.asarray(rec["brake_pedal"], dtype=float) if has_brake else np.zeros(n)
-    half = len(d_ker) // 2 + 1
+    ap_raw = np.asarray(rec["accel_pedal"], dtype=float)
+    bp_raw = np.asarray(rec["brake_pedal"], dtype=float) if has_brake else np.zeros(len(rec))
+    return LongitudinalSignals(v, speed_src, a_meas, accel_desc, d_ker, g_ker, ap_raw, bp_raw,
+                               has_brake, dt)
 
-    # ---- zones and exclusions
+
+def zone_masks(sig: LongitudinalSignals, zones, cfg: LongitudinalIdConfig) -> ZoneMasks:
+    """Zones by speed, and the samples usable for the fits: a sample is usable if its whole
+    smoothing window shares its zone and is moving and finite."""
+    v, n = sig.v, len(sig.v)
+    half = len(sig.d_ker) // 2 + 1
     zid = assign_zones(v, zones, cfg.hysteresis_mps)
-    finite = np.isfinite(v) & np.isfinite(a_meas) & np.isfinite(ap_raw) & np.isfinite(bp_raw)
+    finite = (np.isfinite(v) & np.isfinite(sig.a_meas) & np.isfinite(sig.ap_raw)
+              & np.isfinite(sig.bp_raw))
     standstill = np.nan_to_num(v, nan=0.0) < cfg.v_stop_mps
     above = np.isfinite(v) & (v > zones[-1][2])
-    # a sample is usable if its whole smoothing window shares its zone and is moving & finite
     change = np.zeros(n, dtype=bool)
     change[1:] = zid[1:] != zid[:-1]
     boundary = dilate(change, half, half)
     base_bad = ~finite | standstill | (zid < 0)
     bad = dilate(base_bad, half, half) | boundary
+    return ZoneMasks(zid, standstill, above, boundary, base_bad, bad)
 
-    # ---- dead time: pooled per-zone OLS residual over a grid of delays
-    say("longitudinal: estimating the pedal dead time")
+
+def estimate_pedal_dead_time(sig: LongitudinalSignals, bad: np.ndarray, zid: np.ndarray,
+                             n_zones: int, cfg: LongitudinalIdConfig) -> PedalDeadTime:
+    """The pedal dead time minimising the pooled per-zone OLS residual over a grid of delays
+    (one sample per step); 0 with a note when the minimum is at the search limit, gains less
+    than ``dead_time_min_gain``, or no zone has enough samples."""
+    dt = sig.dt_s
     lags = np.arange(0, int(round(cfg.dead_time_max_s / dt)) + 1)
     sse = np.full(len(lags), np.inf)
     for k, lag in enumerate(lags):
-        apd, bpd = smooth(delayed(ap_raw, lag * dt, dt)), smooth(delayed(bp_raw, lag * dt, dt))
+        apd = sig.smooth(delayed(sig.ap_raw, lag * dt, dt))
+        bpd = sig.smooth(delayed(sig.bp_raw, lag * dt, dt))
         ok = ~bad & np.isfinite(apd) & np.isfinite(bpd)
         tot = 0.0
-        for zi in range(len(zones)):
+        for zi in range(n_zones):
             m = ok & (zid == zi)
             if m.sum() < cfg.min_samples:
                 continue
             X = np.column_stack([np.ones(m.sum()), apd[m], bpd[m]])
-            coef, *_ = np.linalg.lstsq(X, a_meas[m], rcond=None)
-            tot += float(np.sum((a_meas[m] - X @ coef) ** 2))
+            coef, *_ = np.linalg.lstsq(X, sig.a_meas[m], rcond=None)
+            tot += float(np.sum((sig.a_meas[m] - X @ coef) ** 2))
         sse[k] = tot
-    dead_note = None
-    if np.isfinite(sse).all() and sse[0] > 0:
-        k_best = int(np.argmin(sse))
-        gain = 1.0 - sse[k_best] / sse[0]
-        tau = float(lags[k_best] * dt)
-        if k_best == len(lags) - 1:
-            dead_note = (f"residual still falling at the search limit {cfg.dead_time_max_s:g} s: "
-                         "dead time not determined, 0 used")
-        elif gain < cfg.dead_time_min_gain:
-            dead_note = (f"a dead time of {tau:.2f} s lowers the residual by only "
-                         f"{100 * gain:.1f}% (< {100 * cfg.dead_time_min_gain:g}%): not "
-                         "determined, 0 used")
-        if dead_note:
-            tau_est, tau = tau, 0.0
-        else:
-            tau_est = tau
-    else:
-        gain, tau, tau_est = 0.0, 0.0, float("nan")
-        dead_note = "no zone had enough samples to estimate it: 0 used"
-    ap, bp = delayed(ap_raw, tau, dt), delayed(bp_raw, tau, dt)
-    aps, bps = smooth(ap), smooth(bp)
-    bad |= ~(np.isfinite(aps) & np.isfinite(bps))
-    say(f"longitudinal: pedal dead time {tau:.2f} s; acceleration from {accel_desc}")
+    if not (np.isfinite(sse).all() and sse[0] > 0):
+        return PedalDeadTime(0.0, float("nan"), 0.0,
+                             "no zone had enough samples to estimate it: 0 used")
+    k_best = int(np.argmin(sse))
+    gain = 1.0 - sse[k_best] / sse[0]
+    tau = float(lags[k_best] * dt)
+    note = None
+    if k_best == len(lags) - 1:
+        note = (f"residual still falling at the search limit {cfg.dead_time_max_s:g} s: "
+                "dead time not determined, 0 used")
+    elif gain < cfg.dead_time_min_gain:
+        note = (f"a dead time of {tau:.2f} s lowers the residual by only "
+                f"{100 * gain:.1f}% (< {100 * cfg.dead_time_min_gain:g}%): not "
+                "determined, 0 used")
+    return PedalDeadTime(0.0 if note else tau, tau, gain, note)
 
-    # ---- FOS candidates
-    cand = {"1": np.ones(n), "accel_pedal": aps, "brake_pedal": bps}
+
+def fos_candidates(rec: Recording, sig: LongitudinalSignals,
+                   ped: Pedals) -> tuple[list[str], np.ndarray]:
+    """The FOS candidate terms (module doc), smoothed: their names and matrix [N, M]."""
+    n, dt, smooth = len(sig.v), sig.dt_s, sig.smooth
+    cand = {"1": np.ones(n), "accel_pedal": ped.aps, "brake_pedal": ped.bps}
     for extra in (0.25, 0.5):
-        cand[f"accel_pedal(t-{extra:g}s)"] = smooth(delayed(ap, extra, dt))
-        cand[f"brake_pedal(t-{extra:g}s)"] = smooth(delayed(bp, extra, dt))
-    cand["v"] = smooth(v)
-    cand["v^2"] = smooth(v * v)
-    cand["accel_pedal*v"] = smooth(ap * v)
+        cand[f"accel_pedal(t-{extra:g}s)"] = smooth(delayed(ped.ap, extra, dt))
+        cand[f"brake_pedal(t-{extra:g}s)"] = smooth(delayed(ped.bp, extra, dt))
+    cand["v"] = smooth(sig.v)
+    cand["v^2"] = smooth(sig.v * sig.v)
+    cand["accel_pedal*v"] = smooth(ped.ap * sig.v)
     if "accel_cmd" in rec:
         cand["accel_cmd"] = smooth(np.asarray(rec["accel_cmd"], dtype=float))
     names = list(cand)
-    P_all = np.column_stack([cand[k] for k in names])
+    return names, np.column_stack([cand[k] for k in names])
 
-    fits: list[ZoneFit] = []
-    for zi, (zname, lo, hi) in enumerate(zones):
-        m = ~bad & (zid == zi)
-        nz = int(m.sum())
-        in_zone = np.isfinite(v) & (zid == zi) & ~standstill
-        rep: dict = {"name": zname, "v_min_mps": lo, "v_max_mps": hi, "samples": nz,
-                     "seconds_in_zone": float(in_zone.sum() * dt),
-                     "samples_excluded": int(in_zone.sum() - nz)}
-        if nz < cfg.min_samples:
-            rep["note"] = (f"only {nz} usable samples (need {cfg.min_samples}): not identified")
-            fits.append(ZoneFit(None, False, rep))
-            continue
-        pressed_a = float(np.sum(m & (ap > cfg.pressed)) * dt)
-        pressed_b = float(np.sum(m & (bp > cfg.pressed)) * dt)
-        rep["accel_pedal_pressed_s"], rep["brake_pedal_pressed_s"] = pressed_a, pressed_b
-        use_a = pressed_a >= cfg.min_pressed_s
-        use_b = has_brake and pressed_b >= cfg.min_pressed_s
-        cols = [np.ones(n)] + ([aps] if use_a else []) + ([-bps] if use_b else [])
-        X = np.column_stack(cols)
-        r = ols_hac(X, a_meas, m)
-        coef, ci = list(r.coef), [tuple(c) for c in r.ci95]
-        off, off_ci = coef.pop(0), ci.pop(0)
-        sc, sc_ci = (coef.pop(0), ci.pop(0)) if use_a else (None, None)
-        br, br_ci = (coef.pop(0), ci.pop(0)) if use_b else (None, None)
-        a_fit = X @ r.coef
-        resid = a_meas[m] - a_fit[m]
-        var = float(np.var(a_meas[m]))
-        nmse = 100.0 * float(np.mean(resid ** 2)) / var if var > 0 else float("nan")
-        # model acceleration from the unsmoothed (delayed) pedals, for the speed reconstruction
-        a_raw = off + (sc or 0.0) * np.nan_to_num(ap) - (br or 0.0) * np.nan_to_num(bp)
-        srmse = speed_rmse(v, a_raw, m, dt, cfg.segment_s)
-        # FOS term selection on the zone samples
-        # candidates missing on more than 10% of the zone's samples are left out (e.g. an ACC
-        # request that is only sent while the ACC is engaged), then rows with a gap
-        fin = np.isfinite(P_all[m])
-        keep = [j for j in range(len(names)) if fin[:, j].mean() >= 0.9]
-        mf = m & np.all(np.isfinite(P_all[:, keep]), axis=1)
-        fos_rep = None
-        if mf.sum() >= 20:
-            # hold-out blocks of fos_block_s, shortened so that even a short zone keeps some
-            block = max(min(int(round(cfg.fos_block_s / dt)), int(mf.sum()) // 8), 5)
-            Pz = P_all[np.ix_(mf, keep)]
-            fr = fos(Pz, a_meas[mf], [names[j] for j in keep], force=["1"],
-                     max_terms=cfg.fos_max_terms, block_len=block)
-            var_f = float(np.var(a_meas[mf]))
-            fos_rep = {**fr.to_dict(), "samples": int(mf.sum()),
-                       "nmse_pct": 100.0 * float(np.mean((a_meas[mf] - fr.predict(Pz)) ** 2))
-                       / var_f if var_f > 0 else None,
-                       "candidates_left_out": [names[j] for j in range(len(names))
-                                               if j not in keep]}
-        rep.update({
-            "offset_mps2": off, "offset_ci95_mps2": list(off_ci),
-            "scale_mps2": sc, "scale_ci95_mps2": None if sc_ci is None else list(sc_ci),
-            "brake_scale_mps2": br,
-            "brake_scale_ci95_mps2": None if br_ci is None else list(br_ci),
-            "nmse_pct": nmse, "speed_rmse_mps": srmse,
-            "accel_rms_mps2": float(np.sqrt(np.mean(a_meas[m] ** 2))),
-            "residual_rms_mps2": float(np.sqrt(np.mean(resid ** 2))),
-            "ci_method": r.method,
-            "fos": fos_rep,
-        })
-        fits.append(ZoneFit(None, True, rep, a_fit))
 
-    fitted = [i for i, f in enumerate(fits) if f.fitted]
-    if not fitted:
-        raise InputError("no speed zone has enough usable samples (moving, finite, inside one "
-                         f"zone; need {cfg.min_samples} per zone): cannot identify eq. 8",
-                         rec.meta.get("path"), channel="accel_pedal")
-    # ---- build Zone objects, with fallbacks for what the data did not exercise
-    with_scale = [i for i in fitted if fits[i].report["scale_mps2"] is not None]
-    with_brake = [i for i in fitted if fits[i].report["brake_scale_mps2"] is not None]
-    out_zones = []
-    for i, f in enumerate(fits):
-        zname, lo, hi = zones[i]
-        rep = f.report
-        notes = []
-        ident = f.fitted
-        if not f.fitted:
-            j = _nearest(i, fitted)
-            src_rep = fits[j].report
-            off = src_rep["offset_mps2"]
-            notes.append(f"no usable data ({rep['samples']} samples): offset copied from zone "
-                         f"'{zones[j][0]}'")
-            rep_off_ci = None
+def fit_zone(zi: int, zone, sig: LongitudinalSignals, masks: ZoneMasks, ped: Pedals,
+             names: list[str], P_all: np.ndarray, cfg: LongitudinalIdConfig) -> ZoneFit:
+    """Eq. 8 by OLS with HAC intervals on one zone's usable samples, its metrics and the FOS
+    term selection; a pedal term only when the pedal was pressed ``min_pressed_s`` in the zone.
+    Not fitted (``fitted`` False) with fewer than ``min_samples`` samples."""
+    zname, lo, hi = zone
+    dt, v, a_meas, n = sig.dt_s, sig.v, sig.a_meas, len(sig.v)
+    m = ~masks.bad & (masks.zid == zi)
+    nz = int(m.sum())
+    in_zone = np.isfinite(v) & (masks.zid == zi) & ~masks.standstill
+    rep: dict = {"name": zname, "v_min_mps": lo, "v_max_mps": hi, "samples": nz,
+                 "seconds_in_zone": float(in_zone.sum() * dt),
+                 "samples_excluded": int(in_zone.sum() - nz)}
+    if nz < cfg.min_samples:
+        rep["note"] = (f"only {nz} usable samples (need {cfg.min_samples}): not identified")
+        return ZoneFit(None, False, rep)
+    pressed_a = float(np.sum(m & (ped.ap > cfg.pressed)) * dt)
+    pressed_b = float(np.sum(m & (ped.bp > cfg.pressed)) * dt)
+    rep["accel_pedal_pressed_s"], rep["brake_pedal_pressed_s"] = pressed_a, pressed_b
+    use_a = pressed_a >= cfg.min_pressed_s
+    use_b = sig.has_brake and pressed_b >= cfg.min_pressed_s
+    cols = [np.ones(n)] + ([ped.aps] if use_a else []) + ([-ped.bps] if use_b else [])
+    X = np.column_stack(cols)
+    r = ols_hac(X, a_meas, m)
+    coef, ci = list(r.coef), [tuple(c) for c in r.ci95]
+    off, off_ci = coef.pop(0), ci.pop(0)
+    sc, sc_ci = (coef.pop(0), ci.pop(0)) if use_a else (None, None)
+    br, br_ci = (coef.pop(0), ci.pop(0)) if use_b else (None, None)
+    a_fit = X @ r.coef
+    resid = a_meas[m] - a_fit[m]
+    var = float(np.var(a_meas[m]))
+    nmse = 100.0 * float(np.mean(resid ** 2)) / var if var > 0 else float("nan")
+    # model acceleration from the unsmoothed (delayed) pedals, for the speed reconstruction
+    a_raw = off + (sc or 0.0) * np.nan_to_num(ped.ap) - (br or 0.0) * np.nan_to_num(ped.bp)
+    srmse = speed_rmse(v, a_raw, m, dt, cfg.segment_s)
+    rep.update({
+        "offset_mps2": off, "offset_ci95_mps2": list(off_ci),
+        "scale_mps2": sc, "scale_ci95_mps2": None if sc_ci is None else list(sc_ci),
+        "brake_scale_mps2": br,
+        "brake_scale_ci95_mps2": None if br_ci is None else list(br_ci),
+        "nmse_pct": nmse, "speed_rmse_mps": srmse,
+        "accel_rms_mps2": float(np.sqrt(np.mean(a_meas[m] ** 2))),
+        "residual_rms_mps2": float(np.sqrt(np.mean(resid ** 2))),
+        "ci_method": r.method,
+        "fos": _fos_report(m, a_meas, names, P_all, dt, cfg),
+    })
+    return ZoneFit(None, True, rep, a_fit)
+
+
+def _fos_report(m: np.ndarray, a_meas: np.ndarray, names: list[str], P_all: np.ndarray,
+                dt: float, cfg: LongitudinalIdConfig) -> dict | None:
+    """FOS term selection on a zone's samples ``m`` (None with fewer than 20 complete rows).
+
+    Candidates missing on more than 10% of the zone's samples are left out (e.g. an ACC
+    request that is only sent while the ACC is engaged), then rows with a gap.
+    """
+    fin = np.isfinite(P_all[m])
+    keep = [j for j in range(len(names)) if fin[:, j].mean() >= 0.9]
+    mf = m & np.all(np.isfinite(P_all[:, keep]), axis=1)
+    if mf.sum() < 20:
+        return None
+    # hold-out blocks of fos_block_s, shortened so that even a short zone keeps some
+    block = max(min(int(round(cfg.fos_block_s / dt)), int(mf.sum()) // 8), 5)
+    Pz = P_all[np.ix_(mf, keep)]
+    fr = fos(Pz, a_meas[mf], [names[j] for j in keep], force=["1"],
+             max_terms=cfg.fos_max_terms, block_len=block)
+    var_f = float(np.var(a_meas[mf]))
+    return {**fr.to_dict(), "samples": int(mf.sum()),
+            "nmse_pct": 100.0 * float(np.mean((a_meas[mf] - fr.predict(Pz)) ** 2))
+            / var_f if var_f > 0 else None,
+            "candidates_left_out": [names[j] for j in range(len(names)) if j not in keep]}
+
+
+def zone_from_fit(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig,
+                  has_brake: bool, path) -> Zone:
+    """Zone ``i``'s written ``params.Zone``, with fallbacks for what its data did not exercise
+    (module doc); sets ``fits[i].zone`` and the report's identifiable, note and written keys.
+
+    Raises:
+        InputError: the accelerator was never pressed long enough in any zone.
+    """
+    f, (zname, lo, hi) = fits[i], zones[i]
+    rep = f.report
+    fitted = [k for k, g in enumerate(fits) if g.fitted]
+    notes = []
+    ident = f.fitted
+    if not f.fitted:
+        j = _nearest(i, fitted)
+        off = fits[j].report["offset_mps2"]
+        notes.append(f"no usable data ({rep['samples']} samples): offset copied from zone "
+                     f"'{zones[j][0]}'")
+        rep_off_ci = None
+    else:
+        off = rep["offset_mps2"]
+        rep_off_ci = rep["offset_ci95_mps2"]
+        if 0.5 * (rep_off_ci[1] - rep_off_ci[0]) > cfg.max_offset_ci_mps2:
+            ident = False
+            notes.append(f"offset known only to +-{0.5 * (rep_off_ci[1] - rep_off_ci[0]):.2f} "
+                         "m/s^2")
+    sc, sc_ci, sc_ok = _zone_scale(i, fits, zones, cfg, path, notes)
+    br, br_ci, br_ok = _zone_brake_scale(i, fits, zones, cfg, has_brake, notes)
+    ident = ident and sc_ok and br_ok
+    note = "; ".join(notes) if notes else None
+    z = Zone(name=zname, v_min_mps=float(lo), v_max_mps=float(hi), offset_mps2=float(off),
+             scale_mps2=float(sc), brake_scale_mps2=float(br),
+             offset_ci95_mps2=_pair(rep_off_ci), scale_ci95_mps2=_pair(sc_ci),
+             brake_scale_ci95_mps2=_pair(br_ci), nmse_pct=_opt(rep.get("nmse_pct")),
+             speed_rmse_mps=_opt(rep.get("speed_rmse_mps")),
+             samples=float(rep["samples"]), identifiable=bool(ident), note=note)
+    f.zone = z
+    rep["identifiable"] = bool(ident)
+    rep["note"] = note
+    rep["written"] = {"offset_mps2": z.offset_mps2, "scale_mps2": z.scale_mps2,
+                      "brake_scale_mps2": z.brake_scale_mps2}
+    return z
+
+
+def _zone_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig, path,
+                notes: list[str]):
+    """Zone ``i``'s throttle scale, its interval and whether it is identified; a zone that did
+    not fit it copies the nearest zone's. Appends the reason to ``notes``."""
+    f = fits[i]
+    rep = f.report
+    sc = rep.get("scale_mps2") if f.fitted else None
+    sc_ci = rep.get("scale_ci95_mps2") if f.fitted else None
+    if sc is None:
+        with_scale = [k for k, g in enumerate(fits)
+                      if g.fitted and g.report["scale_mps2"] is not None]
+        j = _nearest(i, with_scale)
+        if j is None:
+            raise InputError("the accelerator pedal is never pressed long enough in any zone "
+                             f"(need {cfg.min_pressed_s} s): cannot identify eq. 8",
+                             path, channel="accel_pedal")
+        sc = fits[j].report["scale_mps2"]
+        if f.fitted:
+            notes.append(f"accelerator pressed only {rep['accel_pedal_pressed_s']:.1f} s: "
+                         f"scale copied from zone '{zones[j][0]}'")
         else:
-            off = rep["offset_mps2"]
-            rep_off_ci = rep["offset_ci95_mps2"]
-            if 0.5 * (rep_off_ci[1] - rep_off_ci[0]) > cfg.max_offset_ci_mps2:
-                ident = False
-                notes.append(f"offset known only to +-{0.5 * (rep_off_ci[1] - rep_off_ci[0]):.2f} "
-                             "m/s^2")
-        # throttle scale
-        sc = rep.get("scale_mps2") if f.fitted else None
-        sc_ci = rep.get("scale_ci95_mps2") if f.fitted else None
-        if sc is None:
-            ident = False
-            j = _nearest(i, with_scale)
-            if j is None:
-                raise InputError("the accelerator pedal is never pressed long enough in any zone "
-                                 f"(need {cfg.min_pressed_s} s): cannot identify eq. 8",
-                                 rec.meta.get("path"), channel="accel_pedal")
-            sc = fits[j].report["scale_mps2"]
-            if f.fitted:
-                notes.append(f"accelerator pressed only {rep['accel_pedal_pressed_s']:.1f} s: "
-                             f"scale copied from zone '{zones[j][0]}'")
-            else:
-                notes.append(f"scale copied from zone '{zones[j][0]}'")
-        elif abs(0.5 * (sc_ci[1] - sc_ci[0]) / sc) > cfg.max_rel_ci if sc != 0 else True:
-            ident = False
-            notes.append(f"scale known only to +-{100 * abs(0.5 * (sc_ci[1] - sc_ci[0]) / sc):.0f}%"
-                         if sc != 0 else "scale is zero")
-        br = rep.get("brake_scale_mps2") if f.fitted else None
-        br_ci = rep.get("brake_scale_ci95_mps2") if f.fitted else None
-        if br is None:
-            ident = False
-            j = _nearest(i, with_brake)
-            why = ("no brake_pedal channel" if not has_brake else
-                   f"brake pressed only {rep.get('brake_pedal_pressed_s', 0.0):.1f} s")
-            if j is not None:
-                br = fits[j].report["brake_scale_mps2"]
-                notes.append(f"{why}: brake scale copied from zone '{zones[j][0]}'")
-            else:
-                br = cfg.brake_scale_prior_mps2
-                notes.append(f"{why} (in every zone): brake scale is the prior "
-                             f"{cfg.brake_scale_prior_mps2:g} m/s^2, not identified")
-        elif abs(0.5 * (br_ci[1] - br_ci[0]) / br) > cfg.max_rel_ci if br != 0 else True:
-            ident = False
-            notes.append(f"brake scale known only to +-"
-                         f"{100 * abs(0.5 * (br_ci[1] - br_ci[0]) / br):.0f}%"
-                         if br != 0 else "brake scale is zero")
-        note = "; ".join(notes) if notes else None
-        z = Zone(name=zname, v_min_mps=float(lo), v_max_mps=float(hi), offset_mps2=float(off),
-                 scale_mps2=float(sc), brake_scale_mps2=float(br),
-                 offset_ci95_mps2=_pair(rep_off_ci), scale_ci95_mps2=_pair(sc_ci),
-                 brake_scale_ci95_mps2=_pair(br_ci), nmse_pct=_opt(rep.get("nmse_pct")),
-                 speed_rmse_mps=_opt(rep.get("speed_rmse_mps")),
-                 samples=float(rep["samples"]), identifiable=bool(ident), note=note)
-        f.zone = z
-        rep["identifiable"] = bool(ident)
-        rep["note"] = note
-        rep["written"] = {"offset_mps2": z.offset_mps2, "scale_mps2": z.scale_mps2,
-                          "brake_scale_mps2": z.brake_scale_mps2}
-        out_zones.append(z)
+            notes.append(f"scale copied from zone '{zones[j][0]}'")
+        return sc, sc_ci, False
+    if abs(0.5 * (sc_ci[1] - sc_ci[0]) / sc) > cfg.max_rel_ci if sc != 0 else True:
+        notes.append(f"scale known only to +-{100 * abs(0.5 * (sc_ci[1] - sc_ci[0]) / sc):.0f}%"
+                     if sc != 0 else "scale is zero")
+        return sc, sc_ci, False
+    return sc, sc_ci, True
 
-    n_above = int(above.sum())
-    report = {
-        "accel_source": accel_desc,
-        "speed_source": speed_src,
-        "dead_time_s": tau,
+
+def _zone_brake_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig,
+                      has_brake: bool, notes: list[str]):
+    """Zone ``i``'s brake scale, its interval and whether it is identified; a zone that did not
+    fit it copies the nearest zone's, or the prior when none did. Appends the reason to
+    ``notes``."""
+    f = fits[i]
+    rep = f.report
+    br = rep.get("brake_scale_mps2") if f.fitted else None
+    br_ci = rep.get("brake_scale_ci95_mps2") if f.fitted else None
+    if br is None:
+        with_brake = [k for k, g in enumerate(fits)
+                      if g.fitted and g.report["brake_scale_mps2"] is not None]
+        j = _nearest(i, with_brake)
+        why = ("no brake_pedal channel" if not has_brake else
+               f"brake pressed only {rep.get('brake_pedal_pressed_s', 0.0):.1f} s")
+        if j is not None:
+            br = fits[j].report["brake_scale_mps2"]
+            notes.append(f"{why}: brake scale copied from zone '{zones[j][0]}'")
+        else:
+            br = cfg.brake_scale_prior_mps2
+            notes.append(f"{why} (in every zone): brake scale is the prior "
+                         f"{cfg.brake_scale_prior_mps2:g} m/s^2, not identified")
+        return br, br_ci, False
+    if abs(0.5 * (br_ci[1] - br_ci[0]) / br) > cfg.max_rel_ci if br != 0 else True:
+        notes.append(f"brake scale known only to +-"
+                     f"{100 * abs(0.5 * (br_ci[1] - br_ci[0]) / br):.0f}%"
+                     if br != 0 else "brake scale is zero")
+        return br, br_ci, False
+    return br, br_ci, True
+
+
+def _report(sig: LongitudinalSignals, masks: ZoneMasks, dead: PedalDeadTime,
+            fits: list[ZoneFit], zones, names: list[str], cfg: LongitudinalIdConfig) -> dict:
+    """The JSON-ready report of :func:`identify_longitudinal`."""
+    dt, v = sig.dt_s, sig.v
+    n_above = int(masks.above.sum())
+    standing = masks.standstill & np.isfinite(v)
+    return {
+        "accel_source": sig.accel_desc,
+        "speed_source": sig.speed_src,
+        "dead_time_s": dead.tau_s,
         "dead_time_method": "grid search of the pooled zone-fit residual, one-sample steps",
-        "dead_time_estimate_s": tau_est,
-        "dead_time_residual_reduction": gain,
-        "dead_time_note": dead_note,
+        "dead_time_estimate_s": dead.estimate_s,
+        "dead_time_residual_reduction": dead.gain,
+        "dead_time_note": dead.note,
         "zones": [f.report for f in fits],
         "above_last_zone": {"samples": n_above, "seconds": float(n_above * dt),
                             "v_max_mps": zones[-1][2],
                             "note": "not fitted (no zone model above the last zone)"},
-        "standstill": {"samples": int(np.sum(standstill & np.isfinite(v))),
-                       "seconds": float(np.sum(standstill & np.isfinite(v)) * dt),
+        "standstill": {"samples": int(np.sum(standing)),
+                       "seconds": float(np.sum(standing) * dt),
                        "v_stop_mps": cfg.v_stop_mps,
                        "note": "excluded: the car is held, acceleration clamped at zero"},
-        "boundary_samples_excluded": int(np.sum(boundary & ~base_bad)),
+        "boundary_samples_excluded": int(np.sum(masks.boundary & ~masks.base_bad)),
         "hysteresis_mps": cfg.hysteresis_mps,
         "smooth_s": cfg.smooth_s,
         "fos_candidates": names,
     }
-    series = {"time": rec.time, "v_mps": v, "a_meas_mps2": a_meas, "accel_pedal": ap_raw,
-              "brake_pedal": bp_raw if has_brake else None, "zone": zid, "used": ~bad,
-              "a_model_mps2": {zones[i][0]: f.a_model for i, f in enumerate(fits) if f.fitted}}
-    return LongitudinalResult(out_zones, tau, accel_desc, report, series)

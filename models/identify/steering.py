@@ -57,6 +57,7 @@ from scipy.stats import t as student_t
 
 from hmpc.models.errors import InputError
 from hmpc.models.params import Vehicle
+from hmpc.models.plant import heading_rate, position_rates, road_wheel_angle
 from hmpc.models.logs.recording import Recording
 from hmpc.models.identify.stats import Z95, block_cov, cluster_cov, dilate, ols_hac, savgol_derivative
 
@@ -282,13 +283,14 @@ class _Replay:
         self.vz = np.where(self.inwin, v, 0.0)
 
     def predict(self, theta):
+        """Positions from eq. 7 and eq. 1 (the plant's functions), integrated by the
+        cumulative trapezoid from each window's first measured pose."""
         off, sc = theta
-        delta = off + sc * self.sw
-        w = self.vz * np.sin(delta) / self.b
+        delta = road_wheel_angle(self.sw, off, sc)
+        w = heading_rate(self.vz, delta, self.b)
         cw = np.concatenate([[0.0], np.cumsum(0.5 * self.dt * (w[1:] + w[:-1]))])
         psi = self.psi[self.start] + cw - cw[self.start]
-        ang = psi + delta
-        fx, fy = self.vz * np.cos(ang), self.vz * np.sin(ang)
+        fx, fy = position_rates(psi, self.vz, delta)
         cx = np.concatenate([[0.0], np.cumsum(0.5 * self.dt * (fx[1:] + fx[:-1]))])
         cy = np.concatenate([[0.0], np.cumsum(0.5 * self.dt * (fy[1:] + fy[:-1]))])
         xp = self.x[self.start] + cx - cx[self.start]
@@ -408,15 +410,21 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
     add("kinematic_speed_s", slow_s, cfg.min_kinematic_s, slow_s >= cfg.min_kinematic_s,
         f"{slow_s:.1f} s of trustworthy steering at or below {cfg.kinematic_speed_mps:g} m/s "
         f"(need {cfg.min_kinematic_s:g} s)")
+    # the gyro-bias check applies only to a fit that estimates a yaw-rate bias (the yaw-rate
+    # fit); for the others it is not run, and not counted, by name below
     bias_corr = fit.extra.get("offset_bias_correlation")
-    if bias_corr is not None:
+    bias_applies = bias_corr is not None
+    if bias_applies:
         add("offset_gyro_bias_correlation", abs(bias_corr), cfg.max_param_corr,
             abs(bias_corr) <= cfg.max_param_corr,
             f"|corr(offset, yaw-rate bias)| = {abs(bias_corr):.3f}")
+    # every check that applies is looked up by name: one that was not run raises KeyError,
+    # it never counts as passed
     ok = {c["name"]: c["passed"] for c in checks}
+    bias_ok = ok["offset_gyro_bias_correlation"] if bias_applies else True
     base = ok["samples"] and ok["steering_range_rad"] and ok["offset_scale_correlation"]
     scale_ok = base and ok["scale_rel_ci95"] and ok["kinematic_speed_s"]
-    offset_ok = base and ok["offset_ci95_rad"] and ok.get("offset_gyro_bias_correlation", True)
+    offset_ok = base and ok["offset_ci95_rad"] and bias_ok
     notes = []
     if not ok["samples"]:
         notes.append("too few trustworthy samples")
@@ -431,7 +439,7 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
         notes.append(f"the scale is known only to +-{100 * rel:.0f}%")
     if not ok["offset_ci95_rad"]:
         notes.append(f"the offset is known only to +-{half_o:.4f} rad")
-    if not ok.get("offset_gyro_bias_correlation", True):
+    if not bias_ok:
         notes.append("the speed range is too narrow to separate the offset from the yaw-rate "
                      "sensor's bias")
     if not ok["kinematic_speed_s"]:
@@ -448,6 +456,71 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
             "scale_identifiable": bool(scale_ok), "checks": checks, "note": note}
 
 
+@dataclass
+class SteeringSignals:
+    """The recording's channels for steering identification, and measurement (a).
+
+    Attributes:
+        sw: steering-wheel angle [rad]; fl, fr, rl, rr: wheel speeds [m/s].
+        delta_a: road-wheel angle from the front wheel speeds [rad]; v_front: front-axle-centre
+            speed [m/s]; v_rear: rear-axle-centre speed [m/s].
+        yaw: yaw rate [rad/s], None when the recording has none.
+        dt_s: sample interval [s]; b, T: wheelbase and front track [m].
+    """
+
+    sw: np.ndarray
+    fl: np.ndarray
+    fr: np.ndarray
+    rl: np.ndarray
+    rr: np.ndarray
+    delta_a: np.ndarray
+    v_front: np.ndarray
+    v_rear: np.ndarray
+    yaw: np.ndarray | None
+    dt_s: float
+    b: float
+    T: float
+
+
+@dataclass
+class SampleMasks:
+    """Which samples to trust (module doc): ``usable`` for the dead time and the replay,
+    ``steady`` (usable and no steering transient) for the direct fits; ``excluded`` counts why."""
+
+    usable: np.ndarray
+    steady: np.ndarray
+    excluded: dict
+
+
+@dataclass
+class DeadTime:
+    """Steering dead time by cross-correlation: the lag used and what it came from.
+
+    Attributes:
+        tau_s: the dead time used [s] (0 when the estimate is not trusted).
+        estimate_s, peak_corr: the best source's lag [s] and peak correlation (NaN possible).
+        used: the estimate passed ``dead_time_min_corr``; source: the best source's name.
+        by_source: source -> (lag [s], peak correlation).
+    """
+
+    tau_s: float
+    estimate_s: float
+    peak_corr: float
+    used: bool
+    source: str
+    by_source: dict[str, tuple[float, float]]
+
+    def to_dict(self, smooth_s: float) -> dict:
+        return {"estimate_s": float(self.estimate_s) if np.isfinite(self.estimate_s) else None,
+                "peak_correlation": float(self.peak_corr) if np.isfinite(self.peak_corr) else None,
+                "used": self.used, "source": self.source,
+                "by_source": {k: {"lag_s": float(v[0]) if np.isfinite(v[0]) else None,
+                                  "peak_correlation": float(v[1]) if np.isfinite(v[1])
+                                  else None} for k, v in self.by_source.items()},
+                "method": "cross-correlation of Savitzky-Golay derivatives "
+                          f"({smooth_s} s), parabolic peak"}
+
+
 def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig | None = None,
                       progress=None) -> SteeringResult:
     """Identify eq. 7 from a canonical recording (see the module doc).
@@ -460,147 +533,40 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
     """
     cfg = config or SteeringIdConfig()
     say = progress or (lambda msg: None)
-    _need(rec, "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
-          "wheel_speed_rr")
-    dt = 1.0 / rec.rate_hz
-    b, T = float(vehicle.wheelbase_m), float(vehicle.track_front_m)
-    sw = np.asarray(rec["steering_wheel_angle"], dtype=float)
-    fl, fr, rl, rr = (np.asarray(rec[c], dtype=float) for c in
-                      ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr"))
-    delta_a, v_front = road_wheel_angle_from_front(fl, fr, b, T)
-    v_rear = 0.5 * (rl + rr)
-    has_yaw = "yaw_rate" in rec
-    yaw = np.asarray(rec["yaw_rate"], dtype=float) if has_yaw else None
-
-    # ---- trustworthy samples
-    finite = np.isfinite(sw) & np.isfinite(delta_a) & np.isfinite(v_rear)
-    moving = finite & (np.nan_to_num(v_front) >= cfg.v_min_mps)
-    with np.errstate(invalid="ignore"):
-        slip = np.abs(v_rear - v_front * np.cos(delta_a)) / np.maximum(v_front, 1e-6)
-    accel = savgol_derivative(v_rear, dt, cfg.smooth_s)
-    lat = v_rear ** 2 * np.tan(np.nan_to_num(delta_a)) / b
-    sw_rate = savgol_derivative(sw, dt, cfg.smooth_s)
-    reverse = np.zeros(len(sw), dtype=bool)
-    if "gear" in rec:
-        reverse = np.asarray([str(g) == "R" for g in rec["gear"]])
-    bad_usable = ~(moving & (np.nan_to_num(slip, nan=1.0) <= cfg.slip_max)
-                   & (np.abs(np.nan_to_num(accel, nan=1e9)) <= cfg.accel_max_mps2)
-                   & (np.abs(lat) <= cfg.lat_accel_max_mps2) & ~reverse)
-    if has_yaw:
-        bad_usable |= ~np.isfinite(yaw)
-    guard = int(round(cfg.guard_s / dt))
-    usable = ~dilate(bad_usable, guard)
-    transient = np.abs(np.nan_to_num(sw_rate, nan=1e9)) > cfg.sw_rate_max_radps
-    steady0 = usable & ~dilate(transient, guard)
-    excluded = {
-        "not_moving_or_missing": int(np.sum(~moving)),
-        "wheel_slip": int(np.sum(moving & (np.nan_to_num(slip, nan=1.0) > cfg.slip_max))),
-        "longitudinal_accel": int(np.sum(moving & (np.abs(np.nan_to_num(accel, nan=0)) >
-                                                   cfg.accel_max_mps2))),
-        "lateral_accel": int(np.sum(moving & (np.abs(lat) > cfg.lat_accel_max_mps2))),
-        "reverse": int(np.sum(reverse)),
-        "steering_transient": int(np.sum(usable & ~steady0)),
-    }
-    if steady0.sum() < 20:
-        raise InputError(f"only {int(steady0.sum())} trustworthy steering samples (moving >= "
-                         f"{cfg.v_min_mps} m/s, no slip, no transients): cannot identify the "
-                         "steering map", rec.meta.get("path"), channel="steering_wheel_angle")
-    say(f"steering: {int(steady0.sum())} trustworthy samples of {len(sw)}")
-
-    # ---- dead time by cross-correlation of smoothed derivatives
-    d_sw = savgol_derivative(sw, dt, cfg.smooth_s)
-    dead = {}
-    da = savgol_derivative(delta_a, dt, cfg.smooth_s)
-    dead["wheel_speed_difference"] = xcorr_dead_time(d_sw, da, usable, dt,
-                                                     min_lag_s=cfg.dead_time_min_s,
-                                                     max_lag_s=cfg.dead_time_max_s)
-    delta_b_raw = None
-    if has_yaw:
-        delta_b_raw = road_wheel_angle_from_yaw(yaw, v_rear, b)
-        db = savgol_derivative(delta_b_raw, dt, cfg.smooth_s)
-        dead["yaw_rate"] = xcorr_dead_time(d_sw, db, usable, dt, min_lag_s=cfg.dead_time_min_s,
-                                           max_lag_s=cfg.dead_time_max_s)
-    best = max(dead.items(), key=lambda kv: (np.nan_to_num(kv[1][1], nan=-1)))
-    dead_time, dead_corr = best[1]
-    dead_ok = bool(np.isfinite(dead_time) and dead_corr >= cfg.dead_time_min_corr)
-    tau = float(dead_time) if dead_ok else 0.0
-    sw_d = delayed(sw, tau, dt)
-    steady = steady0 & np.isfinite(sw_d)
-    usable &= np.isfinite(sw_d)
-    say(f"steering: dead time {tau:.3f} s (cross-correlation peak {dead_corr:.2f}, "
-        f"from {best[0]})")
-
-    # ---- direct fits
-    fits: dict[str, MapFit] = {}
-    fits["wheel_speed_difference"] = _fit_front(delta_a, sw_d, steady)
-    start = fits["wheel_speed_difference"]
-    if has_yaw:
-        try:
-            fits["yaw_rate"] = _fit_yaw(yaw, v_rear, sw_d, steady, b,
-                                        (start.offset_rad, start.scale))
-            start = fits["yaw_rate"]
-        except ValueError:
-            pass
-    # ---- refinement by position replay
+    sig = steering_signals(rec, vehicle)
+    masks = trustworthy_samples(rec, sig, cfg)
+    say(f"steering: {int(masks.steady.sum())} trustworthy samples of {len(sig.sw)}")
+    dead = estimate_dead_time(sig, masks.usable, cfg)
+    sw_d = delayed(sig.sw, dead.tau_s, sig.dt_s)
+    steady = masks.steady & np.isfinite(sw_d)
+    usable = masks.usable & np.isfinite(sw_d)
+    say(f"steering: dead time {dead.tau_s:.3f} s (cross-correlation peak {dead.peak_corr:.2f}, "
+        f"from {dead.source})")
+    fits = direct_fits(sig, sw_d, steady)
+    start = fits["yaw_rate"] if "yaw_rate" in fits else fits["wheel_speed_difference"]
     replay = None
     if all(c in rec for c in ("x", "y", "heading")):
         say("steering: refining by eq. 1 position replay")
-        out, _ = _fit_replay(rec, v_front, sw_d, usable, dt, b, cfg,
+        out, _ = _fit_replay(rec, sig.v_front, sw_d, usable, sig.dt_s, sig.b, cfg,
                              (start.offset_rad, start.scale))
         if out is not None:
             fits["position_replay"], replay, _ = out
-    # ---- the final estimate: the first identifiable fit in the order refinement, yaw rate,
-    # wheel speeds; when none is identifiable, the one with the narrowest scale interval.
-    sw_st, v_st = sw_d[steady], v_front[steady]
-    idents = {k: identifiability(f, sw_st, v_st, dt, cfg, vehicle.steering_ratio)
-              for k, f in fits.items()}
-    order = [k for k in ("position_replay", "yaw_rate", "wheel_speed_difference") if k in fits]
-    chosen = next((k for k in order if idents[k]["identifiable"]), None)
-    if chosen is not None:
-        why = "first identifiable fit in the order position_replay, yaw_rate, wheel_speed_difference"
-    else:
-        def rel_width(k):
-            f = fits[k]
-            return (f.scale_ci95[1] - f.scale_ci95[0]) / abs(f.scale) if f.scale else np.inf
-        chosen = min(order, key=rel_width)
-        why = "no fit is identifiable: the one with the narrowest scale interval"
+    idents = {k: identifiability(f, sw_d[steady], sig.v_front[steady], sig.dt_s, cfg,
+                                 vehicle.steering_ratio) for k, f in fits.items()}
+    chosen, why = choose_fit(fits, idents)
     final = fits[chosen]
-
-    # ---- agreement of (a) and (b)
-    agreement = None
-    delta_b = None
-    if "yaw_rate" in fits:
-        bias = fits["yaw_rate"].extra["yaw_rate_bias_radps"]
-        delta_b = road_wheel_angle_from_yaw(yaw, v_rear, b, bias)
-        dd = (delta_a - delta_b)[steady]
-        fa, fb = fits["wheel_speed_difference"], fits["yaw_rate"]
-        agreement = {
-            "rms_difference_rad": float(np.sqrt(np.mean(dd ** 2))),
-            "mean_difference_rad": float(np.mean(dd)),
-            "correlation": float(np.corrcoef(delta_a[steady], delta_b[steady])[0, 1])
-            if np.std(delta_b[steady]) > 0 and np.std(delta_a[steady]) > 0 else float("nan"),
-            "offset_difference_rad": fa.offset_rad - fb.offset_rad,
-            "scale_ratio": fa.scale / fb.scale if fb.scale != 0 else float("nan"),
-        }
+    agreement, delta_b = agreement_a_b(sig, fits, steady)
     delta_model = final.offset_rad + final.scale * sw_d
-    ref = delta_b if delta_b is not None else delta_a
+    ref = delta_b if delta_b is not None else sig.delta_a
     rms_rad = float(np.sqrt(np.mean((ref - delta_model)[steady] ** 2)))
     ident = idents[chosen]
-
     report = {
         "offset_rad": final.offset_rad, "scale": final.scale,
         "offset_ci95_rad": list(final.offset_ci95_rad), "scale_ci95": list(final.scale_ci95),
         "method": final.method,
         "method_selected_because": why,
-        "dead_time_s": tau,
-        "dead_time": {"estimate_s": float(dead_time) if np.isfinite(dead_time) else None,
-                      "peak_correlation": float(dead_corr) if np.isfinite(dead_corr) else None,
-                      "used": dead_ok, "source": best[0],
-                      "by_source": {k: {"lag_s": float(v[0]) if np.isfinite(v[0]) else None,
-                                        "peak_correlation": float(v[1]) if np.isfinite(v[1])
-                                        else None} for k, v in dead.items()},
-                      "method": "cross-correlation of Savitzky-Golay derivatives "
-                                f"({cfg.smooth_s} s), parabolic peak"},
+        "dead_time_s": dead.tau_s,
+        "dead_time": dead.to_dict(cfg.smooth_s),
         "fits": {k: f.to_dict() for k, f in fits.items()},
         "agreement_a_b": agreement,
         "rms_error_rad": rms_rad,
@@ -609,30 +575,173 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
                                        "offset_identifiable": v["offset_identifiable"],
                                        "scale_identifiable": v["scale_identifiable"]}
                                    for k, v in idents.items()},
-        "samples": {"total": int(len(sw)), "usable": int(usable.sum()),
-                    "trustworthy": int(steady.sum()), "excluded": excluded},
-        "speed_range_mps": [float(np.percentile(v_front[steady], 2.5)),
-                            float(np.percentile(v_front[steady], 97.5))],
+        "samples": {"total": int(len(sig.sw)), "usable": int(usable.sum()),
+                    "trustworthy": int(steady.sum()), "excluded": masks.excluded},
+        "speed_range_mps": [float(np.percentile(sig.v_front[steady], 2.5)),
+                            float(np.percentile(sig.v_front[steady], 97.5))],
         "steering_wheel_range_rad": [float(np.percentile(sw_d[steady], 2.5)),
                                      float(np.percentile(sw_d[steady], 97.5))],
         "thresholds": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
     }
-    series = {"time": rec.time, "steering_wheel_angle": sw, "wheel_speed_fl": fl,
-              "wheel_speed_fr": fr, "turn_rate_wheels_radps": (fr - fl) / T,
-              "delta_wheels_rad": delta_a, "delta_yaw_rad": delta_b, "delta_model_rad": delta_model,
-              "trustworthy": steady}
+    series = _series(rec, sig, delta_b, delta_model, steady, replay, final)
+    return SteeringResult(
+        offset_rad=final.offset_rad, scale=final.scale, offset_ci95_rad=final.offset_ci95_rad,
+        scale_ci95=final.scale_ci95, dead_time_s=dead.tau_s, identifiable=ident["identifiable"],
+        note=ident["note"], method=final.method, rms_error_rad=rms_rad, fits=fits,
+        report=report, series=series)
+
+
+def steering_signals(rec: Recording, vehicle: Vehicle) -> SteeringSignals:
+    """The channels steering identification uses, and the road-wheel angle from the front
+    wheel speeds (measurement (a)). Raises InputError when a required channel is absent."""
+    _need(rec, "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
+          "wheel_speed_rr")
+    b, T = float(vehicle.wheelbase_m), float(vehicle.track_front_m)
+    fl, fr, rl, rr = (np.asarray(rec[c], dtype=float) for c in
+                      ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr"))
+    delta_a, v_front = road_wheel_angle_from_front(fl, fr, b, T)
+    yaw = np.asarray(rec["yaw_rate"], dtype=float) if "yaw_rate" in rec else None
+    return SteeringSignals(np.asarray(rec["steering_wheel_angle"], dtype=float), fl, fr, rl, rr,
+                           delta_a, v_front, 0.5 * (rl + rr), yaw, 1.0 / rec.rate_hz, b, T)
+
+
+def trustworthy_samples(rec: Recording, sig: SteeringSignals,
+                        cfg: SteeringIdConfig) -> SampleMasks:
+    """The samples to trust (module doc), with a count per reason of exclusion.
+
+    Raises:
+        InputError: fewer than 20 trustworthy samples.
+    """
+    dt, sw, delta_a, v_front, v_rear = sig.dt_s, sig.sw, sig.delta_a, sig.v_front, sig.v_rear
+    finite = np.isfinite(sw) & np.isfinite(delta_a) & np.isfinite(v_rear)
+    moving = finite & (np.nan_to_num(v_front) >= cfg.v_min_mps)
+    with np.errstate(invalid="ignore"):
+        slip = np.abs(v_rear - v_front * np.cos(delta_a)) / np.maximum(v_front, 1e-6)
+    accel = savgol_derivative(v_rear, dt, cfg.smooth_s)
+    lat = v_rear ** 2 * np.tan(np.nan_to_num(delta_a)) / sig.b
+    sw_rate = savgol_derivative(sw, dt, cfg.smooth_s)
+    reverse = np.zeros(len(sw), dtype=bool)
+    if "gear" in rec:
+        reverse = np.asarray([str(g) == "R" for g in rec["gear"]])
+    bad_usable = ~(moving & (np.nan_to_num(slip, nan=1.0) <= cfg.slip_max)
+                   & (np.abs(np.nan_to_num(accel, nan=1e9)) <= cfg.accel_max_mps2)
+                   & (np.abs(lat) <= cfg.lat_accel_max_mps2) & ~reverse)
+    if sig.yaw is not None:
+        bad_usable |= ~np.isfinite(sig.yaw)
+    guard = int(round(cfg.guard_s / dt))
+    usable = ~dilate(bad_usable, guard)
+    transient = np.abs(np.nan_to_num(sw_rate, nan=1e9)) > cfg.sw_rate_max_radps
+    steady = usable & ~dilate(transient, guard)
+    excluded = {
+        "not_moving_or_missing": int(np.sum(~moving)),
+        "wheel_slip": int(np.sum(moving & (np.nan_to_num(slip, nan=1.0) > cfg.slip_max))),
+        "longitudinal_accel": int(np.sum(moving & (np.abs(np.nan_to_num(accel, nan=0)) >
+                                                   cfg.accel_max_mps2))),
+        "lateral_accel": int(np.sum(moving & (np.abs(lat) > cfg.lat_accel_max_mps2))),
+        "reverse": int(np.sum(reverse)),
+        "steering_transient": int(np.sum(usable & ~steady)),
+    }
+    if steady.sum() < 20:
+        raise InputError(f"only {int(steady.sum())} trustworthy steering samples (moving >= "
+                         f"{cfg.v_min_mps} m/s, no slip, no transients): cannot identify the "
+                         "steering map", rec.meta.get("path"), channel="steering_wheel_angle")
+    return SampleMasks(usable, steady, excluded)
+
+
+def estimate_dead_time(sig: SteeringSignals, usable: np.ndarray,
+                       cfg: SteeringIdConfig) -> DeadTime:
+    """Dead time by cross-correlating the steering rate with the rate of each measured
+    road-wheel angle (wheel speeds; yaw rate when present); the best peak wins, and is used
+    only when it reaches ``dead_time_min_corr``."""
+    dt = sig.dt_s
+    d_sw = savgol_derivative(sig.sw, dt, cfg.smooth_s)
+    dead = {}
+    da = savgol_derivative(sig.delta_a, dt, cfg.smooth_s)
+    dead["wheel_speed_difference"] = xcorr_dead_time(d_sw, da, usable, dt,
+                                                     min_lag_s=cfg.dead_time_min_s,
+                                                     max_lag_s=cfg.dead_time_max_s)
+    if sig.yaw is not None:
+        delta_b_raw = road_wheel_angle_from_yaw(sig.yaw, sig.v_rear, sig.b)
+        db = savgol_derivative(delta_b_raw, dt, cfg.smooth_s)
+        dead["yaw_rate"] = xcorr_dead_time(d_sw, db, usable, dt, min_lag_s=cfg.dead_time_min_s,
+                                           max_lag_s=cfg.dead_time_max_s)
+    best = max(dead.items(), key=lambda kv: (np.nan_to_num(kv[1][1], nan=-1)))
+    dead_time, dead_corr = best[1]
+    dead_ok = bool(np.isfinite(dead_time) and dead_corr >= cfg.dead_time_min_corr)
+    return DeadTime(float(dead_time) if dead_ok else 0.0, dead_time, dead_corr, dead_ok,
+                    best[0], dead)
+
+
+def direct_fits(sig: SteeringSignals, sw_d: np.ndarray, steady: np.ndarray) -> dict[str, MapFit]:
+    """The direct fits of eq. 7: (a) on the wheel-speed angle, and (b) on the yaw rate when
+    present and it converges (started from (a))."""
+    fits: dict[str, MapFit] = {"wheel_speed_difference": _fit_front(sig.delta_a, sw_d, steady)}
+    start = fits["wheel_speed_difference"]
+    if sig.yaw is not None:
+        try:
+            fits["yaw_rate"] = _fit_yaw(sig.yaw, sig.v_rear, sw_d, steady, sig.b,
+                                        (start.offset_rad, start.scale))
+        except ValueError:
+            pass
+    return fits
+
+
+def choose_fit(fits: dict[str, MapFit], idents: dict[str, dict]) -> tuple[str, str]:
+    """The final estimate's name and why: the first identifiable fit in the order refinement,
+    yaw rate, wheel speeds; when none is identifiable, the one with the narrowest scale
+    interval."""
+    order = [k for k in ("position_replay", "yaw_rate", "wheel_speed_difference") if k in fits]
+    chosen = next((k for k in order if idents[k]["identifiable"]), None)
+    if chosen is not None:
+        return chosen, ("first identifiable fit in the order position_replay, yaw_rate, "
+                        "wheel_speed_difference")
+
+    def rel_width(k):
+        f = fits[k]
+        return (f.scale_ci95[1] - f.scale_ci95[0]) / abs(f.scale) if f.scale else np.inf
+    return min(order, key=rel_width), ("no fit is identifiable: the one with the narrowest "
+                                       "scale interval")
+
+
+def agreement_a_b(sig: SteeringSignals, fits: dict[str, MapFit],
+                  steady: np.ndarray) -> tuple[dict | None, np.ndarray | None]:
+    """How measurements (a) and (b) agree on the trustworthy samples, and (b)'s road-wheel
+    angle with the fitted gyro bias removed; (None, None) without a yaw-rate fit."""
+    if "yaw_rate" not in fits:
+        return None, None
+    bias = fits["yaw_rate"].extra["yaw_rate_bias_radps"]
+    delta_a = sig.delta_a
+    delta_b = road_wheel_angle_from_yaw(sig.yaw, sig.v_rear, sig.b, bias)
+    dd = (delta_a - delta_b)[steady]
+    fa, fb = fits["wheel_speed_difference"], fits["yaw_rate"]
+    agreement = {
+        "rms_difference_rad": float(np.sqrt(np.mean(dd ** 2))),
+        "mean_difference_rad": float(np.mean(dd)),
+        "correlation": float(np.corrcoef(delta_a[steady], delta_b[steady])[0, 1])
+        if np.std(delta_b[steady]) > 0 and np.std(delta_a[steady]) > 0 else float("nan"),
+        "offset_difference_rad": fa.offset_rad - fb.offset_rad,
+        "scale_ratio": fa.scale / fb.scale if fb.scale != 0 else float("nan"),
+    }
+    return agreement, delta_b
+
+
+def _series(rec: Recording, sig: SteeringSignals, delta_b, delta_model, steady, replay,
+            final: MapFit) -> dict:
+    """Time series for the plots (``models.report``)."""
+    series = {"time": rec.time, "steering_wheel_angle": sig.sw, "wheel_speed_fl": sig.fl,
+              "wheel_speed_fr": sig.fr, "turn_rate_wheels_radps": (sig.fr - sig.fl) / sig.T,
+              "delta_wheels_rad": sig.delta_a, "delta_yaw_rad": delta_b,
+              "delta_model_rad": delta_model, "trustworthy": steady}
     if replay is not None:
         xp, yp = replay.predict((final.offset_rad, final.scale))
         series["replay"] = {"x_pred": np.where(replay.inwin, xp, np.nan),
                             "y_pred": np.where(replay.inwin, yp, np.nan),
                             "x": np.asarray(rec["x"], float), "y": np.asarray(rec["y"], float)}
-    return SteeringResult(
-        offset_rad=final.offset_rad, scale=final.scale, offset_ci95_rad=final.offset_ci95_rad,
-        scale_ci95=final.scale_ci95, dead_time_s=tau, identifiable=ident["identifiable"],
-        note=ident["note"], method=final.method, rms_error_rad=rms_rad, fits=fits,
-        report=report, series=series)
+    return series
 
 
 __all__ = ["SteeringIdConfig", "SteeringResult", "MapFit", "identify_steering",
+           "SteeringSignals", "SampleMasks", "DeadTime", "steering_signals", "trustworthy_samples",
+           "estimate_dead_time", "direct_fits", "choose_fit", "agreement_a_b",
            "identifiability", "road_wheel_angle_from_front", "road_wheel_angle_from_yaw",
            "xcorr_dead_time", "delayed", "Z95"]

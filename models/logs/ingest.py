@@ -1,24 +1,25 @@
 """Raw logs to one canonical recording: CAN (+ DBC + signal map), GPS/INS and IMU.
 
-:func:`ingest_files` does, in order:
+:func:`ingest_files` does, in order (each step a function a test can call):
 
-1. load the DBC (``models.dbc``) and the vehicle's signal map (``models.signalmap``), validated
-   against each other;
+1. (:func:`read_can`) load the DBC (``models.dbc``) and the vehicle's signal map
+   (``models.signalmap``), validated against each other;
 2. read the CAN log (``models.canlog``) and decode only the messages the map uses
    (``models.decode``), on the buses it names; evaluate each channel's expression, convert to SI
    and apply its sign. A required channel without a sample raises :class:`InputError` naming the
    channel and the log;
-3. read the nav file (``models.nav``) and put it on the CAN clock: the offset is given, or
-   estimated by cross-correlating CAN ``speed`` with GNSS ground speed (``models.align``);
+3. (:func:`read_nav_stage`) read the nav file (``models.nav``) and put it on the CAN clock: the
+   offset is given, or estimated by cross-correlating CAN ``speed`` with GNSS ground speed
+   (``models.align``);
 4. estimate the heading mount offset (device heading minus course over ground above
    :data:`MOUNT_MIN_SPEED_MPS`) and, unless ``mount_correction=False``, subtract it from
    ``heading`` and rotate the IMU's horizontal accelerations by it, so both describe the car body;
-5. read the IMU, put it on the CAN clock (same device as the nav file: the nav offset; without
-   nav: yaw-rate cross-correlation with CAN; or given) and convert it to ISO body axes, removing
-   gravity with the nav attitude;
-6. choose one source per channel (:data:`DEFAULT_PREFERENCE`), resample everything onto a
-   uniform grid spanning the time all required CAN channels cover (``models.resample``) and
-   mark gaps.
+5. (:func:`read_imu_stage`) read the IMU, put it on the CAN clock (same device as the nav file:
+   the nav offset; without nav: yaw-rate cross-correlation with CAN; or given) and convert it to
+   ISO body axes, removing gravity with the nav attitude;
+6. choose one source per channel (:data:`DEFAULT_PREFERENCE`, :func:`choose_sources`),
+   resample everything onto a uniform grid spanning the time all required CAN channels cover
+   (:func:`grid_for`, :func:`resample_channels`, ``models.resample``) and mark gaps.
 
 The result carries the recording (``raw`` keeps each chosen channel's samples, on the CAN clock,
 before resampling), the recoverable problems, and a summary with stable keys (see
@@ -134,6 +135,50 @@ def estimate_heading_mount(t_s, heading_rad, vel_east, vel_north, *,
             "min_speed_mps": float(min_speed_mps)}
 
 
+Series = tuple[np.ndarray, np.ndarray]  # (t_s on the CAN clock, values)
+
+
+@dataclass
+class CanStage:
+    """Step 2's result: the signal map and each CAN channel's samples (before resampling)."""
+
+    smap: object                 # models.logs.signalmap.SignalMap
+    channels: dict[str, Series]  # channel -> (t_s, values), dropped samples removed
+    describe: dict[str, str]     # channel -> "can: <message.signal expression>"
+    absent: list[str]            # optional channels of the map without a usable sample
+
+
+@dataclass
+class NavStage:
+    """Step 3-4's result: nav channels on the CAN clock (heading mount-corrected if asked)."""
+
+    nav: object | None           # models.logs.nav.NavData as read, on its own clock
+    channels: dict[str, Series]
+    offset_s: float              # added to nav times to reach the CAN clock [s]
+    clock: dict | None           # OffsetEstimate.to_dict() of the nav clock
+    mount: dict | None           # estimate_heading_mount(...) + "applied"
+    checks: dict                 # clock checks by yaw rate (name -> OffsetEstimate.to_dict())
+
+
+@dataclass
+class ImuStage:
+    """Step 5's result: IMU channels in ISO body axes on the CAN clock."""
+
+    channels: dict[str, Series]
+    clock: dict | None
+    gravity: object | None       # ImuData.gravity (how gravity was removed)
+    checks: dict
+
+
+@dataclass
+class Resampled:
+    """Step 6's result: the grid and every chosen channel on it."""
+
+    channels: dict[str, np.ndarray]   # "time" and each channel on the grid
+    gaps: dict[str, list]             # channel -> [{start_s, end_s, duration_s}]
+    info: dict[str, dict]             # channel -> summary["channels"] entry
+
+
 def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
                  rate_hz: float = 50.0, clock_offset_s: float | None = None,
                  imu_offset_s: float | None = None, nav_columns: NavColumns | None = None,
@@ -179,6 +224,34 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
         ParamError: a bad signal map (unknown key/channel/message/signal/unit).
         ValueError: a non-positive ``rate_hz`` or ``gap_s``, unknown ``prefer`` entries.
     """
+    preference = _check_options(rate_hz, gap_s, prefer)
+    problems = Problems() if problems is None else problems
+    say = progress or (lambda _msg: None)
+    can = read_can(log_path, dbc_path, signals_path, problems, say)
+    nav = NavStage(None, {}, 0.0, None, None, {})
+    if nav_path is not None:
+        nav = read_nav_stage(nav_path, can.channels, problems, say, columns=nav_columns,
+                             offset_s=clock_offset_s, mount_correction=mount_correction,
+                             max_lag_s=max_lag_s)
+    imu = ImuStage({}, None, None, {})
+    if imu_path is not None:
+        imu = read_imu_stage(imu_path, can.channels, nav, problems, say, columns=imu_columns,
+                             offset_s=imu_offset_s, mount_correction=mount_correction,
+                             max_lag_s=max_lag_s)
+    raw, origin = choose_sources(can, nav.channels, imu.channels, preference, nav_path, imu_path)
+    say(f"resampling {len(raw)} channels at {rate_hz:g} Hz")
+    grid = grid_for(can, rate_hz, str(log_path))
+    _check_overlap(grid, (("nav", nav.channels, nav_path), ("IMU", imu.channels, imu_path)))
+    res = resample_channels(raw, origin, can.smap, grid, gap_s)
+    summary = _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz,
+                       can, nav, imu, res, problems)
+    meta = dict(summary)
+    meta["path"] = str(log_path)
+    return IngestResult(Recording(res.channels, raw, meta), problems, summary)
+
+
+def _check_options(rate_hz, gap_s, prefer) -> dict[str, tuple[str, ...]]:
+    """Step 0: validate the numeric options; the source preference with ``prefer`` applied."""
     if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
         raise ValueError(f"rate_hz must be a positive number, got {rate_hz!r}")
     if gap_s is not None and not (math.isfinite(gap_s) and gap_s > 0):
@@ -189,11 +262,17 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
             raise ValueError(f"cannot prefer {src!r} for {ch!r}; choices: "
                              + ", ".join(f"{c}: {'/'.join(s)}" for c, s in DEFAULT_PREFERENCE.items()))
         preference[ch] = (src,) + tuple(s for s in DEFAULT_PREFERENCE[ch] if s != src)
-    problems = Problems() if problems is None else problems
-    say = progress or (lambda _msg: None)
-    log_s = str(log_path)
+    return preference
 
-    # ------------------------------------------------------------- CAN
+
+def read_can(log_path, dbc_path, signals_path, problems: Problems,
+             say: Callable[[str], None]) -> CanStage:
+    """Steps 1-2: DBC and signal map, read and decode the CAN log, evaluate every channel.
+
+    Raises:
+        InputError: as :func:`ingest_files` (a required channel without a sample, a message on
+            several buses without ``bus:``, no channel of the map in the log).
+    """
     say(f"loading DBC {dbc_path} and signal map {signals_path}")
     db = load_dbc(dbc_path)
     smap = load_signal_map(signals_path, db)
@@ -202,158 +281,179 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
     say(f"decoding {len(frames)} frames ({', '.join(smap.messages())})")
     decoded = decode_frames(frames, db, problems, names=smap.messages(), buses=smap.buses(),
                             dbc_path=str(dbc_path))
-    can: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    can_desc: dict[str, str] = {}
-    absent: list[str] = []
+    stage = CanStage(smap, {}, {}, [])
+    log_s = str(log_path)
     for ch, cm in smap.channels.items():
         dm = decoded[cm.message] if cm.message in decoded else None
-        if dm is None or len(dm) == 0:
-            sel = np.zeros(0, bool)
-        elif cm.bus is None:
-            sel = np.ones(len(dm), bool)
-            buses = np.unique(dm.bus)
-            if len(buses) > 1:
-                raise InputError(
-                    f"message {cm.message} is on buses {', '.join(str(int(b)) for b in buses)}; "
-                    f"say which with 'bus:' in {smap.path}", log_s, channel=ch)
-        else:
-            sel = dm.bus == cm.bus
-        if not sel.any():
-            bus = "" if cm.bus is None else f" on bus {cm.bus}"
-            if cm.required:
-                raise InputError(f"required channel has no sample: message {cm.message}{bus} "
-                                 "is not in the log", log_s, channel=ch)
-            absent.append(ch)
+        series = _can_channel(ch, cm, dm, smap.path, log_s, problems)
+        if series is None:
+            stage.absent.append(ch)
             continue
-        vals = cm.evaluate({s: dm.signals[s][sel] for s in cm.expr.signals})
-        t = dm.t_s[sel]
-        where = dm.where[sel]
-        if cm.gear is not None:
-            bad = vals == ""
-            if bad.any():
-                raw_bad = np.unique(np.rint(cm.expr({s: dm.signals[s][sel][bad]
-                                                     for s in cm.expr.signals})))
-                problems.add(KIND_UNKNOWN_GEAR, log_s, where[bad][:Problems.MAX_FIRST],
-                             count=int(bad.sum()),
-                             detail=f"{ch}: raw value(s) {', '.join(f'{v:g}' for v in raw_bad[:8])}")
-        else:
-            bad = ~np.isfinite(vals)
-            if bad.any():
-                problems.add(KIND_NONFINITE_EXPR, log_s, where[bad][:Problems.MAX_FIRST],
-                             count=int(bad.sum()), detail=f"{ch} = {cm.expr.text}")
-        if bad.all():
-            if cm.required:
-                raise InputError("required channel has no valid sample (every value was dropped)",
-                                 log_s, channel=ch)
-            absent.append(ch)
-            continue
-        can[ch] = (t[~bad], vals[~bad])
-        can_desc[ch] = "can: " + cm.describe()
-    if not can:
+        stage.channels[ch] = series
+        stage.describe[ch] = "can: " + cm.describe()
+    if not stage.channels:
         raise InputError("no channel of the signal map is in the log", log_s)
+    return stage
 
-    # ------------------------------------------------------------- nav
-    nav = None
-    navc: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    clock: dict = {"reference": "CAN log", "nav": None, "imu": None, "checks": {}}
-    mount = None
-    nav_off = 0.0
-    if nav_path is not None:
-        say(f"reading nav {nav_path}")
-        nav = read_nav(nav_path, problems, nav_columns)
-        if clock_offset_s is not None:
-            est = OffsetEstimate(float(clock_offset_s), method="given")
-        elif "speed" in can and "gps_speed" in nav:
-            est = estimate_offset(*can["speed"], *nav["gps_speed"], max_lag_s=max_lag_s,
-                                  what="CAN speed vs GNSS speed")
-        else:
-            est = OffsetEstimate(0.0, method="none", ok=False,
-                                 note="no CAN speed or no GNSS speed to correlate")
-        est = _usable_offset(est, nav_path, problems)
-        nav_off = est.offset_s
-        clock["nav"] = est.to_dict()
-        for ch, (t, v) in nav.items():
-            navc[ch] = (t + nav_off, v)
-        if "heading" in nav and nav.velocity is not None:
-            tv, ve, vn = nav.velocity
-            mount = estimate_heading_mount(tv, nav["heading"][1], ve, vn)
-            if mount is not None:
-                mount["applied"] = bool(mount_correction)
-                if mount_correction:
-                    th, h = navc["heading"]
-                    navc["heading"] = (th, _wrap(h - mount["offset_rad"]))
-        if "heading" in navc and "yaw_rate" in can:
-            th, h = navc["heading"]
-            hr = np.gradient(np.unwrap(h), th)
-            chk = estimate_offset(*can["yaw_rate"], th, hr, max_lag_s=max_lag_s,
-                                  what="CAN yaw rate vs nav heading rate")
-            clock["checks"]["nav_residual_by_yaw_rate"] = chk.to_dict()
 
-    # ------------------------------------------------------------- IMU
-    imuc: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    gravity = None
-    if imu_path is not None:
-        say(f"reading IMU {imu_path}")
-        raw_imu = read_imu_raw(imu_path, problems, imu_columns)
-        if imu_offset_s is not None:
-            iest = OffsetEstimate(float(imu_offset_s), method="given")
-        elif nav is not None:
-            iest = OffsetEstimate(nav_off, clock["nav"]["correlation_peak"] or float("nan"),
-                                  method="same device as nav", ok=True)
-        elif "yaw_rate" in can:
-            iest = estimate_offset(*can["yaw_rate"], raw_imu.t_s, raw_imu.yaw_rate_device(),
-                                   max_lag_s=max_lag_s, what="CAN yaw rate vs IMU yaw rate")
-        else:
-            iest = OffsetEstimate(0.0, method="none", ok=False,
-                                  note="no nav file and no CAN yaw rate to correlate")
-        iest = _usable_offset(iest, imu_path, problems)
-        imu_off = iest.offset_s
-        clock["imu"] = iest.to_dict()
-        attitude = None
-        if nav is not None and "roll" in nav and "pitch" in nav:
-            tr = nav["roll"][0] + nav_off - imu_off  # nav times on the IMU's clock
-            attitude = (tr, nav["roll"][1], nav["pitch"][1])
-        body = imu_to_body(raw_imu, attitude)
-        gravity = body.gravity
-        for ch, (t, v) in body.items():
-            imuc[ch] = (t + imu_off, v)
-        if mount is not None and mount_correction:
-            d = mount["offset_rad"]
-            t, ax = imuc["accel_x"]
-            _, ay = imuc["accel_y"]
-            c, s = math.cos(d), math.sin(d)
-            imuc["accel_x"] = (t, c * ax - s * ay)
-            imuc["accel_y"] = (t, s * ax + c * ay)
-        if "heading" in navc:
-            th, h = navc["heading"]
-            chk = estimate_offset(th, np.gradient(np.unwrap(h), th), *imuc["yaw_rate"],
-                                  max_lag_s=max_lag_s, what="nav heading rate vs IMU yaw rate")
-            clock["checks"]["imu_residual_vs_nav_by_yaw_rate"] = chk.to_dict()
+def _can_channel(ch: str, cm, dm, map_path, log_s: str, problems: Problems) -> Series | None:
+    """One signal-map channel from its decoded message ``dm``: (t_s, values) with the dropped
+    samples (NaN/inf expression, unknown gear) counted and removed; None when an optional
+    channel has no valid sample. A required one raises InputError instead."""
+    if dm is None or len(dm) == 0:
+        sel = np.zeros(0, bool)
+    elif cm.bus is None:
+        sel = np.ones(len(dm), bool)
+        buses = np.unique(dm.bus)
+        if len(buses) > 1:
+            raise InputError(
+                f"message {cm.message} is on buses {', '.join(str(int(b)) for b in buses)}; "
+                f"say which with 'bus:' in {map_path}", log_s, channel=ch)
+    else:
+        sel = dm.bus == cm.bus
+    if not sel.any():
+        bus = "" if cm.bus is None else f" on bus {cm.bus}"
+        if cm.required:
+            raise InputError(f"required channel has no sample: message {cm.message}{bus} "
+                             "is not in the log", log_s, channel=ch)
+        return None
+    vals = cm.evaluate({s: dm.signals[s][sel] for s in cm.expr.signals})
+    t = dm.t_s[sel]
+    where = dm.where[sel]
+    if cm.gear is not None:
+        bad = vals == ""
+        if bad.any():
+            raw_bad = np.unique(np.rint(cm.expr({s: dm.signals[s][sel][bad]
+                                                 for s in cm.expr.signals})))
+            problems.add(KIND_UNKNOWN_GEAR, log_s, where[bad][:Problems.MAX_FIRST],
+                         count=int(bad.sum()),
+                         detail=f"{ch}: raw value(s) {', '.join(f'{v:g}' for v in raw_bad[:8])}")
+    else:
+        bad = ~np.isfinite(vals)
+        if bad.any():
+            problems.add(KIND_NONFINITE_EXPR, log_s, where[bad][:Problems.MAX_FIRST],
+                         count=int(bad.sum()), detail=f"{ch} = {cm.expr.text}")
+    if bad.all():
+        if cm.required:
+            raise InputError("required channel has no valid sample (every value was dropped)",
+                             log_s, channel=ch)
+        return None
+    return t[~bad], vals[~bad]
 
-    # ------------------------------------------------------------- choose sources
-    by_source = {"can": can, "nav": navc, "imu": imuc}
-    raw: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+def read_nav_stage(nav_path, can: dict[str, Series], problems: Problems,
+                   say: Callable[[str], None], *, columns: NavColumns | None,
+                   offset_s: float | None, mount_correction: bool, max_lag_s: float) -> NavStage:
+    """Steps 3-4: read the nav file, put it on the CAN clock (``offset_s`` given, or CAN speed
+    against GNSS speed), estimate the heading mount offset and remove it if asked."""
+    say(f"reading nav {nav_path}")
+    nav = read_nav(nav_path, problems, columns)
+    if offset_s is not None:
+        est = OffsetEstimate(float(offset_s), method="given")
+    elif "speed" in can and "gps_speed" in nav:
+        est = estimate_offset(*can["speed"], *nav["gps_speed"], max_lag_s=max_lag_s,
+                              what="CAN speed vs GNSS speed")
+    else:
+        est = OffsetEstimate(0.0, method="none", ok=False,
+                             note="no CAN speed or no GNSS speed to correlate")
+    est = _usable_offset(est, nav_path, problems)
+    stage = NavStage(nav, {ch: (t + est.offset_s, v) for ch, (t, v) in nav.items()},
+                     est.offset_s, est.to_dict(), None, {})
+    if "heading" in nav and nav.velocity is not None:
+        tv, ve, vn = nav.velocity
+        stage.mount = estimate_heading_mount(tv, nav["heading"][1], ve, vn)
+        if stage.mount is not None:
+            stage.mount["applied"] = bool(mount_correction)
+            if mount_correction:
+                th, h = stage.channels["heading"]
+                stage.channels["heading"] = (th, _wrap(h - stage.mount["offset_rad"]))
+    if "heading" in stage.channels and "yaw_rate" in can:
+        th, h = stage.channels["heading"]
+        hr = np.gradient(np.unwrap(h), th)
+        chk = estimate_offset(*can["yaw_rate"], th, hr, max_lag_s=max_lag_s,
+                              what="CAN yaw rate vs nav heading rate")
+        stage.checks["nav_residual_by_yaw_rate"] = chk.to_dict()
+    return stage
+
+
+def read_imu_stage(imu_path, can: dict[str, Series], nav: NavStage, problems: Problems,
+                   say: Callable[[str], None], *, columns: ImuColumns | None,
+                   offset_s: float | None, mount_correction: bool, max_lag_s: float) -> ImuStage:
+    """Step 5: read the IMU, put it on the CAN clock (given; the nav offset, same device; or
+    CAN yaw rate against the IMU's), convert to ISO body axes with the nav attitude, and rotate
+    the accelerations by the heading mount offset when it was removed from the heading."""
+    say(f"reading IMU {imu_path}")
+    raw_imu = read_imu_raw(imu_path, problems, columns)
+    if offset_s is not None:
+        est = OffsetEstimate(float(offset_s), method="given")
+    elif nav.nav is not None:
+        est = OffsetEstimate(nav.offset_s, nav.clock["correlation_peak"] or float("nan"),
+                             method="same device as nav", ok=True)
+    elif "yaw_rate" in can:
+        est = estimate_offset(*can["yaw_rate"], raw_imu.t_s, raw_imu.yaw_rate_device(),
+                              max_lag_s=max_lag_s, what="CAN yaw rate vs IMU yaw rate")
+    else:
+        est = OffsetEstimate(0.0, method="none", ok=False,
+                             note="no nav file and no CAN yaw rate to correlate")
+    est = _usable_offset(est, imu_path, problems)
+    imu_off = est.offset_s
+    attitude = None
+    if nav.nav is not None and "roll" in nav.nav and "pitch" in nav.nav:
+        tr = nav.nav["roll"][0] + nav.offset_s - imu_off  # nav times on the IMU's clock
+        attitude = (tr, nav.nav["roll"][1], nav.nav["pitch"][1])
+    body = imu_to_body(raw_imu, attitude)
+    stage = ImuStage({ch: (t + imu_off, v) for ch, (t, v) in body.items()}, est.to_dict(),
+                     body.gravity, {})
+    if nav.mount is not None and mount_correction:
+        d = nav.mount["offset_rad"]
+        t, ax = stage.channels["accel_x"]
+        _, ay = stage.channels["accel_y"]
+        c, s = math.cos(d), math.sin(d)
+        stage.channels["accel_x"] = (t, c * ax - s * ay)
+        stage.channels["accel_y"] = (t, s * ax + c * ay)
+    if "heading" in nav.channels:
+        th, h = nav.channels["heading"]
+        chk = estimate_offset(th, np.gradient(np.unwrap(h), th), *stage.channels["yaw_rate"],
+                              max_lag_s=max_lag_s, what="nav heading rate vs IMU yaw rate")
+        stage.checks["imu_residual_vs_nav_by_yaw_rate"] = chk.to_dict()
+    return stage
+
+
+def choose_sources(can: CanStage, navc: dict[str, Series], imuc: dict[str, Series],
+                   preference: dict[str, tuple[str, ...]], nav_path, imu_path
+                   ) -> tuple[dict[str, Series], dict[str, str]]:
+    """Step 6a: one source per channel, in CONVENTIONS order: (raw samples, source text)."""
+    by_source = {"can": can.channels, "nav": navc, "imu": imuc}
+    raw: dict[str, Series] = {}
     origin: dict[str, str] = {}
-    names = set(can) | set(navc) | set(imuc)
+    names = set(can.channels) | set(navc) | set(imuc)
     for ch in [c for c in CHANNELS if c in names]:
-        order = preference.get(ch, SOURCES)
-        for src in order:
+        for src in preference.get(ch, SOURCES):
             if ch in by_source[src]:
                 raw[ch] = by_source[src][ch]
-                origin[ch] = can_desc[ch] if src == "can" else f"{src}: {_path_of(src, nav_path, imu_path)}"
+                origin[ch] = (can.describe[ch] if src == "can"
+                              else f"{src}: {_path_of(src, nav_path, imu_path)}")
                 break
+    return raw, origin
 
-    # ------------------------------------------------------------- grid and resampling
-    say(f"resampling {len(raw)} channels at {rate_hz:g} Hz")
-    # the grid spans the required CAN channels (all CAN channels if none is required), so its
-    # first and last rows hold every required channel; other channels are NaN outside their span
-    core = [can[c] for c in smap.required() if c in can] or list(can.values())
+
+def grid_for(can: CanStage, rate_hz: float, log_s: str) -> np.ndarray:
+    """Step 6b: the uniform grid [s] over the time every required CAN channel covers (all CAN
+    channels if none is required), so its first and last rows hold every required channel;
+    other channels are NaN outside their span."""
+    core = [can.channels[c] for c in can.smap.required() if c in can.channels] \
+        or list(can.channels.values())
     t_start = max(float(t[0]) for t, _ in core)
     t_end = min(float(t[-1]) for t, _ in core)
     if t_end <= t_start:
         raise InputError("the required channels do not overlap in time", log_s)
-    grid = make_grid(t_start, t_end, float(rate_hz))
-    for src, chans, path in (("nav", navc, nav_path), ("IMU", imuc, imu_path)):
+    return make_grid(t_start, t_end, float(rate_hz))
+
+
+def _check_overlap(grid: np.ndarray, others) -> None:
+    """A nav or IMU file that misses the grid entirely means a wrong clock: InputError."""
+    t_start, t_end = float(grid[0]), float(grid[-1])
+    for src, chans, path in others:
         if chans:
             t = next(iter(chans.values()))[0]
             if t[-1] < t_start or t[0] > t_end:
@@ -361,9 +461,12 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
                     f"the {src} file does not overlap the CAN log in time ({src} "
                     f"{t[0]:.3f}..{t[-1]:.3f} s, CAN {t_start:.3f}..{t_end:.3f} s on the CAN clock); "
                     "give the clock offset (--clock-offset / --imu-offset)", str(path))
-    channels: dict[str, np.ndarray] = {"time": grid}
-    gaps: dict[str, list] = {}
-    chan_info: dict[str, dict] = {}
+
+
+def resample_channels(raw: dict[str, Series], origin: dict[str, str], smap, grid: np.ndarray,
+                      gap_s: float | None) -> Resampled:
+    """Step 6c: every chosen channel on the grid (kind by channel and source), gaps marked."""
+    out = Resampled({"time": grid}, {}, {})
     for ch, (t, v) in raw.items():
         if ch in STRING_CHANNELS:
             kind = "string"
@@ -373,33 +476,42 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
             kind = smap.channels[ch].resample
         else:
             kind = "linear"
-        out, g = resample(t, v, grid, kind, gap_s)
-        channels[ch] = out
+        values, g = resample(t, v, grid, kind, gap_s)
+        out.channels[ch] = values
         if g:
-            gaps[ch] = [x.to_dict() for x in g]
-        valid = (out != "") if ch in STRING_CHANNELS else np.isfinite(out)
+            out.gaps[ch] = [x.to_dict() for x in g]
+        valid = (values != "") if ch in STRING_CHANNELS else np.isfinite(values)
         d = np.diff(t)
-        chan_info[ch] = {
+        out.info[ch] = {
             "unit": CHANNELS[ch], "source": origin[ch], "resample": kind,
             "raw_samples": int(len(t)),
             "raw_rate_hz": float(1.0 / np.median(d)) if len(d) and np.median(d) > 0 else None,
             "valid_fraction": float(np.mean(valid)) if len(valid) else 0.0,
             "gap_threshold_s": gap_threshold_s(t, gap_s),
         }
+    return out
 
-    # ------------------------------------------------------------- summary
-    speed_vs_gps = None
-    if "speed" in raw and "gps_speed" in raw:
-        a, b = channels["speed"], channels["gps_speed"]
-        m = np.isfinite(a) & np.isfinite(b) & (b > MOUNT_MIN_SPEED_MPS)
-        if m.sum() >= 10:
-            speed_vs_gps = {"ratio_mean": float(np.mean(a[m]) / np.mean(b[m])),
-                            "rms_difference_mps": float(np.sqrt(np.mean((a[m] - b[m]) ** 2))),
-                            "samples": int(m.sum())}
-    speed_source = None
-    if "speed" in smap.channels:
-        speed_source = smap.channels["speed"].describe()
-    summary = {
+
+def speed_vs_gps(channels: dict[str, np.ndarray]) -> dict | None:
+    """CAN ``speed`` against GNSS ground speed above :data:`MOUNT_MIN_SPEED_MPS` (>= 10 rows)."""
+    if "speed" not in channels or "gps_speed" not in channels:
+        return None
+    a, b = channels["speed"], channels["gps_speed"]
+    m = np.isfinite(a) & np.isfinite(b) & (b > MOUNT_MIN_SPEED_MPS)
+    if m.sum() < 10:
+        return None
+    return {"ratio_mean": float(np.mean(a[m]) / np.mean(b[m])),
+            "rms_difference_mps": float(np.sqrt(np.mean((a[m] - b[m]) ** 2))),
+            "samples": int(m.sum())}
+
+
+def _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz: float,
+             can: CanStage, nav: NavStage, imu: ImuStage, res: Resampled,
+             problems: Problems) -> dict:
+    """Step 7: the summary with the stable keys listed in :func:`ingest_files`."""
+    smap, grid, navd = can.smap, res.channels["time"], nav.nav
+    speed_source = smap.channels["speed"].describe() if "speed" in smap.channels else None
+    return {
         "hmpc_version": __version__,
         "vehicle": smap.vehicle,
         "sources": {"log": _source(log_path), "dbc": _source(dbc_path),
@@ -410,22 +522,19 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
         "duration_s": float(grid[-1] - grid[0]),
         "rate_hz": float(rate_hz),
         "samples": int(len(grid)),
-        "channels": chan_info,
-        "channels_absent": absent,
+        "channels": res.info,
+        "channels_absent": can.absent,
         "speed_source": speed_source,
-        "speed_vs_gps": speed_vs_gps,
-        "clock": clock,
-        "heading_mount": mount,
-        "imu_gravity": gravity,
-        "nav_origin": None if nav is None or nav.origin is None else
-        {"lat_deg": nav.origin[0], "lon_deg": nav.origin[1], "alt_m": nav.origin[2]},
-        "gaps": gaps,
+        "speed_vs_gps": speed_vs_gps(res.channels),
+        "clock": {"reference": "CAN log", "nav": nav.clock, "imu": imu.clock,
+                  "checks": {**nav.checks, **imu.checks}},
+        "heading_mount": nav.mount,
+        "imu_gravity": imu.gravity,
+        "nav_origin": None if navd is None or navd.origin is None else
+        {"lat_deg": navd.origin[0], "lon_deg": navd.origin[1], "alt_m": navd.origin[2]},
+        "gaps": res.gaps,
         "problems": {"total": int(problems.total()), "items": problems.to_list()},
     }
-    meta = dict(summary)
-    meta["path"] = log_s
-    rec = Recording(channels, raw, meta)
-    return IngestResult(rec, problems, summary)
 
 
 def _path_of(src: str, nav_path, imu_path) -> str:

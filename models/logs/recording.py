@@ -1,5 +1,9 @@
 """The canonical recording: one table, a column per channel, on a uniform time grid.
 
+:class:`Recording` is the in-memory table and its access; reading and validating a file
+(:func:`read_channels`) and writing one (:func:`write_csv`, :func:`write_parquet`) are functions
+beside it.
+
 Channel names and units are those of ``../shared/CONVENTIONS.md`` (see ``models.channels``).
 Columns not available are absent, never zero-filled. Samples inside a gap longer than the
 ingest threshold are NaN (``""`` for ``gear``), and the gaps are listed in ``meta['gaps']``.
@@ -69,33 +73,12 @@ class Recording:
 
     # ------------------------------------------------------------------ I/O
     def to_csv(self, path: str | Path) -> None:
-        """Write the canonical CSV (columns in CONVENTIONS order, unknown extras last)."""
-        names = [c for c in CHANNELS if c in self.channels]
-        names += [c for c in self.channels if c not in CHANNELS]
-        path = Path(path)
-        opener = gzip.open if path.suffix == ".gz" else open
-        with opener(path, "wt", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(names)
-            cols = []
-            for n in names:
-                v = self.channels[n]
-                if n in STRING_CHANNELS:
-                    cols.append([str(s) for s in v])
-                elif n == "time":
-                    cols.append([f"{x:.6f}" for x in v])
-                else:
-                    cols.append([("" if math.isnan(x) else repr(float(x))) for x in v.astype(float)])
-            w.writerows(zip(*cols))
+        """Write the canonical CSV (see :func:`write_csv`)."""
+        write_csv(self.channels, path)
 
     def to_parquet(self, path: str | Path) -> None:
-        try:
-            import pyarrow as pa
-            import pyarrow.parquet as pq
-        except ImportError:  # optional dependency
-            raise InputError("writing Parquet needs pyarrow (pip install 'hmpc[parquet]')",
-                             str(path)) from None
-        pq.write_table(pa.table({k: v for k, v in self.channels.items()}), str(path))
+        """Write Parquet (see :func:`write_parquet`)."""
+        write_parquet(self.channels, path)
 
     def save(self, path: str | Path) -> None:
         """Write CSV, or Parquet when the name ends in .parquet."""
@@ -106,73 +89,125 @@ class Recording:
 
     @classmethod
     def load(cls, path: str | Path, *, allow_extra: bool = False) -> "Recording":
-        """Read a canonical recording (CSV, CSV.gz or Parquet).
+        """Read a canonical recording (CSV, CSV.gz or Parquet); see :func:`read_channels`."""
+        return cls(read_channels(path, allow_extra=allow_extra), {}, {"path": str(Path(path))})
 
-        Raises InputError for a missing or empty file, unknown columns (unless
-        ``allow_extra``), non-numeric values, or a time column that is not strictly increasing.
-        """
-        path = Path(path)
-        if not path.exists():
-            raise InputError("no such file", str(path))
-        if path.suffix == ".parquet":
-            try:
-                import pyarrow.parquet as pq
-            except ImportError:
-                raise InputError("reading Parquet needs pyarrow", str(path)) from None
-            tab = pq.read_table(str(path))
-            cols = {n: tab.column(n).to_numpy() for n in tab.column_names}
-            header = list(cols)
-            rows_as_cols = {n: [str(x) for x in cols[n]] for n in header}
-            first_line = None
-        else:
-            opener = gzip.open if path.suffix == ".gz" else open
-            try:
-                with opener(path, "rt", newline="") as fh:
-                    text = fh.read()
-            except (OSError, UnicodeDecodeError) as exc:
-                raise InputError(f"cannot read as text ({exc.__class__.__name__})", str(path)) from None
-            reader = csv.reader(io.StringIO(text))
-            try:
-                header = [h.strip() for h in next(reader)]
-            except StopIteration:
-                raise InputError("empty file", str(path)) from None
-            rows = list(reader)
-            first_line = 2
-            for i, r in enumerate(rows):
-                if len(r) != len(header):
-                    raise InputError(f"expected {len(header)} fields, found {len(r)}", str(path),
-                                     line=i + 2)
-            rows_as_cols = {n: [r[j] for r in rows] for j, n in enumerate(header)}
-        if "time" not in header:
-            raise InputError("no 'time' column: not a canonical recording", str(path), channel="time")
-        unknown = [h for h in header if h not in CHANNELS]
-        if unknown and not allow_extra:
-            raise InputError("unknown column (not a canonical channel)", str(path), channel=unknown[0])
-        channels: dict[str, np.ndarray] = {}
-        for n in header:
-            vals = rows_as_cols[n]
+
+# ---------------------------------------------------------------------- writing
+def write_csv(channels: dict[str, np.ndarray], path: str | Path) -> None:
+    """Write the canonical CSV (columns in CONVENTIONS order, unknown extras last)."""
+    names = [c for c in CHANNELS if c in channels]
+    names += [c for c in channels if c not in CHANNELS]
+    path = Path(path)
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "wt", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(names)
+        cols = []
+        for n in names:
+            v = channels[n]
             if n in STRING_CHANNELS:
-                channels[n] = np.array(vals, dtype=object)
-                continue
-            try:
-                channels[n] = np.array([float(v) if v != "" else np.nan for v in vals])
-            except ValueError:
-                bad = next(i for i, v in enumerate(vals) if not _is_float(v))
-                raise InputError(f"value {vals[bad]!r} is not a number", str(path),
-                                 line=None if first_line is None else bad + first_line,
-                                 channel=n) from None
-        t = channels["time"]
-        if len(t) == 0:
-            raise InputError("no rows", str(path))
-        if not np.all(np.isfinite(t)):
-            bad = int(np.flatnonzero(~np.isfinite(t))[0])
-            raise InputError("time is not finite", str(path), line=bad + 2, channel="time")
-        d = np.diff(t)
-        if np.any(d <= 0):
-            bad = int(np.flatnonzero(d <= 0)[0]) + 1
-            raise InputError("time is not strictly increasing", str(path), line=bad + 2,
-                             channel="time")
-        return cls(channels, {}, {"path": str(path)})
+                cols.append([str(s) for s in v])
+            elif n == "time":
+                cols.append([f"{x:.6f}" for x in v])
+            else:
+                cols.append([("" if math.isnan(x) else repr(float(x))) for x in v.astype(float)])
+        w.writerows(zip(*cols))
+
+
+def write_parquet(channels: dict[str, np.ndarray], path: str | Path) -> None:
+    """Write the channels as a Parquet table (needs the optional pyarrow)."""
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError:  # optional dependency
+        raise InputError("writing Parquet needs pyarrow (pip install 'hmpc[parquet]')",
+                         str(path)) from None
+    pq.write_table(pa.table({k: v for k, v in channels.items()}), str(path))
+
+
+# ---------------------------------------------------------------------- reading and validation
+def read_channels(path: str | Path, *, allow_extra: bool = False) -> dict[str, np.ndarray]:
+    """The channels of a canonical recording file (CSV, CSV.gz or Parquet), validated.
+
+    Raises InputError for a missing or empty file, unknown columns (unless
+    ``allow_extra``), non-numeric values, or a time column that is not strictly increasing.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError("no such file", str(path))
+    if path.suffix == ".parquet":
+        header, text_cols, first_line = _read_parquet_text(path)
+    else:
+        header, text_cols, first_line = _read_csv_text(path)
+    if "time" not in header:
+        raise InputError("no 'time' column: not a canonical recording", str(path), channel="time")
+    unknown = [h for h in header if h not in CHANNELS]
+    if unknown and not allow_extra:
+        raise InputError("unknown column (not a canonical channel)", str(path), channel=unknown[0])
+    channels = {n: _parse_column(n, text_cols[n], path, first_line) for n in header}
+    _check_time(channels["time"], path)
+    return channels
+
+
+def _read_parquet_text(path: Path) -> tuple[list[str], dict[str, list[str]], None]:
+    """Header and columns as text of a Parquet file (no line numbers: the third item is None)."""
+    try:
+        import pyarrow.parquet as pq
+    except ImportError:
+        raise InputError("reading Parquet needs pyarrow", str(path)) from None
+    tab = pq.read_table(str(path))
+    cols = {n: tab.column(n).to_numpy() for n in tab.column_names}
+    header = list(cols)
+    return header, {n: [str(x) for x in cols[n]] for n in header}, None
+
+
+def _read_csv_text(path: Path) -> tuple[list[str], dict[str, list[str]], int]:
+    """Header and columns as text of a CSV (or .gz) file, and the line of the first row (2)."""
+    opener = gzip.open if path.suffix == ".gz" else open
+    try:
+        with opener(path, "rt", newline="") as fh:
+            text = fh.read()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read as text ({exc.__class__.__name__})", str(path)) from None
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = [h.strip() for h in next(reader)]
+    except StopIteration:
+        raise InputError("empty file", str(path)) from None
+    rows = list(reader)
+    for i, r in enumerate(rows):
+        if len(r) != len(header):
+            raise InputError(f"expected {len(header)} fields, found {len(r)}", str(path),
+                             line=i + 2)
+    return header, {n: [r[j] for r in rows] for j, n in enumerate(header)}, 2
+
+
+def _parse_column(name: str, vals: list[str], path: Path, first_line: int | None) -> np.ndarray:
+    """A column's text as its array: strings for string channels, floats ("" is NaN) else."""
+    if name in STRING_CHANNELS:
+        return np.array(vals, dtype=object)
+    try:
+        return np.array([float(v) if v != "" else np.nan for v in vals])
+    except ValueError:
+        bad = next(i for i, v in enumerate(vals) if not _is_float(v))
+        raise InputError(f"value {vals[bad]!r} is not a number", str(path),
+                         line=None if first_line is None else bad + first_line,
+                         channel=name) from None
+
+
+def _check_time(t: np.ndarray, path: Path) -> None:
+    """The time column must have rows, be finite and strictly increase."""
+    if len(t) == 0:
+        raise InputError("no rows", str(path))
+    if not np.all(np.isfinite(t)):
+        bad = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise InputError("time is not finite", str(path), line=bad + 2, channel="time")
+    d = np.diff(t)
+    if np.any(d <= 0):
+        bad = int(np.flatnonzero(d <= 0)[0]) + 1
+        raise InputError("time is not strictly increasing", str(path), line=bad + 2,
+                         channel="time")
 
 
 def _is_float(v: str) -> bool:

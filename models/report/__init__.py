@@ -1,3 +1,3 @@
-"""Figures (and later HTML reports) of recordings and fits. matplotlib is imported lazily,
-with the Agg backend chosen by the caller; imports the other hmpc.models stages only.
+"""Figures (and later HTML reports) of recordings and fits, each on its own Agg canvas (no
+backend set, no pyplot: ``figure.new_figure``); imports the other hmpc.models stages only.
 """

@@ -1,4 +1,4 @@
-"""Figures of an identification, laid out like the report's Figs. 2-5 (matplotlib, Agg backend).
+"""Figures of an identification, laid out like the report's Figs. 2-5 (matplotlib, own Agg canvas).
 
 - ``fig2_steering.png`` (Fig. 2): turn rate from the front wheel-speed difference (eq. 5),
   the front wheel speeds, the steering-wheel angle, and the model's road-wheel angle (eq. 7)
@@ -15,11 +15,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from hmpc.models.report.figure import new_figure, save_png
 
 
 _REPORT_FIG = {0: "fig3", 1: "fig4", 2: "fig5"}
@@ -35,7 +33,7 @@ def plot_steering(result, path: str | Path) -> str:
     s = result.steering.series
     t = _t(s)
     st = result.steering
-    fig, ax = plt.subplots(5, 1, figsize=(10, 11), sharex=True)
+    fig, ax = new_figure(5, 1, figsize=(10, 11), sharex=True)
     ax[0].plot(t, s["turn_rate_wheels_radps"], lw=0.7)
     ax[0].set_ylabel("turn rate, eq. 5 [rad/s]")
     ax[0].set_title("front wheel-speed difference / track width")
@@ -74,7 +72,7 @@ def plot_replay(result, path: str | Path) -> str | None:
     rp = result.steering.series.get("replay")
     if rp is None:
         return None
-    fig, ax = plt.subplots(figsize=(8, 8))
+    fig, ax = new_figure(figsize=(8, 8))
     ax.plot(rp["x"], rp["y"], lw=0.8, color="0.5", label="measured (INS/GNSS)")
     ax.plot(rp["x_pred"], rp["y_pred"], lw=1.0, color="C3", label="eq. 1 replay from each window start")
     ax.set_xlabel("east x [m]")
@@ -101,7 +99,7 @@ def plot_zone(result, zone_index: int, path: str | Path) -> str | None:
     used = np.asarray(s["used"], dtype=bool) & (np.asarray(s["zone"]) == zone_index)
     a_meas = np.where(used, s["a_meas_mps2"], np.nan)
     a_mod = np.where(used, a_model_all, np.nan)
-    fig, ax = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    fig, ax = new_figure(3, 1, figsize=(10, 8), sharex=True)
     ax[0].plot(t, s["accel_pedal"], lw=0.8, label="accelerator pedal [0..1]")
     if s.get("brake_pedal") is not None:
         ax[0].plot(t, s["brake_pedal"], lw=0.8, label="brake pedal [0..1]")
@@ -155,11 +153,8 @@ def plot_zone(result, zone_index: int, path: str | Path) -> str | None:
 
 
 def _save(fig, path: str | Path) -> str:
-    """Lay out, write the PNG and free the figure."""
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return str(path)
+    """Lay out and write the PNG."""
+    return save_png(fig, path, dpi=100)
 
 
 def write_plots(result, out_dir: str | Path) -> list[str]:

@@ -1,13 +1,10 @@
 """Overview figure of a canonical recording: what a user looks at first after ingest."""
 from __future__ import annotations
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from hmpc.models.logs.recording import Recording  # noqa: E402
+from hmpc.models.logs.recording import Recording
+from hmpc.models.report.figure import new_figure, save_png
 
 
 def plot_overview(rec: Recording, path: str, title: str = "") -> str:
@@ -30,7 +27,7 @@ def plot_overview(rec: Recording, path: str, title: str = "") -> str:
         panels.append(("longitudinal accel [m/s^2]", [("accel_x", rec["accel_x"])]))
     has_track = "x" in rec and "y" in rec
     n = len(panels) + (1 if has_track else 0)
-    fig, axes = plt.subplots(n, 1, figsize=(10, 2.2 * n), squeeze=False)
+    fig, axes = new_figure(n, 1, figsize=(10, 2.2 * n), squeeze=False)
     axes = axes[:, 0]
     for ax, (label, series) in zip(axes, panels):
         for name, values in series:
@@ -49,7 +46,5 @@ def plot_overview(rec: Recording, path: str, title: str = "") -> str:
         ax.set_title("track in local ENU")
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
     return path

@@ -62,14 +62,33 @@ from scipy.signal import lfilter
 
 KPH_PER_MPS = 3.6
 
-#: the RAV4's engine: warm idle speed [1/min] (2.5 l 2AR-FE idles at about 700 rpm).
-IDLE_RPM = 700.0
-#: 6-speed automatic (U760E) gear ratios and final drive, tyre 225/65 R17 rolling radius [m].
-GEAR_RATIOS = (3.300, 1.900, 1.420, 1.000, 0.713, 0.608)
-FINAL_DRIVE = 3.815
-TYRE_RADIUS_M = 0.362
-#: upshift speeds [m/s] at light throttle (1-2, 2-3, 3-4, 4-5, 5-6); a full pedal delays them x1.6.
-UPSHIFT_MPS = (4.0, 7.0, 10.0, 14.0, 18.0)
+
+@dataclass(frozen=True)
+class Drivetrain:
+    """Engine and gearbox of :func:`engine_rpm`. ``params.Vehicle`` has no drivetrain fields, so
+    these are the 2017 RAV4's, the car the sensor models copy; the tyre radius comes from the
+    Vehicle (:func:`wheel_radius_m`)."""
+
+    #: warm idle speed [1/min] (the 2.5 l 2AR-FE idles at about 700 rpm).
+    idle_rpm: float = 700.0
+    #: 6-speed automatic (U760E) gear ratios and final drive.
+    gear_ratios: tuple[float, ...] = (3.300, 1.900, 1.420, 1.000, 0.713, 0.608)
+    final_drive: float = 3.815
+    #: upshift speeds [m/s] at light throttle (1-2, 2-3, 3-4, 4-5, 5-6); a full pedal delays
+    #: them x1.6.
+    upshift_mps: tuple[float, ...] = (4.0, 7.0, 10.0, 14.0, 18.0)
+
+
+RAV4_DRIVETRAIN = Drivetrain()
+#: tyre rolling radius [m] used only when the Vehicle gives no ``wheel_radius_m`` (the RAV4's
+#: 225/65 R17: 17 in / 2 + 0.65 x 225 mm, unloaded; ``params/toyota_rav4_2017.yaml`` has it).
+DEFAULT_WHEEL_RADIUS_M = 0.362
+
+
+def wheel_radius_m(vehicle) -> float:
+    """The Vehicle's ``wheel_radius_m`` [m], or :data:`DEFAULT_WHEEL_RADIUS_M` when it has none."""
+    r = getattr(vehicle, "wheel_radius_m", None)
+    return DEFAULT_WHEEL_RADIUS_M if r is None else float(r)
 
 
 @dataclass(frozen=True)
@@ -187,22 +206,29 @@ def ins_body_accel(v_mps, a_mps2, delta_rad, delta_rate_radps, wheelbase_m: floa
             np.asarray(a_mps2) * np.sin(d) + v * np.cos(d) * turn)
 
 
-def engine_rpm(v_mps, accel_pedal, low_gear_only=None) -> np.ndarray:
+def engine_rpm(v_mps, accel_pedal, vehicle, low_gear_only=None, *,
+               drivetrain: Drivetrain = RAV4_DRIVETRAIN) -> np.ndarray:
     """A plausible engine speed [1/min]: idle plus throttle flare, or wheel speed through the gear.
 
-    Gear chosen by speed from ``UPSHIFT_MPS`` (later under throttle); ``low_gear_only`` (bool
-    array) restricts to gears 1-2 (the report's "Low" gear). Torque-converter slip adds up to
-    10 % under full throttle. Not part of any identified model: it makes the recording complete.
+    Args:
+        v_mps: speed [m/s]; accel_pedal: pedal [0..1].
+        vehicle: ``params.Vehicle`` (its ``wheel_radius_m``, see :func:`wheel_radius_m`).
+        low_gear_only: bool array restricting to gears 1-2 (the report's "Low" gear).
+        drivetrain: engine and gearbox (the RAV4's by default, see :class:`Drivetrain`).
+
+    Gear chosen by speed from ``drivetrain.upshift_mps`` (later under throttle). Torque-converter
+    slip adds up to 10 % under full throttle. Not part of any identified model: it makes the
+    recording complete.
     """
     v = np.maximum(np.asarray(v_mps, dtype=float), 0.0)
     p = np.clip(np.asarray(accel_pedal, dtype=float), 0.0, 1.0)
-    shift = np.asarray(UPSHIFT_MPS)[None, :] * (1.0 + 0.6 * p[:, None])
+    shift = np.asarray(drivetrain.upshift_mps)[None, :] * (1.0 + 0.6 * p[:, None])
     gear = np.sum(v[:, None] > shift, axis=1)  # 0-based
     if low_gear_only is not None:
         gear = np.where(np.asarray(low_gear_only, dtype=bool), np.minimum(gear, 1), gear)
-    ratio = np.asarray(GEAR_RATIOS)[gear] * FINAL_DRIVE
-    geared = v / TYRE_RADIUS_M * ratio * 60.0 / (2.0 * np.pi) * (1.0 + 0.1 * p)
-    return np.maximum(IDLE_RPM + 1500.0 * p * np.clip(1.0 - v / 3.0, 0.0, 1.0), geared)
+    ratio = np.asarray(drivetrain.gear_ratios)[gear] * drivetrain.final_drive
+    geared = v / wheel_radius_m(vehicle) * ratio * 60.0 / (2.0 * np.pi) * (1.0 + 0.1 * p)
+    return np.maximum(drivetrain.idle_rpm + 1500.0 * p * np.clip(1.0 - v / 3.0, 0.0, 1.0), geared)
 
 
 # ------------------------------------------------------------------------- quantisation

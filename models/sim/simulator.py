@@ -506,13 +506,48 @@ def _phase_segment(ph: _Phase, t0_s: float, t1_s: float) -> dict:
     return {"label": f"open loop {what}", "t_start_s": round(t0_s, 6), "t_end_s": round(t1_s, 6)}
 
 
-def _drive(params: Params, plan: _Plan, dt: float, rng, effects: list[Effect],
-           driver: DriverConfig, psi0: float) -> Truth:
-    """Run the driver and the plant; return the truth on the internal grid."""
-    truth_plant = TruthPlant(params, effects, dt)
-    plant = truth_plant.plant
-    off, scl, b = plant.offset_rad, plant.scale, plant.wheelbase_m
-    sw_max = _sw_max(params)
+@dataclass
+class _DriveRefs:
+    """What the driver follows, on the internal grid: speed, acceleration and steering-wheel
+    references (``sw_ref`` NaN: lane keeping), low-gear flags, the speed controller's dither and
+    the lane-keeping noise. ``v_ref``/``a_ref`` are empty for an open-loop pedal programme."""
+
+    open_loop: bool
+    n_max: int
+    v_ref: np.ndarray
+    a_ref: np.ndarray
+    sw_ref: np.ndarray
+    low: np.ndarray
+    dither: np.ndarray
+    lane_noise: np.ndarray
+
+
+@dataclass
+class _DriverState:
+    """The driver between steps: steering-wheel angle [rad], pedals [0..1], the speed
+    controller's integral [m], the programme phase and when it began [s], and the last times a
+    pedal was pressed [s]."""
+
+    sw: float
+    th: float = 0.0
+    br: float = 0.0
+    integ: float = 0.0
+    phase_i: int = 0
+    phase_t0: float = 0.0
+    t_th_last: float = -1e9
+    t_br_last: float = -1e9
+
+
+#: integral share of the driver's pedal command [fraction].
+_KI_LIMIT = 0.5
+_TRUTH_NAMES = ("x_m", "y_m", "psi_rad", "v_mps", "sw_rad", "sw_eff_rad", "accel_pedal",
+                "brake_pedal", "accel_pedal_eff", "brake_pedal_eff", "zone", "accel_model_mps2",
+                "accel_extra_mps2", "accel_mps2", "grade_rad")
+
+
+def _drive_refs(plan: _Plan, dt: float, rng, driver: DriverConfig) -> _DriveRefs:
+    """The references of ``plan`` and the driver's noise (drawn from ``rng`` in this order:
+    dither, then lane-keeping noise)."""
     open_loop = plan.program is not None
     if open_loop:
         n_max = int(round(sum(ph.longest_s for ph in plan.program) / dt)) + 1
@@ -525,106 +560,56 @@ def _drive(params: Params, plan: _Plan, dt: float, rng, effects: list[Effect],
     dither = (np.zeros(n_max) if open_loop
               else _ou(rng, n_max, driver.dither, driver.dither_tau_s, dt))
     lane_noise = _ou(rng, n_max, driver.lane_noise_rad, driver.lane_noise_tau_s, dt)
+    return _DriveRefs(open_loop, n_max, v_ref, a_ref, sw_ref, low, dither, lane_noise)
 
-    names = ("x_m", "y_m", "psi_rad", "v_mps", "sw_rad", "sw_eff_rad", "accel_pedal", "brake_pedal",
-             "accel_pedal_eff", "brake_pedal_eff", "zone", "accel_model_mps2", "accel_extra_mps2",
-             "accel_mps2", "grade_rad")
-    rec = {k: np.empty(n_max) for k in names}
+
+def _drive(params: Params, plan: _Plan, dt: float, rng, effects: list[Effect],
+           driver: DriverConfig, psi0: float) -> Truth:
+    """Run the driver and the plant; return the truth on the internal grid."""
+    truth_plant = TruthPlant(params, effects, dt)
+    plant = truth_plant.plant
+    off, scl = plant.offset_rad, plant.scale
+    sw_max = _sw_max(params)
+    refs = _drive_refs(plan, dt, rng, driver)
+    rec = {k: np.empty(refs.n_max) for k in _TRUTH_NAMES}
     s = np.array([0.0, 0.0, psi0, 0.0])
     cpsi, spsi = math.cos(psi0), math.sin(psi0)
-    sw = 0.0 if math.isnan(sw_ref[0]) else float(sw_ref[0])
-    th = br = 0.0
-    integ = 0.0
+    d = _DriverState(0.0 if math.isnan(refs.sw_ref[0]) else float(refs.sw_ref[0]))
     alpha_sw = 1.0 - math.exp(-dt / driver.steer_tau_s)
     dsw_max = driver.steer_rate_max_radps * dt
     dth_max, dbr_max = driver.throttle_rate_max_per_s * dt, driver.brake_rate_max_per_s * dt
-    ki_limit = 0.5  # integral share of the pedal command [fraction]
-    phase_i, phase_t0 = 0, 0.0
-    t_th_last = t_br_last = -1e9  # last times a pedal was pressed [s]
     grade = truth_plant.grade_rad
-    n = n_max
-    for k in range(n_max):
+    n = refs.n_max
+    for k in range(refs.n_max):
         t = k * dt
         x, y, psi, v = s[0], s[1], s[2], s[3]
         # ---- steering: reference (scripted or lane keeping) through the arm/actuator
-        swr = sw_ref[k]
+        swr = refs.sw_ref[k]
         if swr != swr:  # NaN: human lane keeping along the initial direction
             e_y = -x * spsi + y * cpsi
             e_psi = math.remainder(psi - psi0, 2.0 * math.pi)
             d_cmd = -(driver.lane_k_heading * e_psi + driver.lane_k_lateral_radpm * e_y)
-            d_cmd = min(max(d_cmd, -0.1), 0.1) + lane_noise[k]
+            d_cmd = min(max(d_cmd, -0.1), 0.1) + refs.lane_noise[k]
             swr = (d_cmd - off) / scl
         swr = min(max(swr, -sw_max), sw_max)
-        dsw = min(max(alpha_sw * (swr - sw), -dsw_max), dsw_max)
-        sw = min(max(sw + dsw, -sw_max), sw_max)
-        # ---- pedals
-        if open_loop:
-            while True:
-                ph = plan.program[phase_i]
-                el = t - phase_t0
-                kind = ph.kind
-                if kind in ("throttle", "sweep"):
-                    done = v >= ph.v_mps or el >= ph.max_s or v >= 18.0
-                elif kind == "brake":
-                    done = v <= ph.v_mps or el >= ph.max_s
-                else:
-                    done = el >= ph.dur_s
-                if done and phase_i + 1 < len(plan.program):
-                    plan.segments.append(_phase_segment(ph, phase_t0, t))
-                    phase_i += 1
-                    phase_t0 = t
-                    continue
-                break
-            if done:  # programme finished
-                plan.segments.append(_phase_segment(ph, phase_t0, t))
+        dsw = min(max(alpha_sw * (swr - d.sw), -dsw_max), dsw_max)
+        d.sw = min(max(d.sw + dsw, -sw_max), sw_max)
+        # ---- pedals: the programme's, or the speed controller's
+        if refs.open_loop:
+            want = _programme_pedals(plan, d, t, v)
+            if want is None:  # programme finished
                 n = k
                 break
-            if kind == "throttle":
-                th_d, br_d = ph.level, 0.0
-            elif kind == "sweep":
-                th_d = ph.level + (ph.level_end - ph.level) * min(el / ph.max_s, 1.0)
-                br_d = 0.0
-            elif kind in ("brake", "hold"):
-                th_d, br_d = 0.0, ph.level
-            else:
-                th_d = br_d = 0.0
         else:
-            vr = v_ref[k]
-            if vr <= 0.05 and v < 0.3:  # at rest: hold the car on the brake
-                integ = 0.0
-                th_d, br_d = 0.0, driver.hold_brake
-            else:
-                err = vr - v
-                i_max = ki_limit / driver.ki_per_m
-                integ = min(max(integ + err * dt, -i_max), i_max)
-                u = (driver.ff_per_mps2 * a_ref[k] + driver.kp_per_mps * err
-                     + driver.ki_per_m * integ + dither[k])
-                if u > driver.deadband:
-                    th_d, br_d = min(u - driver.deadband, 1.0), 0.0
-                elif u < -driver.brake_deadband:
-                    th_d, br_d = 0.0, min(-u - driver.brake_deadband, 1.0)
-                else:
-                    th_d = br_d = 0.0
-        # one pedal at a time: release the other to zero, then move the foot across
-        if br_d > 0.0 and (th > 0.0 or t - t_th_last < driver.pedal_switch_s):
-            th_d, br_d = 0.0, 0.0
-        if th_d > 0.0 and (br > 0.0 or t - t_br_last < driver.pedal_switch_s):
-            th_d, br_d = 0.0, 0.0
-        th += min(max(th_d - th, -dth_max), dth_max)
-        br += min(max(br_d - br, -dbr_max), dbr_max)
-        th = 0.0 if th < 1e-12 else th
-        br = 0.0 if br < 1e-12 else br
-        if th > 0.0:
-            t_th_last = t
-        if br > 0.0:
-            t_br_last = t
+            want = _speed_pedals(d, driver, refs.v_ref[k], v, refs.a_ref[k], refs.dither[k], dt)
+        _move_feet(d, want, t, driver, dth_max, dbr_max)
         # ---- concealed effects, plant
-        ts = truth_plant.step(s, (sw, th, br))
+        ts = truth_plant.step(s, (d.sw, d.th, d.br))
         res = ts.result
         sw_e, th_e, br_e = ts.u_eff
         rec["x_m"][k], rec["y_m"][k], rec["psi_rad"][k], rec["v_mps"][k] = x, y, psi, v
-        rec["sw_rad"][k], rec["sw_eff_rad"][k] = sw, sw_e
-        rec["accel_pedal"][k], rec["brake_pedal"][k] = th, br
+        rec["sw_rad"][k], rec["sw_eff_rad"][k] = d.sw, sw_e
+        rec["accel_pedal"][k], rec["brake_pedal"][k] = d.th, d.br
         rec["accel_pedal_eff"][k], rec["brake_pedal_eff"][k] = th_e, br_e
         rec["zone"][k] = res.zone
         rec["accel_model_mps2"][k] = ts.accel_model_mps2
@@ -632,6 +617,84 @@ def _drive(params: Params, plan: _Plan, dt: float, rng, effects: list[Effect],
         rec["accel_mps2"][k] = res.accel_mps2
         rec["grade_rad"][k] = grade
         s = res.state
+    return _truth(rec, n, dt, off, scl, plant.wheelbase_m, refs.low)
+
+
+def _programme_pedals(plan: _Plan, d: _DriverState, t: float,
+                      v: float) -> tuple[float, float] | None:
+    """The open-loop programme's pedal targets (throttle, brake) at time ``t`` [s] and speed
+    ``v`` [m/s], advancing ``d``'s phase (and ``plan.segments``) as phases end; None when the
+    programme has finished."""
+    while True:
+        ph = plan.program[d.phase_i]
+        el = t - d.phase_t0
+        kind = ph.kind
+        if kind in ("throttle", "sweep"):
+            done = v >= ph.v_mps or el >= ph.max_s or v >= 18.0
+        elif kind == "brake":
+            done = v <= ph.v_mps or el >= ph.max_s
+        else:
+            done = el >= ph.dur_s
+        if done and d.phase_i + 1 < len(plan.program):
+            plan.segments.append(_phase_segment(ph, d.phase_t0, t))
+            d.phase_i += 1
+            d.phase_t0 = t
+            continue
+        break
+    if done:
+        plan.segments.append(_phase_segment(ph, d.phase_t0, t))
+        return None
+    if kind == "throttle":
+        return ph.level, 0.0
+    if kind == "sweep":
+        return ph.level + (ph.level_end - ph.level) * min(el / ph.max_s, 1.0), 0.0
+    if kind in ("brake", "hold"):
+        return 0.0, ph.level
+    return 0.0, 0.0
+
+
+def _speed_pedals(d: _DriverState, driver: DriverConfig, vr: float, v: float, a_ref: float,
+                  dither: float, dt: float) -> tuple[float, float]:
+    """The human speed controller's pedal targets (throttle, brake): hold the brake at rest,
+    else feed-forward plus PI on the speed error with dither, through the pedal dead bands."""
+    if vr <= 0.05 and v < 0.3:  # at rest: hold the car on the brake
+        d.integ = 0.0
+        return 0.0, driver.hold_brake
+    err = vr - v
+    i_max = _KI_LIMIT / driver.ki_per_m
+    d.integ = min(max(d.integ + err * dt, -i_max), i_max)
+    u = (driver.ff_per_mps2 * a_ref + driver.kp_per_mps * err
+         + driver.ki_per_m * d.integ + dither)
+    if u > driver.deadband:
+        return min(u - driver.deadband, 1.0), 0.0
+    if u < -driver.brake_deadband:
+        return 0.0, min(-u - driver.brake_deadband, 1.0)
+    return 0.0, 0.0
+
+
+def _move_feet(d: _DriverState, want: tuple[float, float], t: float, driver: DriverConfig,
+               dth_max: float, dbr_max: float) -> None:
+    """Move the pedals toward ``want`` (throttle, brake) at their rate limits, one pedal at a
+    time: release the other to zero, then move the foot across (``pedal_switch_s``)."""
+    th_d, br_d = want
+    if br_d > 0.0 and (d.th > 0.0 or t - d.t_th_last < driver.pedal_switch_s):
+        th_d, br_d = 0.0, 0.0
+    if th_d > 0.0 and (d.br > 0.0 or t - d.t_br_last < driver.pedal_switch_s):
+        th_d, br_d = 0.0, 0.0
+    th = d.th + min(max(th_d - d.th, -dth_max), dth_max)
+    br = d.br + min(max(br_d - d.br, -dbr_max), dbr_max)
+    d.th = 0.0 if th < 1e-12 else th
+    d.br = 0.0 if br < 1e-12 else br
+    if d.th > 0.0:
+        d.t_th_last = t
+    if d.br > 0.0:
+        d.t_br_last = t
+
+
+def _truth(rec: dict[str, np.ndarray], n: int, dt: float, off: float, scl: float, b: float,
+           low: np.ndarray) -> Truth:
+    """The first ``n`` steps of ``rec`` with the derived truth arrays (time, road-wheel angle,
+    yaw rate, low gear, height from the grade)."""
     arr = {k: v[:n] for k, v in rec.items()}
     arr["zone"] = arr["zone"].astype(int)
     arr["t_s"] = np.arange(n) * dt
@@ -675,18 +738,37 @@ def measure(truth: Truth, params: Params, rate_hz: float, noise: str, effects: l
     c = float(sum(e.can_clock_offset_s() for e in effects))
     ws = float(np.prod([e.wheel_speed_scale() for e in effects])) if effects else 1.0
 
+    ch: dict[str, np.ndarray] = {"time": grid.copy()}
+    raw: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    _measure_can(tr, veh, t_r, grid, idx, noise, c, ws, rng_can, ch, raw)
+    sensor_truth = {"can_clock_offset_s": c, "wheel_speed_scale": ws,
+                    "yaw_rate_bias_radps": 0.0, "accel_x_bias_mps2": 0.0, "accel_y_bias_mps2": 0.0}
+    ins = _measure_ins(tr, dt, b, noise, rng_ins, sensor_truth)
+    for name, val in ins.items():
+        raw[name] = (t.copy(), val)
+        ch[name] = val[idx]  # the INS grid contains the output grid: hold = the sample itself
+    ordered = {k: ch[k] for k in CHANNELS if k in ch}
+    return ordered, raw, sensor_truth, idx
+
+
+def _measure_can(tr: dict, veh, t_r: float, grid: np.ndarray, idx: np.ndarray, noise: str,
+                 c: float, ws: float, rng_can: np.random.Generator, ch: dict, raw: dict) -> None:
+    """The CAN channels of :func:`measure` into ``ch`` (on ``grid``) and ``raw`` (at message
+    times): exact samples at ``noise="none"``, else periodic messages with random phase
+    (and jitter and noise at ``"typical"``), DBC-quantised and held on the grid. ``c``: CAN
+    clock offset [s]; ``ws``: wheel-speed scale."""
+    t = tr["t_s"]
     # ---- CAN truth signals on the internal grid (continuous, SI)
-    fl, fr, rl, rr = sn.wheel_speeds(tr["v_mps"], tr["delta_rad"], b, veh.track_front_m, t_r)
+    fl, fr, rl, rr = sn.wheel_speeds(tr["v_mps"], tr["delta_rad"], veh.wheelbase_m,
+                                     veh.track_front_m, t_r)
     can_truth = {
         "steering_wheel_angle": tr["sw_rad"],
         "wheel_speed_fl": fl * ws, "wheel_speed_fr": fr * ws,
         "wheel_speed_rl": rl * ws, "wheel_speed_rr": rr * ws,
         "accel_pedal": tr["accel_pedal"], "brake_pedal": tr["brake_pedal"],
-        "engine_rpm": sn.engine_rpm(tr["v_mps"], tr["accel_pedal"], tr["low_gear"]),
+        "engine_rpm": sn.engine_rpm(tr["v_mps"], tr["accel_pedal"], veh, tr["low_gear"]),
     }
     gear_truth = np.where(tr["low_gear"], "L", "D").astype(object)
-    ch: dict[str, np.ndarray] = {"time": grid.copy()}
-    raw: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     if noise == "none":
         for name, val in can_truth.items():
             ch[name] = val[idx] if c == 0.0 else np.interp(grid - c, t, val)
@@ -697,31 +779,37 @@ def measure(truth: Truth, params: Params, rate_hz: float, noise: str, effects: l
         gi = np.clip(np.searchsorted(t, grid - c, side="right") - 1, 0, len(t) - 1)
         ch["gear"] = gear_truth[gi]
         raw["gear"] = (grid.copy(), ch["gear"])
-    else:
-        typical = noise == "typical"
-        jitter = sn.CAN_JITTER_S if typical else 0.0
-        t_lo, t_hi = -abs(c) - 0.1, t[-1] + abs(c) + 0.1
-        by_msg: dict[str, np.ndarray] = {}
-        for sig in sn.CAN_SIGNALS:
-            if sig.message not in by_msg:  # signals of one message share its send times
-                by_msg[sig.message] = sn.message_times(rng_can, sig.rate_hz, t_lo, t_hi, jitter)
-            t_msg = by_msg[sig.message]
-            val = np.interp(t_msg, t, can_truth[sig.channel])
-            if typical and sig.noise_dbc > 0:
-                val = val + rng_can.normal(0.0, sig.noise_dbc * sig.to_si, val.shape)
-            val = sn.quantise_dbc(val, sig)
-            raw[sig.channel] = (t_msg + c, val)
-            ch[sig.channel] = sn.hold_on_grid(t_msg + c, val, grid)
-        tw = raw["wheel_speed_fl"][0]
-        sp = sum(raw[f"wheel_speed_{w}"][1] for w in ("fl", "fr", "rl", "rr")) / 4.0
-        raw["speed"] = (tw, sp)
-        ch["speed"] = sn.hold_on_grid(tw, sp, grid)
-        tg = sn.message_times(rng_can, sn.GEAR_RATE_HZ, t_lo, t_hi, jitter)
-        gi = np.clip(np.searchsorted(t, tg, side="right") - 1, 0, len(t) - 1)
-        raw["gear"] = (tg + c, gear_truth[gi])
-        ch["gear"] = sn.hold_on_grid(tg + c, gear_truth[gi], grid)
+        return
+    typical = noise == "typical"
+    jitter = sn.CAN_JITTER_S if typical else 0.0
+    t_lo, t_hi = -abs(c) - 0.1, t[-1] + abs(c) + 0.1
+    by_msg: dict[str, np.ndarray] = {}
+    for sig in sn.CAN_SIGNALS:
+        if sig.message not in by_msg:  # signals of one message share its send times
+            by_msg[sig.message] = sn.message_times(rng_can, sig.rate_hz, t_lo, t_hi, jitter)
+        t_msg = by_msg[sig.message]
+        val = np.interp(t_msg, t, can_truth[sig.channel])
+        if typical and sig.noise_dbc > 0:
+            val = val + rng_can.normal(0.0, sig.noise_dbc * sig.to_si, val.shape)
+        val = sn.quantise_dbc(val, sig)
+        raw[sig.channel] = (t_msg + c, val)
+        ch[sig.channel] = sn.hold_on_grid(t_msg + c, val, grid)
+    tw = raw["wheel_speed_fl"][0]
+    sp = sum(raw[f"wheel_speed_{w}"][1] for w in ("fl", "fr", "rl", "rr")) / 4.0
+    raw["speed"] = (tw, sp)
+    ch["speed"] = sn.hold_on_grid(tw, sp, grid)
+    tg = sn.message_times(rng_can, sn.GEAR_RATE_HZ, t_lo, t_hi, jitter)
+    gi = np.clip(np.searchsorted(t, tg, side="right") - 1, 0, len(t) - 1)
+    raw["gear"] = (tg + c, gear_truth[gi])
+    ch["gear"] = sn.hold_on_grid(tg + c, gear_truth[gi], grid)
 
-    # ---- INS at the internal rate, reference point = front-axle centre
+
+def _measure_ins(tr: dict, dt: float, b: float, noise: str, rng_ins: np.random.Generator,
+                 sensor_truth: dict) -> dict[str, np.ndarray]:
+    """The INS channels of :func:`measure` at the internal rate, reference point = the
+    front-axle centre; at ``noise="typical"`` with ``InsNoise`` errors, whose biases are
+    written into ``sensor_truth``."""
+    t = tr["t_s"]
     ddelta = np.gradient(tr["delta_rad"], dt) if len(t) > 1 else np.zeros(len(t))
     ax, ay = sn.ins_body_accel(tr["v_mps"], tr["accel_mps2"], tr["delta_rad"], ddelta, b)
     ins = {"yaw_rate": tr["yaw_rate_radps"].copy(), "accel_x": ax, "accel_y": ay,
@@ -730,8 +818,6 @@ def measure(truth: Truth, params: Params, rate_hz: float, noise: str, effects: l
            "pitch": tr["grade_rad"] + sn.PITCH_PER_ACCEL * ax,
            "roll": sn.ROLL_PER_LATERAL_ACCEL * ay,
            "gps_speed": tr["v_mps"].copy()}
-    sensor_truth = {"can_clock_offset_s": c, "wheel_speed_scale": ws,
-                    "yaw_rate_bias_radps": 0.0, "accel_x_bias_mps2": 0.0, "accel_y_bias_mps2": 0.0}
     if noise == "typical":
         nz = sn.InsNoise()
         n = len(t)
@@ -753,11 +839,7 @@ def measure(truth: Truth, params: Params, rate_hz: float, noise: str, effects: l
                             accel_y_bias_mps2=float(bias_ay))
     ins["heading"] = np.angle(np.exp(1j * ins["heading"]))  # wrap to (-pi, pi]
     ins["heading"][ins["heading"] <= -np.pi] = np.pi
-    for name, val in ins.items():
-        raw[name] = (t.copy(), val)
-        ch[name] = val[idx]  # the INS grid contains the output grid: hold = the sample itself
-    ordered = {k: ch[k] for k in CHANNELS if k in ch}
-    return ordered, raw, sensor_truth, idx
+    return ins
 
 
 # -------------------------------------------------------------------------------- API
