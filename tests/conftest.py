@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-from hmpc.tools.datafiles import bundled
+from _data import bundled
 
 
 @pytest.fixture(scope="session")

@@ -9,7 +9,7 @@ from hmpc.models.logs.decode import decode_frames
 from hmpc.models.errors import Problems
 from hmpc.models.logs.nav import read_imu_raw, read_nav
 from hmpc.models.logs.resample import find_gaps, gap_threshold_s, make_grid, resample
-from hmpc.tools.datafiles import bundled
+from _data import bundled
 
 SEED = 20240611
 

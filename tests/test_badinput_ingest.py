@@ -12,7 +12,7 @@ import pytest
 from hmpc.models.errors import InputError, ParamError, Problems
 from hmpc.models.logs.ingest import ingest_files
 from hmpc.tools import cli
-from hmpc.tools.datafiles import PARAMS_DIR, bundled
+from _data import PARAMS_DIR, bundled
 
 MAP17 = PARAMS_DIR / "toyota_rav4_2017.signals.yaml"
 NAV = bundled("rav4-comma2k19/nav.csv.gz")

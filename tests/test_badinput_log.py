@@ -179,7 +179,12 @@ def test_clock_jump_is_reported_and_frames_kept(tmp_path, real_lines, capsys):
     jump = _problem(problems, KIND_JUMP)
     assert jump.count == 1 and jump.first == [201]
     assert len(ft) == N_LINES
-    assert read_log(p, Problems(), jump_s=10.0) is not None
+    # a 5 s step is not a jump when jumps start at 10 s: nothing reported, every frame kept,
+    # and the step itself is in the times as written
+    quiet = Problems()
+    ft10 = read_log(p, quiet, jump_s=10.0)
+    assert not [q for q in quiet if q.kind == KIND_JUMP] and len(ft10) == N_LINES
+    assert np.max(np.diff(ft10.t_s)) > 5.0
     rc, out, err = _cli(capsys, p, "--json", tmp_path / "j.json")
     assert rc == 0
     info = json.loads((tmp_path / "j.json").read_text())

@@ -3,7 +3,7 @@ import gzip
 
 import pytest
 
-from hmpc.tools.datafiles import DATA_DIR, REPO_DIR
+from _data import DATA_DIR, REPO_DIR
 
 SHARED = REPO_DIR.parent / "shared" / "data"
 BUNDLED = sorted(p.relative_to(DATA_DIR) for p in DATA_DIR.rglob("*.gz"))
@@ -28,3 +28,12 @@ def test_bundle_is_complete_and_small():
 def test_bundled_copy_equals_shared(rel):
     original = SHARED / str(rel)[: -len(".gz")]
     assert gzip.decompress((DATA_DIR / rel).read_bytes()) == original.read_bytes()
+
+
+def test_the_packages_own_lookup_finds_the_same_files():
+    """hmpc.tools.datafiles (used by the demo and the benchmarks) points at the same folders."""
+    from hmpc.tools import datafiles
+    assert datafiles.DATA_DIR.resolve() == DATA_DIR.resolve()
+    assert datafiles.PARAMS_DIR.resolve() == (REPO_DIR / "params").resolve()
+    for rel in BUNDLED:
+        assert datafiles.bundled(str(rel)).is_file()

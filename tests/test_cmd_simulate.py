@@ -7,14 +7,15 @@ import numpy as np
 import pytest
 import yaml
 
+from _data import REPORT_PARAMS
 from hmpc.models.errors import InputError
 from hmpc.models.logs.recording import Recording
 from hmpc.models.sim.scenarios import load_reference_csv, make_scenario, save_reference_csv
 from hmpc.tools.cli import main
 
-PARAMS = "params/report_2008.yaml"
+PARAMS = str(REPORT_PARAMS)
 KEYS = ("speed_error_rms_mps", "lateral_error_rms_m", "pedal_switches_per_min",
-        "zone_transitions_per_min", "solve_time_ms", "steps", "failures")
+        "zone_transitions_per_min", "solve_time_ms", "steps", "failures", "internal_errors")
 
 
 @pytest.fixture
@@ -39,14 +40,24 @@ def test_closed_loop_json_recording_and_plots(tmp_path, short_ref):
                "--json", str(js), "--plots", str(plots), "--seed", "3"])
     assert rc == 0
     d = json.loads(js.read_text())
-    for k in KEYS:
-        assert k in d
-    assert set(d["solve_time_ms"]) == {"p50", "p99", "max"}
-    assert d["steps"] == 80 and d["failures"] == 0
-    assert d["speed_error_rms_mps"] < 0.3 and d["lateral_error_rms_m"] < 0.3
+    assert set(KEYS) <= set(d)
+    assert d["steps"] == 80 and d["failures"] == 0 and d["internal_errors"] == 0
+    # measured: speed error RMS 0.034 m/s, lateral 0.0040 m, 1 pedal switch (7.6/min), no
+    # zone transition (3 m/s stays in the low zone); bounds with margin 2-2.5x
+    assert d["speed_error_rms_mps"] < 0.07 and d["lateral_error_rms_m"] < 0.01
+    assert d["pedal_switches_per_min"] <= 8.0 and d["zone_transitions_per_min"] == 0.0
+    assert d["details"]["both_pedals_samples"] == 0
+    st = d["solve_time_ms"]
+    assert 0.0 < st["p50"] <= st["p99"] <= st["max"]
+    # the recording is the run: 8 s at 50 Hz, commands within their ranges, the speed held
+    # near the 3 m/s reference (measured 2.89-3.03 m/s)
     rec = Recording.load(out)
-    for ch in ("steering_cmd", "accel_pedal_cmd", "brake_pedal_cmd", "speed", "x", "y"):
-        assert ch in rec
+    assert len(rec) == 398 and rec.rate_hz == pytest.approx(50.0)
+    assert np.all((rec["accel_pedal_cmd"] >= 0) & (rec["accel_pedal_cmd"] <= 1))
+    assert np.all((rec["brake_pedal_cmd"] >= 0) & (rec["brake_pedal_cmd"] <= 1))
+    assert not np.any((rec["accel_pedal_cmd"] > 0) & (rec["brake_pedal_cmd"] > 0))
+    assert np.all(np.abs(rec["speed"] - 3.0) < 0.2)
+    assert np.all(np.isfinite(rec["steering_cmd"])) and np.all(np.isfinite(rec["x"] + rec["y"]))
     assert sorted(p.name for p in plots.iterdir()) == ["closed_loop.png", "path.png"]
     assert all(p.stat().st_size > 10_000 for p in plots.iterdir())
 
@@ -64,8 +75,13 @@ def test_pid_and_plant_params(tmp_path, short_ref):
                "pid", "--plant-params", str(weak), "--json", str(js)])
     assert rc == 0
     d = json.loads(js.read_text())
-    assert all(k in d for k in KEYS) and d["controller"] == "pid"
-    assert d["plant_params"] == str(weak)
+    assert d["controller"] == "pid" and d["plant_params"] == str(weak)
+    # the PID tracks the weaker plant (measured speed RMS 0.030 m/s, lateral 0.025 m; bounds
+    # 3x and 2.4x) but chatters between the pedals (measured 83 switches/min, the MPC 7.6/min
+    # on the nominal plant): that contrast is the README's point, so it is held here
+    assert d["failures"] == 0 and d["internal_errors"] == 0 and d["steps"] == 80
+    assert d["speed_error_rms_mps"] < 0.1 and d["lateral_error_rms_m"] < 0.06
+    assert d["pedal_switches_per_min"] > 30.0
 
 
 def test_experiment_writes_a_canonical_recording(tmp_path):
@@ -74,8 +90,15 @@ def test_experiment_writes_a_canonical_recording(tmp_path):
                "--seed", "1", "--json", str(js)])
     assert rc == 0
     rec = Recording.load(out)
-    assert "speed" in rec and "accel_pedal" in rec
-    assert json.loads(js.read_text())["rows"] == len(rec)
+    d = json.loads(js.read_text())
+    assert d["rows"] == len(rec) == round(d["duration_s"] * d["rate_hz"]) + 1
+    for ch in d["channels"]:
+        assert ch in rec, ch
+    # a ramp sequence: pedal fractions in 0..1 that actually ramp (measured max 0.585), the
+    # speed never below zero beyond sensor quantisation (measured min -0.006 m/s) and reaching
+    # about 8 m/s (measured max 8.17 m/s)
+    assert np.nanmin(rec["accel_pedal"]) == 0.0 and 0.5 < np.nanmax(rec["accel_pedal"]) <= 1.0
+    assert np.nanmin(rec["speed"]) > -0.02 and 7.5 < np.nanmax(rec["speed"]) < 9.0
 
 
 @pytest.mark.parametrize("body, line, what", [

@@ -6,7 +6,7 @@ import pytest
 
 from hmpc.models.logs.recording import Recording
 from hmpc.tools import cli
-from hmpc.tools.datafiles import PARAMS_DIR
+from _data import PARAMS_DIR
 
 MAP19 = PARAMS_DIR / "toyota_rav4_2019.signals.yaml"
 

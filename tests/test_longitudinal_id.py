@@ -10,7 +10,7 @@ from hmpc.models.identify.longitudinal import (LongitudinalIdConfig, assign_zone
 from hmpc.models.params import load_params
 from hmpc.models.sim.simulator import simulate_experiment
 from hmpc.models.identify.stats import apply_kernel, matched_kernels
-from hmpc.tools.datafiles import PARAMS_DIR
+from _data import PARAMS_DIR
 
 SEED = 9
 ZONES = (("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
@@ -102,9 +102,11 @@ def test_accel_x_source_is_used_and_named(truth):
     res = identify_longitudinal(rec, truth.vehicle, LongitudinalIdConfig(accel_source="accel_x"))
     assert res.accel_source.startswith("accel_x")
     for z, t in zip(res.zones, truth.zones):
-        # INS accel_x carries a bias of up to 0.02 m/s^2 and white noise
-        assert z.offset_mps2 == pytest.approx(t.offset_mps2, abs=0.05), z.name
-        assert z.scale_mps2 == pytest.approx(t.scale_mps2, rel=0.05), z.name
+        # INS accel_x carries a bias of up to 0.02 m/s^2 and white noise: measured offset
+        # errors -0.004/-0.005/-0.011 m/s^2 and scale errors 0.36/0.52/0.50%; bounds 0.02 m/s^2
+        # (the bias) and 1% (margin 2x; issue 3's 0.05 m/s^2 and 5% stay the outer bound)
+        assert z.offset_mps2 == pytest.approx(t.offset_mps2, abs=0.02), z.name
+        assert z.scale_mps2 == pytest.approx(t.scale_mps2, rel=0.01), z.name
 
 
 def test_unexercised_brake_is_flagged_not_invented(truth):

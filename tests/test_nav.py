@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, seed, settings, strategies as st
 from hmpc.models.errors import InputError, ParamError, Problems
 from hmpc.models.logs.nav import (ImuColumns, NavColumns, imu_to_body, load_columns, read_imu,
                         read_imu_raw, read_nav)
-from hmpc.tools.datafiles import bundled
+from _data import bundled
 
 NAV = bundled("rav4-comma2k19/nav.csv.gz")
 IMU = bundled("rav4-comma2k19/imu.csv.gz")

@@ -5,7 +5,7 @@ import yaml
 from hmpc.models.errors import ParamError
 from hmpc.models.params import dump_params, load_params, parse_params
 from hmpc.tools import cli
-from hmpc.tools.datafiles import PARAMS_DIR
+from _data import PARAMS_DIR
 
 MINIMAL = {
     "vehicle": {"wheelbase_m": 2.65, "track_front_m": 1.6},
@@ -78,12 +78,21 @@ def test_unreadable_files(tmp_path):
     assert str(bad) in str(ei.value)
 
 
-# signal maps (*.signals.yaml) are a different format, checked by test_signalmap
+# signal maps (*.signals.yaml) and actuation profiles (*.actuation.yaml) are other formats,
+# checked by test_signalmap and below
 @pytest.mark.parametrize("path", sorted(p for p in PARAMS_DIR.glob("*.yaml")
-                                        if not p.name.endswith(".signals.yaml")),
+                                        if not p.name.endswith((".signals.yaml",
+                                                                ".actuation.yaml"))),
                          ids=lambda p: p.name)
 def test_shipped_parameter_files_load(path):
     load_params(path)
+
+
+@pytest.mark.parametrize("path", sorted(PARAMS_DIR.glob("*.actuation.yaml")),
+                         ids=lambda p: p.name)
+def test_shipped_actuation_profiles_load(path):
+    from hmpc.controller.actuation.profiles import load_profile
+    load_profile(path)
 
 
 def test_cli_reports_bad_params_in_one_line(tmp_path, capsys):

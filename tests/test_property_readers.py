@@ -17,7 +17,7 @@ from hmpc.models.logs.canlog import DROPPED_KINDS, read_log
 from hmpc.models.logs.dbc import load_dbc
 from hmpc.models.logs.decode import decode_frames
 from hmpc.models.errors import HmpcError, InputError, Problems
-from hmpc.tools.datafiles import bundled
+from _data import bundled
 
 SETTINGS = settings(derandomize=True, max_examples=60, deadline=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture,

@@ -9,7 +9,7 @@ from hypothesis import given, seed, settings, strategies as st
 from hmpc.models.logs.dbc import load_dbc
 from hmpc.models.errors import ParamError
 from hmpc.models.logs.signalmap import UNITS, load_signal_map, parse_expr
-from hmpc.tools.datafiles import PARAMS_DIR
+from _data import PARAMS_DIR
 
 MAP17 = PARAMS_DIR / "toyota_rav4_2017.signals.yaml"
 MAP19 = PARAMS_DIR / "toyota_rav4_2019.signals.yaml"

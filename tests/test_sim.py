@@ -20,7 +20,7 @@ from hmpc.models.plant import HybridPlant
 from hmpc.models.logs.recording import Recording
 from hmpc.models.sim.simulator import (DEFAULT_SW_MAX_RAD, EXPERIMENTS, random_params, run_experiment,
                         simulate_experiment)
-from hmpc.tools.datafiles import PARAMS_DIR, bundled
+from _data import PARAMS_DIR, bundled
 
 ALL_CHANNELS = ["time", "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr",
                 "wheel_speed_rl", "wheel_speed_rr", "speed", "accel_pedal", "brake_pedal", "gear",

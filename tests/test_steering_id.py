@@ -12,7 +12,7 @@ from hmpc.models.sim.simulator import simulate_experiment
 from hmpc.models.identify.stats import ols_hac
 from hmpc.models.identify.steering import (identify_steering, road_wheel_angle_from_front,
                                 road_wheel_angle_from_yaw, xcorr_dead_time)
-from hmpc.tools.datafiles import PARAMS_DIR
+from _data import PARAMS_DIR
 
 SEED = 5
 
@@ -83,10 +83,12 @@ def test_steering_dead_time_is_recovered(truth):
     res = identify_steering(rec, truth.vehicle)
     print(f"dead time {res.dead_time_s:.3f} s (truth 0.2 s), offset {res.offset_rad:+.5f}, "
           f"scale {res.scale:.5f}")
-    assert res.dead_time_s == pytest.approx(0.2, abs=0.03)
+    # measured: dead time 0.195 s, offset error -0.00008 rad, scale error -0.095%; bounds
+    # 0.01 s (half a 50 Hz sample), 0.0003 rad and 0.3% (margin 2-4x; issue 3: 0.002 rad, 2%)
+    assert res.dead_time_s == pytest.approx(0.2, abs=0.01)
     assert res.report["dead_time"]["used"]
-    assert abs(res.offset_rad - truth.steering.offset_rad) <= 0.002
-    assert abs(res.scale / truth.steering.scale - 1) <= 0.02
+    assert abs(res.offset_rad - truth.steering.offset_rad) <= 0.0003
+    assert abs(res.scale / truth.steering.scale - 1) <= 0.003
 
 
 def test_little_steering_is_reported_not_identifiable(truth):
@@ -98,9 +100,11 @@ def test_little_steering_is_reported_not_identifiable(truth):
     assert "steering-wheel range" in res.note
     checks = {c["name"]: c for c in res.report["identifiability"]["checks"]}
     assert checks["steering_range_rad"]["passed"] is False
-    # the estimate still comes with a finite interval that holds it
-    assert np.isfinite(res.scale_ci95).all()
-    assert res.scale_ci95[0] <= res.scale <= res.scale_ci95[1]
+    # the estimate still comes with a finite interval, and it covers the truth (measured
+    # scale [0.0786, 0.0812] around 0.08, offset [0.01654, 0.01727] around 0.017 rad)
+    assert np.isfinite(res.scale_ci95).all() and np.isfinite(res.offset_ci95_rad).all()
+    assert res.scale_ci95[0] <= truth.steering.scale <= res.scale_ci95[1]
+    assert res.offset_ci95_rad[0] <= truth.steering.offset_rad <= res.offset_ci95_rad[1]
 
 
 def test_wide_steering_is_identifiable_and_replay_refines(truth):
@@ -111,9 +115,11 @@ def test_wide_steering_is_identifiable_and_replay_refines(truth):
     assert res.method == "position_replay"
     fit = res.fits["position_replay"]
     assert fit.extra["windows"] >= 10
-    assert fit.rms_error < 0.1  # [m]: the replayed bicycle stays on the measured track
+    # [m]: the replayed bicycle stays on the measured track (measured 0.030 m; bound 0.06 m)
+    assert fit.rms_error < 0.06
     ag = res.report["agreement_a_b"]
-    assert ag["correlation"] > 0.99 and abs(ag["scale_ratio"] - 1) < 0.01
+    # measured correlation 0.9992, scale ratio 1.0030; bounds 0.998 and 0.6%
+    assert ag["correlation"] > 0.998 and abs(ag["scale_ratio"] - 1) < 0.006
 
 
 def test_missing_channel_is_an_input_error(truth):

@@ -8,7 +8,7 @@ solve (values written in place; OSQP refactorises its KKT matrix there) and the 
 step time (delay prediction, schedules, linearisation, QP assembly, solve). Target for OSQP (issue 4):
 p50 <= 1 ms and p99 <= 5 ms, with PASS/MISS printed.
 
-    .venv/bin/python tools/bench_mpc.py [--scenario ramp_sequence] [--params P.yaml]
+    .venv/bin/python -m hmpc.tools.bench_mpc [--scenario ramp_sequence] [--params P.yaml]
         [--json FILE] [--skip-nmpc]
 """
 from __future__ import annotations
