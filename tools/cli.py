@@ -20,10 +20,22 @@ SUBCOMMANDS = {
     "ingest": ("hmpc.tools.cmd_ingest", "raw CAN/nav/IMU logs to one canonical recording"),
     "identify": ("hmpc.tools.cmd_identify", "recover the report's steering and accelerator models"),
     "simulate": ("hmpc.tools.cmd_simulate", "simulate an experiment or run the closed loop"),
+    "drive": ("hmpc.tools.cmd_drive", "the real-time actuation loop on a CAN bus"),
+    "diagnose": ("hmpc.tools.cmd_diagnose", "where model and recording differ, the missing physics named"),
+    "operator": ("hmpc.tools.cmd_operator", "the tele-operation station: scripted, experiment, keyboard or gamepad operator"),
 }
 
 
+class MissingSubcommandError(ImportError):
+    """A subcommand in SUBCOMMANDS whose module cannot be found (an internal failure, exit 1)."""
+
+
 def build_parser() -> argparse.ArgumentParser:
+    """The ``hmpc`` parser with every subcommand in SUBCOMMANDS.
+
+    Raises:
+        MissingSubcommandError: a subcommand's module is not installed.
+    """
     parser = argparse.ArgumentParser(prog="hmpc", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"hmpc {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -33,7 +45,10 @@ def build_parser() -> argparse.ArgumentParser:
         except ModuleNotFoundError as exc:
             if exc.name != modname:
                 raise
-            continue  # subcommand not built yet
+            # A declared subcommand without its module is a broken install or a typo in
+            # SUBCOMMANDS, never a subcommand to drop quietly from --help.
+            raise MissingSubcommandError(
+                f"subcommand {name!r}: its module {modname} is missing") from exc
         p = sub.add_parser(name, help=helptext, description=helptext)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
@@ -58,7 +73,13 @@ def _jsonable(obj):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    try:
+        parser = build_parser()
+    except MissingSubcommandError as exc:
+        traceback.print_exc()
+        print(f"hmpc: internal error: {exc} (a bug in hmpc's install; please report it)",
+              file=sys.stderr)
+        return 1
     args = parser.parse_args(argv)
     try:
         return int(args._run(args) or 0)

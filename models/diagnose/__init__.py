@@ -1,3 +1,3 @@
-"""Reserved for diagnosis (issue 12): replay, residuals, localisation, the named-physics
-catalogue. May import every other hmpc.models stage; never controller or tools.
+"""Diagnosis (issue 12): replay and residuals, localisation, the named-physics catalogue, the
+HTML report. May import every other hmpc.models stage; never controller or tools.
 """
