@@ -1,0 +1,4 @@
+"""CAN actuation: profiles (params/*.actuation.yaml), one pure frame builder per message,
+safety limits checked twice, the vehicle simulator node and the real-time drive loop (the only
+owner of a ``can.Bus``). Imports ``hmpc.models`` and the rest of ``hmpc.controller``; never
+``hmpc.tools``."""

@@ -1,0 +1,60 @@
+"""Helpers of the drive tests: one real-time run of the drive loop against the vehicle simulator
+node on python-can's virtual bus (a fresh channel per run), audited from its own candump."""
+from __future__ import annotations
+
+import itertools
+import os
+
+import numpy as np
+
+from _data import PARAMS_DIR, REPORT_PARAMS
+from hmpc.controller.actuation.drive import DriveLoop, audit_candump, parse_fault
+from hmpc.controller.actuation.profiles import load_profile
+from hmpc.controller.actuation.vehicle_node import VehicleNode
+from hmpc.controller.closed_loop import run_closed_loop
+from hmpc.controller.mpc import MpcConfig, MpcController
+from hmpc.models.params import load_params
+from hmpc.models.sim.scenarios import Reference, make_scenario
+
+PROFILES = {"toyota": PARAMS_DIR / "toyota_rav4_2017.actuation.yaml",
+            "bywire": PARAMS_DIR / "bywire.actuation.yaml"}
+_n = itertools.count()
+
+
+def params():
+    return load_params(REPORT_PARAMS, require_model=True)
+
+
+def truncated(ref: Reference, t_end_s: float) -> Reference:
+    """The first ``t_end_s`` seconds of a reference."""
+    n = int(np.searchsorted(ref.time_s, ref.time_s[0] + t_end_s)) + 1
+    return Reference(ref.time_s[:n], ref.x_m[:n], ref.y_m[:n], ref.heading_rad[:n],
+                     ref.speed_mps[:n], name=f"{ref.name}[:{t_end_s:g}s]")
+
+
+def drive(profile: str, scenario: str, duration_s: float, tmp_path, faults=(),
+          ref_s: float | None = None):
+    p = params()
+    prof = load_profile(PROFILES[profile])
+    ref = make_scenario(scenario, p)
+    if ref_s is not None:
+        ref = truncated(ref, ref_s)
+    kw = {"interface": "virtual", "channel": f"hmpc-test-{os.getpid()}-{next(_n)}"}
+    node = VehicleNode(prof, p, kw, start_state=ref.initial_state(p))
+    log = tmp_path / f"{profile}-{scenario}.log"
+    loop = DriveLoop(prof, p, MpcController(p, MpcConfig()), ref, kw, log,
+                     duration_s=duration_s, faults=[parse_fault(f) for f in faults], node=node)
+    res = loop.run()
+    audit = audit_candump(prof, p, log)
+    res.summary["limit_violations"] = audit["limit_violations"]
+    res.summary["limit_audit"] = audit
+    return res, log
+
+
+def simulate_baseline(scenario: str, t_end_s: float) -> dict:
+    """``hmpc simulate``'s closed loop on the same stretch of reference, at the drive loop's
+    50 Hz and without added noise (the node adds only CAN quantisation)."""
+    p = params()
+    ref = truncated(make_scenario(scenario, p), t_end_s)
+    res = run_closed_loop(MpcController(p, MpcConfig()), ref, p, control_period_s=0.02)
+    return res.metrics

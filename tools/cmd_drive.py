@@ -1,0 +1,115 @@
+"""``hmpc drive``: the real-time actuation loop on a CAN bus (controller/actuation/drive.py).
+
+    hmpc drive --params P.yaml --actuation A.yaml [--bus virtual|socketcan:CHANNEL]
+               [--vehicle-sim [--plant-params P2.yaml]] (--scenario NAME | --reference REF.csv)
+               [--controller mpc|nmpc|pid] [--duration S] [--fault NAME@T_S ...]
+               --candump RUN.log [--json OUT.json]
+
+JSON keys: ``steps``, ``loop_period_ms`` {p50, p99, max}, ``deadline_misses``, ``frames_sent``
+per message, ``frames_rejected_by_vehicle``, ``limit_clips``, ``limit_violations``,
+``engaged_s``, ``stop`` {reason, t_s, detected_t_s, standstill_t_s}, and the ``hmpc simulate``
+KPIs (``speed_error_rms_mps``, ``lateral_error_rms_m``, ``pedal_switches_per_min``,
+``zone_transitions_per_min``, ``solve_time_ms``, ``failures``).
+"""
+from __future__ import annotations
+
+import os
+import sys
+
+from hmpc.models.errors import InputError
+
+CONTROLLERS = ("mpc", "nmpc", "pid")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--params", required=True, metavar="P.yaml", help="the controller's model")
+    p.add_argument("--actuation", required=True, metavar="A.yaml",
+                   help="actuation profile (params/*.actuation.yaml)")
+    p.add_argument("--bus", default="virtual", metavar="virtual|socketcan:CHANNEL",
+                   help="the CAN bus (default virtual: python-can's in-process virtual bus)")
+    p.add_argument("--vehicle-sim", action="store_true",
+                   help="run the vehicle simulator node on the other end of the bus")
+    p.add_argument("--plant-params", metavar="P2.yaml",
+                   help="the simulated car's parameters (default: --params)")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--scenario", metavar="NAME", help="a named reference (figure8, ramp_sequence, ...)")
+    what.add_argument("--reference", metavar="REF.csv", help="a reference CSV")
+    p.add_argument("--controller", choices=CONTROLLERS, default="mpc")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="run time after engagement before the run's own controlled stop "
+                        "(default: the reference's length); Ctrl-C stops the car earlier")
+    p.add_argument("--fault", action="append", default=[], metavar="NAME@T_S",
+                   help="inject a fault at T_S seconds of run time: feedback_loss, clock_freeze, "
+                        "solver_failure, bus_error, driver_override, vehicle_rejects")
+    p.add_argument("--candump", required=True, metavar="RUN.log",
+                   help="write every frame sent and received here (candump -L)")
+    p.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
+
+
+def bus_kwargs(text: str) -> dict:
+    """``virtual`` -> a private virtual channel; ``socketcan:vcan0`` -> socketcan on vcan0."""
+    if text == "virtual":
+        return {"interface": "virtual", "channel": f"hmpc-drive-{os.getpid()}"}
+    iface, sep, chan = text.partition(":")
+    if not sep or not iface or not chan:
+        raise InputError(f"--bus '{text}': expected virtual or INTERFACE:CHANNEL")
+    return {"interface": iface, "channel": chan}
+
+
+def run(args) -> int:
+    from hmpc.controller.actuation.drive import DriveLoop, audit_candump, parse_fault
+    from hmpc.controller.actuation.profiles import load_profile
+    from hmpc.controller.actuation.vehicle_node import VehicleNode
+    from hmpc.models.params import load_params
+    from hmpc.models.sim.scenarios import load_reference_csv, make_scenario
+    from hmpc.tools.cli import write_json
+    from hmpc.tools.cmd_simulate import make_controller
+
+    params = load_params(args.params, require_model=True)
+    profile = load_profile(args.actuation)
+    faults = [parse_fault(f) for f in args.fault]
+    if args.plant_params and not args.vehicle_sim:
+        raise InputError("--plant-params belongs to --vehicle-sim")
+    if args.duration is not None and not args.duration > 0:
+        raise InputError("--duration must be > 0")
+    truth = load_params(args.plant_params, require_model=True) if args.plant_params else params
+    ref = make_scenario(args.scenario, params) if args.scenario is not None \
+        else load_reference_csv(args.reference)
+    kw = bus_kwargs(args.bus)
+    node = None
+    if args.vehicle_sim:
+        node = VehicleNode(profile, truth, kw, start_state=ref.initial_state(truth))
+    ctl = make_controller(args.controller, params)
+    duration = args.duration if args.duration is not None else ref.duration_s
+    print(f"hmpc drive: {args.controller} on {ref.name} via {profile.name} "
+          f"({args.bus}{', vehicle sim' if node else ''}), {duration:.1f} s", file=sys.stderr)
+    loop = DriveLoop(profile, params, ctl, ref, kw, args.candump, duration_s=duration,
+                     faults=faults, node=node)
+    import signal
+    old = signal.signal(signal.SIGINT, lambda *_: loop.request_stop("interrupted"))
+    try:
+        res = loop.run()   # Ctrl-C: a controlled stop, as on a lost link
+    finally:
+        signal.signal(signal.SIGINT, old)
+    out = res.summary
+    audit = audit_candump(profile, params, args.candump)
+    out["limit_violations"] = audit["limit_violations"]
+    out["limit_audit"] = audit
+    out["faults"] = [{"name": f.name, "t_s": f.t_s} for f in faults]
+    st = out["stop"]
+    lp = out["loop_period_ms"]
+    print(f"steps {out['steps']}, loop period p50/p99/max {lp['p50']:.1f}/{lp['p99']:.1f}/"
+          f"{lp['max']:.1f} ms, deadline misses {out['deadline_misses']}, frames sent "
+          f"{out['frames_sent']}, rejected by vehicle {out['frames_rejected_by_vehicle']}, "
+          f"limit violations {out['limit_violations']}, stop {st['reason']} "
+          f"(detected {st['detected_t_s']}, started {st['t_s']}, standstill {st['standstill_t_s']})")
+    if out["speed_error_rms_mps"] is not None:
+        print(f"speed error RMS {out['speed_error_rms_mps']:.3f} m/s, lateral error RMS "
+              f"{out['lateral_error_rms_m']:.3f} m")
+    write_json(args.json, out)
+    if st["reason"] in ("no_feedback", "car_not_accepting"):
+        raise InputError(f"bus {args.bus}: never engaged: "
+                         + ("no wheel speeds on the bus (is the car, or --vehicle-sim, there?)"
+                            if st["reason"] == "no_feedback"
+                            else "the car's status never accepted commands"))
+    return 0
