@@ -1,0 +1,915 @@
+"""State estimator shared by simulate, drive and replay: an extended Kalman filter over the plant.
+
+State (7): the plant's ``[x_m, y_m, psi_rad, v_mps]`` (``models.plant``: local ENU, the
+front-wheel point of eq. 1) augmented with three slowly varying sensor/model errors that the
+car's own data make observable and that otherwise bias the plant state:
+
+- ``delta_offset_rad``: a correction to eq. 7's road-wheel angle (``delta = offset + scale *
+  sw + delta_offset``). It absorbs a steering map known only to +-13 % (the comma minute) and
+  understeer at speed; the gyro observes it through the yaw rate ``v sin(delta) / b``.
+- ``gyro_bias_radps``: the yaw-rate sensor's bias (the simulator draws up to +-0.002 rad/s).
+  Separable from ``delta_offset`` because it does not scale with speed and GNSS heading sees
+  the integral of the true yaw rate.
+- ``wheel_speed_scale``: tyre rolling radius error (wheel speeds read ``scale * v``; the comma
+  minute's wheel mean reads 0.8 % below GNSS). GNSS speed and position observe it; it keeps
+  speed honest through a GNSS outage.
+
+Process model: the report's eq. 1 + eq. 7 + eq. 8 from ``models.plant``, the one place they
+are written: ``HybridPlant.step`` for the mean (zone hysteresis, exact in speed, standstill
+clamp) and the scalar ``bicycle_jacobian`` (``ops=math``) for the covariance. The
+``delta_offset`` state enters by folding it into the steering input, ``sw + delta_offset /
+scale``; eq. 1's derivative with respect to the road-wheel angle is its column of ``F``.
+When the IMU supplies a longitudinal acceleration it replaces eq. 8 in the speed propagation
+(``use_imu_accel``). Propagation sub-steps are at most ``max_step_s``; the three extra states
+are random walks. The covariance is propagated with ``F = I + A dt`` and a diagonal process
+noise (random-walk densities in :class:`EstimatorConfig`).
+
+Inputs, each at its own rate (call the ``update_*`` methods as messages arrive):
+
+- :meth:`predict` ``(t_s, u)``: the plant input ``[steering_wheel_angle_rad, accel_pedal,
+  brake_pedal]`` from ``t_s`` on (the controller's applied command). The CAN steering-wheel
+  angle, when fresher than ``steer_input_max_age_s``, replaces ``u[0]``: it is what the
+  wheels follow.
+- :meth:`update_can`: the four wheel speeds (their mean is the speed; optionally the rear
+  difference is a second, gyro-bias-free yaw rate, the report's eq. 5), steering-wheel angle,
+  CAN yaw rate.
+- :meth:`update_imu`: gyro yaw rate, longitudinal acceleration. The CAN (KINEMATICS) and IMU
+  yaw rates share the one ``gyro_bias_radps`` state: feed one of them (a car with both has
+  two biases, which this filter does not separate).
+- :meth:`update_gnss` ``(t_meas_s, t_now_s, ...)``: position, heading, speed, measured at
+  ``t_meas_s`` and arriving at ``t_now_s``.
+
+Latency compensation (GNSS): every event the filter processes (predict ticks, CAN, IMU, GNSS)
+is kept in a time-ordered log with the state, covariance and held inputs after it
+(preallocated arrays, ``history_events`` deep; when full the oldest half is dropped). A fix
+measured in the past is inserted at its measurement time: the filter is rewound to the last
+event before it, the fix is applied at ``t_meas_s``, and every later event is re-applied (and
+its snapshot rewritten, so a later delayed fix sees this one). The result is the one the filter
+would have had with the fix on time (the tests check it is equal to rounding), not an
+approximation of it, at the cost of re-running the events of one latency (about 25 events for
+100 ms). CAN and IMU messages are applied when they arrive, at the
+filter's current time if they are stamped earlier (their latency is under a CAN period); their
+stamps are recorded, so a rewind re-applies them in arrival order. A fix older than the log
+is rejected and counted (``too_old``).
+
+Outliers: every update is gated on its normalised innovation squared ``y' S^-1 y`` against the
+chi-square quantile with the update's degrees of freedom at ``gate_probability`` (0.999: a
+consistent filter rejects 1 in 1000 good measurements; a 10 m jump on 2 cm GNSS scores about
+10^5 against a threshold of 18.5 for a four-value fix). Rejections are counted per sensor in
+:attr:`Estimator.stats`. After ``gnss_reinit_after`` consecutive rejected fixes the filter
+trusts GNSS again (the fix, not the filter, was right: e.g. after a long outage the
+dead-reckoned state drifted): position and heading are reset to the fix with the initial
+uncertainty, counted as ``reinit``.
+
+Allocation: the filter, Jacobian, gain and log buffers are allocated once in ``__init__``; a
+step writes into them. What remains per step is the plant step's 4-vector result and at most
+a 4x4 inverse for a GNSS update.
+
+Also here: :class:`SensorFeedback` (simulated sensors -> estimator, what a simulated closed
+loop gives its controller) and :func:`estimate_recording` (the estimator over a canonical
+recording's raw channels, e.g. the real comma2k19 minute; ``tools/estimate_plot.py`` plots it).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from hmpc.models.params import Params
+from hmpc.models.plant import (IAP, IBP, ISW, HybridPlant, bicycle_jacobian,
+                               road_wheel_angle)
+
+NXE = 7  #: estimator state size
+IX, IY, IPSI, IV, IDOFF, IBR, IKWS = range(NXE)
+STATE_NAMES = ("x_m", "y_m", "psi_rad", "v_mps", "delta_offset_rad", "gyro_bias_radps",
+               "wheel_speed_scale")
+
+_TICK, _CAN, _IMU, _GNSS = 0, 1, 2, 3
+_NAUX = 8  # held inputs in a snapshot: t, u0, u1, u2, sw_meas, t_sw, a_imu, zone
+SENSORS = ("can_speed", "wheel_yaw_rate", "can_yaw_rate", "imu_yaw_rate", "gnss")
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Noise model and settings of :class:`Estimator`; every number is 1-sigma and SI.
+
+    Random-walk densities are per square root of a second: over ``dt`` the state's variance
+    grows by ``density**2 * dt``.
+    """
+
+    #: eq. 8's error as a speed random walk [m/s/sqrt(s)]: on the comma minute the high zone
+    #: leaves about half the acceleration variance unexplained (NMSE 48 %), ~0.3 m/s^2 rms.
+    speed_walk_mps_rts: float = 0.5
+    #: the same when the IMU's acceleration drives the speed (accelerometer noise 0.05 m/s^2,
+    #: bias up to 0.02 m/s^2, grade) [m/s/sqrt(s)].
+    speed_walk_imu_mps_rts: float = 0.1
+    #: heading error of eq. 1 beyond a steering offset (slip, road camber) [rad/sqrt(s)].
+    heading_walk_rad_rts: float = 0.005
+    #: position error of eq. 1 (side slip of the front point) [m/sqrt(s)].
+    position_walk_m_rts: float = 0.02
+    #: drift of the road-wheel angle correction [rad/sqrt(s)] (understeer changes with speed
+    #: and lateral acceleration within seconds).
+    delta_offset_walk_rad_rts: float = 0.001
+    #: gyro bias drift [rad/s/sqrt(s)]: wanders about 0.001 rad/s in an hour, as a MEMS
+    #: gyro's bias does with temperature.
+    gyro_bias_walk_radps_rts: float = 2e-5
+    #: tyre radius drift (load, pressure, temperature) [1/sqrt(s)].
+    wheel_scale_walk_rts: float = 1e-4
+
+    #: initial uncertainty (after the first fix or :meth:`Estimator.reset`).
+    init_position_m: float = 0.5
+    init_heading_rad: float = 0.05
+    init_speed_mps: float = 0.5
+    init_delta_offset_rad: float = 0.005
+    init_gyro_bias_radps: float = 0.003
+    init_wheel_scale: float = 0.02
+
+    #: measurement noise; the defaults match ``models.sim.live_sensors.SensorConfig()``
+    #: (see :meth:`matching`).
+    can_speed_mps: float = 0.05
+    wheel_yaw_rate_radps: float = 0.035  # comma minute, rear difference against the gyro
+    can_yaw_rate_radps: float = 0.005
+    imu_yaw_rate_radps: float = 0.005
+    gnss_position_m: float = 0.02
+    gnss_heading_rad: float = math.radians(0.1)
+    gnss_speed_mps: float = 0.05
+    #: GNSS point relative to the eq. 1 point (front-axle centre), body axes (x fwd, y left)
+    #: [m]. A conventions ``nav_lever_arm_m`` [lx, ly] from the rear axle is (lx - b, ly).
+    gnss_offset_m: tuple[float, float] = (0.0, 0.0)
+
+    #: use the rear wheel-speed difference as a yaw-rate measurement (report's eq. 5). Off by
+    #: default: on the comma minute it differs from the gyro by 0.034 rad/s rms with heavy tails
+    #: and a -0.009 rad/s offset (left/right tyre radii differ), which no state here models; it
+    #: earns its place on a car without a yaw-rate sensor.
+    use_wheel_yaw_rate: bool = False
+    #: the IMU's longitudinal acceleration replaces eq. 8 while fresher than this [s].
+    use_imu_accel: bool = True
+    imu_accel_max_age_s: float = 0.05
+    #: the CAN steering-wheel angle replaces the commanded one while fresher than this [s].
+    steer_input_max_age_s: float = 0.1
+    #: innovation gate: chi-square probability (see module docstring).
+    gate_probability: float = 0.999
+    #: consecutive rejected GNSS fixes before the filter re-initialises on GNSS.
+    gnss_reinit_after: int = 20
+    #: longest propagation sub-step [s] (the plant's step is exact in speed and heading for
+    #: held inputs, midpoint in position: about dist * dpsi^2 / 24, 0.1 mm per 20 ms step at
+    #: 20 m/s on a 5 m radius).
+    max_step_s: float = 0.02
+    #: depth of the event log for latency compensation (about 300 events/s: 1.7-3.4 s).
+    history_events: int = 1024
+
+    def __post_init__(self):
+        if not 0.5 < self.gate_probability < 1.0:
+            raise ValueError("gate_probability must be within (0.5, 1), got "
+                             f"{self.gate_probability}")
+        if self.history_events < 16:
+            raise ValueError("history_events must be at least 16")
+        if not self.max_step_s > 0:
+            raise ValueError("max_step_s must be positive")
+
+    @classmethod
+    def matching(cls, sensors, **overrides) -> "EstimatorConfig":
+        """Measurement noise matched to a ``live_sensors.SensorConfig`` (noise_scale applied)."""
+        k = sensors.noise_scale
+        quant = 0.01 / 3.6 / math.sqrt(12.0)  # WHEEL_SPEEDS 0.01 km/h step
+        wheel = math.hypot(k * sensors.wheel_jitter_mps, quant)
+        track = 1.6  # nominal; only sets a noise level
+        kw = dict(can_speed_mps=math.hypot(k * sensors.speed_noise_mps, wheel / 2.0),
+                  wheel_yaw_rate_radps=math.sqrt(2.0) * wheel / track,
+                  can_yaw_rate_radps=k * sensors.can_yaw_rate_noise_radps,
+                  imu_yaw_rate_radps=k * sensors.gyro_noise_radps,
+                  gnss_position_m=max(k * sensors.position_noise_m, 1e-4),
+                  gnss_heading_rad=max(k * sensors.heading_noise_rad, 1e-5),
+                  gnss_speed_mps=max(k * sensors.gnss_speed_noise_mps, 1e-3))
+        kw.update(overrides)
+        return cls(**kw)
+
+
+def _value(v) -> float:
+    """A measurement value: None and non-finite numbers are absent (NaN)."""
+    if v is None:
+        return math.nan
+    v = float(v)
+    return v if math.isfinite(v) else math.nan
+
+
+def _time(t_s) -> float:
+    t = float(t_s)
+    if not math.isfinite(t):
+        raise ValueError(f"a message time must be finite, got {t_s!r}")
+    return t
+
+
+class Estimator:
+    """Extended Kalman filter over the plant state; see the module docstring.
+
+    Args:
+        params: the controller's model (geometry, steering map, zones).
+        config: noise and settings.
+
+    Before the first GNSS fix with position and heading (or :meth:`reset`) the filter has no
+    state: ``initialized`` is False and :meth:`state` raises.
+    """
+
+    def __init__(self, params: Params, config: EstimatorConfig | None = None):
+        if not params.is_model:
+            raise ValueError("the estimator needs a parameter file with steering and zones")
+        self.params = params
+        self.cfg = cfg = config or EstimatorConfig()
+        self.plant = HybridPlant(params)
+        veh = params.vehicle
+        self._b = float(veh.wheelbase_m)
+        self._track_r = float(veh.track_rear_m if veh.track_rear_m is not None
+                              else veh.track_front_m)
+        self._off = float(params.steering.offset_rad)
+        self._scale = float(params.steering.scale)
+        self._lever = (float(cfg.gnss_offset_m[0]), float(cfg.gnss_offset_m[1]))
+        self._gate = {m: float(chi2.ppf(cfg.gate_probability, m)) for m in range(1, 5)}
+        # filter buffers
+        self._x = np.zeros(NXE)
+        self._P = np.zeros((NXE, NXE))
+        self._F = np.eye(NXE)
+        self._tmp = np.zeros((NXE, NXE))
+        self._u4 = np.zeros(3)
+        self._q = np.array([cfg.position_walk_m_rts, cfg.position_walk_m_rts,
+                            cfg.heading_walk_rad_rts, cfg.speed_walk_mps_rts,
+                            cfg.delta_offset_walk_rad_rts, cfg.gyro_bias_walk_radps_rts,
+                            cfg.wheel_scale_walk_rts]) ** 2
+        self._q_imu_v = cfg.speed_walk_imu_mps_rts ** 2
+        self._qdt = np.zeros(NXE)
+        self._diag = self._P.reshape(-1)[:: NXE + 1]  # a view on P's diagonal
+        self._init_var = np.array([cfg.init_position_m, cfg.init_position_m, cfg.init_heading_rad,
+                                   cfg.init_speed_mps, cfg.init_delta_offset_rad,
+                                   cfg.init_gyro_bias_radps, cfg.init_wheel_scale]) ** 2
+        # update buffers per dimension m = 1..4
+        self._H = {m: np.zeros((m, NXE)) for m in range(1, 5)}
+        self._PHt = {m: np.zeros((NXE, m)) for m in range(1, 5)}
+        self._S = {m: np.zeros((m, m)) for m in range(1, 5)}
+        self._K = {m: np.zeros((NXE, m)) for m in range(1, 5)}
+        self._y = {m: np.zeros(m) for m in range(1, 5)}
+        self._Ky = np.zeros(NXE)
+        self._h1 = self._H[1][0]  # a view: the one-value updates write H[1]
+        self._ph1 = np.zeros(NXE)
+        self._R = {m: np.zeros(m) for m in range(1, 5)}
+        # event log: time-ordered; snapshot after each event
+        n = cfg.history_events
+        self._ev_n = 0
+        self._ev_kind = np.zeros(n, dtype=np.int8)
+        self._ev_t = np.zeros(n)
+        self._ev_pay = np.zeros((n, 4))
+        self._ev_x = np.zeros((n, NXE))
+        self._ev_P = np.zeros((n, NXE, NXE))
+        self._ev_aux = np.zeros((n, _NAUX))
+        self._sc_kind = np.zeros(n, dtype=np.int8)
+        self._sc_t = np.zeros(n)
+        self._sc_pay = np.zeros((n, 4))
+        self._sc_x = np.zeros((n, NXE))
+        self._sc_P = np.zeros((n, NXE, NXE))
+        self._sc_aux = np.zeros((n, _NAUX))
+        self.stats = {s: {"accepted": 0, "rejected": 0} for s in SENSORS}
+        self.stats["gnss"].update(too_old=0, replays=0, reinit=0, latency_max_s=0.0)
+        self._counting = True
+        self.initialized = False
+        self._clear_held()
+
+    def _clear_held(self) -> None:
+        self._t = -math.inf
+        self._u = [0.0, 0.0, 0.0]
+        self._sw_meas, self._t_sw = 0.0, -math.inf
+        self._a_imu, self._t_aimu = 0.0, -math.inf
+        self._zone: int | None = None
+        self._gnss_rejects = 0
+        self._last_speed = math.nan
+
+    # =================================================================== public API
+    def reset(self, t_s: float, state, sigmas=None) -> None:
+        """Start (or restart) at ``t_s`` from plant ``state`` (x, y, psi, v) or a 7-state.
+
+        ``sigmas``: initial 1-sigma per state (7); default the config's ``init_*``.
+        """
+        s = np.asarray(state, dtype=float).reshape(-1)
+        if len(s) not in (4, NXE) or not np.all(np.isfinite(s)):
+            raise ValueError(f"reset needs a finite 4- or 7-state, got {state!r}")
+        if sigmas is not None and len(sigmas) != NXE:
+            raise ValueError(f"reset needs 7 sigmas ({', '.join(STATE_NAMES)})")
+        self._x[:] = 0.0
+        self._x[IKWS] = 1.0
+        self._x[: len(s)] = s
+        self._P[:] = 0.0
+        if sigmas is None:
+            self._diag[:] = self._init_var
+        else:
+            self._diag[:] = np.asarray(sigmas, dtype=float) ** 2
+        self._t = float(t_s)
+        self._zone = self.plant.select_zone(float(self._x[IV]), None)
+        self._gnss_rejects = 0
+        self._ev_n = 0
+        self.initialized = True
+        self._log(_TICK, self._t, self._u[0], self._u[1], self._u[2], math.nan)
+
+    @property
+    def time_s(self) -> float:
+        """Time of the filter's state [s] (the latest event applied)."""
+        return self._t
+
+    def state(self) -> np.ndarray:
+        """Plant state estimate ``[x_m, y_m, psi_rad, v_mps]`` at :attr:`time_s` (a copy)."""
+        self._need_init()
+        return self._x[:4].copy()
+
+    def covariance(self) -> np.ndarray:
+        """Covariance of :meth:`state` (4x4, a copy)."""
+        self._need_init()
+        return self._P[:4, :4].copy()
+
+    def full_state(self) -> np.ndarray:
+        """All 7 states (``STATE_NAMES``), a copy."""
+        self._need_init()
+        return self._x.copy()
+
+    def full_covariance(self) -> np.ndarray:
+        """Covariance of :meth:`full_state` (7x7, a copy)."""
+        self._need_init()
+        return self._P.copy()
+
+    def predict(self, t_s: float, u=None) -> None:
+        """Propagate to ``t_s`` with the inputs held so far, then hold ``u`` (steering-wheel
+        angle [rad], accel pedal, brake pedal) from ``t_s`` on (None: keep the held input).
+
+        Raises:
+            ValueError: a non-finite time or input.
+        """
+        if u is None:
+            u0, u1, u2 = self._u
+        else:
+            u0, u1, u2 = float(u[ISW]), float(u[IAP]), float(u[IBP])
+        if not (math.isfinite(t_s) and math.isfinite(u0) and math.isfinite(u1)
+                and math.isfinite(u2)):
+            raise ValueError(f"predict needs a finite time and input, got t_s={t_s!r}, u={u!r}")
+        if not self.initialized:
+            self._u[:] = (u0, u1, u2)
+            self._t = max(self._t, float(t_s))
+            return
+        t = max(float(t_s), self._t)
+        self._apply(_TICK, t, u0, u1, u2, math.nan)
+        self._log(_TICK, t, u0, u1, u2, math.nan)
+
+    def update_can(self, t_s: float, wheel_speeds_mps=None, steering_wheel_angle_rad=None,
+                   yaw_rate_radps=None, speed_mps=None) -> None:
+        """A CAN message (or several of one instant): any of the four wheel speeds (fl, fr, rl,
+        rr) [m/s], or their mean ``speed_mps``; the steering-wheel angle [rad]; the yaw rate
+        [rad/s] (KINEMATICS). Stamped earlier than :attr:`time_s`: applied now. None or a
+        non-finite value: absent (a dropout)."""
+        t_s = _time(t_s)
+        ws_mean = wheel_yaw = math.nan
+        if wheel_speeds_mps is not None:
+            fl, fr, rl, rr = (_value(q) for q in wheel_speeds_mps)
+            ws_mean = 0.25 * (fl + fr + rl + rr)
+            if self.cfg.use_wheel_yaw_rate:
+                wheel_yaw = (rr - rl) / self._track_r
+        elif speed_mps is not None:
+            ws_mean = _value(speed_mps)
+        sw = _value(steering_wheel_angle_rad)
+        yaw = _value(yaw_rate_radps)
+        if not self.initialized:
+            if sw == sw:
+                self._sw_meas, self._t_sw = sw, t_s
+            if ws_mean == ws_mean:
+                self._last_speed = ws_mean
+            return
+        t = max(t_s, self._t)
+        self._apply(_CAN, t, ws_mean, sw, yaw, wheel_yaw)
+        self._log(_CAN, t, ws_mean, sw, yaw, wheel_yaw)
+
+    def update_imu(self, t_s: float, yaw_rate_radps=None, accel_x_mps2=None) -> None:
+        """An IMU sample: yaw rate [rad/s] (gyro), longitudinal acceleration [m/s^2]. None or
+        a non-finite value: absent."""
+        t_s = _time(t_s)
+        if not self.initialized:
+            return
+        yaw, ax = _value(yaw_rate_radps), _value(accel_x_mps2)
+        t = max(t_s, self._t)
+        self._apply(_IMU, t, yaw, ax, math.nan, math.nan)
+        self._log(_IMU, t, yaw, ax, math.nan, math.nan)
+
+    def update_gnss(self, t_meas_s: float, t_now_s: float | None = None, x_m=None, y_m=None,
+                    heading_rad=None, speed_mps=None) -> bool:
+        """A GNSS/INS fix measured at ``t_meas_s`` arriving at ``t_now_s`` (default: the
+        measurement time, no latency). Any of position (both ``x_m`` and ``y_m``), heading,
+        speed. A fix older than the filter's time is applied at ``t_meas_s`` by rewinding
+        (module docstring); the filter's time does not move to ``t_now_s`` (messages of the
+        same instant may still come; :meth:`predict` moves it). ``t_now_s`` is checked and
+        its lag recorded (``stats['gnss']['latency_max_s']``). Returns True when accepted
+        (False: gated out, too old, or nothing in it).
+
+        Raises:
+            ValueError: ``t_now_s`` before ``t_meas_s`` (a fix from the future).
+        """
+        x, y = _value(x_m), _value(y_m)
+        if not (x == x and y == y):
+            x = y = math.nan
+        h, v = _value(heading_rad), _value(speed_mps)
+        t_meas = _time(t_meas_s)
+        t_now = t_meas if t_now_s is None else _time(t_now_s)
+        if not t_now >= t_meas - 1e-9:
+            raise ValueError(f"a GNSS fix measured at {t_meas} s cannot arrive at {t_now} s")
+        g = self.stats["gnss"]
+        g["latency_max_s"] = max(g["latency_max_s"], t_now - t_meas)
+        if not self.initialized:
+            if x == x and h == h:
+                v0 = v if v == v else (self._last_speed if self._last_speed == self._last_speed
+                                       else 0.0)
+                self.reset(t_meas, (x, y, h, v0))  # keeps the held inputs
+                self._count("gnss", True)
+                return True
+            return False
+        if t_meas >= self._t:
+            ok = self._apply(_GNSS, t_meas, x, y, h, v)
+            self._log(_GNSS, t_meas, x, y, h, v)
+        else:
+            ok = self._replay_with(t_meas, x, y, h, v)
+            if ok is None:
+                g["too_old"] += 1
+                return False
+        return bool(ok)
+
+    def feed(self, m, t_now_s: float | None = None):
+        """Apply one ``models.sim.live_sensors.Measurement`` (or anything with ``kind``,
+        ``t_meas_s``, ``t_arrival_s`` and ``values``)."""
+        v = m.values
+        if m.kind == "can":
+            self.update_can(m.t_meas_s, v.get("wheel_speeds_mps"),
+                            v.get("steering_wheel_angle_rad"), v.get("yaw_rate_radps"),
+                            v.get("speed_mps"))
+        elif m.kind == "imu":
+            self.update_imu(m.t_meas_s, v.get("yaw_rate_radps"), v.get("accel_x_mps2"))
+        elif m.kind == "gnss":
+            self.update_gnss(m.t_meas_s, m.t_arrival_s if t_now_s is None else t_now_s,
+                             v.get("x_m"), v.get("y_m"), v.get("heading_rad"), v.get("speed_mps"))
+        else:
+            raise ValueError(f"unknown measurement kind {m.kind!r}")
+
+    # ============================================================== the filter
+    def _need_init(self) -> None:
+        if not self.initialized:
+            raise RuntimeError("the estimator has no state yet: no GNSS fix and no reset()")
+
+    def _count(self, sensor: str, ok: bool) -> None:
+        if self._counting:
+            self.stats[sensor]["accepted" if ok else "rejected"] += 1
+
+    def _steer(self, t: float) -> float:
+        if t - self._t_sw <= self.cfg.steer_input_max_age_s:
+            return self._sw_meas
+        return self._u[0]
+
+    def _propagate_to(self, t: float) -> None:
+        dt_total = t - self._t
+        if dt_total <= 0.0:
+            return
+        n = max(int(math.ceil(dt_total / self.cfg.max_step_s - 1e-9)), 1)
+        dt = dt_total / n
+        for _ in range(n):
+            self._propagate(dt)
+        self._t = t
+
+    def _propagate(self, dt: float) -> None:
+        x, P, F, plant = self._x, self._P, self._F, self.plant
+        u = self._u4
+        u[0] = self._steer(self._t) + x[IDOFF] / self._scale
+        u[1], u[2] = self._u[1], self._u[2]
+        imu = self.cfg.use_imu_accel and self._t - self._t_aimu <= self.cfg.imu_accel_max_age_s
+        zone = plant.select_zone(float(x[IV]), self._zone)
+        extra = self._a_imu - plant.accel(zone, u[1], u[2]) if imu else 0.0
+        # eq. 1's Jacobian at the start of the step, with respect to the road-wheel angle
+        # (scale 1), which is also the derivative with respect to delta_offset
+        delta = road_wheel_angle(u[0], self._off, self._scale)
+        j = bicycle_jacobian(float(x[IPSI]), float(x[IV]), delta, self._b, 1.0, ops=math)
+        res = plant.step(x[:4], u, dt, zone, extra)
+        x[:4] = res.state
+        self._zone = res.zone
+        # F = I + A dt; eq. 8's speed row has no state in it (zone aside)
+        F[IX, IPSI], F[IX, IV], F[IX, IDOFF] = j.dx_dpsi * dt, j.dx_dv * dt, j.dx_du * dt
+        F[IY, IPSI], F[IY, IV], F[IY, IDOFF] = j.dy_dpsi * dt, j.dy_dv * dt, j.dy_du * dt
+        F[IPSI, IV], F[IPSI, IDOFF] = j.dpsi_dv * dt, j.dpsi_du * dt
+        np.dot(F, P, out=self._tmp)
+        np.dot(self._tmp, F.T, out=P)
+        np.multiply(self._q, dt, out=self._qdt)
+        if imu:
+            self._qdt[IV] = self._q_imu_v * dt
+        self._diag += self._qdt
+
+    def _update(self, m: int, sensor: str, angle_row: int = -1) -> bool:
+        """Gated update with ``self._H[m]``, ``self._y[m]`` (z - h), ``self._R[m]`` (variances)."""
+        if m == 1:
+            return self._update1(sensor)
+        H, y, S, PHt, K, P = self._H[m], self._y[m], self._S[m], self._PHt[m], self._K[m], self._P
+        if angle_row >= 0:
+            y[angle_row] = math.remainder(y[angle_row], 2.0 * math.pi)
+        np.dot(P, H.T, out=PHt)
+        np.dot(H, PHt, out=S)
+        S.reshape(-1)[:: m + 1] += self._R[m]
+        Si = np.linalg.inv(S)
+        d2 = float(y @ Si @ y)
+        if d2 > self._gate[m]:
+            self._count(sensor, False)
+            return False
+        np.dot(PHt, Si, out=K)
+        np.dot(K, y, out=self._Ky)
+        self._x += self._Ky
+        np.dot(K, PHt.T, out=self._tmp)
+        P -= self._tmp
+        np.add(P, P.T, out=self._tmp)
+        np.multiply(self._tmp, 0.5, out=P)
+        self._count(sensor, True)
+        return True
+
+    def _update1(self, sensor: str) -> bool:
+        """:meth:`_update` for one value: no inverse, a rank-one covariance update that keeps
+        ``P`` exactly symmetric (``PHt PHt' / s``)."""
+        h, ph, P = self._h1, self._ph1, self._P
+        np.dot(P, h, out=ph)
+        s = float(np.dot(h, ph)) + float(self._R[1][0])
+        y = float(self._y[1][0])
+        if y * y / s > self._gate[1]:
+            self._count(sensor, False)
+            return False
+        np.multiply(ph, y / s, out=self._Ky)
+        self._x += self._Ky
+        np.outer(ph, ph, out=self._tmp)
+        self._tmp *= 1.0 / s
+        P -= self._tmp
+        self._count(sensor, True)
+        return True
+
+    def _delta(self, t: float) -> float:
+        return self._off + self._scale * self._steer(t) + self._x[IDOFF]
+
+    def _yaw_update(self, z: float, sigma: float, sensor: str, biased: bool) -> None:
+        x = self._x
+        d = self._delta(self._t)
+        sd, cd = math.sin(d), math.cos(d)
+        k = 1.0 if biased else x[IKWS]
+        H, y, R = self._H[1], self._y[1], self._R[1]
+        H[:] = 0.0
+        H[0, IV] = k * sd / self._b
+        H[0, IDOFF] = k * x[IV] * cd / self._b
+        if biased:
+            H[0, IBR] = 1.0
+            y[0] = z - (x[IV] * sd / self._b + x[IBR])
+        else:
+            H[0, IKWS] = x[IV] * sd / self._b
+            y[0] = z - k * x[IV] * sd / self._b
+        R[0] = sigma * sigma
+        self._update(1, sensor)
+
+    def _apply(self, kind: int, t: float, p0: float, p1: float, p2: float, p3: float):
+        """Apply one event at time ``t`` (``t >= self._t``); the payload meaning by kind."""
+        self._propagate_to(t)
+        cfg, x = self.cfg, self._x
+        if kind == _TICK:
+            self._u[0], self._u[1], self._u[2] = p0, p1, p2
+            return True
+        if kind == _CAN:
+            if p1 == p1:
+                self._sw_meas, self._t_sw = p1, t
+            if p0 == p0:  # mean wheel speed = scale * v (1 + cos delta) / 2 (front ~v, rear v cos)
+                d = self._delta(t)
+                c = 0.5 * (1.0 + math.cos(d))
+                H, y, R = self._H[1], self._y[1], self._R[1]
+                H[:] = 0.0
+                H[0, IV] = x[IKWS] * c
+                H[0, IKWS] = x[IV] * c
+                H[0, IDOFF] = -0.5 * x[IKWS] * x[IV] * math.sin(d)
+                y[0] = p0 - x[IKWS] * x[IV] * c
+                R[0] = cfg.can_speed_mps ** 2
+                self._update(1, "can_speed")
+            if p2 == p2:
+                self._yaw_update(p2, cfg.can_yaw_rate_radps, "can_yaw_rate", True)
+            if p3 == p3:
+                self._yaw_update(p3, cfg.wheel_yaw_rate_radps, "wheel_yaw_rate", False)
+            if x[IV] < 0.0:
+                x[IV] = 0.0
+            return True
+        if kind == _IMU:
+            if p0 == p0:
+                self._yaw_update(p0, cfg.imu_yaw_rate_radps, "imu_yaw_rate", True)
+            if p1 == p1:
+                self._a_imu, self._t_aimu = p1, t
+            return True
+        return self._gnss_update(p0, p1, p2, p3)
+
+    def _gnss_update(self, gx: float, gy: float, gh: float, gv: float) -> bool:
+        cfg, x = self.cfg, self._x
+        m = (2 if gx == gx else 0) + (1 if gh == gh else 0) + (1 if gv == gv else 0)
+        if m == 0:
+            return False
+        H, y, R = self._H[m], self._y[m], self._R[m]
+        H[:] = 0.0
+        i = 0
+        angle_row = -1
+        if gx == gx:
+            lx, ly = self._lever
+            c, s = math.cos(x[IPSI]), math.sin(x[IPSI])
+            H[0, IX] = 1.0
+            H[1, IY] = 1.0
+            H[0, IPSI] = -lx * s - ly * c
+            H[1, IPSI] = lx * c - ly * s
+            y[0] = gx - (x[IX] + lx * c - ly * s)
+            y[1] = gy - (x[IY] + lx * s + ly * c)
+            R[0] = R[1] = cfg.gnss_position_m ** 2
+            i = 2
+        if gh == gh:
+            H[i, IPSI] = 1.0
+            y[i] = gh - x[IPSI]
+            R[i] = cfg.gnss_heading_rad ** 2
+            angle_row = i
+            i += 1
+        if gv == gv:
+            H[i, IV] = 1.0
+            y[i] = gv - x[IV]
+            R[i] = cfg.gnss_speed_mps ** 2
+        ok = self._update(m, "gnss", angle_row)
+        if ok:
+            self._gnss_rejects = 0
+        else:
+            self._gnss_rejects += 1
+            if self._gnss_rejects >= cfg.gnss_reinit_after and gx == gx:
+                self._reinit_from_gnss(gx, gy, gh)
+        return ok
+
+    def _reinit_from_gnss(self, gx: float, gy: float, gh: float) -> None:
+        x, P = self._x, self._P
+        rows = [IX, IY] + ([IPSI] if gh == gh else [])
+        lx, ly = self._lever
+        if gh == gh:
+            x[IPSI] = x[IPSI] + math.remainder(gh - x[IPSI], 2 * math.pi)
+        c, s = math.cos(x[IPSI]), math.sin(x[IPSI])
+        x[IX], x[IY] = gx - (lx * c - ly * s), gy - (lx * s + ly * c)
+        for r in rows:
+            P[r, :] = 0.0
+            P[:, r] = 0.0
+            P[r, r] = self._init_var[r]
+        self._gnss_rejects = 0
+        if self._counting:
+            self.stats["gnss"]["reinit"] += 1
+
+    # ========================================================= event log, replay
+    def _snapshot(self, i: int) -> None:
+        self._ev_x[i] = self._x
+        self._ev_P[i] = self._P
+        a = self._ev_aux[i]
+        a[0], a[1], a[2], a[3] = self._t, self._u[0], self._u[1], self._u[2]
+        a[4], a[5], a[6] = self._sw_meas, self._t_sw, self._a_imu
+        a[7] = -1.0 if self._zone is None else float(self._zone)
+
+    def _restore(self, i: int) -> None:
+        self._x[:] = self._ev_x[i]
+        self._P[:] = self._ev_P[i]
+        a = self._ev_aux[i]
+        self._t = float(a[0])
+        self._u[0], self._u[1], self._u[2] = float(a[1]), float(a[2]), float(a[3])
+        self._sw_meas, self._t_sw, self._a_imu = float(a[4]), float(a[5]), float(a[6])
+        self._zone = None if a[7] < 0 else int(a[7])
+
+    def _make_room(self) -> None:
+        n, cap = self._ev_n, self.cfg.history_events
+        if n < cap:
+            return
+        h = cap // 2  # drop the oldest half (copies do not overlap: h >= n - h)
+        m = n - h
+        for a in (self._ev_kind, self._ev_t, self._ev_pay, self._ev_x, self._ev_P, self._ev_aux):
+            a[:m] = a[h:n]
+        self._ev_n = m
+
+    def _log(self, kind: int, t: float, p0, p1, p2, p3) -> None:
+        self._make_room()
+        i = self._ev_n
+        self._ev_kind[i] = kind
+        self._ev_t[i] = t
+        pay = self._ev_pay[i]
+        pay[0], pay[1], pay[2], pay[3] = p0, p1, p2, p3
+        self._snapshot(i)
+        self._ev_n = i + 1
+
+    def _replay_with(self, t_meas: float, gx, gy, gh, gv):
+        """Insert a GNSS fix at ``t_meas`` into the log and re-run everything after it.
+        Returns the update's result, or None when the log does not reach back that far
+        (the fix is older than its first event's time)."""
+        n = self._ev_n
+        i = int(np.searchsorted(self._ev_t[:n], t_meas, side="right"))
+        if i == 0:
+            return None
+        self._make_room()
+        if self._ev_n != n:  # room was made by dropping old events
+            i -= n - self._ev_n
+            n = self._ev_n
+            if i <= 0:
+                return None
+        # shift events i..n-1 up by one through the scratch buffers (no overlapping copies)
+        m = n - i
+        pairs = ((self._ev_kind, self._sc_kind), (self._ev_t, self._sc_t),
+                 (self._ev_pay, self._sc_pay), (self._ev_x, self._sc_x),
+                 (self._ev_P, self._sc_P), (self._ev_aux, self._sc_aux))
+        for a, sc in pairs:
+            sc[:m] = a[i:n]
+            a[i + 1:n + 1] = sc[:m]
+        self._ev_n = n + 1
+        self._ev_kind[i] = _GNSS
+        self._ev_t[i] = t_meas
+        pay = self._ev_pay[i]
+        pay[0], pay[1], pay[2], pay[3] = gx, gy, gh, gv
+        self._restore(i - 1)
+        ok = self._apply(_GNSS, t_meas, gx, gy, gh, gv)
+        self._snapshot(i)
+        after_rejects = self._gnss_rejects
+        self._counting = False
+        try:
+            for k in range(i + 1, n + 1):
+                p = self._ev_pay[k]
+                self._apply(int(self._ev_kind[k]), float(self._ev_t[k]), float(p[0]),
+                            float(p[1]), float(p[2]), float(p[3]))
+                self._snapshot(k)
+        finally:
+            self._counting = True
+        self._gnss_rejects = after_rejects
+        self.stats["gnss"]["replays"] += 1
+        return ok
+
+
+# ============================================================ closed-loop feedback
+class SensorFeedback:
+    """What a simulated closed loop gives its controller: the car's sensors
+    (``models.sim.live_sensors``) feeding an :class:`Estimator`, never the plant state.
+
+    Per plant step call :meth:`observe` with the truth; per control step :meth:`estimate`
+    (the state at ``t_s`` with its covariance, propagated with the input held so far), then
+    :meth:`command` with the input applied from ``t_s`` on.
+
+    Args:
+        params: the controller's model (the estimator's; the sensors use it for eq. 7).
+        sensors: rates, latency, noise (default ``SensorConfig()``: today's noise).
+        config: the estimator's noise model (default matched to ``sensors``).
+        seed: the sensors' seed. t0_s: time of the first truth sample [s].
+        initial_state: start the estimator from this plant state at ``t0_s`` with the
+            config's initial uncertainty (default: from the first GNSS fix, as a car does;
+            until then :meth:`estimate` returns None).
+    """
+
+    def __init__(self, params: Params, sensors=None, config: EstimatorConfig | None = None, *,
+                 seed: int = 0, t0_s: float = 0.0, initial_state=None):
+        from hmpc.models.sim.live_sensors import LiveSensors
+        self.sensors = LiveSensors(params, sensors, seed, t0_s)
+        self.estimator = Estimator(params, config or EstimatorConfig.matching(self.sensors.cfg))
+        if initial_state is not None:
+            self.estimator.reset(t0_s, initial_state)
+
+    def observe(self, t_s: float, state, steering_wheel_angle_rad: float,
+                accel_mps2: float = 0.0, delta_rad: float | None = None) -> int:
+        """Feed the truth at ``t_s`` to the sensors and what arrives to the estimator; returns
+        the number of messages that arrived."""
+        msgs = self.sensors.observe(t_s, state, steering_wheel_angle_rad, accel_mps2, delta_rad)
+        for m in msgs:
+            self.estimator.feed(m, t_s)
+        return len(msgs)
+
+    def estimate(self, t_s: float):
+        """``(state, covariance)`` (4, 4x4) at ``t_s``, or None before the first fix."""
+        self.estimator.predict(t_s)
+        if not self.estimator.initialized:
+            return None
+        return self.estimator.state(), self.estimator.covariance()
+
+    def command(self, t_s: float, u) -> None:
+        """The plant input applied from ``t_s`` on (steering-wheel angle, pedals)."""
+        self.estimator.predict(t_s, u)
+
+
+# ============================================================ offline: a recording
+@dataclass
+class EstimateRun:
+    """The estimator run over a recording (see :func:`estimate_recording`).
+
+    Attributes:
+        t_s: tick times [s]; state: (n, 7) estimate at each tick (``STATE_NAMES``);
+        sigma: (n, 7) 1-sigma; stats: the estimator's per-sensor counts; events: messages fed
+        per stream.
+    """
+
+    t_s: np.ndarray
+    state: np.ndarray
+    sigma: np.ndarray
+    stats: dict
+    events: dict
+
+
+def _source_of(rec, channel: str) -> str:
+    info = rec.meta.get("channels", {}).get(channel, {}) if isinstance(rec.meta, dict) else {}
+    src = str(info.get("source", "")) if isinstance(info, dict) else ""
+    return src.split(":", 1)[0] if src else ""
+
+
+def estimate_recording(rec, params: Params, config: EstimatorConfig | None = None, *,
+                       tick_s: float = 0.02, gnss_latency_s: float = 0.0) -> EstimateRun:
+    """Run the estimator over a canonical recording's raw channels, each at its own times.
+
+    Streams (``rec.raw``, falling back to the grid when a channel has no raw samples): the four
+    wheel speeds and the steering-wheel angle as CAN messages; ``yaw_rate`` (from the IMU, or
+    from CAN when ingest says so) with ``accel_x`` as IMU samples; ``x``, ``y``, ``heading``,
+    ``gps_speed`` as GNSS fixes. The plant input for :meth:`Estimator.predict` every ``tick_s``
+    is the held steering-wheel angle and pedals. Ingest has already put every source on the
+    CAN clock, so fixes are fed without latency unless ``gnss_latency_s`` > 0 (they are then
+    delivered that much later than their stamp: the filter's rewind runs on real data).
+    Non-finite samples are skipped.
+
+    Raises:
+        InputError: the recording lacks the GNSS position or heading (nothing to start from).
+    """
+    rec.require("x", "y", "heading")
+
+    def stream(name):
+        if name in rec.raw and len(rec.raw[name][0]):
+            t, v = rec.raw[name]
+        elif name in rec.channels:
+            t, v = rec.time, rec.channels[name]
+        else:
+            return None
+        return np.asarray(t, dtype=float), np.asarray(v, dtype=float)
+
+    events: list[tuple[float, int, int, str]] = []  # (t_arrival, order, index, kind)
+    wheels = [stream(f"wheel_speed_{w}") for w in ("fl", "fr", "rl", "rr")]
+    sw = stream("steering_wheel_angle")
+    yaw, ax = stream("yaw_rate"), stream("accel_x")
+    gx, gy, gh, gv = stream("x"), stream("y"), stream("heading"), stream("gps_speed")
+    wheels_ok = all(w is not None for w in wheels) and all(
+        np.array_equal(w[0], wheels[0][0]) for w in wheels)
+    if wheels_ok:
+        events += [(t, 0, i, "wheels") for i, t in enumerate(wheels[0][0])]
+    if sw is not None:
+        events += [(t, 0, i, "sw") for i, t in enumerate(sw[0])]
+    yaw_on_can = _source_of(rec, "yaw_rate") == "can"
+    if yaw is not None:
+        events += [(t, 1, i, "yaw") for i, t in enumerate(yaw[0])]
+    imu_ax = ax is not None and yaw is not None and np.array_equal(ax[0], yaw[0]) \
+        and _source_of(rec, "accel_x") != "can"
+    events += [(t + gnss_latency_s, 2, i, "gnss") for i, t in enumerate(gx[0])]
+    events.sort()
+    grid = rec.time
+    ap = rec.channels.get("accel_pedal", np.zeros(len(grid)))
+    bp = rec.channels.get("brake_pedal", np.zeros(len(grid)))
+    swg = rec.channels.get("steering_wheel_angle", np.zeros(len(grid)))
+    gh_on = gh[1] if gh is not None and np.array_equal(gh[0], gx[0]) else None
+    gv_on = gv[1] if gv is not None and np.array_equal(gv[0], gx[0]) else None
+    gy_v = np.interp(gx[0], gy[0], gy[1]) if not np.array_equal(gy[0], gx[0]) else gy[1]
+
+    est = Estimator(params, config)
+    t_start = events[0][0] if events else float(grid[0])
+    t_end = max(events[-1][0] if events else float(grid[-1]), float(grid[-1]))
+    ticks = np.arange(t_start, t_end + 1e-9, tick_s)
+    out_x = np.full((len(ticks), NXE), np.nan)
+    out_s = np.full((len(ticks), NXE), np.nan)
+    counts = {"can": 0, "imu": 0, "gnss": 0}
+
+    def fin(v):
+        return None if v is None or not math.isfinite(v) else float(v)
+    k = 0
+    for j, tk in enumerate(ticks):
+        while k < len(events) and events[k][0] <= tk:
+            t, _, i, kind = events[k]
+            k += 1
+            if kind == "wheels":
+                ws = [w[1][i] for w in wheels]
+                if all(math.isfinite(q) for q in ws):
+                    est.update_can(t, wheel_speeds_mps=ws)
+                    counts["can"] += 1
+            elif kind == "sw":
+                if math.isfinite(sw[1][i]):
+                    est.update_can(t, steering_wheel_angle_rad=float(sw[1][i]))
+                    counts["can"] += 1
+            elif kind == "yaw":
+                r = fin(yaw[1][i])
+                if yaw_on_can:
+                    if r is not None:
+                        est.update_can(t, yaw_rate_radps=r)
+                        counts["can"] += 1
+                else:
+                    est.update_imu(t, r, fin(ax[1][i]) if imu_ax else None)
+                    counts["imu"] += 1
+            else:
+                t_meas = float(gx[0][i])
+                x, y = fin(gx[1][i]), fin(gy_v[i])
+                if x is None or y is None:
+                    x = y = None
+                est.update_gnss(t_meas, t, x, y, fin(None if gh_on is None else gh_on[i]),
+                                fin(None if gv_on is None else gv_on[i]))
+                counts["gnss"] += 1
+        g = min(max(int(np.searchsorted(grid, tk, side="right")) - 1, 0), len(grid) - 1)
+        u = (swg[g] if math.isfinite(swg[g]) else 0.0, ap[g] if math.isfinite(ap[g]) else 0.0,
+             bp[g] if math.isfinite(bp[g]) else 0.0)
+        est.predict(tk, u)
+        if est.initialized:
+            out_x[j] = est._x
+            out_s[j] = np.sqrt(np.maximum(np.diag(est._P), 0.0))
+    return EstimateRun(ticks, out_x, out_s, est.stats, counts)
