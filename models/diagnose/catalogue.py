@@ -1,0 +1,69 @@
+"""The catalogue of physically named hypotheses. Its ids are part of hmpc's contract
+(../shared/CONVENTIONS.md, the diagnosis issue); each entry names its physics, the equation
+it adds to the report's model, and its parameters with units and bounds.
+"""
+from __future__ import annotations
+
+CATALOGUE: dict[str, dict] = {
+    "actuator_delay": {
+        "physics": "dead time per subsystem",
+        "equation": {"steering": "delta(t) = offset + scale * sw(t - d)",
+                     "longitudinal": "dv/dt = offset_z + gain_z * u(t - d)"},
+        "parameters": {"delay_s": "dead time d [s], 0..1"},
+    },
+    "actuator_lag": {
+        "physics": "first-order lag",
+        "equation": {"steering": "tau d(sw_eff)/dt = sw - sw_eff,  delta = offset + scale * sw_eff",
+                     "longitudinal": "tau d(u_eff)/dt = u - u_eff,  dv/dt = offset_z + gain_z * u_eff"},
+        "parameters": {"tau_s": "time constant tau [s], 0..1"},
+    },
+    "steering_nonlinearity": {
+        "physics": "rack saturation at large angles",
+        "equation": {"steering": "delta = offset + scale * (sw + k3 * sw^3)"},
+        "parameters": {"cubic_per_rad2": "k3 [1/rad^2] (negative: the rack saturates), -0.02..0.02"},
+    },
+    "understeer": {
+        "physics": "speed- or lateral-acceleration-dependent steering gain",
+        "equation": {"steering": "psi' = v_rear tan(delta / (1 + K v^2 / b)) / b"},
+        "parameters": {"gradient_rad_per_mps2": "understeer gradient K [rad/(m/s^2)], 0..0.02"},
+    },
+    "aero_drag": {
+        "physics": "v^2 deceleration",
+        "equation": {"longitudinal": "dv/dt = eq. 8 - c * v^2"},
+        "parameters": {"coeff_per_m": "c = rho Cd A / (2 m) [1/m], 0..5e-3"},
+    },
+    "rolling_resistance": {
+        "physics": "constant plus v-proportional resistance",
+        "equation": {"longitudinal": "dv/dt = eq. 8 - r * v   (the constant part is in offset_z)"},
+        "parameters": {"coeff_per_s": "r [1/s], 0..0.01"},
+    },
+    "road_grade": {
+        "physics": "gravity along the road, from altitude, pitch, or accelerometer against dv/dt",
+        "equation": {"longitudinal": "dv/dt = eq. 8 - k * g * sin(theta(t)),  theta = asin(dz/ds)"},
+        "parameters": {"gain": "k [1] (1: the measured grade acts in full), 0..2",
+                       "grade_rms_rad": "rms measured grade [rad]",
+                       "grade_mean_rad": "mean measured grade [rad]"},
+    },
+    "idle_creep": {
+        "physics": "speed-regulating idle torque",
+        "equation": {"longitudinal": "dv/dt = eq. 8 + a0 * max(0, 1 - v / v_c) with the throttle released"},
+        "parameters": {"accel_mps2": "creep acceleration at rest a0 [m/s^2], 0..2",
+                       "creep_speed_mps": "creep speed v_c [m/s], 0.5..5"},
+    },
+    "wheel_radius_error": {
+        "physics": "wheel speed against GNSS",
+        "equation": {"longitudinal": "speed_CAN = k * gps_speed"},
+        "parameters": {"scale": "k [1] (wheel-speed reading per true speed), 0.9..1.1"},
+    },
+    "sensor_time_offset": {
+        "physics": "a clock offset between sources",
+        "equation": {"longitudinal": "speed_CAN(t) = gps_speed(t - c)"},
+        "parameters": {"offset_s": "CAN clock minus INS clock c [s], -1..1"},
+    },
+}
+
+#: hypotheses that describe the same mismatch in two ways: only the better one is a finding
+#: (the steering-map shapes too: both change the gain, one with angle, one with speed, and
+#: the report's experiments steer hardest at low speed; joint presence is not tested)
+ALTERNATIVES = ({"actuator_delay", "actuator_lag"}, {"aero_drag", "rolling_resistance"},
+                {"steering_nonlinearity", "understeer"})

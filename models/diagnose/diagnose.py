@@ -1,0 +1,565 @@
+"""``diagnose``: where the report's model and a recording differ, which physics is missing, and
+the held-out fit with it added.
+
+1. **Replay and residuals** per channel, each with its noise floor: speed (free-run windows)
+   and acceleration (equation error); heading (free-run windows), road-wheel angle and yaw
+   rate; position (free-run windows of eq. 1); the CAN speed against the GNSS speed.
+2. **Locate**: windows above the noise floor, change points, and the residual by regime.
+3. **Name**: every hypothesis of ``models.diagnose.catalogue`` is refitted jointly with the
+   baseline (the report's eq. 7 / eq. 8 structure on this recording) and scored by blocked
+   held-out free-run RMSE. A hypothesis is a finding when it lowers that RMSE by
+   ``DiagnoseConfig.min_gain`` and by more than the channel's resolution, lowers the BIC (with
+   the effective sample size of autocorrelated residuals) and, for a linear term, is selected
+   by FOS (Korenberg) among the baseline's terms. Of two alternative descriptions (delay or
+   lag, v^2 or v resistance) only the better is a finding. A physically impossible baseline
+   (a pedal map that is not monotone, a negative drag when drag is fitted) is recorded as
+   evidence of missing physics.
+4. **Unexplained**: a change in the car that no hypothesis models (a split fit of the final
+   model lowers its error by ``change_min_reduction``) is reported with its windows and its
+   share of the error, never named.
+
+The result's ``to_json()`` is the ``hmpc diagnose`` JSON contract (``findings``,
+``unexplained``) plus the replay, the hypotheses tested and the baseline checks.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from hmpc.models.diagnose import longitudinal as lon
+from hmpc.models.diagnose import sensors as sen
+from hmpc.models.diagnose import steering as ste
+from hmpc.models.diagnose.catalogue import ALTERNATIVES, CATALOGUE
+from hmpc.models.diagnose.common import DiagnoseConfig, corr_length, fold_ids, rmse, windows
+from hmpc.models.diagnose.locate import (change_point, elevated_windows, improved_windows,
+                                         noise_floor, regime_table, regime_variables,
+                                         top_regimes)
+from hmpc.models.errors import InputError
+from hmpc.models.logs.recording import Recording
+from hmpc.models.params import Params, Steering, Vehicle, Zone
+
+
+@dataclass(frozen=True)
+class Resolution:
+    """Smallest held-out improvement that counts, per channel (the sensors' resolution)."""
+
+    #: CAN wheel speed: 0.01 km/h steps, GNSS speed noise ~0.03 m/s; a speed replay that
+    #: improves by less than 0.005 m/s is inside what the sensors can tell apart
+    speed_mps: float = 0.005
+    #: 0.06 deg: a survey-grade INS heading is good to 0.1 deg rms (models.sim.sensors.InsNoise),
+    #: so a replay that gains less than about half of that is not a change in the car's steering
+    heading_rad: float = 0.001
+    #: speed difference CAN - GNSS
+    speed_vs_gnss_mps: float = 0.005
+
+
+@dataclass
+class Diagnosis:
+    """The outcome of :func:`diagnose` (``to_json()`` is the CLI's JSON)."""
+
+    findings: list
+    unexplained: list
+    channels: dict
+    hypotheses: list
+    evidence: list
+    longitudinal_input: str
+    series: dict = field(repr=False, default_factory=dict)
+    params_out: Params | None = None
+    extensions: dict = field(default_factory=dict)
+    timing_s: float = 0.0
+    notes: list = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return _clean({"findings": self.findings, "unexplained": self.unexplained,
+                       "channels": self.channels, "hypotheses": self.hypotheses,
+                       "baseline_checks": self.evidence,
+                       "longitudinal_input": self.longitudinal_input,
+                       "notes": self.notes, "timing_s": self.timing_s})
+
+
+def _clean(obj):
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        return f if np.isfinite(f) else None
+    return obj
+
+
+def _zones(params: Params | None):
+    if params is not None and params.zones:
+        return tuple((z.name, z.v_min_mps, z.v_max_mps) for z in params.zones)
+    return lon.DEFAULT_ZONES
+
+
+def _fos_selects(d: lon.LonData, name: str, base: dict | None = None) -> bool:
+    """FOS (forced baseline terms) keeps the extension's term on its blocked hold-out."""
+    from hmpc.models.identify.fos import fos
+    spec = lon.LonSpec(name, **(base or {}))
+    X, _ = lon._design(d, lon.inputs(d, spec), spec)
+    use = d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) & np.isfinite(X).all(axis=1)
+    Xs = X[use]
+    keep = np.abs(Xs).max(axis=0) > 1e-12
+    Xs = Xs[:, keep]
+    names = [f"b{i}" for i in range(Xs.shape[1] - 1)] + [name]
+    try:
+        res = fos(Xs, d.a[use], names, force=names[:-1], block_len=int(10.0 / d.dt))
+    except ValueError:
+        return False
+    return name in res.terms
+
+
+def _accept(before: float, after: float, bic_b: float, bic_a: float, res: float,
+            cfg: DiagnoseConfig) -> tuple[bool, str]:
+    gain = (before - after) / before if before > 0 else 0.0
+    if not np.isfinite(after):
+        return False, "no held-out score"
+    if gain < cfg.min_gain:
+        return False, f"held-out gain {100 * gain:.1f} % < {100 * cfg.min_gain:.0f} %"
+    if before - after < res:
+        return False, f"held-out improvement {before - after:.4g} below the channel resolution {res:g}"
+    if cfg.require_bic and not bic_a < bic_b:
+        return False, "BIC does not improve"
+    return True, "accepted"
+
+
+def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
+             cfg: DiagnoseConfig = DiagnoseConfig(), res: Resolution = Resolution(),
+             progress=None) -> Diagnosis:
+    """Diagnose ``rec`` against the report's model (see the module doc).
+
+    Args:
+        rec: canonical recording. vehicle: geometry (wheelbase). params: the model to replay
+            (its zones are used; the baseline is refitted on the recording for the held-out
+            comparison, the given model is replayed as well).
+
+    Raises:
+        InputError: the recording has no speed channel or too little moving data.
+    """
+    t_start = time.perf_counter()
+    say = progress or (lambda m: None)
+    rec.require("time", "speed")
+    ch = dict(rec.channels)
+    zones = _zones(params)
+    cfg = _fit_windows(cfg, ch)
+    hyps: list[dict] = []
+    cands: list[dict] = []
+    channels: dict = {}
+    series: dict = {"t": np.asarray(ch["time"], float)}
+    notes: list[str] = []
+    evidence: list[dict] = []
+
+    # ---------------------------------------------------------------- sensors (first)
+    sd = sen.prepare(ch, vehicle.wheelbase_m, cfg)
+    if sd is not None:
+        say("sensors: CAN speed against GNSS speed")
+        cl = corr_length(sen.residual(sd))
+        b = sen.evaluate(sd, None, cfg, cl)
+        channels["speed_vs_gnss"] = {
+            "unit": "m/s", "noise_floor": noise_floor(sd.g - sd.v),
+            "heldout_rmse_baseline": b.heldout_rmse_mps}
+        series["speed_vs_gnss"] = {"before": b.heldout_err}
+        for h in sen.HYPOTHESES:
+            s = sen.evaluate(sd, h, cfg, cl)
+            ok, why = _accept(b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic,
+                              res.speed_vs_gnss_mps, cfg)
+            cands.append(_cand(h, "longitudinal", "speed_vs_gnss", b.heldout_rmse_mps,
+                               s.heldout_rmse_mps, s.params, s.intervals, ok, why,
+                               b.heldout_err, s.heldout_err, cfg.window_lon_s, s.bic - b.bic))
+        off = next((c for c in cands if c["effect"] == "sensor_time_offset" and c["_ok"]), None)
+        if off is not None:
+            ch = sen.ins_shift(ch, off["parameters"]["offset_s"])
+            notes.append(f"INS channels moved by {off['parameters']['offset_s']:+.3f} s onto the "
+                         "CAN clock before the steering and longitudinal hypotheses")
+        rad = next((c for c in cands if c["effect"] == "wheel_radius_error" and c["_ok"]), None)
+        if rad is not None:
+            k = rad["parameters"]["scale"]
+            for name in ("speed", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
+                         "wheel_speed_rr"):
+                if name in ch:
+                    ch[name] = np.asarray(ch[name], float) / k
+            notes.append(f"CAN wheel speeds divided by {k:.4f} (wheel_radius_error) before the "
+                         "steering and longitudinal hypotheses")
+    else:
+        notes.append("no gps_speed channel: wheel_radius_error and sensor_time_offset not tested")
+    regimes = regime_variables(ch, zones)
+
+    # ---------------------------------------------------------------- steering
+    sdt = ste.prepare(ch, vehicle.wheelbase_m, cfg)
+    steer_final = None
+    if sdt is not None:
+        say("steering: eq. 7 in eq. 1 against the yaw rate and heading")
+        base_m = ste.fit(sdt, None, 0.0, sdt.ok)
+        cl = corr_length(ste.residual(sdt, base_m))
+        b = ste.evaluate(sdt, None, cfg, cl)
+        rr = ste.residual(sdt, b.model)
+        channels["heading"] = {"unit": "rad", "source": sdt.heading_source,
+                               "noise_floor": noise_floor(sdt.heading),
+                               "heldout_rmse_baseline": b.heldout_rmse_rad}
+        channels["road_wheel_angle"] = {"unit": "rad", "noise_floor": noise_floor(rr),
+                                        "rmse_baseline": rmse(rr)}
+        yaw_pred = sdt.v * np.tan(ste.road_wheel_angle(sdt, b.model)) / sdt.b + b.model.bias_radps
+        yr = np.where(sdt.ok, sdt.yaw - yaw_pred, np.nan)
+        channels["yaw_rate"] = {"unit": "rad/s", "noise_floor": noise_floor(sdt.yaw),
+                                "rmse_baseline": rmse(yr)}
+        series["heading"] = {"before": b.heldout_err}
+        series["road_wheel_angle"] = {"before": rr}
+        pos = _position_errors(ch, sdt, b.model, cfg)
+        if pos is not None:
+            channels["position"] = {"unit": "m", "window_s": cfg.window_steer_s,
+                                    "rmse_baseline": rmse(pos)}
+            series["position"] = {"before": pos}
+        steer_scores = {None: b}
+        for h in ste.HYPOTHESES:
+            s = ste.evaluate(sdt, h, cfg, cl)
+            steer_scores[h] = s
+            ok, why = _accept(b.heldout_rmse_rad, s.heldout_rmse_rad, b.bic, s.bic,
+                              res.heading_rad, cfg)
+            cands.append(_cand(h, "steering", "heading", b.heldout_rmse_rad, s.heldout_rmse_rad,
+                               s.params, s.intervals, ok, why, b.heldout_err, s.heldout_err,
+                               cfg.window_steer_s, s.bic - b.bic))
+        steer_final = steer_scores
+        channels["heading"]["understeer_vs_ratio"] = _separability(
+            sdt, steer_scores["understeer"], b, vehicle, cl)
+        notes.append(channels["heading"]["understeer_vs_ratio"]["verdict"])
+    else:
+        notes.append("no steering angle with yaw rate or heading: steering hypotheses not tested")
+
+    # ---------------------------------------------------------------- longitudinal
+    ld = lon.prepare(ch, zones, cfg)
+    if not ld.ok.any() or (ld.ok & (ld.vs > cfg.v_stop_mps)).sum() < int(20.0 / ld.dt):
+        raise InputError("too little moving data for the longitudinal model (needs 20 s)",
+                         rec.meta.get("path"), channel="speed")
+    say(f"longitudinal: eq. 8 zones driven by {', '.join(ld.input_names)}")
+    base_m = lon.fit(ld, lon.LonSpec(), ld.ok)
+    ra = lon.residual(ld, base_m)
+    cl = corr_length(ra)
+    b = lon.evaluate(ld, None, cfg, cl)
+    evidence += lon.baseline_checks(b.model, ld)
+    drag_free = lon.unconstrained_ext(ld, "aero_drag")
+    if drag_free < 0:
+        evidence.append({"term": "aero_drag", "value": drag_free,
+                         "why": f"unbounded v^2 coefficient {drag_free:.2e} 1/m is a negative drag: "
+                                "the v^2 term absorbs something else (grade, creep, a delay)"})
+    channels["speed"] = {"unit": "m/s", "window_s": cfg.window_lon_s,
+                         "noise_floor": noise_floor(ld.v),
+                         "heldout_rmse_baseline": b.heldout_rmse_mps}
+    channels["accel"] = {"unit": "m/s^2", "noise_floor": noise_floor(ra),
+                         "rmse_baseline": rmse(ra)}
+    series["speed"] = {"before": b.heldout_err}
+    series["accel"] = {"before": ra}
+    lon_scores = {None: b}
+    for h in lon.HYPOTHESES:
+        if h == "road_grade" and ld.grade is None:
+            hyps.append({"effect": h, "tested": False, "why": "no altitude or pitch channel"})
+            continue
+        if h == "idle_creep" and "accel_cmd" in ld.input_names:
+            hyps.append({"effect": h, "tested": False,
+                         "why": "the car follows an acceleration command, not the pedal"})
+            continue
+        s = lon.evaluate(ld, h, cfg, cl)
+        lon_scores[h] = s
+        ok, why = _accept(b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic, res.speed_mps, cfg)
+        if ok and h in lon.LINEAR_EXT and not _fos_selects(ld, h):
+            ok, why = False, "FOS does not select the term on its hold-out"
+        c = _cand(h, "longitudinal", "speed", b.heldout_rmse_mps, s.heldout_rmse_mps, s.params,
+                  s.intervals, ok, why, b.heldout_err, s.heldout_err, cfg.window_lon_s,
+                  s.bic - b.bic)
+        if h == "road_grade":
+            c["parameters"]["grade_source"] = ld.grade_source
+        cands.append(c)
+
+    _stack_on_dynamics(ld, cands, lon_scores, cfg, cl, res)
+
+    # ---------------------------------------------------------------- rank, alternatives
+    for group in ALTERNATIVES:
+        for sub in ("steering", "longitudinal"):
+            g = [c for c in cands if c["effect"] in group and c["subsystem"] == sub and c["_ok"]]
+            if len(g) > 1:
+                g.sort(key=lambda c: c["heldout_rmse_after"])
+                for c in g[1:]:
+                    c["_ok"] = False
+                    c["why"] = f"alternative to {g[0]['effect']}, which explains more"
+                g[0]["alternatives"] = [{"effect": c["effect"], "parameters": c["parameters"],
+                                         "heldout_rmse_after": c["heldout_rmse_after"]}
+                                        for c in g[1:]]
+    t = series["t"]
+    findings = []
+    for c in sorted([c for c in cands if c["_ok"]], key=lambda c: -c["gain"]):
+        e_b, e_a = c.pop("_before"), c.pop("_after")
+        L = int(c.pop("_window_s") / (t[1] - t[0]))
+        c["windows"] = improved_windows(t, e_b, e_a, L)
+        c["regime"] = top_regimes(regime_table(regimes, e_b, e_a))
+        c["equation"] = CATALOGUE[c["effect"]]["equation"][c["subsystem"]]
+        if "after" not in series.setdefault(c["channel"], {}):  # the top finding's replay
+            series[c["channel"]]["after"] = e_a
+            series[c["channel"]]["after_effect"] = c["effect"]
+        c.pop("_ok")
+        findings.append(c)
+    for c in cands:
+        if "_ok" in c:
+            c.pop("_before"), c.pop("_after"), c.pop("_window_s")
+            ok = c.pop("_ok")
+            hyps.append({**{k: c[k] for k in ("effect", "subsystem", "channel", "parameters", "intervals",
+                                              "heldout_rmse_before", "heldout_rmse_after",
+                                              "gain", "delta_bic")}, "finding": ok, "why": c["why"]})
+    for f in findings:
+        hyps.append({**{k: f[k] for k in ("effect", "subsystem", "channel", "parameters", "intervals",
+                                          "heldout_rmse_before", "heldout_rmse_after", "gain",
+                                          "delta_bic")}, "finding": True, "why": "accepted"})
+
+    # ---------------------------------------------------------------- locate + unexplained
+    for name, s in series.items():
+        if name == "t" or name not in channels:
+            continue
+        L = int((cfg.window_lon_s if name in ("speed", "accel", "speed_vs_gnss")
+                 else cfg.window_steer_s) / (t[1] - t[0]))
+        floor = channels[name].get("noise_floor", float("nan"))
+        err = s.get("after", s["before"])
+        channels[name]["elevated"] = elevated_windows(t, err, L, floor)
+        channels[name]["change_point"] = change_point(t, s["before"], L)
+        channels[name]["regime"] = regime_table(regimes, s["before"], s.get("after"))
+    lon_best = next((f["effect"] for f in findings if f["subsystem"] == "longitudinal"
+                     and f["channel"] == "speed"), None)
+    unexplained = []
+    u = _change_unexplained(ld, lon_best, cfg, t)
+    if u is not None:
+        unexplained.append(u)
+
+    params_out, ext = _params_out(rec, vehicle, params, ld, lon_scores, steer_final, findings,
+                                  zones, cfg)
+    return Diagnosis(findings, unexplained, _clean(channels), hyps, evidence,
+                     "+".join(ld.input_names), series, params_out, ext,
+                     round(time.perf_counter() - t_start, 3), notes)
+
+
+def _sse_fixed_scale(d: ste.SteerData, scale: float) -> float:
+    """Smallest angle SSE with the steering scale fixed and the understeer gradient free."""
+    use = d.fit_ok
+    v, sw, y = d.v[use], d.sw[use], d.dm[use]
+    best = np.inf
+    for k in np.linspace(0.0, ste.K_MAX, 81):
+        div = 1.0 + k * v * v / d.b
+        X = np.column_stack([1.0 / div, d.b / v])
+        r = y - scale * sw / div
+        c = np.linalg.lstsq(X, r, rcond=None)[0]
+        best = min(best, float(np.sum((r - X @ c) ** 2)))
+    return best
+
+
+def _separability(d: ste.SteerData, us, base, vehicle: Vehicle, corr_len: float) -> dict:
+    """Can this recording tell understeer (delta / (1 + K v^2 / b)) from the steering ratio?
+
+    Two explanations of the measured yaw response are compared: the kinematic one (scale
+    fitted, K = 0: the baseline) and the maker's ratio with understeer (scale = 1 /
+    steering_ratio, K fitted). Separable when the likelihood ratio between them exceeds the
+    95 % chi-square(1) point with the effective sample size; without a maker's ratio, when
+    the understeer gradient's interval is narrower than the passenger-car range (0.003)."""
+    lo, hi = us.intervals.get("gradient_rad_per_mps2", [0.0, ste.K_MAX])
+    ne = max(base.model.n / max(corr_len, 1.0), 3.0)
+    out = {"gradient_interval": [lo, hi]}
+    ratio = vehicle.steering_ratio
+    if ratio:
+        sse_maker = _sse_fixed_scale(d, 1.0 / ratio)
+        lr = float(ne * np.log(sse_maker / base.model.sse))
+        ok = abs(lr) > 3.84
+        out.update(maker_scale=1.0 / ratio, kinematic_scale=base.model.scale,
+                   likelihood_ratio=lr)
+        verdict = ("understeer and the steering ratio are separable on this recording: "
+                   if ok else "this recording cannot separate understeer from the steering "
+                   "ratio: ") + (
+            f"the kinematic scale {base.model.scale:.4f} with no understeer and the maker's "
+            f"1/{ratio:g} = {1 / ratio:.4f} with understeer fit with likelihood ratio "
+            f"{lr:.1f} (separable above 3.84)")
+    else:
+        ok = (hi - lo) < 0.003
+        verdict = ("understeer and the steering ratio are separable on this recording"
+                   if ok else "this recording cannot separate understeer from the steering ratio") \
+            + f": understeer gradient in [{lo:.4f}, {hi:.4f}] rad/(m/s^2)"
+    out.update(separable=bool(ok), verdict=verdict)
+    return out
+
+
+def _stack_on_dynamics(ld, cands, lon_scores, cfg, cl, res) -> None:
+    """Refit the static longitudinal extensions on top of an accepted delay or lag: a drag or
+    grade that only looked useful because the actuator's dynamics were missing is dropped, one
+    that helps on top of them is kept (scored against the model with the dynamics)."""
+    dyn = [c for c in cands if c["subsystem"] == "longitudinal" and c["_ok"]
+           and c["effect"] in ("actuator_delay", "actuator_lag")]
+    if not dyn:
+        return
+    top = min(dyn, key=lambda c: c["heldout_rmse_after"])
+    key = lon.NONLINEAR[top["effect"]]
+    base = {key: top["parameters"][key]}
+    b = lon_scores[top["effect"]]
+    for c in [c for c in cands if c["subsystem"] == "longitudinal" and c["channel"] == "speed"
+              and c["effect"] in lon.LINEAR_EXT]:
+        h = c["effect"]
+        s = lon.evaluate(ld, h, cfg, cl, base=base)
+        ok, why = _accept(b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic, res.speed_mps, cfg)
+        if ok and not _fos_selects(ld, h, base):
+            ok, why = False, "FOS does not select the term on its hold-out"
+        if ok:
+            new = _cand(h, "longitudinal", "speed", b.heldout_rmse_mps, s.heldout_rmse_mps,
+                        s.params, s.intervals, True, f"accepted on top of {top['effect']}",
+                        b.heldout_err, s.heldout_err, cfg.window_lon_s, s.bic - b.bic)
+            new["on_top_of"] = {top["effect"]: base}
+            if h == "road_grade":
+                new["parameters"]["grade_source"] = ld.grade_source
+            c.clear()
+            c.update(new)
+        elif c["_ok"]:
+            c["_ok"] = False
+            c["why"] = f"explained by {top['effect']}: on top of it {why}"
+
+
+def _fit_windows(cfg: DiagnoseConfig, ch: dict) -> DiagnoseConfig:
+    """Shorter free-run windows for a short recording: at least four windows per held-out
+    fold (a one-minute log gets 3-s windows), never shorter than 2 s."""
+    t = np.asarray(ch["time"], float)
+    dt = float(np.median(np.diff(t)))
+    dur = float(np.isfinite(np.asarray(ch["speed"], float)).sum() * dt)
+    w = max(2.0, dur / (4 * cfg.n_folds))
+    return replace(cfg, window_lon_s=min(cfg.window_lon_s, w),
+                   window_steer_s=min(cfg.window_steer_s, w))
+
+
+def _cand(effect, subsystem, channel, before, after, params, intervals, ok, why, e_b, e_a,
+          window_s, dbic) -> dict:
+    gain = (before - after) / before if before > 0 and np.isfinite(after) else 0.0
+    return {"effect": effect, "subsystem": subsystem, "channel": channel,
+            "parameters": {k: float(v) for k, v in params.items()},
+            "intervals": {k: [float(a), float(b)] for k, (a, b) in intervals.items()},
+            "heldout_rmse_before": float(before), "heldout_rmse_after": float(after),
+            "gain": float(gain), "delta_bic": float(dbic), "physics": CATALOGUE[effect]["physics"],
+            "why": why, "_ok": ok, "_before": e_b, "_after": e_a, "_window_s": window_s}
+
+
+def _position_errors(ch, d: ste.SteerData, m: ste.SteerModel, cfg) -> np.ndarray | None:
+    """Position error [m] of free-run windows of eq. 1 (measured speed, modelled heading)."""
+    if "x" not in ch or "y" not in ch:
+        return None
+    x, y = np.asarray(ch["x"], float), np.asarray(ch["y"], float)
+    L = int(cfg.window_steer_s / d.dt)
+    idx = windows(d.ok & np.isfinite(x) & np.isfinite(y), L)
+    if idx.size == 0:
+        return None
+    delta = np.nan_to_num(ste.road_wheel_angle(d, m))
+    r = d.v * np.tan(delta) / d.b
+    vf = d.v / np.cos(delta)  # the front point (eq. 1's x, y) moves faster than the rear axle
+    psi = d.heading[idx[:, :1]] + np.concatenate(
+        [np.zeros((len(idx), 1)), np.cumsum(r[idx][:, :-1] * d.dt, axis=1)], axis=1)
+    ang = psi + delta[idx]
+    vx, vy = vf[idx] * np.cos(ang), vf[idx] * np.sin(ang)
+    px = x[idx[:, :1]] + np.concatenate([np.zeros((len(idx), 1)),
+                                         np.cumsum(vx[:, :-1] * d.dt, axis=1)], axis=1)
+    py = y[idx[:, :1]] + np.concatenate([np.zeros((len(idx), 1)),
+                                         np.cumsum(vy[:, :-1] * d.dt, axis=1)], axis=1)
+    out = np.full(d.n, np.nan)
+    out[idx] = np.hypot(px - x[idx], py - y[idx])
+    return out
+
+
+def _change_unexplained(d: lon.LonData, best: str | None, cfg: DiagnoseConfig, t) -> dict | None:
+    """A change in the car no hypothesis models: the final longitudinal model fitted before
+    and after a split explains the data much better than one model for all of it."""
+    spec = lon.LonSpec(best) if best else lon.LonSpec()
+    pooled, _, _ = lon.fit_best(d, best, d.ok, cfg)
+    spec = pooled.spec
+    idx = np.flatnonzero(d.ok & (d.vs > cfg.v_stop_mps) & np.isfinite(d.a))
+    if len(idx) < 200 or not np.isfinite(pooled.sse) or pooled.sse <= 0:
+        return None
+    best_red, t_cp = 0.0, None
+    for q in np.arange(0.2, 0.81, 0.05):
+        tk = t[idx[int(q * (len(idx) - 1))]]
+        m1 = lon.fit(d, spec, d.ok & (t < tk))
+        m2 = lon.fit(d, spec, d.ok & (t >= tk))
+        red = 1.0 - (m1.sse + m2.sse) / pooled.sse
+        if red > best_red:
+            best_red, t_cp = red, tk
+    if t_cp is None or best_red < cfg.change_min_reduction:
+        return None
+    ref = lon.fit(d, spec, d.ok & (t < t_cp))  # the car as it was first recorded
+    L = int(cfg.window_lon_s / d.dt)
+    w = windows(d.ok, L)
+    err = np.full(d.n, np.nan)
+    err[w] = lon.free_run(d, ref, w)
+    sq = np.nan_to_num(err ** 2)
+    share = float(sq[t >= t_cp].sum() / sq.sum()) if sq.sum() > 0 else 0.0
+    t_end = float(t[idx[-1]])
+    return {"channel": "speed", "windows": [[round(float(t_cp), 3), round(t_end, 3)]],
+            "share_of_error": share, "subsystem": "longitudinal",
+            "why": f"one model for the whole recording leaves {100 * best_red:.0f} % more "
+                   f"equation error than separate fits before and after t = {t_cp:.1f} s; no "
+                   "catalogue hypothesis models such a change (mass, load, tyres, a trailer)",
+            "error_reduction_split": best_red,
+            "heldout_note": "windows after the change replayed with the model fitted before it"}
+
+
+def _params_out(rec, vehicle, params, ld, lon_scores, steer_scores, findings, zones, cfg):
+    """The extended model: the conventions' keys (steering map, zones, dead times) plus the
+    extension parameters that the parameter loader cannot hold yet (``extensions``)."""
+    fx = {(f["effect"], f["subsystem"]): f for f in findings}
+    steering = params.steering if params is not None else None
+    if steer_scores is not None:
+        best = next((f["effect"] for f in findings if f["subsystem"] == "steering"), None)
+        m = steer_scores[best].model
+        steering = Steering(offset_rad=m.offset_rad, scale=m.scale,
+                            method=f"hmpc diagnose ({best or 'baseline'})")
+        if best == "actuator_delay":
+            steering.dead_time_s = m.nl
+    d_pedal = ld
+    if "accel_cmd" in ld.input_names:  # the conventions' zones are pedal maps
+        ch = {k: v for k, v in rec.channels.items() if k != "accel_cmd"}
+        d_pedal = lon.prepare(ch, zones, cfg)
+    best_lon = next((f["effect"] for f in findings if f["subsystem"] == "longitudinal"
+                     and f["channel"] == "speed"), None)
+    if d_pedal is ld:
+        m = lon_scores[best_lon].model
+    else:
+        m = lon.fit(d_pedal, lon.LonSpec(), d_pedal.ok)
+    zs = []
+    for i, (nm, lo, hi) in enumerate(zones):
+        c = m.C[i]
+        z = Zone(name=nm, v_min_mps=float(lo), v_max_mps=float(hi), offset_mps2=float(c[0]),
+                 scale_mps2=float(c[1]) if len(c) > 1 else 0.0,
+                 brake_scale_mps2=float(c[2]) if len(c) > 2 else 0.0,
+                 identifiable=bool(i in m.fitted_zones))
+        if params is not None and params.zones:  # what this recording cannot tell: as given
+            g = params.zones[i]
+            if i not in m.fitted_zones:
+                z.offset_mps2, z.scale_mps2, z.brake_scale_mps2 = (
+                    g.offset_mps2, g.scale_mps2, g.brake_scale_mps2)
+                z.note = "not in this recording: kept from the given parameter file"
+            elif z.brake_scale_mps2 == 0.0:
+                z.brake_scale_mps2 = g.brake_scale_mps2
+                z.note = "brake not used in this recording: brake scale kept from the given file"
+        elif z.brake_scale_mps2 == 0.0:
+            z.note = "brake not used in this recording: brake scale unknown (0 written)"
+        zs.append(z)
+    p = Params(vehicle=replace(vehicle), steering=steering, zones=zs,
+               provenance={"source": "hmpc diagnose",
+                           "recording": str(rec.meta.get("path", "?"))})
+    if ("actuator_delay", "longitudinal") in fx and d_pedal is ld:
+        p.longitudinal_dead_time_s = fx[("actuator_delay", "longitudinal")]["parameters"]["delay_s"]
+    ext = {"extensions": {
+        "doc": "hmpc diagnose extensions of the report's model (catalogue ids of the diagnosis "
+               "issue); models.params cannot load these keys yet",
+        "longitudinal_input": "+".join(ld.input_names),
+        "findings": [{"effect": f["effect"], "subsystem": f["subsystem"],
+                      "equation": f["equation"], "parameters": f["parameters"],
+                      "intervals": f["intervals"]} for f in findings]}}
+    if "accel_cmd" in ld.input_names:
+        mc = lon_scores[best_lon].model
+        ext["extensions"]["accel_cmd_zones"] = [
+            {"name": nm, "offset_mps2": float(mc.C[i, 0]), "gain": float(mc.C[i, 1])}
+            for i, (nm, _, _) in enumerate(zones)]
+    return p, ext

@@ -1,0 +1,456 @@
+"""Longitudinal hypotheses: the report's zone models (eq. 8) extended one physical term at a time.
+
+Baseline (eq. 8, zone z chosen by speed as in ``models.plant.HybridPlant.zone_by_speed``)::
+
+    dv/dt = offset_z + sum_i gain_z,i * u_i          u = (accel_pedal, -brake_pedal) or (accel_cmd)
+
+Extensions (``CATALOGUE`` ids), each refitted jointly with every zone coefficient:
+
+- ``actuator_delay``: u(t - d), d in [0, delay_max_s];
+- ``actuator_lag``: u through 1 / (tau s + 1), tau in [0, tau_max_s];
+- ``aero_drag``: - c v^2, c in [0, 5e-3] 1/m (a brick of 2 m^2 at 1000 kg: 2.4e-3);
+- ``rolling_resistance``: - r v added to the zone offsets (which hold the constant part),
+  r in [0, 0.01] 1/s (four times a tyre's speed-dependent rolling resistance);
+- ``road_grade``: - k g sin(theta(t)), theta measured from the altitude over distance (or the
+  pitch), k in [0, 2] (1 = the measured grade acts in full);
+- ``idle_creep``: + a0 max(0, 1 - v / v_c) with the throttle released, a0 in [0, 2] m/s^2,
+  v_c in [0.5, 5] m/s.
+
+Fits are equation error (measured dv/dt, Savitzky-Golay) on moving samples; scores are speed
+free-run replays from the measured speed at each window start.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import lfilter
+
+from hmpc.models.diagnose.common import (DiagnoseConfig, bic, corr_length, fold_ids,
+                                         lstsq_bounded, profile_interval, rmse, segments,
+                                         train_mask, windows)
+from hmpc.models.identify.stats import savgol_derivative
+
+G_MPS2 = 9.80665
+DEFAULT_ZONES = (("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
+#: linear extension -> (parameter name, bounds)
+LINEAR_EXT = {
+    "aero_drag": ("coeff_per_m", (0.0, 5e-3)),
+    # tyres: rolling resistance f0 (1 + v / 44 m/s) with f0 g ~ 0.1 m/s^2 gives 2.3e-3 1/s;
+    # 0.01 1/s is four times that (soft or under-inflated tyres)
+    "rolling_resistance": ("coeff_per_s", (0.0, 0.01)),
+    "road_grade": ("gain", (0.0, 2.0)),
+    "idle_creep": ("accel_mps2", (0.0, 2.0)),
+}
+NONLINEAR = {"actuator_delay": "delay_s", "actuator_lag": "tau_s", "idle_creep": "creep_speed_mps"}
+HYPOTHESES = ("actuator_delay", "actuator_lag", "aero_drag", "rolling_resistance", "road_grade",
+              "idle_creep")
+
+
+@dataclass
+class LonData:
+    """Longitudinal channels on the recording grid (NaN where missing)."""
+
+    t: np.ndarray
+    dt: float
+    v: np.ndarray           #: measured speed [m/s]
+    vs: np.ndarray          #: smoothed speed [m/s]
+    a: np.ndarray           #: measured dv/dt [m/s^2]
+    U: np.ndarray           #: inputs [n, m]
+    input_names: list[str]
+    idle: np.ndarray        #: throttle released (bool)
+    grade: np.ndarray | None  #: measured grade [rad]
+    grade_source: str
+    zones: tuple
+    segs: list[tuple[int, int]]
+    ok: np.ndarray          #: samples inside a usable segment
+
+    @property
+    def n(self) -> int:
+        return len(self.t)
+
+
+def prepare(ch: dict, zones=None, cfg: DiagnoseConfig = DiagnoseConfig()) -> LonData:
+    """Build :class:`LonData` from canonical channels (already clock-corrected)."""
+    t = np.asarray(ch["time"], float)
+    dt = float(np.median(np.diff(t)))
+    v = np.asarray(ch["speed"], float)
+    n = len(t)
+    cmd = ch.get("accel_cmd")
+    use_cmd = (cmd is not None and np.isfinite(cmd).mean() > 0.5
+               and np.nanstd(cmd) > 0.1)
+    if use_cmd:
+        # an ACC request drives the car while engaged; the driver's pedal before and between
+        U = [np.nan_to_num(np.asarray(cmd, float), nan=0.0)]
+        names = ["accel_cmd"]
+        for nm, sign in (("accel_pedal", 1.0), ("brake_pedal", -1.0)):
+            x = ch.get(nm)
+            if x is not None and np.nanmax(np.abs(np.nan_to_num(x))) > 0.01:
+                U.append(sign * np.nan_to_num(np.asarray(x, float), nan=0.0))
+                names.append(nm)
+        U = np.column_stack(U)
+        idle = np.zeros(n, bool)
+    else:
+        ap = np.asarray(ch.get("accel_pedal", np.zeros(n)), float)
+        bp = ch.get("brake_pedal")
+        bp = np.zeros(n) if bp is None or not np.isfinite(bp).any() else np.asarray(bp, float)
+        U = np.column_stack([ap, -bp])
+        names = ["accel_pedal", "brake_pedal"]
+        idle = np.nan_to_num(ap, nan=1.0) < 0.01
+    valid = np.isfinite(v) & np.isfinite(U).all(axis=1)
+    segs = segments(valid, int(cfg.min_segment_s / dt))
+    ok = np.zeros(n, bool)
+    for a_, b_ in segs:
+        ok[a_:b_] = True
+    a = savgol_derivative(np.where(ok, v, np.nan), dt, cfg.deriv_window_s)
+    vs = savgol_derivative(np.where(ok, v, np.nan), dt, cfg.deriv_window_s, deriv=0)
+    vs = np.where(np.isfinite(vs), vs, v)
+    grade, src = _grade(ch, v, dt)
+    return LonData(t, dt, v, vs, a, U, names, idle, grade, src,
+                   tuple(zones or DEFAULT_ZONES), segs, ok)
+
+
+def _grade(ch: dict, v: np.ndarray, dt: float) -> tuple[np.ndarray | None, str]:
+    """Road grade [rad] from the altitude over the distance travelled, else the pitch."""
+    z = ch.get("z")
+    if z is not None and np.isfinite(z).mean() > 0.5 and np.nanstd(z) > 0.05:
+        dz = savgol_derivative(np.asarray(z, float), dt, 3.0)
+        vsm = savgol_derivative(v, dt, 3.0, deriv=0)
+        g = np.where(vsm > 2.0, np.arcsin(np.clip(dz / np.maximum(vsm, 1e-3), -0.3, 0.3)), np.nan)
+        # below 2 m/s the altitude slope is noise: hold the last grade seen while moving
+        idx = np.flatnonzero(np.isfinite(g))
+        if len(idx) > 10:
+            g = np.interp(np.arange(len(g)), idx, g[idx])
+            return g, "altitude z over distance travelled (3 s Savitzky-Golay)"
+    p = ch.get("pitch")
+    if p is not None and np.isfinite(p).mean() > 0.5:
+        return np.nan_to_num(np.asarray(p, float)), "INS pitch"
+    return None, "none (no altitude or pitch channel)"
+
+
+@dataclass
+class LonSpec:
+    """One hypothesis: the extension and its nonlinear parameter (0 = baseline)."""
+
+    name: str | None = None
+    delay_s: float = 0.0
+    tau_s: float = 0.0
+    creep_speed_mps: float = 2.0
+
+
+@dataclass
+class LonModel:
+    spec: LonSpec
+    C: np.ndarray                 #: per zone [offset, gain_1..m]
+    ext: float = 0.0              #: linear extension coefficient
+    fitted_zones: list = field(default_factory=list)
+    sse: float = float("nan")
+    n: int = 0
+    k: int = 0
+
+
+def inputs(d: LonData, spec: LonSpec) -> np.ndarray:
+    """Inputs as the actuator delivers them under ``spec`` (delay or lag, per segment)."""
+    U = d.U
+    if spec.delay_s > 0:
+        out = np.full_like(U, np.nan)
+        for a, b in d.segs:
+            tt = d.t[a:b]
+            for j in range(U.shape[1]):
+                out[a:b, j] = np.interp(tt - spec.delay_s, tt, U[a:b, j])  # held before the start
+        return out
+    if spec.tau_s > 0:
+        al = 1.0 - np.exp(-d.dt / spec.tau_s)
+        out = np.full_like(U, np.nan)
+        for a, b in d.segs:
+            for j in range(U.shape[1]):
+                x = U[a:b, j]
+                out[a:b, j] = lfilter([al], [1.0, al - 1.0], x, zi=[(1.0 - al) * x[0]])[0]
+        return out
+    return U
+
+
+def ext_column(d: LonData, spec: LonSpec, v: np.ndarray, idx=None) -> np.ndarray | None:
+    """The extension's regressor at speed ``v`` (samples ``idx``); None for the baseline."""
+    name = spec.name
+    sel = slice(None) if idx is None else idx
+    if name == "aero_drag":
+        return -v * v
+    if name == "rolling_resistance":
+        return -v
+    if name == "road_grade":
+        return -G_MPS2 * np.sin(d.grade[sel])
+    if name == "idle_creep":
+        return np.maximum(0.0, 1.0 - v / spec.creep_speed_mps) * d.idle[sel]
+    return None
+
+
+def _design(d: LonData, U: np.ndarray, spec: LonSpec):
+    nz, m = len(d.zones), U.shape[1]
+    vmax = np.array([z[2] for z in d.zones])
+    zone = np.minimum(np.searchsorted(vmax, d.vs, side="left"), nz - 1)
+    X = np.zeros((d.n, nz * (1 + m)))
+    rows = np.arange(d.n)
+    X[rows, zone * (1 + m)] = 1.0
+    for j in range(m):
+        X[rows, zone * (1 + m) + 1 + j] = U[:, j]
+    e = ext_column(d, spec, d.vs)
+    if e is not None:
+        X = np.column_stack([X, e])
+    return X, zone
+
+
+def _near_zone_change(zone: np.ndarray, dt: float) -> np.ndarray:
+    """Samples whose derivative window spans a zone change: the measured dv/dt there mixes two
+    zones' models (eq. 8 jumps at a boundary), so the fit leaves them out."""
+    ch = np.concatenate([[False], zone[1:] != zone[:-1]])
+    w = int(DiagnoseConfig.deriv_window_s / dt) | 1
+    return np.convolve(ch.astype(float), np.ones(w), mode="same") > 0
+
+
+def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None) -> LonModel:
+    """Equation-error fit of the baseline and the extension jointly on ``mask``."""
+    U = inputs(d, spec) if U is None else U
+    X, zone = _design(d, U, spec)
+    use = mask & d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) \
+        & np.isfinite(X).all(axis=1) & ~_near_zone_change(zone, d.dt)
+    nz, m = len(d.zones), U.shape[1]
+    cols, fitted = [], []
+    for z in range(nz):
+        if (use & (zone == z)).sum() >= max(50, int(2.0 / d.dt)):
+            fitted.append(z)
+            cols += list(range(z * (1 + m), (z + 1) * (1 + m)))
+    ext = X.shape[1] > nz * (1 + m)
+    if ext:
+        cols.append(X.shape[1] - 1)
+    if not fitted:
+        return LonModel(spec, np.zeros((nz, 1 + m)), 0.0, [], float("inf"), 0, 0)
+    Xs = X[use][:, cols]
+    keep = np.abs(Xs).max(axis=0) > 1e-12  # an input never used in a zone is not fitted there
+    cols = [c for c, k in zip(cols, keep) if k]
+    Xs = Xs[:, keep]
+    bounds = {}
+    if ext and cols[-1] == X.shape[1] - 1:
+        bounds[len(cols) - 1] = LINEAR_EXT[spec.name][1]
+    coef, sse = lstsq_bounded(Xs, d.a[use], bounds)
+    C = np.zeros((nz, 1 + m))
+    ext_coef = 0.0
+    for c, val in zip(cols, coef):
+        if c >= nz * (1 + m):
+            ext_coef = float(val)
+        else:
+            C[c // (1 + m), c % (1 + m)] = val
+    for z in range(nz):  # a zone without data takes the nearest fitted zone's model
+        if z not in fitted:
+            C[z] = C[min(fitted, key=lambda f: abs(f - z))]
+    return LonModel(spec, C, ext_coef, fitted, sse, int(use.sum()), len(cols) + (spec.name in NONLINEAR))
+
+
+def free_run(d: LonData, model: LonModel, idx: np.ndarray, U: np.ndarray | None = None
+             ) -> np.ndarray:
+    """Speed error [m/s] (replay - measured) of free-run windows ``idx`` [n_win, L]."""
+    if idx.size == 0:
+        return np.zeros(idx.shape)
+    U = inputs(d, model.spec) if U is None else U
+    U = np.nan_to_num(U, nan=0.0)
+    vmax = np.array([z[2] for z in d.zones])
+    nz = len(d.zones)
+    v = d.vs[idx[:, 0]].copy()
+    out = np.empty(idx.shape)
+    for j in range(idx.shape[1]):
+        k = idx[:, j]
+        out[:, j] = v
+        z = np.minimum(np.searchsorted(vmax, v, side="left"), nz - 1)
+        a = model.C[z, 0] + np.einsum("ij,ij->i", model.C[z, 1:], U[k])
+        e = ext_column(d, model.spec, v, k)
+        if e is not None:
+            a = a + model.ext * e
+        v = np.maximum(v + a * d.dt, 0.0)
+    return out - d.v[idx]
+
+
+def _grid(name: str, cfg: DiagnoseConfig, dt: float) -> np.ndarray:
+    if name == "actuator_delay":
+        return np.arange(0.0, cfg.delay_max_s + 1e-9, 0.05)
+    if name == "actuator_lag":
+        return np.arange(0.0, cfg.tau_max_s + 1e-9, 0.05)
+    if name == "idle_creep":
+        return np.arange(0.5, 5.01, 0.25)
+    return np.zeros(1)
+
+
+def _spec(name, val, base: dict | None = None) -> LonSpec:
+    """``name`` with its nonlinear parameter ``val`` on top of ``base`` (an accepted delay or
+    lag: ``{"delay_s": ..}`` or ``{"tau_s": ..}``)."""
+    key = NONLINEAR.get(name)
+    kw = dict(base or {})
+    if key:
+        kw[key] = float(val)
+    return LonSpec(name, **kw)
+
+
+def fit_best(d: LonData, name: str | None, mask: np.ndarray, cfg: DiagnoseConfig,
+             grid: np.ndarray | None = None, base: dict | None = None):
+    """Fit hypothesis ``name`` on ``mask``, its nonlinear parameter by grid on the SSE
+    (``grid`` overrides the default grid; delays and lags are refined around the best point).
+
+    Returns (model, grid, sse per sample per grid point)."""
+    if name is None or name not in NONLINEAR:
+        m = fit(d, _spec(name, 0.0, base), mask)
+        return m, np.zeros(1), np.array([m.sse / max(m.n, 1)])
+    refine = grid is None and name in ("actuator_delay", "actuator_lag")
+    grid = _grid(name, cfg, d.dt) if grid is None else np.asarray(grid, float)
+    models = [fit(d, _spec(name, g, base), mask) for g in grid]
+    sse = np.array([m.sse / max(m.n, 1) for m in models])  # per sample: a delay drops a few
+    best = int(np.nanargmin(sse))
+    if refine:
+        step = grid[1] - grid[0]
+        fine = np.arange(max(grid[best] - step, 0.0), grid[best] + step + 1e-9, max(d.dt, 0.01))
+        fine = fine[~np.isclose(fine[:, None], grid[None, :]).any(axis=1)]
+        models += [fit(d, _spec(name, g, base), mask) for g in fine]
+        grid = np.concatenate([grid, fine])
+        sse = np.concatenate([sse, [m.sse / max(m.n, 1) for m in models[len(sse):]]])
+        order = np.argsort(grid)
+        grid, sse, models = grid[order], sse[order], [models[i] for i in order]
+        best = int(np.nanargmin(sse))
+    return models[best], grid, sse
+
+
+def residual(d: LonData, m: LonModel) -> np.ndarray:
+    """Equation error dv/dt - model [m/s^2] at the measured speed (NaN where not fitted)."""
+    U = np.nan_to_num(inputs(d, m.spec), nan=np.nan)
+    vmax = np.array([z[2] for z in d.zones])
+    z = np.minimum(np.searchsorted(vmax, d.vs, side="left"), len(d.zones) - 1)
+    a = m.C[z, 0] + np.einsum("ij,ij->i", m.C[z, 1:], U)
+    e = ext_column(d, m.spec, d.vs)
+    if e is not None:
+        a = a + m.ext * e
+    r = d.a - a
+    r[~(d.ok & (d.vs > DiagnoseConfig.v_stop_mps))] = np.nan
+    return r
+
+
+@dataclass
+class LonScore:
+    """Held-out and full-data results of one hypothesis."""
+
+    name: str | None
+    model: LonModel
+    heldout_rmse_mps: float
+    heldout_err: np.ndarray        #: per-sample held-out free-run error [m/s] (NaN elsewhere)
+    bic: float
+    params: dict
+    intervals: dict
+    fold_values: list
+
+
+def evaluate(d: LonData, name: str | None, cfg: DiagnoseConfig, corr_len: float,
+             base: dict | None = None) -> LonScore:
+    """Blocked k-fold free-run score plus the full-data fit, parameters and intervals
+    (``base``: an accepted delay or lag that every fit here keeps)."""
+    folds = fold_ids(d.n, d.segs, cfg.n_folds)
+    guard = int(cfg.guard_s / d.dt)
+    L = int(cfg.window_lon_s / d.dt)
+    err = np.full(d.n, np.nan)
+    vals = []
+    full, grid, sse_grid = fit_best(d, name, d.ok, cfg, base=base)
+    local = None
+    if name in NONLINEAR:  # each fold searches near the full-data optimum, on its own data
+        g0 = _param_value(full)
+        step = {"actuator_delay": 0.05, "actuator_lag": 0.05, "idle_creep": 0.25}[name]
+        lo = 0.5 if name == "idle_creep" else 0.0
+        local = np.unique(np.maximum(g0 + step * np.arange(-2, 3), lo))
+    for f in range(cfg.n_folds):
+        tr = train_mask(folds, f, guard)
+        m, _, _ = fit_best(d, name, tr, cfg, grid=local, base=base)
+        idx = _covered(d, tr, windows(folds == f, L))
+        if idx.size:
+            err[idx] = free_run(d, m, idx)
+        vals.append(_param_value(m))
+    params, intervals = _params(d, full, grid, sse_grid, corr_len, cfg)
+    return LonScore(name, full, rmse(err), err, bic(full.sse, full.n, full.k, corr_len),
+                    params, intervals, vals)
+
+
+def _covered(d: LonData, train: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Held-out windows whose inputs the training data covers: an input that never moved in
+    training (a driver's pedal used only in the held-out fold) cannot be scored there."""
+    if idx.size == 0:
+        return idx
+    used = np.nanmax(np.abs(d.U[train & d.ok]), axis=0) > 0.01 if (train & d.ok).any() \
+        else np.zeros(d.U.shape[1], bool)
+    moved = np.nanmax(np.abs(d.U[idx]), axis=1) > 0.01  # [n_win, m]
+    return idx[~(moved & ~used).any(axis=1)]
+
+
+def _param_value(m: LonModel):
+    key = NONLINEAR.get(m.spec.name)
+    return getattr(m.spec, key) if key else m.ext
+
+
+def _params(d: LonData, m: LonModel, grid, sse_grid, corr_len, cfg) -> tuple[dict, dict]:
+    name = m.spec.name
+    if name is None:
+        return {}, {}
+    params, intervals = {}, {}
+    if name in NONLINEAR:
+        key = NONLINEAR[name]
+        params[key] = float(getattr(m.spec, key))
+        lo_, hi_ = profile_interval(grid, sse_grid * m.n, m.n, corr_len)
+        half = 0.5 * float(np.min(np.diff(grid))) if len(grid) > 1 else 0.0  # grid resolution
+        intervals[key] = [max(lo_ - half, float(grid[0])), hi_ + half]
+    if name in LINEAR_EXT:
+        key, (lo, hi) = LINEAR_EXT[name]
+        params[key] = m.ext
+        intervals[key] = list(_ext_interval(d, m, corr_len, lo, hi))
+    if name == "road_grade":
+        g = d.grade[d.ok]
+        params["grade_rms_rad"] = float(np.sqrt(np.mean(g * g)))
+        params["grade_mean_rad"] = float(np.mean(g))
+    return params, intervals
+
+
+def _ext_interval(d: LonData, m: LonModel, corr_len: float, lo: float, hi: float):
+    """95 % profile interval of the linear extension coefficient (the others refitted): the
+    SSE is quadratic in it, so the interval is where n_eff ln(SSE / SSE_min) <= 3.84."""
+    U = inputs(d, m.spec)
+    X, _ = _design(d, U, m.spec)
+    use = d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) & np.isfinite(X).all(axis=1)
+    Xs, y = X[use], d.a[use]
+    base, e = Xs[:, :-1], Xs[:, -1]
+    base = base[:, np.abs(base).max(axis=0) > 1e-12]
+    c0, s0 = lstsq_bounded(base, y)
+    r_e = e - base @ np.linalg.lstsq(base, e, rcond=None)[0]  # extension orthogonal to the rest
+    q = float(r_e @ r_e)
+    r0 = y - base @ c0
+    g_hat = float(r_e @ r0) / q if q > 0 else 0.0
+    sse_min = s0 - q * g_hat * g_hat
+    ne = max(len(y) / max(corr_len, 1.0), 3.0)
+    half = float(np.sqrt(max(sse_min, 1e-300) * (np.exp(3.84 / ne) - 1.0) / q)) if q > 0 else np.inf
+    return (float(np.clip(m.ext - half, lo, hi)), float(np.clip(m.ext + half, lo, hi)))
+
+
+def baseline_checks(m: LonModel, d: LonData) -> list[dict]:
+    """Physically impossible fits: a pedal map that is not monotone (gain <= 0), a brake that
+    accelerates. Each is evidence of missing physics (never a result)."""
+    out = []
+    for z in m.fitted_zones:
+        for j, nm in enumerate(d.input_names):
+            g = m.C[z, 1 + j]
+            if g < 0:  # exactly 0: the input never moved in that zone
+                out.append({"zone": d.zones[z][0], "term": nm, "value": float(g),
+                            "why": f"zone {d.zones[z][0]}: {nm} gain {g:+.3f} m/s^2 per unit is "
+                                   "negative: the map "
+                                   "from the actuator to acceleration is not monotone"})
+    return out
+
+
+def unconstrained_ext(d: LonData, name: str) -> float:
+    """The extension coefficient fitted without its bounds (a negative drag is evidence)."""
+    U = d.U
+    X, _ = _design(d, U, LonSpec(name))
+    use = d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) & np.isfinite(X).all(axis=1)
+    Xs = X[use]
+    Xs = Xs[:, np.abs(Xs).max(axis=0) > 1e-12]
+    c, _ = lstsq_bounded(Xs, d.a[use])
+    return float(c[-1])

@@ -1,0 +1,285 @@
+"""Steering hypotheses: the report's steering map (eq. 7) in the bicycle model (eq. 1),
+extended one physical term at a time and refitted jointly with the offset and the scale.
+
+Measured road-wheel angle (eq. 1 inverted, yaw-rate sensor bias ``r0`` fitted alongside)::
+
+    delta_m = atan(b r / v_rear),   delta_m = offset + scale * sw(t) + b r0 / v   (baseline)
+
+(v_rear: the rear-axle centre's speed, the mean of the unsteered rear wheels; eq. 1's front
+point moves at v_rear / cos(delta).)
+
+Extensions (``CATALOGUE`` ids):
+
+- ``actuator_delay``: sw(t - d), d in [0, delay_max_s];
+- ``actuator_lag``: sw through 1 / (tau s + 1), tau in [0, tau_max_s];
+- ``steering_nonlinearity``: scale * (sw + k3 sw^3): the rack's gain changes towards full lock,
+  |k3| <= 0.02 1/rad^2;
+- ``understeer``: the kinematic angle acts as delta / (1 + K v^2 / b) (K the understeer
+  gradient [rad per m/s^2 of lateral acceleration]), K in [0, 0.02].
+
+Scores are heading free-run replays: the heading integrated from eq. 1 with the measured speed
+and steering over each window, against the INS heading (or the bias-corrected gyro).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from hmpc.models.diagnose.common import (DiagnoseConfig, bic, fold_ids, lstsq_bounded,
+                                         profile_interval, rmse, segments, train_mask, windows)
+
+HYPOTHESES = ("actuator_delay", "actuator_lag", "steering_nonlinearity", "understeer")
+NONLINEAR = {"actuator_delay": "delay_s", "actuator_lag": "tau_s",
+             "understeer": "gradient_rad_per_mps2"}
+#: understeer gradients of passenger cars are 0.002..0.005 rad/(m/s^2); 0.02 is a bound
+K_MAX = 0.02
+#: rack nonlinearity bound [1/rad^2]: 0.02 changes the gain by 140 % at 8.4 rad (full lock)
+K3_MAX = 0.02
+
+
+@dataclass
+class SteerData:
+    t: np.ndarray
+    dt: float
+    v: np.ndarray             #: rear-axle centre speed [m/s]
+    sw: np.ndarray
+    yaw: np.ndarray
+    heading: np.ndarray       #: unwrapped heading reference [rad]
+    heading_source: str
+    b: float
+    dm: np.ndarray            #: measured road-wheel angle [rad] (NaN where unusable)
+    segs: list
+    ok: np.ndarray            #: samples usable for heading replay
+    fit_ok: np.ndarray        #: samples usable for the angle fit
+    vf: np.ndarray            #: front point speed v_rear / cos(delta_m) [m/s] (understeer)
+
+    @property
+    def n(self) -> int:
+        return len(self.t)
+
+
+def prepare(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
+            ) -> SteerData | None:
+    """Steering data, or None when the recording lacks steering angle, speed or yaw."""
+    if "steering_wheel_angle" not in ch or "speed" not in ch:
+        return None
+    t = np.asarray(ch["time"], float)
+    dt = float(np.median(np.diff(t)))
+    if "wheel_speed_rl" in ch and "wheel_speed_rr" in ch:
+        # the rear-axle centre's speed (unsteered wheels: exactly their mean); eq. 1's yaw
+        # rate v sin(delta) / b of the front point is v_rear tan(delta) / b
+        v = 0.5 * (np.asarray(ch["wheel_speed_rl"], float) + np.asarray(ch["wheel_speed_rr"], float))
+    else:
+        v = np.asarray(ch["speed"], float)
+    sw = np.asarray(ch["steering_wheel_angle"], float)
+    yaw = ch.get("yaw_rate")
+    head = ch.get("heading")
+    if yaw is None and head is None:
+        return None
+    if yaw is None or not np.isfinite(yaw).any():
+        from hmpc.models.identify.stats import savgol_derivative
+        yaw = savgol_derivative(np.unwrap(np.nan_to_num(head)), dt, cfg.deriv_window_s)
+    yaw = np.asarray(yaw, float)
+    valid = np.isfinite(v) & np.isfinite(sw) & np.isfinite(yaw) & (v > 1.0)
+    if head is not None and np.isfinite(head).mean() > 0.5:
+        valid &= np.isfinite(head)
+    segs = segments(valid, int(cfg.window_steer_s / dt))
+    ok = np.zeros(len(t), bool)
+    for a, b in segs:
+        ok[a:b] = True
+    b = float(wheelbase_m)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dm = np.arctan(b * yaw / v)
+    fit_ok = ok & (v > cfg.v_steer_min_mps) & np.isfinite(dm)
+    vf = np.where(np.isfinite(dm), v / np.cos(np.nan_to_num(dm)), v)  # front point speed
+    if fit_ok.sum() < int(20.0 / dt):
+        return None
+    if head is not None and np.isfinite(head).mean() > 0.5:
+        href = np.full(len(t), np.nan)
+        for a, b_ in segs:
+            href[a:b_] = np.unwrap(np.asarray(head, float)[a:b_])
+        src = "INS heading"
+    else:
+        href = np.full(len(t), np.nan)
+        for a, b_ in segs:
+            href[a:b_] = np.cumsum(yaw[a:b_]) * dt
+        src = "integrated yaw rate"
+    return SteerData(t, dt, v, sw, yaw, href, src, b, dm, segs, ok, fit_ok, vf)
+
+
+@dataclass
+class SteerModel:
+    name: str | None
+    nl: float                  #: nonlinear parameter (delay, tau or K), 0 for the others
+    offset_rad: float
+    scale: float
+    bias_radps: float
+    k3: float = 0.0            #: cubic coefficient [1/rad^2]
+    sse: float = float("nan")
+    n: int = 0
+    k: int = 0
+
+
+def _sw(d: SteerData, name, nl) -> np.ndarray:
+    if name == "actuator_delay" and nl > 0:
+        out = np.full(d.n, np.nan)
+        for a, b in d.segs:
+            tt = d.t[a:b]
+            out[a:b] = np.interp(tt - nl, tt, d.sw[a:b])  # held before the start
+        return out
+    if name == "actuator_lag" and nl > 0:
+        al = 1.0 - np.exp(-d.dt / nl)
+        out = np.full(d.n, np.nan)
+        for a, b in d.segs:
+            x = d.sw[a:b]
+            out[a:b] = lfilter([al], [1.0, al - 1.0], x, zi=[(1.0 - al) * x[0]])[0]
+        return out
+    return d.sw
+
+
+def fit(d: SteerData, name: str | None, nl: float, mask: np.ndarray) -> SteerModel:
+    sw = _sw(d, name, nl)
+    use = mask & d.fit_ok & np.isfinite(sw)
+    v = d.v[use]
+    vf = d.vf[use]
+    cols = [np.ones(use.sum()), sw[use], d.b / v]
+    if name == "steering_nonlinearity":
+        cols.append(sw[use] ** 3)
+    X = np.column_stack(cols)
+    div = 1.0 + nl * vf * vf / d.b if name == "understeer" else 1.0
+    y = d.dm[use]
+    c, _ = lstsq_bounded(X / np.atleast_1d(div)[:, None] if name == "understeer" else X, y)
+    k3 = float(c[3] / c[1]) if name == "steering_nonlinearity" and c[1] != 0 else 0.0
+    if abs(k3) > K3_MAX:  # bounded: refit the map with k3 on its bound
+        k3 = float(np.sign(k3) * K3_MAX)
+        X = np.column_stack([cols[0], sw[use] + k3 * sw[use] ** 3, cols[2]])
+        c3, _ = lstsq_bounded(X, y)
+        c = np.concatenate([c3, [k3 * c3[1]]])
+        X = np.column_stack([cols[0], sw[use], cols[2], sw[use] ** 3])
+    pred = (X @ c) / div if name == "understeer" else X @ c
+    sse = float(np.sum((y - pred) ** 2))
+    k = len(c) + (name in NONLINEAR)
+    return SteerModel(name, nl, float(c[0]), float(c[1]), float(c[2]), k3, sse, int(use.sum()), k)
+
+
+def road_wheel_angle(d: SteerData, m: SteerModel) -> np.ndarray:
+    """Model road-wheel angle [rad] (the kinematic angle eq. 1 turns with)."""
+    sw = _sw(d, m.name, m.nl)
+    delta = m.offset_rad + m.scale * (sw + m.k3 * sw ** 3)
+    if m.name == "understeer":
+        delta = delta / (1.0 + m.nl * d.vf * d.vf / d.b)
+    return delta
+
+
+def free_run(d: SteerData, m: SteerModel, idx: np.ndarray) -> np.ndarray:
+    """Heading error [rad] of free-run windows ``idx`` (integrated eq. 1 - measured)."""
+    if idx.size == 0:
+        return np.zeros(idx.shape)
+    r = d.v * np.tan(road_wheel_angle(d, m)) / d.b
+    if d.heading_source == "integrated yaw rate":  # the reference carries the gyro's bias
+        r = r + m.bias_radps
+    r = np.nan_to_num(r)
+    rr = r[idx] * d.dt
+    pred = d.heading[idx[:, :1]] + np.concatenate([np.zeros((len(idx), 1)),
+                                                   np.cumsum(rr[:, :-1], axis=1)], axis=1)
+    return pred - d.heading[idx]
+
+
+def _grid(name):
+    if name == "actuator_delay":
+        return np.arange(0.0, 1.0 + 1e-9, 0.05)
+    if name == "actuator_lag":
+        return np.arange(0.0, 1.0 + 1e-9, 0.05)
+    if name == "understeer":
+        return np.linspace(0.0, K_MAX, 41)
+    return np.zeros(1)
+
+
+def fit_best(d: SteerData, name, mask, grid=None):
+    if name not in NONLINEAR:
+        m = fit(d, name, 0.0, mask)
+        return m, np.zeros(1), np.array([m.sse / max(m.n, 1)])
+    refine = grid is None
+    grid = _grid(name) if grid is None else np.asarray(grid, float)
+    ms = [fit(d, name, g, mask) for g in grid]
+    sse = np.array([m.sse / max(m.n, 1) for m in ms])
+    best = int(np.nanargmin(sse))
+    if refine:
+        step = grid[1] - grid[0]
+        fine_step = max(d.dt, 0.01) if name != "understeer" else step / 10
+        fine = np.arange(max(grid[best] - step, 0.0), grid[best] + step + 1e-12, fine_step)
+        fine = fine[~np.isclose(fine[:, None], grid[None, :], rtol=0, atol=fine_step / 10).any(1)]
+        ms += [fit(d, name, g, mask) for g in fine]
+        grid = np.concatenate([grid, fine])
+        sse = np.concatenate([sse, [m.sse / max(m.n, 1) for m in ms[len(sse):]]])
+        order = np.argsort(grid)
+        grid, sse, ms = grid[order], sse[order], [ms[i] for i in order]
+        best = int(np.nanargmin(sse))
+    return ms[best], grid, sse
+
+
+def residual(d: SteerData, m: SteerModel) -> np.ndarray:
+    """Angle equation error [rad] (measured - model, yaw bias removed); NaN where not fitted."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = d.dm - road_wheel_angle(d, m) - d.b * m.bias_radps / d.v
+    r[~d.fit_ok] = np.nan
+    return r
+
+
+@dataclass
+class SteerScore:
+    name: str | None
+    model: SteerModel
+    heldout_rmse_rad: float
+    heldout_err: np.ndarray
+    bic: float
+    params: dict
+    intervals: dict
+    fold_values: list
+
+
+def evaluate(d: SteerData, name, cfg: DiagnoseConfig, corr_len: float) -> SteerScore:
+    folds = fold_ids(d.n, d.segs, cfg.n_folds)
+    guard = int(cfg.guard_s / d.dt)
+    L = int(cfg.window_steer_s / d.dt)
+    full, grid, sse_grid = fit_best(d, name, d.ok)
+    local = None
+    if name in NONLINEAR:
+        step = {"actuator_delay": 0.05, "actuator_lag": 0.05, "understeer": K_MAX / 40}[name]
+        local = np.unique(np.maximum(full.nl + step * np.arange(-2, 3), 0.0))
+    err = np.full(d.n, np.nan)
+    vals = []
+    for f in range(cfg.n_folds):
+        m, _, _ = fit_best(d, name, train_mask(folds, f, guard), grid=local)
+        idx = windows(folds == f, L)
+        if idx.size:
+            err[idx] = free_run(d, m, idx)
+        vals.append(m.nl if name in NONLINEAR else m.k3)
+    params, intervals = {}, {}
+    if name in NONLINEAR:
+        key = NONLINEAR[name]
+        params[key] = float(full.nl)
+        lo, hi = profile_interval(grid, sse_grid * full.n, full.n, corr_len)
+        half = 0.5 * float(np.min(np.diff(grid))) if len(grid) > 1 else 0.0
+        intervals[key] = [max(lo - half, float(grid[0])), hi + half]
+    if name == "steering_nonlinearity":
+        params["cubic_per_rad2"] = full.k3
+        intervals["cubic_per_rad2"] = list(_k3_interval(d, full, corr_len))
+    if name is not None:
+        params["offset_rad"], params["scale"] = full.offset_rad, full.scale
+    return SteerScore(name, full, rmse(err), err, bic(full.sse, full.n, full.k, corr_len),
+                      params, intervals, vals)
+
+
+def _k3_interval(d: SteerData, m: SteerModel, corr_len: float):
+    grid = np.clip(m.k3 + np.linspace(-1, 1, 41) * max(abs(m.k3), 1e-4), -K3_MAX, K3_MAX)
+    sse = []
+    use = d.fit_ok
+    v, sw, y = d.v[use], d.sw[use], d.dm[use]
+    for g in grid:
+        X = np.column_stack([np.ones(len(v)), sw + g * sw ** 3, d.b / v])
+        _, s = lstsq_bounded(X, y)
+        sse.append(s)
+    return profile_interval(grid, np.array(sse), len(y), corr_len)

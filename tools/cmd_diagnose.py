@@ -1,0 +1,139 @@
+"""`hmpc diagnose`: where the report's model and a recording differ, which physics is missing
+(a named catalogue hypothesis, or "unexplained"), and the held-out fit with it added."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import yaml
+
+from hmpc.models.errors import InputError
+from hmpc.models.params import dump_params, load_params
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from hmpc.tools.cmd_ingest import add_ingest_options
+
+    p.add_argument("recording", metavar="REC",
+                   help="canonical recording (.csv, .csv.gz, .parquet), or a raw CAN log when "
+                        "--dbc and --signals are given")
+    p.add_argument("--vehicle", required=True, metavar="GEOMETRY.yaml",
+                   help="vehicle geometry (params/*.yaml; at least wheelbase_m, track_front_m)")
+    p.add_argument("--params", metavar="P.yaml",
+                   help="the model to replay (its zones are used); default: the report's model "
+                        "identified from the same recording")
+    p.add_argument("--json", metavar="FILE", help="findings, unexplained mismatch, replay")
+    p.add_argument("--report", metavar="DIR", help="write an HTML report with figures")
+    p.add_argument("--params-out", metavar="P2.yaml",
+                   help="write the extended model (conventions keys; extension parameters the "
+                        "loader cannot hold yet go to P2.extensions.yaml beside it)")
+    g = p.add_argument_group("raw log input (the options of `hmpc ingest`)")
+    add_ingest_options(g, log_required=False)
+
+
+def _progress(msg: str) -> None:
+    print(f"hmpc diagnose: {msg}", file=sys.stderr, flush=True)
+
+
+def _load_recording(args):
+    """(recording, sources, ingest summary or None): a canonical recording, or a raw log
+    ingested with the `hmpc ingest` options."""
+    from hmpc.models.logs.recording import Recording
+
+    if args.dbc or args.signals:
+        if not (args.dbc and args.signals):
+            raise InputError("a raw log needs both --dbc and --signals", args.recording)
+        from hmpc.tools.cmd_ingest import ingest_from_args
+
+        _progress("ingesting the raw log")
+        res = ingest_from_args(argparse.Namespace(**{**vars(args), "log": args.recording}),
+                               progress=_progress)
+        for line in res.problems.lines():
+            _progress(line)
+        sources = {"log": args.recording, "dbc": args.dbc, "signals": args.signals,
+                   "nav": args.nav, "imu": args.imu}
+        return res.recording, sources, res.summary
+    if args.nav or args.imu:
+        raise InputError("--nav/--imu need a raw log with --dbc and --signals", args.recording)
+    try:
+        rec = Recording.load(args.recording)
+    except InputError as exc:
+        if "not a canonical recording" in exc.reason:
+            raise InputError("not a canonical recording (no 'time' column); for a raw CAN log "
+                             "give --dbc and --signals", args.recording) from None
+        raise
+    return rec, {"recording": args.recording}, None
+
+
+def summary_lines(dg) -> list[str]:
+    out = [f"longitudinal input: {dg.longitudinal_input}"]
+    for name, c in dg.channels.items():
+        base = c.get("heldout_rmse_baseline", c.get("rmse_baseline"))
+        floor = c.get("noise_floor")
+        out.append(f"  channel {name:17s} baseline RMSE {base if base is None else f'{base:.4g}'}"
+                   f" {c['unit']}  noise floor "
+                   f"{'n/a' if floor is None else f'{floor:.3g}'} {c['unit']}")
+    if not dg.findings:
+        out.append("no catalogue hypothesis improves the held-out fit")
+    for i, f in enumerate(dg.findings, 1):
+        ps = ", ".join(f"{k} {v:.4g} [{f['intervals'][k][0]:.4g}, {f['intervals'][k][1]:.4g}]"
+                       if k in f["intervals"] else f"{k} {v:.4g}"
+                       for k, v in f["parameters"].items() if isinstance(v, float))
+        out.append(f"{i}. {f['effect']} ({f['subsystem']}): {ps}")
+        out.append(f"   held-out {f['channel']} RMSE {f['heldout_rmse_before']:.4g} -> "
+                   f"{f['heldout_rmse_after']:.4g} ({100 * f['gain']:.0f} % better)")
+    for u in dg.unexplained:
+        out.append(f"unexplained ({u['channel']}): windows {u['windows']}, "
+                   f"{100 * u['share_of_error']:.0f} % of the error")
+    for e in dg.evidence:
+        out.append(f"baseline check: {e['why']}")
+    for n in dg.notes:
+        out.append(f"note: {n}")
+    return out
+
+
+def run(args) -> int:
+    from hmpc.models.diagnose.diagnose import diagnose
+    from hmpc.tools.cli import write_json
+
+    vehicle = load_params(args.vehicle).vehicle
+    params = load_params(args.params, require_model=True) if args.params else None
+    rec, sources, ingest_summary = _load_recording(args)
+    dg = diagnose(rec, vehicle, params, progress=_progress)
+    for line in summary_lines(dg):
+        print(line)
+    payload = dg.to_json()
+    payload["recording"] = sources
+    if ingest_summary is not None:
+        payload["ingest"] = ingest_summary
+    if args.params_out:
+        out = Path(args.params_out)
+        ext_path = out.with_name(out.stem + ".extensions.yaml")
+        dg.params_out.provenance["extensions_file"] = ext_path.name
+        try:
+            dump_params(dg.params_out, out)
+            with open(ext_path, "w", encoding="utf-8") as fh:
+                yaml.safe_dump(dg.extensions, fh, sort_keys=False)
+        except OSError as exc:
+            raise InputError(f"cannot write the parameter file ({exc.strerror or exc})",
+                             str(out)) from None
+        load_params(out, require_model=True)  # what we wrote must load strictly
+        print(f"wrote {out} and {ext_path}")
+        payload["params_out"] = {"file": str(out), "extensions_file": str(ext_path)}
+    if args.report:
+        from hmpc.models.diagnose.report import write_report
+        _progress(f"writing the HTML report to {args.report}")
+        try:
+            index = write_report(dg, args.report, title=str(args.recording))
+        except OSError as exc:
+            raise InputError(f"cannot write the report ({exc.strerror or exc})",
+                             args.report) from None
+        print(f"wrote {index}")
+        payload["report"] = str(index)
+    if args.json:
+        try:
+            write_json(args.json, payload)
+        except OSError as exc:
+            raise InputError(f"cannot write JSON ({exc.strerror or exc})", args.json) from None
+    return 0
