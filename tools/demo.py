@@ -57,6 +57,19 @@ def steps(out: Path) -> list[tuple[str, list[str]]]:
          ["simulate", "--params", str(PARAMS_DIR / "report_2008.yaml"), "--scenario", "figure8",
           "--plant-params", str(PARAMS_DIR / "report_2008_weak_zones.yaml"), "--controller", "mpc",
           "--plots", str(out / "mpc_figure8_mismatch"), "--json", str(out / "mpc_figure8_mismatch.json")]),
+        ("drive: hybrid MPC drives figure eights in real time through the RAV4's own command "
+         "frames (STEERING_LKA, ACC_CONTROL) on python-can's virtual bus, against the simulated car",
+         ["drive", "--params", str(PARAMS_DIR / "report_2008.yaml"),
+          "--actuation", str(PARAMS_DIR / "toyota_rav4_2017.actuation.yaml"), "--vehicle-sim",
+          "--scenario", "figure8", "--duration", "30", "--candump", str(out / "drive_figure8.log"),
+          "--json", str(out / "drive_figure8.json")]),
+        ("ingest: the drive's own candump, read back as any log",
+         ["ingest", str(out / "drive_figure8.log"), "--dbc", str(comma_dbc),
+          "--signals", str(PARAMS_DIR / "toyota_rav4_2017.signals.yaml"),
+          "--out", str(out / "drive_rec.csv"), "--json", str(out / "drive_ingest.json")]),
+        ("diagnose: where the report's model and the VerifiedCAN drive differ, and why",
+         ["diagnose", str(out / "vcan_rec.csv"), "--vehicle", str(PARAMS_DIR / "toyota_rav4_2019.yaml"),
+          "--report", str(out / "vcan_diagnose"), "--json", str(out / "vcan_diagnose.json")]),
     ]
 
 
@@ -77,7 +90,8 @@ def main(argv=None) -> int:
     from hmpc.models.logs.recording import Recording
     from hmpc.models.report.recording import plot_overview
     for name, label in (("comma_rec", "comma2k19 RAV4 2017, I-280 minute"),
-                        ("vcan_rec", "VerifiedCAN RAV4 2019, stop-and-go")):
+                        ("vcan_rec", "VerifiedCAN RAV4 2019, stop-and-go"),
+                        ("drive_rec", "hmpc drive: MPC on figure8 over the virtual bus (RAV4 frames)")):
         rec_path = out / f"{name}.csv"
         if rec_path.exists():
             png = plot_overview(Recording.load(rec_path), str(out / f"{name}.png"), label)
