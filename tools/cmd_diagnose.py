@@ -9,6 +9,7 @@ from pathlib import Path
 import yaml
 
 from hmpc.models.errors import InputError
+from hmpc.tools.cmd_ingest import recording_or_log
 from hmpc.models.params import dump_params, load_params
 
 
@@ -34,36 +35,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _progress(msg: str) -> None:
     print(f"hmpc diagnose: {msg}", file=sys.stderr, flush=True)
-
-
-def _load_recording(args):
-    """(recording, sources, ingest summary or None): a canonical recording, or a raw log
-    ingested with the `hmpc ingest` options."""
-    from hmpc.models.logs.recording import Recording
-
-    if args.dbc or args.signals:
-        if not (args.dbc and args.signals):
-            raise InputError("a raw log needs both --dbc and --signals", args.recording)
-        from hmpc.tools.cmd_ingest import ingest_from_args
-
-        _progress("ingesting the raw log")
-        res = ingest_from_args(argparse.Namespace(**{**vars(args), "log": args.recording}),
-                               progress=_progress)
-        for line in res.problems.lines():
-            _progress(line)
-        sources = {"log": args.recording, "dbc": args.dbc, "signals": args.signals,
-                   "nav": args.nav, "imu": args.imu}
-        return res.recording, sources, res.summary
-    if args.nav or args.imu:
-        raise InputError("--nav/--imu need a raw log with --dbc and --signals", args.recording)
-    try:
-        rec = Recording.load(args.recording)
-    except InputError as exc:
-        if "not a canonical recording" in exc.reason:
-            raise InputError("not a canonical recording (no 'time' column); for a raw CAN log "
-                             "give --dbc and --signals", args.recording) from None
-        raise
-    return rec, {"recording": args.recording}, None
 
 
 def summary_lines(dg) -> list[str]:
@@ -99,7 +70,7 @@ def run(args) -> int:
 
     vehicle = load_params(args.vehicle).vehicle
     params = load_params(args.params, require_model=True) if args.params else None
-    rec, sources, ingest_summary = _load_recording(args)
+    rec, sources, ingest_summary = recording_or_log(args, _progress)
     dg = diagnose(rec, vehicle, params, progress=_progress)
     for line in summary_lines(dg):
         print(line)

@@ -8,10 +8,10 @@ import sys
 from dataclasses import replace
 
 from hmpc.models.errors import InputError
+from hmpc.tools.cmd_ingest import recording_or_log
 from hmpc.models.identify.pipeline import identify
 from hmpc.models.identify.longitudinal import ACCEL_SOURCES, LongitudinalIdConfig
 from hmpc.models.params import dump_params, load_params
-from hmpc.models.logs.recording import Recording
 
 
 def _zones(text: str) -> tuple:
@@ -72,33 +72,6 @@ def _progress(msg: str) -> None:
     print(f"hmpc identify: {msg}", file=sys.stderr, flush=True)
 
 
-def _load_recording(args):
-    """(recording, sources, ingest summary or None)."""
-    if args.dbc or args.signals:
-        if not (args.dbc and args.signals):
-            raise InputError("a raw log needs both --dbc and --signals", args.recording)
-        from hmpc.tools.cmd_ingest import ingest_from_args
-
-        _progress("ingesting the raw log")
-        res = ingest_from_args(argparse.Namespace(**{**vars(args), "log": args.recording}),
-                               progress=_progress)
-        for line in res.problems.lines():
-            _progress(line)
-        sources = {"log": args.recording, "dbc": args.dbc, "signals": args.signals,
-                   "nav": args.nav, "imu": args.imu}
-        return res.recording, sources, res.summary
-    if args.nav or args.imu:
-        raise InputError("--nav/--imu need a raw log with --dbc and --signals", args.recording)
-    try:
-        rec = Recording.load(args.recording)
-    except InputError as exc:
-        if "not a canonical recording" in exc.reason:
-            raise InputError("not a canonical recording (no 'time' column); for a raw CAN log "
-                             "give --dbc and --signals", args.recording) from None
-        raise
-    return rec, {"recording": args.recording}, None
-
-
 def summary_lines(res) -> list[str]:
     """Human-readable summary for stdout."""
     p, r = res.params, res.report
@@ -149,7 +122,7 @@ def run(args) -> int:
     from hmpc.tools.cli import write_json
 
     vehicle = load_params(args.vehicle).vehicle
-    rec, sources, ingest_summary = _load_recording(args)
+    rec, sources, ingest_summary = recording_or_log(args, _progress)
     sources["vehicle"] = args.vehicle
     lcfg = replace(LongitudinalIdConfig(), accel_source=args.accel_source,
                    hysteresis_mps=args.hysteresis)

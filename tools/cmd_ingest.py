@@ -146,3 +146,32 @@ def run(args) -> int:
         except OSError as exc:
             raise InputError(f"cannot write JSON ({exc.strerror or exc})", args.json) from None
     return 0
+
+
+def recording_or_log(args, progress):
+    """(recording, sources, ingest summary or None) for a subcommand that takes a canonical
+    recording or a raw log with the ``hmpc ingest`` options (``args.recording``, ``--dbc``,
+    ``--signals``, ``--nav``, ``--imu``, ...); ``progress(msg)`` reports on stderr."""
+    from hmpc.models.logs.recording import Recording
+
+    if args.dbc or args.signals:
+        if not (args.dbc and args.signals):
+            raise InputError("a raw log needs both --dbc and --signals", args.recording)
+        progress("ingesting the raw log")
+        res = ingest_from_args(argparse.Namespace(**{**vars(args), "log": args.recording}),
+                               progress=progress)
+        for line in res.problems.lines():
+            progress(line)
+        sources = {"log": args.recording, "dbc": args.dbc, "signals": args.signals,
+                   "nav": args.nav, "imu": args.imu}
+        return res.recording, sources, res.summary
+    if args.nav or args.imu:
+        raise InputError("--nav/--imu need a raw log with --dbc and --signals", args.recording)
+    try:
+        rec = Recording.load(args.recording)
+    except InputError as exc:
+        if "not a canonical recording" in exc.reason:
+            raise InputError("not a canonical recording (no 'time' column); for a raw CAN log "
+                             "give --dbc and --signals", args.recording) from None
+        raise
+    return rec, {"recording": args.recording}, None
