@@ -55,7 +55,7 @@ from hmpc.models.errors import InputError, Problems
 from hmpc.models.logs.decode import decode_frames
 from hmpc.models.logs.frames import FrameTable
 from hmpc.models.params import Params
-from hmpc.models.plant import HybridPlant
+from hmpc.models.plant import HybridPlant, heading_rate
 from hmpc.models.sim.scenarios import Reference
 
 from hmpc.controller.base import Status
@@ -221,6 +221,79 @@ class _Feedback:
         return default if x is None else x[1]
 
 
+@dataclass
+class _Actuation:
+    """The command path's limiters, checks and inner-loop state, kept across ticks."""
+
+    tl: ToyotaLimits
+    lim_t: ToyotaTorqueLimiter
+    chk_t: ToyotaSteerCheck
+    al: AngleLimits
+    lim_a: AngleLimiter
+    chk_a: AngleCheck | None
+    integ: float = 0.0              # inner angle loop's integral [raw torque units]
+    rate_f: float = 0.0             # filtered steering-wheel rate [rad/s]
+    last_sw: float | None = None    # last measured steering-wheel angle [rad]
+    prev_pedals: tuple | None = None
+
+
+@dataclass
+class _Run:
+    """The drive loop's state carried from tick to tick (and the figures it collects)."""
+
+    fb: _Feedback
+    wd: Watchdog
+    act: _Actuation
+    bus: can.BusABC
+    writer: can.CanutilsLogWriter
+    counters: dict
+    sent: dict
+    trace: dict
+    est: np.ndarray
+    ekf: object
+    mono0: float
+    epoch0: float
+    blocked: dict = field(default_factory=dict)
+    clips: dict = field(default_factory=lambda: {"steer": 0, "long": 0})
+    periods: list = field(default_factory=list)
+    late_steps: int = 0
+    solve_ms: list = field(default_factory=list)
+    statuses: list = field(default_factory=list)
+    failures: int = 0
+    state: str = "disengaged"
+    engaged_at: float | None = None
+    stop: dict = field(default_factory=lambda: {"reason": None, "t_s": None,
+                                                "detected_t_s": None, "standstill_t_s": None})
+    sw_cmd: float = 0.0
+    ap_cmd: float = 0.0
+    bp_cmd: float = 0.0
+    res: object = None
+    stop_accel: float = 0.0
+    stop_bp: float = 0.0
+    hold_from: float | None = None
+    last_ctl_start: float | None = None
+    t_freeze: float | None = None
+    use_mono: bool = False
+    rejected_seen: float | None = None
+    t_est: float | None = None
+    stop_reason_pending: str = ""
+    k: int = 0
+
+
+@dataclass
+class _Tick:
+    """One tick's clock and measurements."""
+
+    t: float
+    t_mono: float
+    seen: object = ()
+    v_meas: float = math.nan
+    sw_meas: float = math.nan
+    period_ws: float | None = None
+    last_ws: float | None = None
+    fresh: bool = False
+
+
 class DriveLoop:
     """The drive loop (see the module docstring).
 
@@ -284,16 +357,48 @@ class DriveLoop:
 
     # --------------------------------------------------------------------- run
     def run(self) -> DriveResult:
+        r = self._start_run()
+        try:
+            while True:
+                tk = self._tick_clock(r)
+                self._receive(r, tk)
+                self._estimate(r, tk)
+                if self._engagement(r, tk):
+                    break
+                r.stop_reason_pending = ""
+                if r.state == "engaged" and r.k % self.ctl_every == 0:
+                    self._control_step(r, tk)
+                if r.state in ("stopping", "holding"):
+                    self._stop_profile(r, tk)
+                self._send_frames(r, tk)
+                if self._run_over(r, tk):
+                    break
+                r.k += 1
+        finally:
+            r.writer.stop()
+            r.bus.shutdown()
+            if self.node is not None:
+                self.node.stop()
+        fb = r.fb
+        self._car_rejected = int(fb.item("rejected_frames")) \
+            if "rejected_frames" in self.profile.feedback else None
+        return DriveResult(self._summary(r.trace, r.periods, r.late_steps, r.solve_ms, r.statuses,
+                                         r.failures, r.sent, r.blocked, r.clips, r.engaged_at,
+                                         r.stop, r.k),
+                           {kk: np.asarray(vv) for kk, vv in r.trace.items()})
+
+    def _start_run(self) -> _Run:
+        """Limiters and checks, the warmed controller, the bus, the log, the estimator and the
+        simulator node's scheduled faults: everything the loop's first tick needs."""
         cfg = self.config
         prof = self.profile
-        fb = _Feedback(prof)
-        wd = Watchdog(cfg.watchdog)
         tl = ToyotaLimits()
-        lim_t, chk_t = ToyotaTorqueLimiter(tl), ToyotaSteerCheck(tl)
         al = AngleLimits.from_params(self.params)
-        lim_a = AngleLimiter(al)
-        chk_a = AngleCheck(al, prof.commands["steer_angle"].period_s) \
-            if "steer_angle" in prof.commands else None
+        act = _Actuation(
+            tl=tl, lim_t=ToyotaTorqueLimiter(tl), chk_t=ToyotaSteerCheck(tl), al=al,
+            lim_a=AngleLimiter(al),
+            chk_a=AngleCheck(al, prof.commands["steer_angle"].period_s)
+            if "steer_angle" in prof.commands else None)
         ref = self.reference
         # warm the controller (first solve builds the solver), then start clean
         x0 = ref.initial_state(self.params)
@@ -302,32 +407,6 @@ class DriveLoop:
         bus = can.Bus(**self.bus_kwargs)
         self.candump.parent.mkdir(parents=True, exist_ok=True)
         writer = can.CanutilsLogWriter(str(self.candump), channel="can0")
-        counters = {role: 0 for role in prof.commands}
-        sent = {spec.message.name: 0 for spec in prof.commands.values()}
-        blocked: dict[str, int] = {}
-        clips = {"steer": 0, "long": 0}
-        trace = {k: [] for k in ("t_s", "x", "y", "v", "v_ref", "sw_cmd", "sw", "ap_cmd", "bp_cmd",
-                                 "accel_req", "zone", "t_ref", "engaged", "stopping")}
-        periods, late_steps, solve_ms, statuses = [], 0, [], []
-        failures = 0
-        est = x0.copy()
-        state = "disengaged"
-        engaged_at = None
-        stop = {"reason": None, "t_s": None, "detected_t_s": None, "standstill_t_s": None}
-        sw_cmd, ap_cmd, bp_cmd = 0.0, 0.0, 0.0
-        res = None
-        integ = 0.0
-        rate_f = 0.0
-        last_sw = None
-        prev_pedals = None
-        stop_accel = 0.0
-        stop_bp = 0.0
-        hold_from = None
-        last_ctl_start = None
-        t_freeze = None
-        use_mono = False
-        rejected_seen = None
-        t_est = None
         ekf = None
         if cfg.estimator == "ekf":
             from hmpc.controller.estimator import Estimator, EstimatorConfig
@@ -335,291 +414,327 @@ class DriveLoop:
             # 0.01 km/h (Toyota) / 1 mm/s (kit) and carry no other noise on the node
             ekf = Estimator(self.params, EstimatorConfig(can_speed_mps=0.005, init_wheel_scale=0.002))
             ekf.reset(0.0, x0)
-        k = 0
-        mono0 = time.monotonic()
-        epoch0 = time.time()
+        r = _Run(
+            fb=_Feedback(prof), wd=Watchdog(cfg.watchdog), act=act, bus=bus, writer=writer,
+            counters={role: 0 for role in prof.commands},
+            sent={spec.message.name: 0 for spec in prof.commands.values()},
+            trace={k: [] for k in ("t_s", "x", "y", "v", "v_ref", "sw_cmd", "sw", "ap_cmd",
+                                   "bp_cmd", "accel_req", "zone", "t_ref", "engaged", "stopping")},
+            est=x0.copy(), ekf=ekf, mono0=time.monotonic(), epoch0=time.time())
         if self.node is not None:
-            self.node.start(mono0)
+            self.node.start(r.mono0)
             if self._fault_time("driver_override") is not None:
                 self.node.driver_steers(self._fault_time("driver_override"),
                                         FAULT_WINDOW_S["driver_override"])
             if self._fault_time("vehicle_rejects") is not None:
                 self.node.reject_commands(self._fault_time("vehicle_rejects"),
                                           FAULT_WINDOW_S["vehicle_rejects"])
+        return r
 
-        def send(msg: can.Message, t: float) -> bool:
-            nonlocal stop_reason_pending
-            try:
-                if self._fault_active("bus_error", t):
-                    raise can.CanOperationError("injected bus_error: send failed")
-                bus.send(msg)
-            except can.CanError:
-                stop_reason_pending = stop_reason_pending or "bus_error"
-                return False
-            msg.timestamp = epoch0 + (time.monotonic() - mono0)
-            msg.channel = 0
-            msg.is_rx = False
-            writer.on_message_received(msg)
-            name = prof.db.get_message_by_frame_id(msg.arbitration_id).name
-            sent[name] = sent.get(name, 0) + 1
-            return True
-
-        stop_reason_pending = ""
+    def _send(self, r: _Run, msg: can.Message, t: float) -> bool:
+        """Send one frame and log it; a bus error asks for a controlled stop."""
         try:
-            while True:
-                target = mono0 + k * cfg.tick_s
-                delay = target - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-                mono = time.monotonic()
-                t_mono = mono - mono0
-                # ---- 1. the loop clock (fault: frozen)
-                if self._fault_active("clock_freeze", t_mono) and not use_mono:
-                    t_freeze = t_freeze if t_freeze is not None else t_mono
-                    t = t_freeze
-                else:
-                    t = t_mono
-                reason = wd.clock(t, t_mono)
-                if reason and not use_mono:
-                    use_mono = True  # the stop runs on the monotonic clock
-                    t = t_mono
-                    stop_reason_pending = stop_reason_pending or reason
-                # ---- 2. receive and decode
-                rx = []
-                while True:
-                    m = bus.recv(timeout=0.0)
-                    if m is None:
-                        break
-                    if self._fault_active("feedback_loss", t_mono):
-                        continue  # lost on the way: never seen, never logged
-                    m.channel = 0
-                    m.is_rx = True
-                    writer.on_message_received(m)
-                    rx.append(m)
-                seen = fb.update(rx, t)
-                # eq. 1's speed is the front-axle centre's: the front wheels' mean (the
-                # signal map's `speed`, the four-wheel mean, reads low by cos(delta) in turns)
-                v_meas = 0.5 * (fb.value("wheel_speed_fl") + fb.value("wheel_speed_fr"))
-                if not np.isfinite(v_meas):
-                    v_meas = fb.value("speed")
-                sw_meas = fb.value("steering_wheel_angle")
-                # the wheel-speed period, learned from the frames (median interval)
-                period_ws = float(np.median(np.diff(fb.ws_times))) if len(fb.ws_times) > 5 else None
-                last_ws = fb.ws_times[-1] if fb.ws_times else None
-                # the state estimate, every tick from the start (the car starts on the reference)
-                if ekf is not None:
-                    ekf.predict(max(t, ekf.time_s), (sw_meas if np.isfinite(sw_meas) else sw_cmd,
-                                                     ap_cmd, bp_cmd))
-                    if fb.speed_msg in seen:
-                        yaw = fb.value("yaw_rate")
-                        ekf.update_can(t, wheel_speeds_mps=[fb.value(f"wheel_speed_{w}")
-                                                            for w in ("fl", "fr", "rl", "rr")],
-                                       steering_wheel_angle_rad=sw_meas,
-                                       yaw_rate_radps=yaw if np.isfinite(yaw) else None)
-                    est = ekf.state()
-                elif t_est is not None and np.isfinite(v_meas) and np.isfinite(sw_meas) and t > t_est:
-                    h = t - t_est
-                    delta = float(self.plant.road_wheel_angle(sw_meas))
-                    dpsi = v_meas * math.sin(delta) / self.plant.wheelbase_m * h
-                    est[0] += v_meas * math.cos(est[2] + 0.5 * dpsi + delta) * h
-                    est[1] += v_meas * math.sin(est[2] + 0.5 * dpsi + delta) * h
-                    est[2] += dpsi
-                    est[3] = v_meas
-                t_est = t
-                # ---- 3. engagement, override, car status
-                accepts = fb.flag("accepts_steer") and fb.flag("accepts_long")
-                fresh = period_ws is not None and not wd.feedback(t, last_ws, max(period_ws, 1e-3))
-                if state == "disengaged" and t >= cfg.engage_at_s and fresh and accepts:
-                    state, engaged_at = "engaged", t
-                if state == "engaged":
-                    r = ""
-                    if not fresh:
-                        r = "feedback_loss"
-                    elif abs(fb.item("driver_torque")) > prof.driver_torque_threshold \
-                            or fb.flag("brake_pressed") or fb.flag("gas_pressed"):
-                        r = "driver_override"
-                    elif not accepts:
-                        r = "vehicle_rejects"
-                    elif "rejected_frames" in prof.feedback:
-                        nrej = fb.item("rejected_frames")
-                        if rejected_seen is None:
-                            rejected_seen = nrej
-                        elif nrej != rejected_seen:
-                            r = "vehicle_rejects"
-                    r = stop_reason_pending or self._stop_request or r
-                    if r:
-                        state = "stopping"
-                        stop["reason"], stop["detected_t_s"] = r, t
-                        stop_accel = self._accel_now(ap_cmd, bp_cmd, v_meas)
-                        stop_bp = bp_cmd
-                    elif t - engaged_at >= self.duration_s:
-                        state = "stopping"
-                        stop["reason"], stop["detected_t_s"] = "duration", t
-                        stop_accel = self._accel_now(ap_cmd, bp_cmd, v_meas)
-                        stop_bp = bp_cmd
-                elif state == "disengaged" and self._stop_request:
-                    stop["reason"] = self._stop_request  # never engaged: nothing to stop
-                    break
-                elif state == "disengaged" and t > cfg.engage_at_s + 5.0:
-                    stop["reason"] = "car_not_accepting" if fresh else "no_feedback"
-                    break
-                stop_reason_pending = ""
-                # ---- 4. the controller, every control period
-                if state == "engaged" and k % self.ctl_every == 0:
-                    c0 = time.monotonic()
-                    if last_ctl_start is not None:
-                        periods.append(c0 - last_ctl_start)
-                    last_ctl_start = c0
-                    t_ref = float(ref.time_s[0]) + t
-                    res = self.controller.step(est.copy(), ref, t_ref)
-                    if self._fault_active("solver_failure", t):
-                        res = replace(res, status=Status.SHIFTED_PLAN,
-                                      reason="solver failure (injected)")
-                    statuses.append(str(res.status))
-                    solve_ms.append(1e3 * float(getattr(res, "solve_time_s", 0.0)))
-                    if not res.ok:
-                        failures += 1
-                        state = "stopping"
-                        stop["reason"], stop["detected_t_s"] = "solver_failure", t
-                        stop_accel = self._accel_now(ap_cmd, bp_cmd, v_meas)
-                        stop_bp = bp_cmd
-                    else:
-                        sw_cmd, ap_cmd, bp_cmd = (float(x) for x in res.command.as_tuple())
-                    self._record(trace, t, t_ref, est, sw_cmd, sw_meas, ap_cmd, bp_cmd, res,
-                                 engaged=1, stopping=0)
-                    late = (time.monotonic() - (mono0 + k * cfg.tick_s)) > cfg.control_period_s
-                    late_steps += int(late)
-                    r = wd.deadline(late)
-                    if r and state == "engaged":
-                        state = "stopping"
-                        stop["reason"], stop["detected_t_s"] = r, t
-                        stop_accel = self._accel_now(ap_cmd, bp_cmd, v_meas)
-                        stop_bp = bp_cmd
-                # ---- 5. the stop profile
-                if state in ("stopping", "holding"):
-                    if state == "stopping" and np.isfinite(v_meas) and fresh \
-                            and v_meas < cfg.standstill_mps and stop["t_s"] is not None:
-                        state = "holding"
-                        stop["standstill_t_s"] = t
-                        hold_from = t
-                    dt = cfg.tick_s
-                    stop_accel = max(stop_accel - cfg.stop_jerk_mps3 * dt, -cfg.stop_decel_mps2) \
-                        if state == "stopping" else cfg.hold_accel_mps2
-                    z = self.params.zones[self.plant.zone_by_speed(v_meas if np.isfinite(v_meas) else 0.0)]
-                    target_bp = min(max((z.offset_mps2 - stop_accel) / z.brake_scale_mps2, 0.0), 1.0)
-                    stop_bp = min(target_bp, stop_bp + cfg.stop_jerk_mps3 / z.brake_scale_mps2 * dt) \
-                        if target_bp > stop_bp else target_bp
-                    ap_cmd, bp_cmd = 0.0, stop_bp
-                    if k % self.ctl_every == 0:
-                        self._record(trace, t, math.nan, est, sw_cmd, sw_meas, ap_cmd, bp_cmd, None,
-                                     engaged=0, stopping=1)
-                # ---- 6. frames, each at its rate
-                active = state in ("engaged", "stopping", "holding")
-                steer_active = state == "engaged" or (state in ("stopping", "holding")
-                                                      and stop["reason"] not in ("driver_override",
-                                                                                 "feedback_loss"))
-                for role, spec in prof.commands.items():
-                    if k % self.ticks[role]:
-                        continue
-                    cnt = counters[role]  # advanced only when the frame left (below)
-                    if role == "steer_torque":
-                        if np.isfinite(sw_meas):
-                            if last_sw is not None:
-                                rate_f += ((sw_meas - last_sw) / cfg.tick_s - rate_f) * 0.3
-                            last_sw = sw_meas
-                        # panda: controls allowed = cruise on; and no request while the EPS
-                        # reports a fault (it re-engages from 0 after one)
-                        allowed = fb.flag("accepts_long")
-                        steer_ok = allowed and fb.flag("accepts_steer")
-                        want = 0.0
-                        if steer_active and np.isfinite(sw_meas):
-                            vv = v_meas if np.isfinite(v_meas) else 0.0
-                            e = sw_cmd - sw_meas
-                            want = (INNER.kff0 + INNER.kff2 * vv * vv) * sw_cmd + INNER.kp * e + integ \
-                                - INNER.kd * rate_f
-                        emin, emax = min(fb.eps), max(fb.eps)
-                        tq = lim_t.clip(want, t, emin, emax, active=steer_active and steer_ok)
-                        if steer_active and np.isfinite(sw_meas):
-                            if abs(tq - want) < 1:
-                                integ += INNER.ki * (sw_cmd - sw_meas) * cfg.tick_s
-                            else:
-                                clips["steer"] += 1
-                        else:
-                            integ = 0.0
-                        req = bool(steer_active and steer_ok)
-                        chk_t.meas.clear()          # the check's EPS samples: the decoded ones
-                        chk_t.meas.extend(fb.eps)
-                        why = chk_t.check(tq, req, t, allowed)
-                        if why:
-                            blocked[why] = blocked.get(why, 0) + 1
-                            lim_t.reset(t)
-                            tq, req = 0, False
-                        msg = builders.steering_lka(spec, tq, req, cnt)
-                    elif role == "accel":
-                        allowed = fb.flag("accepts_long")
-                        if state == "engaged":
-                            a = self._accel_now(ap_cmd, bp_cmd, v_meas)
-                        elif state in ("stopping", "holding"):
-                            a = stop_accel
-                        else:
-                            a = 0.0
-                        a2 = clip_accel(a, tl, active=active and allowed)
-                        if active and allowed and abs(a2 - a) > 1e-9:
-                            clips["long"] += 1
-                        why = accel_ok(a2, active and allowed, tl)
-                        if why:
-                            blocked[why] = blocked.get(why, 0) + 1
-                            a2 = tl.accel_inactive_mps2 if not (active and allowed) else -1.0
-                        msg = builders.acc_control(spec, a2)
-                        self._last_accel_req = a2
-                    elif role == "steer_angle":
-                        vv = v_meas if np.isfinite(v_meas) else 0.0
-                        ang = sw_cmd if steer_active else (sw_meas if np.isfinite(sw_meas) else 0.0)
-                        a = lim_a.clip(ang, vv, spec.period_s)
-                        if steer_active and abs(a - ang) > 1e-3:
-                            clips["steer"] += 1
-                        why = chk_a.check(a, vv)
-                        if why:
-                            blocked[why] = blocked.get(why, 0) + 1
-                            a = chk_a.last if chk_a.last is not None else 0.0
-                        msg = builders.bw_steer_cmd(spec, a, steer_active, cnt)
-                    elif role == "pedals":
-                        dt = cfg.tick_s * self.ticks[role]
-                        ap, bp = (ap_cmd, bp_cmd) if active else (0.0, 0.0)
-                        ap2, bp2 = clip_pedals(ap, bp, prev_pedals, dt, al)
-                        if active and (abs(ap2 - ap) > 1e-3 or abs(bp2 - bp) > 1e-3):
-                            clips["long"] += 1
-                        why = pedals_ok(ap2, bp2, al)
-                        if why:
-                            blocked[why] = blocked.get(why, 0) + 1
-                            ap2, bp2 = 0.0, (prev_pedals[1] if prev_pedals else 0.0)
-                        prev_pedals = (ap2, bp2)
-                        msg = builders.bw_pedal_cmd(spec, ap2, bp2, active, cnt)
-                    else:  # heartbeat
-                        msg = builders.bw_heartbeat(spec, active or t >= cfg.engage_at_s, cnt)
-                    ok = send(msg, t)
-                    if ok:
-                        counters[role] = (cnt + 1) % max(spec.counter_modulo, 1)
-                    if ok and state == "stopping" and stop["t_s"] is None \
-                            and role in ("accel", "pedals"):
-                        stop["t_s"] = t   # the first stop command that left
-                # ---- 7. end of run
-                if state == "holding" and t - hold_from >= cfg.hold_s:
-                    break
-                if state == "stopping" and stop["detected_t_s"] is not None \
-                        and t - stop["detected_t_s"] > cfg.stop_timeout_s:
-                    break
-                k += 1
-        finally:
-            writer.stop()
-            bus.shutdown()
-            if self.node is not None:
-                self.node.stop()
-        self._car_rejected = int(fb.item("rejected_frames")) if "rejected_frames" in prof.feedback \
-            else None
-        return DriveResult(self._summary(trace, periods, late_steps, solve_ms, statuses,
-                                         failures, sent, blocked, clips, engaged_at, stop, k),
-                           {kk: np.asarray(vv) for kk, vv in trace.items()})
+            if self._fault_active("bus_error", t):
+                raise can.CanOperationError("injected bus_error: send failed")
+            r.bus.send(msg)
+        except can.CanError:
+            r.stop_reason_pending = r.stop_reason_pending or "bus_error"
+            return False
+        msg.timestamp = r.epoch0 + (time.monotonic() - r.mono0)
+        msg.channel = 0
+        msg.is_rx = False
+        r.writer.on_message_received(msg)
+        name = self.profile.db.get_message_by_frame_id(msg.arbitration_id).name
+        r.sent[name] = r.sent.get(name, 0) + 1
+        return True
+
+    def _begin_stop(self, r: _Run, reason: str, tk: _Tick) -> None:
+        """Start the controlled stop from the acceleration the current pedals ask for."""
+        r.state = "stopping"
+        r.stop["reason"], r.stop["detected_t_s"] = reason, tk.t
+        r.stop_accel = self._accel_now(r.ap_cmd, r.bp_cmd, tk.v_meas)
+        r.stop_bp = r.bp_cmd
+
+    def _tick_clock(self, r: _Run) -> _Tick:
+        """Step 1: wait for the tick, read the loop clock (fault: frozen), run the clock watchdog."""
+        cfg = self.config
+        target = r.mono0 + r.k * cfg.tick_s
+        delay = target - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        mono = time.monotonic()
+        t_mono = mono - r.mono0
+        if self._fault_active("clock_freeze", t_mono) and not r.use_mono:
+            r.t_freeze = r.t_freeze if r.t_freeze is not None else t_mono
+            t = r.t_freeze
+        else:
+            t = t_mono
+        reason = r.wd.clock(t, t_mono)
+        if reason and not r.use_mono:
+            r.use_mono = True  # the stop runs on the monotonic clock
+            t = t_mono
+            r.stop_reason_pending = r.stop_reason_pending or reason
+        return _Tick(t=t, t_mono=t_mono)
+
+    def _receive(self, r: _Run, tk: _Tick) -> None:
+        """Step 2: drain the bus, log and decode what arrived, read the measured speed and angle."""
+        fb = r.fb
+        rx = []
+        while True:
+            m = r.bus.recv(timeout=0.0)
+            if m is None:
+                break
+            if self._fault_active("feedback_loss", tk.t_mono):
+                continue  # lost on the way: never seen, never logged
+            m.channel = 0
+            m.is_rx = True
+            r.writer.on_message_received(m)
+            rx.append(m)
+        tk.seen = fb.update(rx, tk.t)
+        # eq. 1's speed is the front-axle centre's: the front wheels' mean (the
+        # signal map's `speed`, the four-wheel mean, reads low by cos(delta) in turns)
+        v_meas = 0.5 * (fb.value("wheel_speed_fl") + fb.value("wheel_speed_fr"))
+        if not np.isfinite(v_meas):
+            v_meas = fb.value("speed")
+        tk.v_meas = v_meas
+        tk.sw_meas = fb.value("steering_wheel_angle")
+        # the wheel-speed period, learned from the frames (median interval)
+        tk.period_ws = float(np.median(np.diff(fb.ws_times))) if len(fb.ws_times) > 5 else None
+        tk.last_ws = fb.ws_times[-1] if fb.ws_times else None
+
+    def _estimate(self, r: _Run, tk: _Tick) -> None:
+        """The state estimate, every tick from the start (the car starts on the reference)."""
+        fb, t, v_meas, sw_meas = r.fb, tk.t, tk.v_meas, tk.sw_meas
+        if r.ekf is not None:
+            ekf = r.ekf
+            ekf.predict(max(t, ekf.time_s), (sw_meas if np.isfinite(sw_meas) else r.sw_cmd,
+                                             r.ap_cmd, r.bp_cmd))
+            if fb.speed_msg in tk.seen:
+                yaw = fb.value("yaw_rate")
+                ekf.update_can(t, wheel_speeds_mps=[fb.value(f"wheel_speed_{w}")
+                                                    for w in ("fl", "fr", "rl", "rr")],
+                               steering_wheel_angle_rad=sw_meas,
+                               yaw_rate_radps=yaw if np.isfinite(yaw) else None)
+            r.est = ekf.state()
+        elif r.t_est is not None and np.isfinite(v_meas) and np.isfinite(sw_meas) and t > r.t_est:
+            est = r.est
+            h = t - r.t_est
+            delta = float(self.plant.road_wheel_angle(sw_meas))
+            dpsi = heading_rate(v_meas, delta, self.plant.wheelbase_m, math) * h
+            est[0] += v_meas * math.cos(est[2] + 0.5 * dpsi + delta) * h
+            est[1] += v_meas * math.sin(est[2] + 0.5 * dpsi + delta) * h
+            est[2] += dpsi
+            est[3] = v_meas
+        r.t_est = t
+
+    def _engagement(self, r: _Run, tk: _Tick) -> bool:
+        """Step 3: engagement, override, the car's status. True: end the run now (never engaged)."""
+        cfg, prof, fb, t = self.config, self.profile, r.fb, tk.t
+        accepts = fb.flag("accepts_steer") and fb.flag("accepts_long")
+        tk.fresh = tk.period_ws is not None \
+            and not r.wd.feedback(t, tk.last_ws, max(tk.period_ws, 1e-3))
+        if r.state == "disengaged" and t >= cfg.engage_at_s and tk.fresh and accepts:
+            r.state, r.engaged_at = "engaged", t
+        if r.state == "engaged":
+            why = ""
+            if not tk.fresh:
+                why = "feedback_loss"
+            elif abs(fb.item("driver_torque")) > prof.driver_torque_threshold \
+                    or fb.flag("brake_pressed") or fb.flag("gas_pressed"):
+                why = "driver_override"
+            elif not accepts:
+                why = "vehicle_rejects"
+            elif "rejected_frames" in prof.feedback:
+                nrej = fb.item("rejected_frames")
+                if r.rejected_seen is None:
+                    r.rejected_seen = nrej
+                elif nrej != r.rejected_seen:
+                    why = "vehicle_rejects"
+            why = r.stop_reason_pending or self._stop_request or why
+            if why:
+                self._begin_stop(r, why, tk)
+            elif t - r.engaged_at >= self.duration_s:
+                self._begin_stop(r, "duration", tk)
+        elif r.state == "disengaged" and self._stop_request:
+            r.stop["reason"] = self._stop_request  # never engaged: nothing to stop
+            return True
+        elif r.state == "disengaged" and t > cfg.engage_at_s + 5.0:
+            r.stop["reason"] = "car_not_accepting" if tk.fresh else "no_feedback"
+            return True
+        return False
+
+    def _control_step(self, r: _Run, tk: _Tick) -> None:
+        """Step 4: the controller, every control period; a failed solve or a missed deadline
+        starts the controlled stop."""
+        cfg, t, ref = self.config, tk.t, self.reference
+        c0 = time.monotonic()
+        if r.last_ctl_start is not None:
+            r.periods.append(c0 - r.last_ctl_start)
+        r.last_ctl_start = c0
+        t_ref = float(ref.time_s[0]) + t
+        res = self.controller.step(r.est.copy(), ref, t_ref)
+        if self._fault_active("solver_failure", t):
+            res = replace(res, status=Status.SHIFTED_PLAN, reason="solver failure (injected)")
+        r.res = res
+        r.statuses.append(str(res.status))
+        r.solve_ms.append(1e3 * float(getattr(res, "solve_time_s", 0.0)))
+        if not res.ok:
+            r.failures += 1
+            self._begin_stop(r, "solver_failure", tk)
+        else:
+            r.sw_cmd, r.ap_cmd, r.bp_cmd = (float(x) for x in res.command.as_tuple())
+        self._record(r.trace, t, t_ref, r.est, r.sw_cmd, tk.sw_meas, r.ap_cmd, r.bp_cmd, res,
+                     engaged=1, stopping=0)
+        late = (time.monotonic() - (r.mono0 + r.k * cfg.tick_s)) > cfg.control_period_s
+        r.late_steps += int(late)
+        why = r.wd.deadline(late)
+        if why and r.state == "engaged":
+            self._begin_stop(r, why, tk)
+
+    def _stop_profile(self, r: _Run, tk: _Tick) -> None:
+        """Step 5: the jerk-limited stop to standstill, then the hold (brake pedal ramp)."""
+        cfg, t, v_meas = self.config, tk.t, tk.v_meas
+        if r.state == "stopping" and np.isfinite(v_meas) and tk.fresh \
+                and v_meas < cfg.standstill_mps and r.stop["t_s"] is not None:
+            r.state = "holding"
+            r.stop["standstill_t_s"] = t
+            r.hold_from = t
+        dt = cfg.tick_s
+        r.stop_accel = max(r.stop_accel - cfg.stop_jerk_mps3 * dt, -cfg.stop_decel_mps2) \
+            if r.state == "stopping" else cfg.hold_accel_mps2
+        z = self.params.zones[self.plant.zone_by_speed(v_meas if np.isfinite(v_meas) else 0.0)]
+        target_bp = min(max((z.offset_mps2 - r.stop_accel) / z.brake_scale_mps2, 0.0), 1.0)
+        r.stop_bp = min(target_bp, r.stop_bp + cfg.stop_jerk_mps3 / z.brake_scale_mps2 * dt) \
+            if target_bp > r.stop_bp else target_bp
+        r.ap_cmd, r.bp_cmd = 0.0, r.stop_bp
+        if r.k % self.ctl_every == 0:
+            self._record(r.trace, t, math.nan, r.est, r.sw_cmd, tk.sw_meas, r.ap_cmd, r.bp_cmd,
+                         None, engaged=0, stopping=1)
+
+    def _send_frames(self, r: _Run, tk: _Tick) -> None:
+        """Step 6: each command frame at its own rate, limited, checked, encoded and sent."""
+        t = tk.t
+        active = r.state in ("engaged", "stopping", "holding")
+        steer_active = r.state == "engaged" or (r.state in ("stopping", "holding")
+                                                and r.stop["reason"] not in ("driver_override",
+                                                                             "feedback_loss"))
+        for role, spec in self.profile.commands.items():
+            if r.k % self.ticks[role]:
+                continue
+            cnt = r.counters[role]  # advanced only when the frame left (below)
+            if role == "steer_torque":
+                msg = self._frame_steer_torque(r, tk, spec, cnt, active, steer_active)
+            elif role == "accel":
+                msg = self._frame_accel(r, tk, spec, active)
+            elif role == "steer_angle":
+                msg = self._frame_steer_angle(r, tk, spec, cnt, steer_active)
+            elif role == "pedals":
+                msg = self._frame_pedals(r, spec, cnt, active, self.config.tick_s * self.ticks[role])
+            else:  # heartbeat
+                msg = builders.bw_heartbeat(spec, active or t >= self.config.engage_at_s, cnt)
+            ok = self._send(r, msg, t)
+            if ok:
+                r.counters[role] = (cnt + 1) % max(spec.counter_modulo, 1)
+            if ok and r.state == "stopping" and r.stop["t_s"] is None \
+                    and role in ("accel", "pedals"):
+                r.stop["t_s"] = t   # the first stop command that left
+
+    def _block(self, r: _Run, why: str) -> None:
+        r.blocked[why] = r.blocked.get(why, 0) + 1
+
+    def _frame_steer_torque(self, r: _Run, tk: _Tick, spec, cnt: int, active: bool,
+                            steer_active: bool) -> can.Message:
+        """Toyota: the inner angle loop's EPS torque, limited and checked (STEERING_LKA)."""
+        cfg, fb, a, t, sw_meas = self.config, r.fb, r.act, tk.t, tk.sw_meas
+        if np.isfinite(sw_meas):
+            if a.last_sw is not None:
+                a.rate_f += ((sw_meas - a.last_sw) / cfg.tick_s - a.rate_f) * 0.3
+            a.last_sw = sw_meas
+        # panda: controls allowed = cruise on; and no request while the EPS
+        # reports a fault (it re-engages from 0 after one)
+        allowed = fb.flag("accepts_long")
+        steer_ok = allowed and fb.flag("accepts_steer")
+        want = 0.0
+        if steer_active and np.isfinite(sw_meas):
+            vv = tk.v_meas if np.isfinite(tk.v_meas) else 0.0
+            e = r.sw_cmd - sw_meas
+            want = (INNER.kff0 + INNER.kff2 * vv * vv) * r.sw_cmd + INNER.kp * e + a.integ \
+                - INNER.kd * a.rate_f
+        emin, emax = min(fb.eps), max(fb.eps)
+        tq = a.lim_t.clip(want, t, emin, emax, active=steer_active and steer_ok)
+        if steer_active and np.isfinite(sw_meas):
+            if abs(tq - want) < 1:
+                a.integ += INNER.ki * (r.sw_cmd - sw_meas) * cfg.tick_s
+            else:
+                r.clips["steer"] += 1
+        else:
+            a.integ = 0.0
+        req = bool(steer_active and steer_ok)
+        a.chk_t.meas.clear()          # the check's EPS samples: the decoded ones
+        a.chk_t.meas.extend(fb.eps)
+        why = a.chk_t.check(tq, req, t, allowed)
+        if why:
+            self._block(r, why)
+            a.lim_t.reset(t)
+            tq, req = 0, False
+        return builders.steering_lka(spec, tq, req, cnt)
+
+    def _frame_accel(self, r: _Run, tk: _Tick, spec, active: bool) -> can.Message:
+        """Toyota: the acceleration request (eq. 8 forward, or the stop's), limited and checked."""
+        tl = r.act.tl
+        allowed = r.fb.flag("accepts_long")
+        if r.state == "engaged":
+            a = self._accel_now(r.ap_cmd, r.bp_cmd, tk.v_meas)
+        elif r.state in ("stopping", "holding"):
+            a = r.stop_accel
+        else:
+            a = 0.0
+        a2 = clip_accel(a, tl, active=active and allowed)
+        if active and allowed and abs(a2 - a) > 1e-9:
+            r.clips["long"] += 1
+        why = accel_ok(a2, active and allowed, tl)
+        if why:
+            self._block(r, why)
+            a2 = tl.accel_inactive_mps2 if not (active and allowed) else -1.0
+        self._last_accel_req = a2
+        return builders.acc_control(spec, a2)
+
+    def _frame_steer_angle(self, r: _Run, tk: _Tick, spec, cnt: int,
+                           steer_active: bool) -> can.Message:
+        """By-wire: the steering-wheel angle command, limited and checked (BW_STEER_CMD)."""
+        a_, sw_meas = r.act, tk.sw_meas
+        vv = tk.v_meas if np.isfinite(tk.v_meas) else 0.0
+        ang = r.sw_cmd if steer_active else (sw_meas if np.isfinite(sw_meas) else 0.0)
+        a = a_.lim_a.clip(ang, vv, spec.period_s)
+        if steer_active and abs(a - ang) > 1e-3:
+            r.clips["steer"] += 1
+        why = a_.chk_a.check(a, vv)
+        if why:
+            self._block(r, why)
+            a = a_.chk_a.last if a_.chk_a.last is not None else 0.0
+        return builders.bw_steer_cmd(spec, a, steer_active, cnt)
+
+    def _frame_pedals(self, r: _Run, spec, cnt: int, active: bool, dt: float) -> can.Message:
+        """By-wire: the pedal positions, rate-limited and checked (BW_PEDAL_CMD)."""
+        a = r.act
+        ap, bp = (r.ap_cmd, r.bp_cmd) if active else (0.0, 0.0)
+        ap2, bp2 = clip_pedals(ap, bp, a.prev_pedals, dt, a.al)
+        if active and (abs(ap2 - ap) > 1e-3 or abs(bp2 - bp) > 1e-3):
+            r.clips["long"] += 1
+        why = pedals_ok(ap2, bp2, a.al)
+        if why:
+            self._block(r, why)
+            ap2, bp2 = 0.0, (a.prev_pedals[1] if a.prev_pedals else 0.0)
+        a.prev_pedals = (ap2, bp2)
+        return builders.bw_pedal_cmd(spec, ap2, bp2, active, cnt)
+
+    def _run_over(self, r: _Run, tk: _Tick) -> bool:
+        """Step 7: the hold has lasted ``hold_s``, or the stop has timed out."""
+        cfg, t = self.config, tk.t
+        if r.state == "holding" and t - r.hold_from >= cfg.hold_s:
+            return True
+        return r.state == "stopping" and r.stop["detected_t_s"] is not None \
+            and t - r.stop["detected_t_s"] > cfg.stop_timeout_s
 
     # ---------------------------------------------------------------- helpers
     def _accel_now(self, ap: float, bp: float, v_mps: float) -> float:

@@ -131,6 +131,19 @@ def _accept(before: float, after: float, bic_b: float, bic_a: float, res: float,
     return True, "accepted"
 
 
+@dataclass
+class _Work:
+    """What the steps of :func:`diagnose` share: the (corrected) channels and the results."""
+
+    ch: dict
+    series: dict
+    cands: list = field(default_factory=list)
+    hyps: list = field(default_factory=list)
+    channels: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+    evidence: list = field(default_factory=list)
+
+
 def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
              cfg: DiagnoseConfig = DiagnoseConfig(), res: Resolution = Resolution(),
              progress=None) -> Diagnosis:
@@ -150,120 +163,150 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
     ch = dict(rec.channels)
     zones = _zones(params)
     cfg = _fit_windows(cfg, ch)
-    hyps: list[dict] = []
-    cands: list[dict] = []
-    channels: dict = {}
-    series: dict = {"t": np.asarray(ch["time"], float)}
-    notes: list[str] = []
-    evidence: list[dict] = []
+    w = _Work(ch=ch, series={"t": np.asarray(ch["time"], float)})
 
-    # ---------------------------------------------------------------- sensors (first)
-    sd = sen.prepare(ch, vehicle.wheelbase_m, cfg)
-    if sd is not None:
-        say("sensors: CAN speed against GNSS speed")
-        cl = corr_length(sen.residual(sd))
-        b = sen.evaluate(sd, None, cfg, cl)
-        channels["speed_vs_gnss"] = {
-            "unit": "m/s", "noise_floor": noise_floor(sd.g - sd.v),
-            "heldout_rmse_baseline": b.heldout_rmse_mps}
-        series["speed_vs_gnss"] = {"before": b.heldout_err}
-        for h in sen.HYPOTHESES:
-            s = sen.evaluate(sd, h, cfg, cl)
-            ok, why = _accept(b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic,
-                              res.speed_vs_gnss_mps, cfg)
-            cands.append(_cand(h, "longitudinal", "speed_vs_gnss", b.heldout_rmse_mps,
-                               s.heldout_rmse_mps, s.params, s.intervals, ok, why,
-                               b.heldout_err, s.heldout_err, cfg.window_lon_s, s.bic - b.bic))
-        off = next((c for c in cands if c["effect"] == "sensor_time_offset" and c["_ok"]), None)
-        if off is not None:
-            ch = sen.ins_shift(ch, off["parameters"]["offset_s"])
-            notes.append(f"INS channels moved by {off['parameters']['offset_s']:+.3f} s onto the "
-                         "CAN clock before the steering and longitudinal hypotheses")
-        rad = next((c for c in cands if c["effect"] == "wheel_radius_error" and c["_ok"]), None)
-        if rad is not None:
-            k = rad["parameters"]["scale"]
-            for name in ("speed", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
-                         "wheel_speed_rr"):
-                if name in ch:
-                    ch[name] = np.asarray(ch[name], float) / k
-            notes.append(f"CAN wheel speeds divided by {k:.4f} (wheel_radius_error) before the "
-                         "steering and longitudinal hypotheses")
-    else:
-        notes.append("no gps_speed channel: wheel_radius_error and sensor_time_offset not tested")
-    regimes = regime_variables(ch, zones)
-
-    # ---------------------------------------------------------------- steering
-    sdt = ste.prepare(ch, vehicle.wheelbase_m, cfg)
-    steer_final = None
-    if sdt is not None:
-        say("steering: eq. 7 in eq. 1 against the yaw rate and heading")
-        base_m = ste.fit(sdt, None, 0.0, sdt.ok)
-        cl = corr_length(ste.residual(sdt, base_m))
-        b = ste.evaluate(sdt, None, cfg, cl)
-        rr = ste.residual(sdt, b.model)
-        channels["heading"] = {"unit": "rad", "source": sdt.heading_source,
-                               "noise_floor": noise_floor(sdt.heading),
-                               "heldout_rmse_baseline": b.heldout_rmse_rad}
-        channels["road_wheel_angle"] = {"unit": "rad", "noise_floor": noise_floor(rr),
-                                        "rmse_baseline": rmse(rr)}
-        yaw_pred = sdt.v * np.tan(ste.road_wheel_angle(sdt, b.model)) / sdt.b + b.model.bias_radps
-        yr = np.where(sdt.ok, sdt.yaw - yaw_pred, np.nan)
-        channels["yaw_rate"] = {"unit": "rad/s", "noise_floor": noise_floor(sdt.yaw),
-                                "rmse_baseline": rmse(yr)}
-        series["heading"] = {"before": b.heldout_err}
-        series["road_wheel_angle"] = {"before": rr}
-        pos = _position_errors(ch, sdt, b.model, cfg)
-        if pos is not None:
-            channels["position"] = {"unit": "m", "window_s": cfg.window_steer_s,
-                                    "rmse_baseline": rmse(pos)}
-            series["position"] = {"before": pos}
-        steer_scores = {None: b}
-        for h in ste.HYPOTHESES:
-            s = ste.evaluate(sdt, h, cfg, cl)
-            steer_scores[h] = s
-            ok, why = _accept(b.heldout_rmse_rad, s.heldout_rmse_rad, b.bic, s.bic,
-                              res.heading_rad, cfg)
-            cands.append(_cand(h, "steering", "heading", b.heldout_rmse_rad, s.heldout_rmse_rad,
-                               s.params, s.intervals, ok, why, b.heldout_err, s.heldout_err,
-                               cfg.window_steer_s, s.bic - b.bic))
-        steer_final = steer_scores
-        channels["heading"]["understeer_vs_ratio"] = _separability(
-            sdt, steer_scores["understeer"], b, vehicle, cl)
-        notes.append(channels["heading"]["understeer_vs_ratio"]["verdict"])
-    else:
-        notes.append("no steering angle with yaw rate or heading: steering hypotheses not tested")
-
-    # ---------------------------------------------------------------- longitudinal
-    ld = lon.prepare(ch, zones, cfg)
+    _sensor_step(w, vehicle, cfg, res, say)
+    regimes = regime_variables(w.ch, zones)
+    steer_final = _steering_step(w, vehicle, cfg, res, say)
+    ld = lon.prepare(w.ch, zones, cfg)
     if not ld.ok.any() or (ld.ok & (ld.vs > cfg.v_stop_mps)).sum() < int(20.0 / ld.dt):
         raise InputError("too little moving data for the longitudinal model (needs 20 s)",
                          rec.meta.get("path"), channel="speed")
     say(f"longitudinal: eq. 8 zones driven by {', '.join(ld.input_names)}")
+    lon_scores, cl = _longitudinal_step(w, ld, cfg, res)
+    _stack_on_dynamics(ld, w.cands, lon_scores, cfg, cl, res)
+
+    _drop_alternatives(w.cands)
+    findings = _rank_findings(w, regimes)
+    _locate_channels(w, regimes, cfg)
+    t = w.series["t"]
+    lon_best = next((f["effect"] for f in findings if f["subsystem"] == "longitudinal"
+                     and f["channel"] == "speed"), None)
+    unexplained = []
+    u = _change_unexplained(ld, lon_best, cfg, t)
+    if u is not None:
+        unexplained.append(u)
+
+    params_out, ext = _params_out(rec, vehicle, params, ld, lon_scores, steer_final, findings,
+                                  zones, cfg)
+    return Diagnosis(findings, unexplained, _clean(w.channels), w.hyps, w.evidence,
+                     "+".join(ld.input_names), w.series, params_out, ext,
+                     round(time.perf_counter() - t_start, 3), w.notes)
+
+
+def _sensor_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolution, say) -> None:
+    """Step 1 (first): the CAN speed against the GNSS speed; an accepted time offset or wheel
+    radius error corrects ``w.ch`` before the steering and longitudinal hypotheses."""
+    sd = sen.prepare(w.ch, vehicle.wheelbase_m, cfg)
+    if sd is None:
+        w.notes.append("no gps_speed channel: wheel_radius_error and sensor_time_offset not tested")
+        return
+    say("sensors: CAN speed against GNSS speed")
+    cl = corr_length(sen.residual(sd))
+    b = sen.evaluate(sd, None, cfg, cl)
+    w.channels["speed_vs_gnss"] = {
+        "unit": "m/s", "noise_floor": noise_floor(sd.g - sd.v),
+        "heldout_rmse_baseline": b.heldout_rmse_mps}
+    w.series["speed_vs_gnss"] = {"before": b.heldout_err}
+    for h in sen.HYPOTHESES:
+        s = sen.evaluate(sd, h, cfg, cl)
+        ok, why = _accept(b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic,
+                          res.speed_vs_gnss_mps, cfg)
+        w.cands.append(_cand(h, "longitudinal", "speed_vs_gnss", b.heldout_rmse_mps,
+                             s.heldout_rmse_mps, s.params, s.intervals, ok, why,
+                             b.heldout_err, s.heldout_err, cfg.window_lon_s, s.bic - b.bic))
+    off = next((c for c in w.cands if c["effect"] == "sensor_time_offset" and c["_ok"]), None)
+    if off is not None:
+        w.ch = sen.ins_shift(w.ch, off["parameters"]["offset_s"])
+        w.notes.append(f"INS channels moved by {off['parameters']['offset_s']:+.3f} s onto the "
+                       "CAN clock before the steering and longitudinal hypotheses")
+    rad = next((c for c in w.cands if c["effect"] == "wheel_radius_error" and c["_ok"]), None)
+    if rad is not None:
+        k = rad["parameters"]["scale"]
+        for name in ("speed", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
+                     "wheel_speed_rr"):
+            if name in w.ch:
+                w.ch[name] = np.asarray(w.ch[name], float) / k
+        w.notes.append(f"CAN wheel speeds divided by {k:.4f} (wheel_radius_error) before the "
+                       "steering and longitudinal hypotheses")
+
+
+def _steering_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolution,
+                   say) -> dict | None:
+    """Step 1-3 for steering: eq. 7 in eq. 1 against the yaw rate and heading, its channels'
+    residuals and every steering hypothesis. Returns the scores by hypothesis (None: not tested)."""
+    sdt = ste.prepare(w.ch, vehicle.wheelbase_m, cfg)
+    if sdt is None:
+        w.notes.append("no steering angle with yaw rate or heading: steering hypotheses not tested")
+        return None
+    channels, series = w.channels, w.series
+    say("steering: eq. 7 in eq. 1 against the yaw rate and heading")
+    base_m = ste.fit(sdt, None, 0.0, sdt.ok)
+    cl = corr_length(ste.residual(sdt, base_m))
+    b = ste.evaluate(sdt, None, cfg, cl)
+    rr = ste.residual(sdt, b.model)
+    channels["heading"] = {"unit": "rad", "source": sdt.heading_source,
+                           "noise_floor": noise_floor(sdt.heading),
+                           "heldout_rmse_baseline": b.heldout_rmse_rad}
+    channels["road_wheel_angle"] = {"unit": "rad", "noise_floor": noise_floor(rr),
+                                    "rmse_baseline": rmse(rr)}
+    yaw_pred = sdt.v * np.tan(ste.road_wheel_angle(sdt, b.model)) / sdt.b + b.model.bias_radps
+    yr = np.where(sdt.ok, sdt.yaw - yaw_pred, np.nan)
+    channels["yaw_rate"] = {"unit": "rad/s", "noise_floor": noise_floor(sdt.yaw),
+                            "rmse_baseline": rmse(yr)}
+    series["heading"] = {"before": b.heldout_err}
+    series["road_wheel_angle"] = {"before": rr}
+    pos = _position_errors(w.ch, sdt, b.model, cfg)
+    if pos is not None:
+        channels["position"] = {"unit": "m", "window_s": cfg.window_steer_s,
+                                "rmse_baseline": rmse(pos)}
+        series["position"] = {"before": pos}
+    steer_scores = {None: b}
+    for h in ste.HYPOTHESES:
+        s = ste.evaluate(sdt, h, cfg, cl)
+        steer_scores[h] = s
+        ok, why = _accept(b.heldout_rmse_rad, s.heldout_rmse_rad, b.bic, s.bic,
+                          res.heading_rad, cfg)
+        w.cands.append(_cand(h, "steering", "heading", b.heldout_rmse_rad, s.heldout_rmse_rad,
+                             s.params, s.intervals, ok, why, b.heldout_err, s.heldout_err,
+                             cfg.window_steer_s, s.bic - b.bic))
+    channels["heading"]["understeer_vs_ratio"] = _separability(
+        sdt, steer_scores["understeer"], b, vehicle, cl)
+    w.notes.append(channels["heading"]["understeer_vs_ratio"]["verdict"])
+    return steer_scores
+
+
+def _longitudinal_step(w: _Work, ld: lon.LonData, cfg: DiagnoseConfig,
+                       res: Resolution) -> tuple[dict, float]:
+    """Step 1-3 for eq. 8: the baseline, its checks, its channels' residuals and every
+    longitudinal hypothesis. Returns the scores by hypothesis and the residual's correlation
+    length."""
     base_m = lon.fit(ld, lon.LonSpec(), ld.ok)
     ra = lon.residual(ld, base_m)
     cl = corr_length(ra)
     b = lon.evaluate(ld, None, cfg, cl)
-    evidence += lon.baseline_checks(b.model, ld)
+    w.evidence += lon.baseline_checks(b.model, ld)
     drag_free = lon.unconstrained_ext(ld, "aero_drag")
     if drag_free < 0:
-        evidence.append({"term": "aero_drag", "value": drag_free,
-                         "why": f"unbounded v^2 coefficient {drag_free:.2e} 1/m is a negative drag: "
-                                "the v^2 term absorbs something else (grade, creep, a delay)"})
-    channels["speed"] = {"unit": "m/s", "window_s": cfg.window_lon_s,
-                         "noise_floor": noise_floor(ld.v),
-                         "heldout_rmse_baseline": b.heldout_rmse_mps}
-    channels["accel"] = {"unit": "m/s^2", "noise_floor": noise_floor(ra),
-                         "rmse_baseline": rmse(ra)}
-    series["speed"] = {"before": b.heldout_err}
-    series["accel"] = {"before": ra}
+        w.evidence.append({"term": "aero_drag", "value": drag_free,
+                           "why": f"unbounded v^2 coefficient {drag_free:.2e} 1/m is a negative "
+                                  "drag: the v^2 term absorbs something else (grade, creep, a "
+                                  "delay)"})
+    w.channels["speed"] = {"unit": "m/s", "window_s": cfg.window_lon_s,
+                           "noise_floor": noise_floor(ld.v),
+                           "heldout_rmse_baseline": b.heldout_rmse_mps}
+    w.channels["accel"] = {"unit": "m/s^2", "noise_floor": noise_floor(ra),
+                           "rmse_baseline": rmse(ra)}
+    w.series["speed"] = {"before": b.heldout_err}
+    w.series["accel"] = {"before": ra}
     lon_scores = {None: b}
     for h in lon.HYPOTHESES:
         if h == "road_grade" and ld.grade is None:
-            hyps.append({"effect": h, "tested": False, "why": "no altitude or pitch channel"})
+            w.hyps.append({"effect": h, "tested": False, "why": "no altitude or pitch channel"})
             continue
         if h == "idle_creep" and "accel_cmd" in ld.input_names:
-            hyps.append({"effect": h, "tested": False,
-                         "why": "the car follows an acceleration command, not the pedal"})
+            w.hyps.append({"effect": h, "tested": False,
+                           "why": "the car follows an acceleration command, not the pedal"})
             continue
         s = lon.evaluate(ld, h, cfg, cl)
         lon_scores[h] = s
@@ -275,11 +318,12 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
                   s.bic - b.bic)
         if h == "road_grade":
             c["parameters"]["grade_source"] = ld.grade_source
-        cands.append(c)
+        w.cands.append(c)
+    return lon_scores, cl
 
-    _stack_on_dynamics(ld, cands, lon_scores, cfg, cl, res)
 
-    # ---------------------------------------------------------------- rank, alternatives
+def _drop_alternatives(cands: list) -> None:
+    """Of two alternative descriptions of one subsystem only the better stays a finding."""
     for group in ALTERNATIVES:
         for sub in ("steering", "longitudinal"):
             g = [c for c in cands if c["effect"] in group and c["subsystem"] == sub and c["_ok"]]
@@ -291,9 +335,19 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
                 g[0]["alternatives"] = [{"effect": c["effect"], "parameters": c["parameters"],
                                          "heldout_rmse_after": c["heldout_rmse_after"]}
                                         for c in g[1:]]
+
+
+_HYP_KEYS = ("effect", "subsystem", "channel", "parameters", "intervals", "heldout_rmse_before",
+             "heldout_rmse_after", "gain", "delta_bic")
+
+
+def _rank_findings(w: _Work, regimes) -> list:
+    """The accepted candidates, best gain first, with their windows, regimes and equation; every
+    tested candidate is recorded in ``w.hyps`` (the rejected ones first)."""
+    series = w.series
     t = series["t"]
     findings = []
-    for c in sorted([c for c in cands if c["_ok"]], key=lambda c: -c["gain"]):
+    for c in sorted([c for c in w.cands if c["_ok"]], key=lambda c: -c["gain"]):
         e_b, e_a = c.pop("_before"), c.pop("_after")
         L = int(c.pop("_window_s") / (t[1] - t[0]))
         c["windows"] = improved_windows(t, e_b, e_a, L)
@@ -304,41 +358,30 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
             series[c["channel"]]["after_effect"] = c["effect"]
         c.pop("_ok")
         findings.append(c)
-    for c in cands:
+    for c in w.cands:
         if "_ok" in c:
             c.pop("_before"), c.pop("_after"), c.pop("_window_s")
             ok = c.pop("_ok")
-            hyps.append({**{k: c[k] for k in ("effect", "subsystem", "channel", "parameters", "intervals",
-                                              "heldout_rmse_before", "heldout_rmse_after",
-                                              "gain", "delta_bic")}, "finding": ok, "why": c["why"]})
+            w.hyps.append({**{k: c[k] for k in _HYP_KEYS}, "finding": ok, "why": c["why"]})
     for f in findings:
-        hyps.append({**{k: f[k] for k in ("effect", "subsystem", "channel", "parameters", "intervals",
-                                          "heldout_rmse_before", "heldout_rmse_after", "gain",
-                                          "delta_bic")}, "finding": True, "why": "accepted"})
+        w.hyps.append({**{k: f[k] for k in _HYP_KEYS}, "finding": True, "why": "accepted"})
+    return findings
 
-    # ---------------------------------------------------------------- locate + unexplained
-    for name, s in series.items():
-        if name == "t" or name not in channels:
+
+def _locate_channels(w: _Work, regimes, cfg: DiagnoseConfig) -> None:
+    """Step 2 per channel: windows above the noise floor, the change point, the residual by
+    regime."""
+    t = w.series["t"]
+    for name, s in w.series.items():
+        if name == "t" or name not in w.channels:
             continue
         L = int((cfg.window_lon_s if name in ("speed", "accel", "speed_vs_gnss")
                  else cfg.window_steer_s) / (t[1] - t[0]))
-        floor = channels[name].get("noise_floor", float("nan"))
+        floor = w.channels[name].get("noise_floor", float("nan"))
         err = s.get("after", s["before"])
-        channels[name]["elevated"] = elevated_windows(t, err, L, floor)
-        channels[name]["change_point"] = change_point(t, s["before"], L)
-        channels[name]["regime"] = regime_table(regimes, s["before"], s.get("after"))
-    lon_best = next((f["effect"] for f in findings if f["subsystem"] == "longitudinal"
-                     and f["channel"] == "speed"), None)
-    unexplained = []
-    u = _change_unexplained(ld, lon_best, cfg, t)
-    if u is not None:
-        unexplained.append(u)
-
-    params_out, ext = _params_out(rec, vehicle, params, ld, lon_scores, steer_final, findings,
-                                  zones, cfg)
-    return Diagnosis(findings, unexplained, _clean(channels), hyps, evidence,
-                     "+".join(ld.input_names), series, params_out, ext,
-                     round(time.perf_counter() - t_start, 3), notes)
+        w.channels[name]["elevated"] = elevated_windows(t, err, L, floor)
+        w.channels[name]["change_point"] = change_point(t, s["before"], L)
+        w.channels[name]["regime"] = regime_table(regimes, s["before"], s.get("after"))
 
 
 def _sse_fixed_scale(d: ste.SteerData, scale: float) -> float:

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from hmpc.models.params import Params
-from hmpc.models.plant import HybridPlant
+from hmpc.models.plant import HybridPlant, heading_rate
 from hmpc.models.sim import sensors as sn
 
 KINDS = ("can", "imu", "gnss")
@@ -229,7 +229,7 @@ class LiveSensors:
                  a: float) -> Measurement | None:
         cfg, k = self.cfg, self.cfg.noise_scale
         v = max(s[3], 0.0)
-        r = v * math.sin(delta) / self._b
+        r = heading_rate(v, delta, self._b, math)
         if kind == "can":
             rng = self._rng_can
             fl, fr, rl, rr = sn.wheel_speeds(v, delta, self._b, self._tf, self._tr)
