@@ -843,7 +843,6 @@ def audit_candump(profile: ActuationProfile, params: Params, path: str | Path) -
     allowed = False
     v = 0.0
     ids = {c.message.frame_id: c for c in profile.commands.values()}
-    fb = {it.message: it for it in profile.feedback.values()}
     speed_ch = profile.signal_map.channels["speed"]
     for i in range(len(ft)):
         fid = int(ft.arb_id[i])

@@ -32,7 +32,7 @@ from hmpc.models.diagnose import longitudinal as lon
 from hmpc.models.diagnose import sensors as sen
 from hmpc.models.diagnose import steering as ste
 from hmpc.models.diagnose.catalogue import ALTERNATIVES, CATALOGUE
-from hmpc.models.diagnose.common import DiagnoseConfig, corr_length, fold_ids, rmse, windows
+from hmpc.models.diagnose.common import DiagnoseConfig, corr_length, rmse, windows
 from hmpc.models.diagnose.locate import (change_point, elevated_windows, improved_windows,
                                          noise_floor, regime_table, regime_variables,
                                          top_regimes)

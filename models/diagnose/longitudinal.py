@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, corr_length, fold_ids,
+from hmpc.models.diagnose.common import (DiagnoseConfig, bic, fold_ids,
                                          lstsq_bounded, profile_interval, rmse, segments,
                                          train_mask, windows)
 from hmpc.models.identify.stats import savgol_derivative

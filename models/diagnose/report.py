@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 
 from hmpc.models.diagnose.common import DiagnoseConfig
-from hmpc.models.diagnose.locate import regime_table
 from hmpc.models.report.figure import new_figure, save_png
 
 UNITS = {"speed": "m/s", "accel": "m/s^2", "heading": "rad", "road_wheel_angle": "rad",

@@ -157,7 +157,6 @@ def residual(d: SensorData, name=None, val=0.0) -> np.ndarray:
 
 def ins_shift(ch: dict, offset_s: float) -> dict:
     """Channels with the INS ones moved onto the CAN clock (INS sample at t - offset_s)."""
-    from hmpc.models.logs.channels import CHANNELS  # noqa: F401 (documents the names)
     ins = ("yaw_rate", "accel_x", "accel_y", "x", "y", "z", "heading", "pitch", "roll",
            "gps_speed")
     t = np.asarray(ch["time"], float)
