@@ -9,7 +9,9 @@ Optional keys (all documented here, nowhere else):
 
 - ``vehicle``: ``track_rear_m``, ``wheel_radius_m``, ``mass_kg``, ``cg_to_rear_axle_m``,
   ``steering_ratio`` (nominal, from the maker), ``steering_wheel_angle_max_rad``,
-  ``steering_wheel_rate_max_radps``, ``source`` (text: where the numbers come from).
+  ``steering_wheel_rate_max_radps``, ``source`` (text: where the numbers come from),
+  ``nav_lever_arm_m`` ([x, y]: where the GNSS/INS position is taken, body axes x forward,
+  y left, from the rear-axle centre; unknown when absent, not assumed zero).
 - ``steering``: ``dead_time_s``, ``offset_ci95_rad``/``scale_ci95`` ([low, high]),
   ``method`` (text), ``identifiable`` (bool), ``note`` (text), ``rms_error_rad``.
 - ``longitudinal``: ``dead_time_s``, ``hysteresis_mps``, ``accel_source`` (text); per zone
@@ -43,7 +45,8 @@ def _num(path, key, v) -> float:
 
 def _pair(path, key, v) -> tuple[float, float]:
     if not isinstance(v, (list, tuple)) or len(v) != 2:
-        raise ParamError(f"expected [low, high], got {v!r}", path, key=key)
+        what = "[x, y]" if key.endswith("nav_lever_arm_m") else "[low, high]"
+        raise ParamError(f"expected {what}, got {v!r}", path, key=key)
     return (_num(path, key, v[0]), _num(path, key, v[1]))
 
 
@@ -114,6 +117,9 @@ class Vehicle:
     steering_ratio: float | None = None
     steering_wheel_angle_max_rad: float | None = None
     steering_wheel_rate_max_radps: float | None = None
+    #: where the GNSS/INS position is taken: [x, y] in body axes (x forward, y left) from the
+    #: rear-axle centre (CONVENTIONS); None = unknown, never assumed zero
+    nav_lever_arm_m: tuple | None = None
     source: str | None = None
     __required__ = ("wheelbase_m", "track_front_m")
 

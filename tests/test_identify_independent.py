@@ -24,7 +24,7 @@ import yaml
 
 from hmpc.models.errors import ParamError
 from hmpc.models.logs.recording import Recording
-from hmpc.models.params import load_params
+from hmpc.models.params import dump_params, load_params
 from hmpc.tools import cli
 from indep import commonroad_truth as ct
 
@@ -34,17 +34,6 @@ STEER_SCALE_TOL = 0.02
 ZONE_SCALE_TOL = 0.05
 ZONE_OFFSET_TOL_MPS2 = 0.05
 DEAD_TIME_MAX_SAMPLES = 2
-
-REPLAY_ASSUMES_FRONT_AXLE = pytest.mark.xfail(strict=True, reason=(
-    "position replay (models/identify/steering.py, _Replay) takes the recorded position for the "
-    "front-axle centre, and the file takes the replay fit first whenever it is 'identifiable': "
-    "with positions at the rear axle its scale is 20-26 % low, at the centre of gravity 9-13 % "
-    "low, while the wheel-speed and yaw-rate fits are within 0.02 % (KS)"))
-LEVER_ARM_NOT_ACCEPTED = pytest.mark.xfail(strict=True, raises=(ParamError, AssertionError),
-                                           reason=(
-    "models/params.py rejects vehicle.nav_lever_arm_m (CONVENTIONS' optional key) as an unknown "
-    "key, and the position replay has no lever arm"))
-
 
 @pytest.fixture(scope="module")
 def identified(tmp_path_factory):
@@ -78,8 +67,7 @@ def _case(truth, ref, model="ks", marks=()):
 
 #: KS: three truth sets x three reference points; ST: positions at the front axle (its
 #: steering figures include 1-2 % of understeer: tyre slip is physics the report's map lacks)
-STEER_CASES = [_case(t, r, marks=(REPLAY_ASSUMES_FRONT_AXLE,) if r != "front" else ())
-               for t in "ABC" for r in ct.REF_POINTS] + [_case(t, "front", "st") for t in "ABC"]
+STEER_CASES = [_case(t, r) for t in "ABC" for r in ct.REF_POINTS] + [_case(t, "front", "st") for t in "ABC"]
 ALL_CASES = [_case(t, r) for t in "ABC" for r in ct.REF_POINTS] + \
             [_case(t, "front", "st") for t in "ABC"]
 #: ST cases use a gentler lateral acceleration (tyres nearer their linear range)
@@ -183,18 +171,46 @@ def test_recordings_lacking_channels_or_at_other_rates(identified, omit, ref, ra
                 assert abs(z.scale_mps2 / t.scale_mps2 - 1.0) <= ZONE_SCALE_TOL, z
 
 
-@LEVER_ARM_NOT_ACCEPTED
 def test_geometry_lever_arm_makes_the_rear_axle_replay_right(identified):
     sc, rc, p, rep = identified("A", "rear", lever_arm=True)
     assert rc == 0, f"identify exited {rc} (seed {sc.seed})"
     assert abs(p.steering.scale / sc.truth.steer_scale - 1.0) <= STEER_SCALE_TOL
 
 
-@LEVER_ARM_NOT_ACCEPTED
 def test_the_geometry_file_with_a_lever_arm_loads(tmp_path):
     geo = ct.write_geometry(tmp_path / "g.yaml", ref_point="cog")
     v = load_params(geo).vehicle
     assert list(getattr(v, "nav_lever_arm_m")) == pytest.approx([ct.vehicle_params().b, 0.0])
+    # round trip: the writer keeps it, as [x, y]
+    dump_params(load_params(geo), tmp_path / "g2.yaml")
+    again = yaml.safe_load((tmp_path / "g2.yaml").read_text())["vehicle"]["nav_lever_arm_m"]
+    assert again == pytest.approx([ct.vehicle_params().b, 0.0])
+
+
+@pytest.mark.parametrize("bad", [[1.0], [1.0, 2.0, 3.0], [1.0, ".nan"], ["a", 0.0], 1.0,
+                                 [True, 0.0]])
+def test_a_malformed_lever_arm_is_refused_naming_the_key(tmp_path, bad):
+    g = yaml.safe_load(ct.write_geometry(tmp_path / "g.yaml").read_text())
+    g["vehicle"]["nav_lever_arm_m"] = [float("nan") if v == ".nan" else v for v in bad] \
+        if isinstance(bad, list) else bad
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(g))
+    with pytest.raises(ParamError, match="nav_lever_arm_m"):
+        load_params(tmp_path / "bad.yaml")
+
+
+def test_without_a_lever_arm_the_replay_estimates_it(identified):
+    """No nav_lever_arm_m: the replay estimates the reference point's x with the map and
+    reports it; positions at the centre of gravity (x = b of CommonRoad's parameters)."""
+    sc, rc, p, rep = identified("A", "cog")
+    assert rc == 0
+    fit = rep["steering"]["fits"]["position_replay"]
+    assert fit["trusted"] is True
+    lo, hi = fit["lever_arm_x_ci95_m"]
+    b = ct.vehicle_params().b
+    assert lo <= b <= hi and hi - lo < 0.5, (lo, b, hi)
+    sel = rep["steering"]["selection"]
+    assert sel["chosen"] == p.steering.method
+    assert set(sel["scores"]) == {"wheel_speed_difference", "yaw_rate", "position_replay"}
 
 
 # ------------------------------------------------- the generator itself (no hmpc inside)

@@ -21,7 +21,10 @@ SIM_SEED = 11
 SETS = ["report_2008", 1, 2, 3]
 
 # Measured worst case over SETS -> tolerance (README "Known truth" figure where it states one).
-STEER_OFFSET_TOL_RAD = 0.0002    # measured 0.00017 rad; README 0.0002 (issue 3: 0.002)
+# measured 0.00032 rad (params=2; the held-out choice, issue 8, takes the yaw-rate fit, whose
+# interval covers the truth in all four sets; the replay's 0.00017 came with intervals that
+# missed it in three); README 0.0002 (issue 3: 0.002)
+STEER_OFFSET_TOL_RAD = 0.0004
 STEER_SCALE_TOL = 0.0005         # measured 0.035%; README 0.05% (issue 3: 2%)
 DIRECT_OFFSET_TOL_RAD = 0.0005   # (a)/(b) fits: measured 0.00032 rad, margin 1.5x
 DIRECT_SCALE_TOL = 0.0015        # (a)/(b) fits: measured 0.073%, margin 2x
@@ -38,10 +41,9 @@ LON_DEAD_TIME_TOL_S = 0.02       # measured 0.000 s (none simulated), one 50 Hz 
 # Reported in issue 7's closing note; a set listed here must miss, so a fix shows up as a
 # failure that asks for the entry to go.
 KNOWN_INTERVAL_MISSES = {
-    "report_2008": {"steering offset", "zone idle offset", "zone idle scale"},
+    "report_2008": {"zone idle offset", "zone idle scale"},
     1: {"zone idle scale"},
-    2: {"steering offset", "zone high offset"},
-    3: {"steering offset"},
+    2: {"zone high offset"},
 }
 
 

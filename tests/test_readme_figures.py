@@ -63,7 +63,7 @@ README_FIGURES = (
     "(NMSE 48%",
     "NMSE near 100% for a pedal model",
     "under 10%",
-    "within 0.0002 rad, the scale within 0.05% and\n  every zone coefficient within 0.3%",
+    "within 0.0004 rad, the scale within 0.05% and\n  every zone coefficient within 0.3%",
     "within 0.015 m/s\n  RMS with no throttle-brake switches",
     "about 47 times a minute",
 )

@@ -86,6 +86,9 @@ def summary_lines(res) -> list[str]:
         out.append(f"  fit {k:24s} offset {f['offset_rad']:+.5f} [{f['offset_ci95_rad'][0]:+.5f}, "
                    f"{f['offset_ci95_rad'][1]:+.5f}]  scale {f['scale']:.5f} "
                    f"[{f['scale_ci95'][0]:.5f}, {f['scale_ci95'][1]:.5f}]")
+    sel = sr.get("selection")
+    if sel:
+        out.append(f"  chosen: {sel['chosen']} ({sel['because']})")
     ag = sr.get("agreement_a_b")
     if ag:
         out.append(f"  (a) wheel speeds vs (b) yaw rate: rms difference "

@@ -35,7 +35,19 @@ steering-wheel angle delayed by it.
 (eq. 1) is replayed over non-overlapping windows of ``window_s`` from the measured position and
 heading at each window's start, driven by the measured front-axle speed and the delayed
 steering-wheel angle, and offset and scale minimise the position error
-(``scipy.optimize.least_squares``). Needs ``x``, ``y``, ``heading``.
+(``scipy.optimize.least_squares``). Needs ``x``, ``y``, ``heading`` (body yaw, ENU). Eq. 1 moves
+the front-axle centre F, the recording gives the nav point N = F + R(heading) (lever - [b, 0]):
+the geometry's ``vehicle.nav_lever_arm_m`` when given, else the lever arm's x is estimated
+with the map (y taken as 0, bounds ``lever_arm_x_bounds_m``) and reported; when it cannot be
+separated from the map the replay is marked untrusted and never chosen.
+
+**Choice** (:func:`cross_validate`, :func:`choose_fit`): blocked cross-validation over
+``cv_folds`` contiguous folds; each fit, refitted without the fold, predicts the road-wheel
+angle of the independent channel(s) it did not use, normalised by that channel's own held-out
+error; the lowest score among the trusted identifiable fits is the final estimate. The choice,
+every score and every disagreement (95% intervals that do not overlap beyond
+``agree_offset_rad``/``agree_scale_rel``, with the likely cause) are in
+``report['selection']``; a disagreement makes the estimate "NOT identifiable".
 
 **Intervals**: 95%, from sandwich covariances that allow correlated residuals
 (``models.stats``): time-block clusters for the direct fits, replay windows as clusters for the
@@ -93,6 +105,22 @@ class SteeringIdConfig:
     window_s: float = 5.0
     #: [samples] position residual every this many samples (0.1 s at 50 Hz).
     replay_stride: int = 5
+    #: [m] bounds of the estimated nav lever arm's x (no ``nav_lever_arm_m`` in the geometry):
+    #: (low, margin beyond the front axle); a GNSS/INS antenna sits on the body, from behind the
+    #: rear axle to over the bonnet.
+    lever_arm_x_bounds_m: tuple = (-1.0, 2.0)
+    #: [m] half-width of the estimated lever arm's 95% interval above which the replay is not
+    #: trusted: 0.25 m of lever arm moves the replayed front axle by ~1% of a 2.7 m wheelbase.
+    max_lever_arm_ci_m: float = 0.25
+    #: [1] contiguous folds of the blocked cross-validation that chooses the final fit.
+    cv_folds: int = 5
+    #: [rad] / [1] immaterial differences between fits: two fits disagree only when their 95%
+    #: intervals, each widened by these, do not overlap. A tenth of the identifiability
+    #: thresholds (``max_offset_ci_rad``, ``max_scale_rel_ci``): on long clean recordings the
+    #: intervals shrink below the channels' own systematic resolution (0.1 deg steering-wheel
+    #: steps, 0.01 km/h wheel-speed steps).
+    agree_offset_rad: float = 0.0005
+    agree_scale_rel: float = 0.01
     # ---- identifiability
     #: [samples] fewest trustworthy samples (10 s at 50 Hz).
     min_samples: int = 500
@@ -140,9 +168,9 @@ class MapFit:
 class SteeringResult:
     """Outcome of :func:`identify_steering`.
 
-    ``offset_rad``/``scale`` are the final estimate: the first *identifiable* fit in the order
-    position replay (the refinement), yaw rate, wheel speeds; when none is, the fit with the
-    narrowest scale interval (flagged). ``fits`` holds all fits by name, ``report`` the
+    ``offset_rad``/``scale`` are the final estimate: the trusted fit with the best held-out
+    score (:func:`choose_fit`; identifiable fits first), flagged NOT identifiable when the fits
+    disagree beyond their intervals. ``fits`` holds all fits by name, ``report`` the
     JSON-ready figures, ``series`` time series for plots (road-wheel angle estimates etc.).
     """
 
@@ -263,10 +291,19 @@ def _windows(ok: np.ndarray, n_win: int) -> list[tuple[int, int]]:
 
 
 class _Replay:
-    """Vectorised eq. 1 replay over windows; residuals are predicted minus measured (x, y)."""
+    """Vectorised eq. 1 replay over windows; residuals are predicted minus measured (x, y).
 
-    def __init__(self, windows, x, y, psi, v, sw, dt_s, b, stride):
-        self.dt, self.b = dt_s, b
+    Eq. 1 moves the front-axle centre F. The recorded position is the nav point N (GNSS/INS
+    reference), ``N = F + R(psi) (lever - [b, 0])`` with ``lever`` [m] in body axes from the
+    rear-axle centre and psi the recorded body heading (ENU yaw, the heading of eq. 1). Each
+    window starts from F derived from the measured N and heading; the replayed F is carried
+    back to N with the replayed heading and compared with the measurement. ``lever`` given:
+    theta = (offset, scale); None: theta = (offset, scale, lever_x), lever_y = 0.
+    """
+
+    def __init__(self, windows, x, y, psi, v, sw, dt_s, b, stride, lever=None):
+        self.dt, self.b, self.lever = dt_s, b, lever
+        self.lever_x_fit = b  # the estimated lever arm's x once fitted (lever None)
         self.win_id = np.full(len(x), -1)
         self.start = np.zeros(len(x), dtype=int)
         for w, (i0, i1) in enumerate(windows):
@@ -282,19 +319,30 @@ class _Replay:
         self.sw = np.where(self.inwin, sw, 0.0)
         self.vz = np.where(self.inwin, v, 0.0)
 
+    def arm(self, theta) -> tuple[float, float]:
+        """(dx, dy) [m]: body-axes vector from the front-axle centre to the nav point."""
+        if self.lever is not None:
+            return float(self.lever[0]) - self.b, float(self.lever[1])
+        lx = theta[2] if len(theta) > 2 else self.lever_x_fit
+        return float(lx) - self.b, 0.0
+
     def predict(self, theta):
-        """Positions from eq. 7 and eq. 1 (the plant's functions), integrated by the
+        """Nav-point positions from eq. 7 and eq. 1 (the plant's functions), integrated by the
         cumulative trapezoid from each window's first measured pose."""
-        off, sc = theta
+        off, sc = theta[0], theta[1]
+        dx, dy = self.arm(theta)
+        p0 = self.psi[self.start]
+        x0 = self.x[self.start] - (np.cos(p0) * dx - np.sin(p0) * dy)
+        y0 = self.y[self.start] - (np.sin(p0) * dx + np.cos(p0) * dy)
         delta = road_wheel_angle(self.sw, off, sc)
         w = heading_rate(self.vz, delta, self.b)
         cw = np.concatenate([[0.0], np.cumsum(0.5 * self.dt * (w[1:] + w[:-1]))])
-        psi = self.psi[self.start] + cw - cw[self.start]
+        psi = p0 + cw - cw[self.start]
         fx, fy = position_rates(psi, self.vz, delta)
         cx = np.concatenate([[0.0], np.cumsum(0.5 * self.dt * (fx[1:] + fx[:-1]))])
         cy = np.concatenate([[0.0], np.cumsum(0.5 * self.dt * (fy[1:] + fy[:-1]))])
-        xp = self.x[self.start] + cx - cx[self.start]
-        yp = self.y[self.start] + cy - cy[self.start]
+        xp = x0 + cx - cx[self.start] + np.cos(psi) * dx - np.sin(psi) * dy
+        yp = y0 + cy - cy[self.start] + np.sin(psi) * dx + np.cos(psi) * dy
         return xp, yp
 
     def residuals(self, theta):
@@ -350,7 +398,11 @@ def _fit_yaw(yaw, v_rear, sw_d, steady, b, x0) -> MapFit:
                    "offset_bias_correlation": float(corr[0, 2])})
 
 
-def _fit_replay(rec, v_front, sw_d, usable, dt, b, cfg, x0):
+def _fit_replay(rec, v_front, sw_d, usable, dt, b, cfg, x0, lever=None):
+    """Eq. 7 by the position replay (:class:`_Replay`). ``lever``: the geometry's
+    ``nav_lever_arm_m``; None: its x is estimated with the map (bounded to
+    ``cfg.lever_arm_x_bounds_m``) and the replay is untrusted when it cannot be separated
+    from the map (``extra['trusted']``, ``extra['untrusted_because']``)."""
     x, y, psi = (np.asarray(rec[c], dtype=float) for c in ("x", "y", "heading"))
     ok = usable & np.isfinite(x) & np.isfinite(y) & np.isfinite(psi) & np.isfinite(sw_d)
     n_win = int(round(cfg.window_s / dt))
@@ -358,22 +410,51 @@ def _fit_replay(rec, v_front, sw_d, usable, dt, b, cfg, x0):
     if len(wins) < 3:
         return None, 0
     rp = _Replay(wins, x, y, np.unwrap(np.nan_to_num(psi)), np.nan_to_num(v_front),
-                 np.nan_to_num(sw_d), dt, b, max(1, cfg.replay_stride))
-    sol = least_squares(rp.residuals, np.asarray(x0, dtype=float), method="lm",
-                        x_scale=np.array([0.01, 0.01]))
+                 np.nan_to_num(sw_d), dt, b, max(1, cfg.replay_stride), lever)
+    theta0 = np.asarray(x0, dtype=float)[:2]
+    if lever is None:
+        lo_x, hi_x = cfg.lever_arm_x_bounds_m[0], b + cfg.lever_arm_x_bounds_m[1]
+        theta0 = np.append(theta0, 0.5 * b)
+        sol = least_squares(rp.residuals, theta0, method="trf", x_scale=np.array([0.01, 0.01, 1.0]),
+                            bounds=([-np.inf, -np.inf, lo_x], [np.inf, np.inf, hi_x]))
+    else:
+        sol = least_squares(rp.residuals, theta0, method="lm", x_scale=np.array([0.01, 0.01]))
+    if lever is None:
+        rp.lever_x_fit = float(sol.x[2])
     cov = cluster_cov(sol.jac, sol.fun, rp.groups)
     G = len(wins)
     crit = float(student_t.ppf(0.975, max(G - 1, 1)))
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    d = np.sqrt(cov[0, 0] * cov[1, 1])
-    corr = float(cov[0, 1] / d) if d > 0 else 0.0
+    d = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    corr_m = np.divide(cov, d, out=np.zeros_like(cov), where=d > 0)
+    corr = float(corr_m[0, 1])
+    extra = {"windows": G, "window_s": cfg.window_s, "status": int(sol.status),
+             "initial": [float(v) for v in x0], "trusted": True}
+    if lever is not None:
+        extra["nav_lever_arm_m"] = [float(lever[0]), float(lever[1])]
+        extra["lever_arm_source"] = "geometry (vehicle.nav_lever_arm_m)"
+    else:
+        lx, half = float(sol.x[2]), float(crit * se[2])
+        c_lever = float(np.max(np.abs(corr_m[2, :2])))
+        extra.update({"nav_lever_arm_m": [lx, 0.0], "lever_arm_x_ci95_m": [lx - half, lx + half],
+                      "lever_arm_source": "estimated with the map (y taken as 0)",
+                      "lever_arm_map_correlation": c_lever})
+        why = []
+        if c_lever > cfg.max_param_corr:
+            why.append(f"the lever arm's x is correlated {c_lever:.3f} with the map")
+        if not half <= cfg.max_lever_arm_ci_m:
+            why.append(f"the lever arm's x is known only to +-{half:.2f} m")
+        if min(lx - lo_x, hi_x - lx) < 1e-3:
+            why.append(f"the lever arm's x ({lx:.2f} m) is at its bound")
+        if why:
+            extra["trusted"] = False
+            extra["untrusted_because"] = ("the position's reference point is not in the geometry "
+                                          "(vehicle.nav_lever_arm_m) and " + "; ".join(why))
     fit = MapFit("position_replay", float(sol.x[0]), float(sol.x[1]),
                  (float(sol.x[0] - crit * se[0]), float(sol.x[0] + crit * se[0])),
                  (float(sol.x[1] - crit * se[1]), float(sol.x[1] + crit * se[1])), corr,
                  len(rp.res_idx), float(np.sqrt(np.mean(sol.fun ** 2))), "m",
-                 f"cluster-robust sandwich over {G} replay windows, t({G - 1})",
-                 {"windows": G, "window_s": cfg.window_s, "status": int(sol.status),
-                  "initial": [float(v) for v in x0]})
+                 f"cluster-robust sandwich over {G} replay windows, t({G - 1})", extra)
     return (fit, rp, sol.x), G
 
 
@@ -548,23 +629,40 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
     if all(c in rec for c in ("x", "y", "heading")):
         say("steering: refining by eq. 1 position replay")
         out, _ = _fit_replay(rec, sig.v_front, sw_d, usable, sig.dt_s, sig.b, cfg,
-                             (start.offset_rad, start.scale))
+                             (start.offset_rad, start.scale),
+                             getattr(vehicle, "nav_lever_arm_m", None))
         if out is not None:
             fits["position_replay"], replay, _ = out
     idents = {k: identifiability(f, sw_d[steady], sig.v_front[steady], sig.dt_s, cfg,
                                  vehicle.steering_ratio) for k, f in fits.items()}
-    chosen, why = choose_fit(fits, idents)
+    rp_fit = fits.get("position_replay")
+    if rp_fit is not None and not rp_fit.extra.get("trusted", True):
+        idents["position_replay"] = dict(idents["position_replay"], identifiable=False,
+                                         note="NOT trusted: " + rp_fit.extra["untrusted_because"])
+    say("steering: choosing by blocked cross-validation")
+    cv = cross_validate(rec, sig, fits, sw_d, steady, usable, cfg,
+                        getattr(vehicle, "nav_lever_arm_m", None))
+    chosen, why = choose_fit(fits, idents, cv)
     final = fits[chosen]
+    pairs, disagree_note = disagreement(fits, cfg)
+    ident = dict(idents[chosen])
+    if disagree_note:
+        ident["identifiable"] = False
+        ident["note"] = ("NOT identifiable: " + disagree_note + ". " +
+                         ident["note"].removeprefix("NOT identifiable: "))
+    selection = {"chosen": chosen, "because": why, **cv, "disagreements": pairs,
+                 "untrusted": {k: f.extra["untrusted_because"] for k, f in fits.items()
+                               if not f.extra.get("trusted", True)}}
     agreement, delta_b = agreement_a_b(sig, fits, steady)
     delta_model = final.offset_rad + final.scale * sw_d
     ref = delta_b if delta_b is not None else sig.delta_a
     rms_rad = float(np.sqrt(np.mean((ref - delta_model)[steady] ** 2)))
-    ident = idents[chosen]
     report = {
         "offset_rad": final.offset_rad, "scale": final.scale,
         "offset_ci95_rad": list(final.offset_ci95_rad), "scale_ci95": list(final.scale_ci95),
         "method": final.method,
         "method_selected_because": why,
+        "selection": selection,
         "dead_time_s": dead.tau_s,
         "dead_time": dead.to_dict(cfg.smooth_s),
         "fits": {k: f.to_dict() for k, f in fits.items()},
@@ -686,21 +784,147 @@ def direct_fits(sig: SteeringSignals, sw_d: np.ndarray, steady: np.ndarray) -> d
     return fits
 
 
-def choose_fit(fits: dict[str, MapFit], idents: dict[str, dict]) -> tuple[str, str]:
-    """The final estimate's name and why: the first identifiable fit in the order refinement,
-    yaw rate, wheel speeds; when none is identifiable, the one with the narrowest scale
-    interval."""
-    order = [k for k in ("position_replay", "yaw_rate", "wheel_speed_difference") if k in fits]
-    chosen = next((k for k in order if idents[k]["identifiable"]), None)
-    if chosen is not None:
-        return chosen, ("first identifiable fit in the order position_replay, yaw_rate, "
-                        "wheel_speed_difference")
+def cross_validate(rec: Recording, sig: SteeringSignals, fits: dict[str, MapFit],
+                   sw_d: np.ndarray, steady: np.ndarray, usable: np.ndarray,
+                   cfg: SteeringIdConfig, lever=None) -> dict:
+    """Blocked cross-validation of the candidate fits (``cfg.cv_folds`` contiguous folds).
+
+    Each candidate is refitted without the fold and its map predicts, on the fold's trustworthy
+    samples, the road-wheel angle measured by the independent channel(s) it did not use: the
+    wheel-speed fit predicts the yaw-rate angle ``atan(b (r - r_bias) / v_R)`` (gyro bias from the
+    yaw-rate fit of the same training folds), the yaw-rate fit the wheel-speed angle, the
+    replay both. Each channel's held-out RMS error is divided by that of the channel's own fit
+    (its noise floor, = 1 for a perfect rival), and a candidate's score is the mean over its
+    channels (lower is better). Without a yaw rate, the wheel-speed fit is scored on its own
+    channel. Returns ``{method: {"score", "channels": {channel: ratio}, "rms_rad": {...}}}``.
+    """
+    n = len(sw_d)
+    K = max(2, int(cfg.cv_folds))
+    edges = np.linspace(0, n, K + 1).astype(int)
+    has_yaw = "yaw_rate" in fits
+    err: dict[str, dict[str, list]] = {k: {} for k in fits}
+    own: dict[str, list] = {"wheel_speeds": [], "yaw_rate": []}
+
+    def add(method, channel, res):
+        err[method].setdefault(channel, []).append(res)
+
+    for k in range(K):
+        fold = np.zeros(n, dtype=bool)
+        fold[edges[k]:edges[k + 1]] = True
+        train, test = steady & ~fold, steady & fold
+        if test.sum() < 10 or train.sum() < 20:
+            continue
+        try:
+            fa = _fit_front(sig.delta_a, sw_d, train)
+            fb = _fit_yaw(sig.yaw, sig.v_rear, sw_d, train, sig.b, (fa.offset_rad, fa.scale)) \
+                if has_yaw else None
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        maps = {"wheel_speed_difference": fa}
+        chans = {"wheel_speeds": sig.delta_a[test]}
+        if fb is not None:
+            maps["yaw_rate"] = fb
+            chans["yaw_rate"] = road_wheel_angle_from_yaw(
+                sig.yaw, sig.v_rear, sig.b, fb.extra["yaw_rate_bias_radps"])[test]
+        if "position_replay" in fits:
+            f = fits["position_replay"]
+            out, _ = _fit_replay(rec, sig.v_front, sw_d, usable & ~fold, sig.dt_s, sig.b, cfg,
+                                 (f.offset_rad, f.scale), lever)
+            if out is not None:
+                maps["position_replay"] = out[0]
+        sw_t = sw_d[test]
+        pred = {m: f.offset_rad + f.scale * sw_t for m, f in maps.items()}
+        own["wheel_speeds"].append(chans["wheel_speeds"] - pred["wheel_speed_difference"])
+        if fb is not None:
+            own["yaw_rate"].append(chans["yaw_rate"] - pred["yaw_rate"])
+            add("wheel_speed_difference", "yaw_rate", chans["yaw_rate"] - pred[
+                "wheel_speed_difference"])
+            add("yaw_rate", "wheel_speeds", chans["wheel_speeds"] - pred["yaw_rate"])
+        else:
+            add("wheel_speed_difference", "wheel_speeds",
+                chans["wheel_speeds"] - pred["wheel_speed_difference"])
+        if "position_replay" in pred:
+            for c, meas in chans.items():
+                add("position_replay", c, meas - pred["position_replay"])
+
+    def rms(parts):
+        v = np.concatenate(parts) if parts else np.array([])
+        v = v[np.isfinite(v)]
+        return float(np.sqrt(np.mean(v ** 2))) if len(v) else float("nan")
+
+    floor = {c: rms(v) for c, v in own.items() if v}
+    out_d = {}
+    for m, by_c in err.items():
+        r = {c: rms(v) for c, v in by_c.items()}
+        ratios = {c: (r[c] / floor[c] if floor.get(c) else float("nan")) for c in r}
+        vals = [v for v in ratios.values() if np.isfinite(v)]
+        out_d[m] = {"score": float(np.mean(vals)) if vals else float("nan"),
+                    "channels": ratios, "rms_rad": r}
+    return {"folds": K, "noise_floor_rad": floor, "scores": out_d,
+            "method": (f"blocked cross-validation over {K} contiguous folds: each fit, refitted "
+                       "without the fold, predicts the road-wheel angle of the independent "
+                       "channel(s) it did not use; score = held-out RMS / that channel's own "
+                       "fit's held-out RMS, averaged over channels (lower is better)")}
+
+
+def choose_fit(fits: dict[str, MapFit], idents: dict[str, dict],
+               cv: dict | None = None) -> tuple[str, str]:
+    """The final estimate's name and why: the trusted fit with the lowest held-out score
+    (:func:`cross_validate`), among the identifiable ones when any is (a fit whose parameters
+    the recording cannot separate, e.g. offset from gyro bias, also biases the channel it is
+    scored against); an untrusted replay (unknown reference point) is never chosen.
+    Without scores, the narrowest scale interval among the identifiable (else all) fits."""
+    order = [k for k in ("position_replay", "yaw_rate", "wheel_speed_difference") if k in fits
+             and fits[k].extra.get("trusted", True)]
+    scores = (cv or {}).get("scores", {})
+    scored = [k for k in order if np.isfinite(scores.get(k, {}).get("score", np.nan))]
+    if scored:
+        pool = [k for k in scored if idents[k]["identifiable"]]
+        best = min(pool or scored, key=lambda k: scores[k]["score"])
+        among = "identifiable fits" if pool else "fits (none is identifiable)"
+        return best, (f"lowest held-out score among the trusted {among}: " + ", ".join(
+            f"{k} {scores[k]['score']:.3f}" for k in scored))
 
     def rel_width(k):
         f = fits[k]
         return (f.scale_ci95[1] - f.scale_ci95[0]) / abs(f.scale) if f.scale else np.inf
-    return min(order, key=rel_width), ("no fit is identifiable: the one with the narrowest "
-                                       "scale interval")
+    pool = [k for k in order if idents[k]["identifiable"]] or order
+    return min(pool, key=rel_width), "no held-out scores: the narrowest scale interval"
+
+
+def disagreement(fits: dict[str, MapFit],
+                 cfg: SteeringIdConfig | None = None) -> tuple[list[dict], str | None]:
+    """Pairs of trusted fits whose 95% intervals (offset or scale, each widened by
+    ``cfg.agree_offset_rad`` / ``cfg.agree_scale_rel``) do not overlap, and a note naming them
+    and the likely cause (None when all agree)."""
+    cfg = cfg or SteeringIdConfig()
+    names = [k for k in ("wheel_speed_difference", "yaw_rate", "position_replay") if k in fits
+             and fits[k].extra.get("trusted", True)]
+    pairs = []
+    for i, a in enumerate(names):
+        for b_ in names[i + 1:]:
+            fa, fb = fits[a], fits[b_]
+            tol_s = 0.5 * cfg.agree_scale_rel * (abs(fa.scale) + abs(fb.scale))
+            what = [q for q, (ia, ib), tol in (
+                ("scale", (fa.scale_ci95, fb.scale_ci95), tol_s),
+                ("offset", (fa.offset_ci95_rad, fb.offset_ci95_rad), cfg.agree_offset_rad))
+                if ia[1] + tol < ib[0] - tol or ib[1] + tol < ia[0] - tol]
+            if what:
+                pairs.append({"fits": [a, b_], "quantities": what})
+    if not pairs:
+        return [], None
+    causes = []
+    for p in pairs:
+        if "position_replay" in p["fits"]:
+            c = ("the position's reference point (vehicle.nav_lever_arm_m) or the heading's "
+                 "mount")
+        elif "scale" in p["quantities"]:
+            c = "understeer (tyre side slip) folded into the yaw-rate angle"
+        else:
+            c = "a sensor bias (gyro bias, tyre radius mismatch, angle-sensor zero)"
+        causes.append(f"{' and '.join(p['fits'])} disagree on {' and '.join(p['quantities'])} "
+                      f"beyond their 95% intervals (likely cause: {c})")
+    return pairs, "; ".join(causes)
 
 
 def agreement_a_b(sig: SteeringSignals, fits: dict[str, MapFit],
@@ -742,6 +966,7 @@ def _series(rec: Recording, sig: SteeringSignals, delta_b, delta_model, steady, 
 
 __all__ = ["SteeringIdConfig", "SteeringResult", "MapFit", "identify_steering",
            "SteeringSignals", "SampleMasks", "DeadTime", "steering_signals", "trustworthy_samples",
-           "estimate_dead_time", "direct_fits", "choose_fit", "agreement_a_b",
+           "estimate_dead_time", "direct_fits", "choose_fit", "cross_validate", "disagreement",
+           "agreement_a_b",
            "identifiability", "road_wheel_angle_from_front", "road_wheel_angle_from_yaw",
            "xcorr_dead_time", "delayed", "Z95"]
