@@ -153,8 +153,8 @@ BAD_MAPS = [
      "key 'channels.speed.message'", 2),
     ("signal not in the message", "channels:\n  speed:\n    message: WHEEL_SPEEDS\n    expr: WHEEL_SPEED_FL + SPEED\n"
      "    unit: km/h\n", "signal 'SPEED' is not in the message 'WHEEL_SPEEDS'", 4),
-    ("unknown unit", "channels:\n  speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: kmh}\n",
-     "unknown unit 'kmh'", 2),
+    ("unknown unit", "channels:\n  speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: kmhr}\n",
+     "unknown unit 'kmhr'", 2),
     ("unit of the wrong dimension", "channels:\n  steering_wheel_angle: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: km/h}\n",
      "converts to m/s", 2),
     ("missing unit", "channels:\n  speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL}\n",
@@ -185,3 +185,25 @@ def test_bad_maps_are_rejected_with_file_line_and_key(tmp_path, db17, what, body
     assert needle in msg
     if line is not None:
         assert msg.startswith(f"{p}:{line}:")
+
+
+@pytest.mark.parametrize("alias,canonical", [("kph", "km/h"), ("km/hr", "km/h"), ("kmh", "km/h"),
+                                             ("degree", "deg"), ("deg/sec", "deg/s"),
+                                             ("m/s2", "m/s^2"), ("percent", "%")])
+def test_unit_spellings_found_in_field_dbcs_convert_like_their_canonical_unit(alias, canonical):
+    """opendbc's DBCs say ``kph``; a map copied from them must load and convert exactly as
+    ``km/h`` does (issue 8), while an unknown spelling stays an error."""
+    from hmpc.models.logs.signalmap import UNITS, canonical_unit
+    assert canonical_unit(alias) == canonical
+    assert UNITS[canonical_unit(alias)] == UNITS[canonical]
+    assert canonical_unit("furlong/fortnight") not in UNITS
+
+
+def test_a_map_written_in_kph_decodes_like_km_h(tmp_path, db17):
+    from hmpc.models.logs.signalmap import load_signal_map
+    got = {}
+    for unit in ("km/h", "kph"):
+        p = tmp_path / f"{unit.replace('/', '_')}.yaml"
+        p.write_text(f"channels:\n  speed: {{message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: {unit}}}\n")
+        got[unit] = load_signal_map(p, db17).channels["speed"]
+    assert got["kph"].factor == pytest.approx(1 / 3.6) == got["km/h"].factor

@@ -70,6 +70,25 @@ UNITS: dict[str, tuple[str, float]] = {
     "ft": ("m", 0.3048),                # international foot, exact
 }
 
+#: other spellings of those units found in DBCs in the field (opendbc writes ``kph``, other
+#: makers ``km/hr``, ``deg/sec``, ``m/s2``, ``percent``) -> the spelling in :data:`UNITS`.
+#: Matched exactly, after stripping surrounding blanks; an unknown spelling stays an error.
+UNIT_ALIASES: dict[str, str] = {
+    "kph": "km/h", "kmh": "km/h", "km/hr": "km/h", "kmph": "km/h", "kilometer/hour": "km/h",
+    "degree": "deg", "degrees": "deg", "°": "deg",
+    "deg/sec": "deg/s", "degree/s": "deg/s", "degrees/s": "deg/s", "°/s": "deg/s",
+    "rad/sec": "rad/s", "mps": "m/s", "m/sec": "m/s",
+    "m/s2": "m/s^2", "m/s²": "m/s^2", "m/s/s": "m/s^2", "mps2": "m/s^2",
+    "percent": "%", "pct": "%", "rev/min": "rpm", "meter": "m", "metre": "m",
+}
+
+
+def canonical_unit(unit: str) -> str:
+    """The :data:`UNITS` spelling of ``unit`` (an alias from :data:`UNIT_ALIASES` or itself)."""
+    u = unit.strip()
+    return UNIT_ALIASES.get(u, u)
+
+
 #: resampling kinds a map may ask for (``models.resample``).
 RESAMPLE_KINDS = ("linear", "hold")
 
@@ -402,6 +421,8 @@ def _parse_channel(ch: str, entry: Any, db, err, lines) -> ChannelMap:
         unit = entry["unit"]
         if isinstance(unit, (int, float)) and not isinstance(unit, bool):
             unit = str(unit)
+        if isinstance(unit, str):
+            unit = canonical_unit(unit)
         if unit not in UNITS:
             raise err(f"unknown unit {unit!r} (known: {', '.join(UNITS)})", *base, "unit")
         si, factor = UNITS[unit]
