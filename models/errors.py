@@ -63,6 +63,9 @@ class Problem:
     count: int = 0
     first: list = field(default_factory=list)  # first line/frame numbers (1-based)
     detail: str = ""
+    #: information, not a problem: normal on a real bus (e.g. frames of ids the DBC does not
+    #: define); counted and reported apart, never in :meth:`Problems.total`.
+    info: bool = False
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "file": self.path, "count": int(self.count),
@@ -78,8 +81,9 @@ class Problems:
         self._items: dict[tuple[str, str], Problem] = {}
 
     def add(self, kind: str, path: str, where: Iterable[int] | int | None = None,
-            count: int | None = None, detail: str = "") -> None:
-        """Record ``count`` occurrences of ``kind`` in ``path`` at line/frame numbers ``where``."""
+            count: int | None = None, detail: str = "", info: bool = False) -> None:
+        """Record ``count`` occurrences of ``kind`` in ``path`` at line/frame numbers ``where``;
+        ``info=True`` for what is information rather than a problem (see :class:`Problem`)."""
         if where is None:
             places: list[int] = []
         elif isinstance(where, (int,)):
@@ -89,7 +93,8 @@ class Problems:
         n = len(places) if count is None else int(count)
         if n <= 0:
             return
-        p = self._items.setdefault((kind, str(path)), Problem(kind, str(path), detail=detail))
+        p = self._items.setdefault((kind, str(path)),
+                                   Problem(kind, str(path), detail=detail, info=info))
         p.count += n
         room = self.MAX_FIRST - len(p.first)
         if room > 0:
@@ -104,21 +109,28 @@ class Problems:
         return iter(self._items.values())
 
     def total(self) -> int:
-        return sum(p.count for p in self._items.values())
+        """Occurrences of real problems (information items not counted)."""
+        return sum(p.count for p in self._items.values() if not p.info)
 
     def merge(self, other: "Problems") -> None:
         for p in other:
-            self.add(p.kind, p.path, p.first, count=p.count, detail=p.detail)
+            self.add(p.kind, p.path, p.first, count=p.count, detail=p.detail, info=p.info)
 
     def to_list(self) -> list[dict]:
-        return [p.to_dict() for p in self._items.values()]
+        """The problems (information items are in :meth:`info_list`)."""
+        return [p.to_dict() for p in self._items.values() if not p.info]
+
+    def info_list(self) -> list[dict]:
+        """The information items (e.g. frames whose ids the DBC does not define)."""
+        return [p.to_dict() for p in self._items.values() if p.info]
 
     def lines(self) -> list[str]:
-        """Human-readable one-liners for stderr."""
+        """Human-readable one-liners for stderr; information items start with 'information:'."""
         out = []
-        for p in self._items.values():
+        for p in sorted(self._items.values(), key=lambda q: q.info):
             first = ", ".join(str(x) for x in p.first)
             at = f" (first at {first})" if first else ""
             det = f": {p.detail}" if p.detail else ""
-            out.append(f"{p.path}: {p.count} x {p.kind}{at}{det}")
+            tag = "information: " if p.info else ""
+            out.append(f"{tag}{p.path}: {p.count} x {p.kind}{at}{det}")
         return out

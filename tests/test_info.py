@@ -15,7 +15,7 @@ from hmpc.tools.cli import main
 
 KEYS = ["file", "format", "frames", "start_s", "end_s", "duration_s", "rate_hz", "buses", "ids",
         "clock", "malformed_lines", "malformed_where", "remote_frames", "remote_where",
-        "error_frames", "error_where", "dbc", "problems"]
+        "error_frames", "error_where", "dbc", "problems", "information"]
 
 
 @pytest.fixture(scope="module")

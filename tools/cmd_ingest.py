@@ -122,6 +122,8 @@ def summary_lines(summary: dict) -> list[str]:
         out.append(f"IMU gravity: {s['imu_gravity']}")
     out.append(f"problems: {s['problems']['total']} recoverable (details on stderr)"
                if s["problems"]["total"] else "problems: none")
+    for i in s.get("information", []):
+        out.append(f"information: {i['count']} {i['kind']} ({i['detail']})")
     return out
 
 

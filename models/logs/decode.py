@@ -233,7 +233,8 @@ def _report_unknown(frames: FrameTable, code: np.ndarray, problems: Problems) ->
     shown = ", ".join(f"0x{int(k):X}" for k in ukeys[:8])
     problems.add(KIND_UNKNOWN_ID, frames.path,
                  frames.where[_first_true(unknown, Problems.MAX_FIRST)], count=n_unknown,
-                 detail=f"{len(ukeys)} distinct id(s): {shown}{' ...' if len(ukeys) > 8 else ''}")
+                 detail=f"{len(ukeys)} distinct id(s): {shown}{' ...' if len(ukeys) > 8 else ''}",
+                 info=True)  # normal on any real bus: information, not a problem
 
 
 @dataclass

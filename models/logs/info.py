@@ -147,6 +147,7 @@ def summarise(frames: FrameTable, problems: Problems, *, fmt: str = "", db=None,
                       "frames_shorter_than_dbc": int(np.sum(known & (frames.dlc < lengths[msg_index]))),
                       "frames_longer_than_dbc": int(np.sum(known & (frames.dlc > lengths[msg_index])))}
     out["problems"] = problems.to_list()
+    out["information"] = problems.info_list()
     return out
 
 

@@ -534,6 +534,8 @@ def _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz: floa
         {"lat_deg": navd.origin[0], "lon_deg": navd.origin[1], "alt_m": navd.origin[2]},
         "gaps": res.gaps,
         "problems": {"total": int(problems.total()), "items": problems.to_list()},
+        # counted apart from the problems: frames whose ids the DBC does not define
+        "information": problems.info_list(),
     }
 
 
