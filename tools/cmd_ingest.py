@@ -63,6 +63,9 @@ def add_ingest_options(p: argparse.ArgumentParser, *, log_required: bool = True)
                    help="keep the device heading (do not remove the estimated mount offset)")
     p.add_argument("--prefer", type=_prefer, action="append", default=[], metavar="CH=SRC",
                    help="source for a channel several sources give, e.g. yaw_rate=can")
+    p.add_argument("--dbc-lenient", action="store_true",
+                   help="skip DBC lines cantools cannot parse (each reported with its line) "
+                        "instead of refusing the DBC; strict by default")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -84,7 +87,8 @@ def ingest_from_args(args, progress=None):
                         imu_offset_s=args.imu_offset, nav_columns=nav_cols,
                         imu_columns=imu_cols, gap_s=args.gap,
                         mount_correction=not args.no_mount_correction,
-                        prefer=dict(args.prefer), progress=progress)
+                        prefer=dict(args.prefer), dbc_lenient=getattr(args, "dbc_lenient", False),
+                        progress=progress)
 
 
 def _progress(msg: str) -> None:
@@ -94,7 +98,8 @@ def _progress(msg: str) -> None:
 def summary_lines(summary: dict) -> list[str]:
     """The short human summary printed on stdout."""
     s = summary
-    out = [f"vehicle {s['vehicle'] or '?'}: {s['duration_s']:.2f} s, {s['samples']} samples "
+    out = [f"log format: {s['log_format']}",
+           f"vehicle {s['vehicle'] or '?'}: {s['duration_s']:.2f} s, {s['samples']} samples "
            f"at {s['rate_hz']:g} Hz, {len(s['channels'])} channels"]
     for ch, info in s["channels"].items():
         gaps = len(s["gaps"].get(ch, []))

@@ -15,13 +15,24 @@ from pathlib import Path
 from hmpc.models.errors import InputError
 
 
-def load_dbc(path, *, strict: bool = False):
+#: most statements ``lenient`` mode may skip before it gives up (a file that needs more is
+#: not a DBC with a few bad lines)
+MAX_SKIPPED_LINES = 200
+
+
+def load_dbc(path, *, strict: bool = False, lenient: bool = False, problems=None):
     """Load a DBC file (optionally ``.gz``).
 
     Args:
         path: the DBC file.
         strict: cantools' strict mode (rejects overlapping signals and signals outside the
             message); off by default, as the shared data README prescribes.
+        lenient: skip the lines cantools cannot parse (e.g. a comment without a signal name,
+            a pseudo message id wider than the frame format), one at a time, each reported in
+            ``problems`` with its line number and cantools' reason; the default is to refuse
+            the file (strict parsing, loosened only by this named flag: hmpc's
+            ``--dbc-lenient``).
+        problems: :class:`hmpc.models.errors.Problems` collector for what ``lenient`` skipped.
 
     Returns:
         The cantools database.
@@ -50,13 +61,26 @@ def load_dbc(path, *, strict: bool = False):
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         text = raw.decode("cp1252", errors="replace")  # cantools' own default for DBC files
-    try:
-        db = cantools.database.load_string(text, database_format="dbc", strict=strict)
-    except Exception as exc:  # cantools raises ParseError, ValueError, KeyError, ... on bad DBCs
-        msg = " ".join(str(exc).split())
-        m = re.search(r"line (\d+)", msg)
-        raise InputError(f"not a valid DBC: {msg}", spath,
-                         line=int(m.group(1)) if m else None) from None
+    lines = text.split("\n")
+    skipped = 0
+    while True:
+        try:
+            db = cantools.database.load_string("\n".join(lines), database_format="dbc",
+                                               strict=strict)
+            break
+        except Exception as exc:  # cantools raises ParseError, ValueError, KeyError, ... on bad DBCs
+            msg = " ".join(str(exc).split())
+            m = re.search(r"line (\d+)", msg)
+            line = int(m.group(1)) if m else None
+            if not lenient or line is None or not 1 <= line <= len(lines) \
+                    or not lines[line - 1].strip() or skipped >= MAX_SKIPPED_LINES:
+                hint = "" if lenient else " (--dbc-lenient skips such lines, reporting each)"
+                raise InputError(f"not a valid DBC: {msg}{hint}", spath, line=line) from None
+            if problems is not None:
+                problems.add(f"DBC line {line} skipped (--dbc-lenient: cantools cannot parse it)",
+                             spath, line, detail=f"{lines[line - 1].strip()[:80]!r}: {msg}")
+            lines[line - 1] = ""  # keep the numbering of the lines after it
+            skipped += 1
     if not db.messages:
         raise InputError("DBC defines no message", spath)
     return db

@@ -37,7 +37,7 @@ import numpy as np
 
 from hmpc import __version__
 from hmpc.models.logs.align import OffsetEstimate, estimate_offset
-from hmpc.models.logs.canlog import read_log
+from hmpc.models.logs.canlog import detect_format, read_log
 from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS
 from hmpc.models.logs.dbc import load_dbc
 from hmpc.models.logs.decode import decode_frames
@@ -146,6 +146,7 @@ class CanStage:
     channels: dict[str, Series]  # channel -> (t_s, values), dropped samples removed
     describe: dict[str, str]     # channel -> "can: <message.signal expression>"
     absent: list[str]            # optional channels of the map without a usable sample
+    log_format: str = ""         # the CAN log format detected (models.logs.canlog.FORMATS)
 
 
 @dataclass
@@ -185,6 +186,7 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
                  gap_s: float | None = None, problems: Problems | None = None, *,
                  imu_columns: ImuColumns | None = None, mount_correction: bool = True,
                  prefer: dict[str, str] | None = None, max_lag_s: float = MAX_LAG_S,
+                 dbc_lenient: bool = False,
                  progress: Callable[[str], None] | None = None) -> IngestResult:
     """Ingest a CAN log (+ optional nav and IMU CSVs) into a canonical recording.
 
@@ -206,6 +208,8 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
             the IMU accelerations by it (reported either way).
         prefer: channel -> source ("can", "nav", "imu") overriding :data:`DEFAULT_PREFERENCE`.
         max_lag_s: search window of the clock estimates [s].
+        dbc_lenient: skip (and report one by one) DBC lines cantools cannot parse, instead of
+            refusing the DBC (see :func:`hmpc.models.logs.dbc.load_dbc`).
         progress: called with a short text at each stage (the CLI prints it on stderr).
 
     Returns:
@@ -227,7 +231,7 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
     preference = _check_options(rate_hz, gap_s, prefer)
     problems = Problems() if problems is None else problems
     say = progress or (lambda _msg: None)
-    can = read_can(log_path, dbc_path, signals_path, problems, say)
+    can = read_can(log_path, dbc_path, signals_path, problems, say, dbc_lenient=dbc_lenient)
     nav = NavStage(None, {}, 0.0, None, None, {})
     if nav_path is not None:
         nav = read_nav_stage(nav_path, can.channels, problems, say, columns=nav_columns,
@@ -266,7 +270,7 @@ def _check_options(rate_hz, gap_s, prefer) -> dict[str, tuple[str, ...]]:
 
 
 def read_can(log_path, dbc_path, signals_path, problems: Problems,
-             say: Callable[[str], None]) -> CanStage:
+             say: Callable[[str], None], *, dbc_lenient: bool = False) -> CanStage:
     """Steps 1-2: DBC and signal map, read and decode the CAN log, evaluate every channel.
 
     Raises:
@@ -274,14 +278,15 @@ def read_can(log_path, dbc_path, signals_path, problems: Problems,
             several buses without ``bus:``, no channel of the map in the log).
     """
     say(f"loading DBC {dbc_path} and signal map {signals_path}")
-    db = load_dbc(dbc_path)
+    db = load_dbc(dbc_path, lenient=dbc_lenient, problems=problems)
     smap = load_signal_map(signals_path, db)
-    say(f"reading CAN log {log_path}")
-    frames = read_log(log_path, problems)
+    log_format = detect_format(log_path)
+    say(f"reading CAN log {log_path} ({log_format})")
+    frames = read_log(log_path, problems, fmt=log_format)
     say(f"decoding {len(frames)} frames ({', '.join(smap.messages())})")
     decoded = decode_frames(frames, db, problems, names=smap.messages(), buses=smap.buses(),
                             dbc_path=str(dbc_path))
-    stage = CanStage(smap, {}, {}, [])
+    stage = CanStage(smap, {}, {}, [], log_format)
     log_s = str(log_path)
     for ch, cm in smap.channels.items():
         dm = decoded[cm.message] if cm.message in decoded else None
@@ -514,6 +519,7 @@ def _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz: floa
     return {
         "hmpc_version": __version__,
         "vehicle": smap.vehicle,
+        "log_format": can.log_format,  # as detected from the content, whatever the extension
         "sources": {"log": _source(log_path), "dbc": _source(dbc_path),
                     "signals": _source(signals_path), "nav": _source(nav_path),
                     "imu": _source(imu_path)},
