@@ -131,7 +131,10 @@ def test_comma_steering_gain_and_interval(comma_id):
     assert st.scale_ci95[1] == pytest.approx(0.043, abs=0.0005)
     assert st.identifiable is False
     assert "steering-wheel range (3.0 deg)" in st.note
-    assert "above 10 m/s" in st.note  # understeer folded into the gain
+    # understeer folded into the gain: only 1.1 s of the steering is at or below 10 m/s (the
+    # note used to say "all steering happened above 10 m/s", which these speeds contradict)
+    assert "only 1.1 s of trustworthy steering at or below 10 m/s (speeds 8.0-19.9 m/s)" in st.note
+    assert "above 10 m/s tyre side slip (understeer) is folded into the kinematic gain" in st.note
 
 
 def test_comma_high_zone_nmse(comma_id):

@@ -129,3 +129,48 @@ def test_missing_channel_is_an_input_error(truth):
     del rec.channels["wheel_speed_fl"]
     with pytest.raises(InputError, match="wheel_speed_fl"):
         identify_steering(rec, truth.vehicle)
+
+
+# ---- each identifiability reason is computed from the data it describes (issue 8)
+def _fit(**kw):
+    from hmpc.models.identify.steering import MapFit
+    base = dict(method="wheel_speed_difference", offset_rad=0.01, scale=0.08,
+                offset_ci95_rad=(0.0099, 0.0101), scale_ci95=(0.0799, 0.0801), corr=0.1,
+                samples=5000, rms_error=1e-4, rms_unit="rad", ci_method="test")
+    base.update(kw)
+    return MapFit(**base)
+
+
+def _verdict(sw, v, fit=None):
+    from hmpc.models.identify.steering import SteeringIdConfig, identifiability
+    return identifiability(fit or _fit(), np.asarray(sw), np.asarray(v), 0.02, SteeringIdConfig())
+
+
+def test_slow_steering_that_is_too_short_is_not_called_fast():
+    """Every sample at 2.2-2.5 m/s but only 4 s of them (a real Civic log had 1.8 s): the note
+    must say 'only 4.0 s', never 'above 10 m/s', which it used to print."""
+    rng = np.random.default_rng(3)
+    n = 200  # 4 s at 50 Hz: fewer than the samples and the kinematic seconds needed
+    res = _verdict(np.linspace(-3.0, 3.0, n), rng.uniform(2.2, 2.5, n))
+    checks = {c["name"]: c for c in res["checks"]}
+    assert not checks["kinematic_speed_s"]["passed"] and not checks["samples"]["passed"]
+    assert "above" not in res["note"]
+    assert "only 4.0 s" in res["note"] and "2.2-2.5 m/s" in res["note"]
+
+
+def test_fast_steering_is_called_fast_with_its_speeds():
+    from hmpc.models.identify.steering import SteeringIdConfig
+    cfg = SteeringIdConfig()
+    n = 4 * cfg.min_samples
+    res = _verdict(np.linspace(-3.0, 3.0, n), np.full(n, cfg.kinematic_speed_mps + 5.0))
+    assert not res["scale_identifiable"]
+    assert f"above {cfg.kinematic_speed_mps:g} m/s" in res["note"]
+
+
+def test_small_steering_range_is_named_with_its_measured_range():
+    n = 5000
+    sw = np.radians(np.linspace(-0.5, 0.5, n))
+    res = _verdict(sw, np.full(n, 3.0))
+    measured = np.degrees(np.subtract(*np.percentile(sw, [97.5, 2.5])))  # 0.95 deg
+    assert not res["identifiable"]
+    assert f"range ({measured:.1f} deg)" in res["note"] and "offset" in res["note"]

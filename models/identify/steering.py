@@ -524,8 +524,7 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
         notes.append("the speed range is too narrow to separate the offset from the yaw-rate "
                      "sensor's bias")
     if not ok["kinematic_speed_s"]:
-        notes.append(f"all steering happened above {cfg.kinematic_speed_mps:g} m/s, where tyre "
-                     "side slip (understeer) is folded into the kinematic gain")
+        notes.append(_kinematic_note(v_steady, slow_s, cfg))
     if notes:
         note = "NOT identifiable: " + "; ".join(notes) + "."
         if steering_ratio:
@@ -535,6 +534,22 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
         note = "offset and scale identifiable from this recording"
     return {"identifiable": bool(scale_ok and offset_ok), "offset_identifiable": bool(offset_ok),
             "scale_identifiable": bool(scale_ok), "checks": checks, "note": note}
+
+
+def _kinematic_note(v_steady: np.ndarray, slow_s: float, cfg) -> str:
+    """Why the kinematic-speed check failed, from the speeds it saw: all steering above the
+    kinematic speed (understeer folded into the gain), or simply too little of it."""
+    v = np.asarray(v_steady, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size and slow_s == 0.0:
+        return (f"all trustworthy steering happened above {cfg.kinematic_speed_mps:g} m/s "
+                f"({np.min(v):.1f}-{np.max(v):.1f} m/s), where tyre side slip (understeer) is "
+                "folded into the kinematic gain")
+    span = f" (speeds {np.min(v):.1f}-{np.max(v):.1f} m/s)" if v.size else ""
+    fast = (f"; above {cfg.kinematic_speed_mps:g} m/s tyre side slip (understeer) is folded "
+            "into the kinematic gain") if v.size and np.max(v) > cfg.kinematic_speed_mps else ""
+    return (f"only {slow_s:.1f} s of trustworthy steering at or below "
+            f"{cfg.kinematic_speed_mps:g} m/s{span}, {cfg.min_kinematic_s:g} s are needed{fast}")
 
 
 @dataclass
