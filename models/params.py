@@ -195,6 +195,8 @@ class Params:
     accel_source: str | None = None
     limits: VehicleLimits | None = None
     provenance: dict = field(default_factory=dict)
+    #: parts a recording could not identify -> the reason (CONVENTIONS: ``not_identified:``)
+    not_identified: dict = field(default_factory=dict)
     path: str | None = None
 
     @property
@@ -227,10 +229,14 @@ class Params:
             out["limits"] = clean(self.limits)
         if self.provenance:
             out["provenance"] = self.provenance
+        if self.not_identified:
+            out["not_identified"] = dict(self.not_identified)
         return out
 
 
-_TOP = {"vehicle", "steering", "longitudinal", "limits", "provenance"}
+_TOP = {"vehicle", "steering", "longitudinal", "limits", "provenance", "not_identified"}
+#: the parts ``not_identified:`` may name
+_PARTS = ("steering", "longitudinal")
 _LONG = {"zones": None, "dead_time_s": _num, "hysteresis_mps": _num, "accel_source": _text}
 
 
@@ -283,10 +289,26 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
         if not isinstance(data["provenance"], dict):
             raise ParamError("section 'provenance' must be a mapping", path, key="provenance")
         p.provenance = data["provenance"]
+    if "not_identified" in data:
+        ni = data["not_identified"]
+        if not isinstance(ni, dict):
+            raise ParamError("section 'not_identified' must map a part to its reason", path,
+                             key="not_identified")
+        for k, v in ni.items():
+            if k not in _PARTS:
+                raise ParamError(f"unknown part (one of {', '.join(_PARTS)})", path,
+                                 key=f"not_identified.{k}")
+            if not isinstance(v, str) or not v.strip():
+                raise ParamError("expected the reason as text", path, key=f"not_identified.{k}")
+            if k in data:
+                raise ParamError(f"'{k}' is both given and listed as not identified", path,
+                                 key=f"not_identified.{k}")
+        p.not_identified = dict(ni)
     if require_model and not p.is_model:
         missing = "steering" if p.steering is None else "longitudinal"
-        raise ParamError("this command needs a complete model; section is missing", path,
-                         key=missing)
+        why = p.not_identified.get(missing)
+        raise ParamError("this command needs a complete model; section is missing"
+                         + (f" (not identified: {why})" if why else ""), path, key=missing)
     return p
 
 

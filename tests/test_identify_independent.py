@@ -118,9 +118,6 @@ def test_no_dead_time_is_reported_where_there_is_none(identified, truth, ref, mo
 NEEDS_WHEEL_SPEEDS = pytest.mark.xfail(strict=True, reason=(
     "identify exits 2 on channel 'wheel_speed_fl' (models/identify/steering.py requires the four "
     "wheel speeds) although steering follows from yaw rate and speed, and the zones from 'speed'"))
-NEEDS_ACCEL_PEDAL = pytest.mark.xfail(strict=True, reason=(
-    "identify exits 2 on channel 'accel_pedal' (models/identify/longitudinal.py requires it) and "
-    "writes nothing, although the steering map is identifiable"))
 
 
 def _lacking(omit, ref="front", rate=50.0, steering=True, zones=True, marks=()):
@@ -135,7 +132,7 @@ LACKING_CASES = [
     _lacking({"yaw_rate"}),
     _lacking({"brake_pedal"}, zones=False),
     _lacking({"wheel_speeds"}, marks=(NEEDS_WHEEL_SPEEDS,)),
-    _lacking({"accel_pedal"}, zones=False, marks=(NEEDS_ACCEL_PEDAL,)),
+    _lacking({"accel_pedal"}, zones=False),
     _lacking((), rate=10.0),
     _lacking((), rate=100.0),
 ]
@@ -162,6 +159,9 @@ def test_recordings_lacking_channels_or_at_other_rates(identified, omit, ref, ra
             assert abs(z.offset_mps2 - t.offset_mps2) <= ZONE_OFFSET_TOL_MPS2, z
             assert abs(z.scale_mps2 / t.scale_mps2 - 1.0) <= ZONE_SCALE_TOL, z
             assert abs(z.brake_scale_mps2 / t.brake_scale_mps2 - 1.0) <= ZONE_SCALE_TOL, z
+    if "accel_pedal" in omit:
+        # the steering map is identified; the zones are absent and named with their reason
+        assert not p.zones and "accel_pedal" in p.not_identified["longitudinal"]
     if "brake_pedal" in omit:
         # no brake channel: the braking is unobserved, so a zone called identifiable must still
         # hold its throttle terms within the tolerances (the unobserved braking biases them)

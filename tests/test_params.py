@@ -104,3 +104,27 @@ def test_cli_reports_bad_params_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert rc == 2
     assert len(err.splitlines()) == 1 and "typo.yaml" in err and "steering.scal" in err
+
+
+def test_a_part_that_was_not_identified_is_refused_by_simulate_naming_key_and_reason(tmp_path,
+                                                                                   capsys):
+    """identify writes what it could identify and names the rest under not_identified:; a
+    tool that needs the absent part refuses the file in one line naming the key (issue 8)."""
+    import yaml as _yaml
+    src = _yaml.safe_load((PARAMS_DIR / "report_2008.yaml").read_text())
+    part = {"vehicle": src["vehicle"], "steering": src["steering"],
+            "not_identified": {"longitudinal": "no accelerator pedal channel ('accel_pedal')"}}
+    f = tmp_path / "steering_only.yaml"
+    f.write_text(_yaml.safe_dump(part))
+    p = load_params(f)  # loads: a partial model is a valid file
+    assert p.steering is not None and not p.zones
+    assert p.not_identified == {"longitudinal": "no accelerator pedal channel ('accel_pedal')"}
+    rc = cli.main(["simulate", "--params", str(f), "--scenario", "idle_hold"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1
+    assert "longitudinal" in err[0] and "accel_pedal" in err[0] and str(f) in err[0]
+    # a part may not be both given and listed as not identified
+    part["longitudinal"] = src["longitudinal"]
+    f.write_text(_yaml.safe_dump(part))
+    with pytest.raises(ParamError, match="not_identified.longitudinal"):
+        load_params(f)

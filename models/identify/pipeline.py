@@ -35,8 +35,8 @@ class IdentifyResult:
 
     params: Params
     report: dict
-    steering: SteeringResult
-    longitudinal: LongitudinalResult
+    steering: SteeringResult | None
+    longitudinal: LongitudinalResult | None
 
 
 def concat_recordings(recs: list[Recording], gap_s: float = 2.0) -> Recording:
@@ -115,10 +115,26 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
         raise InputError(f"the recording has only {len(recording)} samples",
                          recording.meta.get("path"))
     say(f"identify: {len(recording)} samples at {recording.rate_hz:.3g} Hz")
-    st = identify_steering(recording, vehicle, steering_config, progress=say)
-    lo = identify_longitudinal(recording, vehicle, lcfg, progress=say)
+    # each part needs only its own channels: a part the recording cannot support is skipped
+    # with its reason (``not_identified:``); only a recording that supports neither is refused
+    not_identified: dict[str, str] = {}
+    errors: list[InputError] = []
 
-    steering = Steering(
+    def part(name, fn, *args):
+        try:
+            return fn(*args, progress=say)
+        except InputError as exc:
+            errors.append(exc)
+            not_identified[name] = exc.one_line()
+            say(f"{name}: not identified: {exc.one_line()}")
+            return None
+
+    st = part("steering", identify_steering, recording, vehicle, steering_config)
+    lo = part("longitudinal", identify_longitudinal, recording, vehicle, lcfg)
+    if st is None and lo is None:
+        raise errors[0]
+
+    steering = None if st is None else Steering(
         offset_rad=float(st.offset_rad), scale=float(st.scale), dead_time_s=float(st.dead_time_s),
         offset_ci95_rad=tuple(float(x) for x in st.offset_ci95_rad),
         scale_ci95=tuple(float(x) for x in st.scale_ci95),
@@ -133,16 +149,20 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
         if path:
             prov[f"{role}_file"] = str(path)
             prov[f"{role}_sha256"] = sha256_file(path)
-    params = Params(vehicle=replace(vehicle), steering=steering, zones=lo.zones,
-                    longitudinal_dead_time_s=float(lo.dead_time_s),
-                    hysteresis_mps=lcfg.hysteresis_mps if lcfg.hysteresis_mps > 0 else None,
-                    accel_source=lo.accel_source, provenance=prov)
+    params = Params(vehicle=replace(vehicle), steering=steering,
+                    zones=[] if lo is None else lo.zones,
+                    longitudinal_dead_time_s=None if lo is None else float(lo.dead_time_s),
+                    hysteresis_mps=(lcfg.hysteresis_mps if lo is not None
+                                    and lcfg.hysteresis_mps > 0 else None),
+                    accel_source=None if lo is None else lo.accel_source, provenance=prov,
+                    not_identified=not_identified)
     report = {
         "hmpc_version": __version__,
         "provenance": prov,
         "vehicle": {"wheelbase_m": vehicle.wheelbase_m, "track_front_m": vehicle.track_front_m},
-        "steering": st.report,
-        "longitudinal": lo.report,
+        "steering": None if st is None else st.report,
+        "longitudinal": None if lo is None else lo.report,
+        "not_identified": not_identified,
     }
     return IdentifyResult(params, _finite_json(report), st, lo)
 

@@ -161,10 +161,14 @@ def write_plots(result, out_dir: str | Path) -> list[str]:
     """Write every figure of ``result`` (an ``IdentifyResult``) into ``out_dir``; return paths."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = [plot_steering(result, out / "fig2_steering.png")]
-    p = plot_replay(result, out / "steering_replay.png")
-    if p:
-        paths.append(p)
+    paths = []
+    if result.steering is not None:
+        paths.append(plot_steering(result, out / "fig2_steering.png"))
+        p = plot_replay(result, out / "steering_replay.png")
+        if p:
+            paths.append(p)
+    if result.longitudinal is None:
+        return paths
     default_names = [z.name for z in result.longitudinal.zones] == ["idle", "low", "high"]
     for i, z in enumerate(result.longitudinal.zones):
         name = f"{_REPORT_FIG[i]}_{z.name}.png" if default_names else f"zone_{z.name}.png"
