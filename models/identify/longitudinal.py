@@ -188,6 +188,16 @@ def _nearest(i: int, candidates: list[int]) -> int | None:
     return min(candidates, key=lambda j: (abs(j - i), j))
 
 
+def _nearest_fitted(i: int, fits, key: str) -> int | None:
+    """The zone nearest to ``i`` whose fit produced ``key`` (a zone's value is copied from it)."""
+    return _nearest(i, [k for k, g in enumerate(fits) if g.fitted and g.report[key] is not None])
+
+
+def _rel_half_width(value: float, ci) -> float:
+    """Half-width of the 95% interval relative to the value (inf for a zero value)."""
+    return abs(0.5 * (ci[1] - ci[0]) / value) if value != 0 else float("inf")
+
+
 @dataclass
 class LongitudinalSignals:
     """What eq. 8 is fitted to: speed, measured acceleration and the raw pedals.
@@ -549,9 +559,7 @@ def _zone_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig, p
     sc = rep.get("scale_mps2") if f.fitted else None
     sc_ci = rep.get("scale_ci95_mps2") if f.fitted else None
     if sc is None:
-        with_scale = [k for k, g in enumerate(fits)
-                      if g.fitted and g.report["scale_mps2"] is not None]
-        j = _nearest(i, with_scale)
+        j = _nearest_fitted(i, fits, "scale_mps2")
         if j is None:
             raise InputError("the accelerator pedal is never pressed long enough in any zone "
                              f"(need {cfg.min_pressed_s} s): cannot identify eq. 8",
@@ -563,8 +571,8 @@ def _zone_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig, p
         else:
             notes.append(f"scale copied from zone '{zones[j][0]}'")
         return sc, sc_ci, False
-    if abs(0.5 * (sc_ci[1] - sc_ci[0]) / sc) > cfg.max_rel_ci if sc != 0 else True:
-        notes.append(f"scale known only to +-{100 * abs(0.5 * (sc_ci[1] - sc_ci[0]) / sc):.0f}%"
+    if _rel_half_width(sc, sc_ci) > cfg.max_rel_ci:
+        notes.append(f"scale known only to +-{100 * _rel_half_width(sc, sc_ci):.0f}%"
                      if sc != 0 else "scale is zero")
         return sc, sc_ci, False
     return sc, sc_ci, True
@@ -580,9 +588,7 @@ def _zone_brake_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdCon
     br = rep.get("brake_scale_mps2") if f.fitted else None
     br_ci = rep.get("brake_scale_ci95_mps2") if f.fitted else None
     if br is None:
-        with_brake = [k for k, g in enumerate(fits)
-                      if g.fitted and g.report["brake_scale_mps2"] is not None]
-        j = _nearest(i, with_brake)
+        j = _nearest_fitted(i, fits, "brake_scale_mps2")
         why = ("no brake_pedal channel" if not has_brake else
                f"brake pressed only {rep.get('brake_pedal_pressed_s', 0.0):.1f} s")
         if j is not None:
@@ -593,9 +599,8 @@ def _zone_brake_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdCon
             notes.append(f"{why} (in every zone): brake scale is the prior "
                          f"{cfg.brake_scale_prior_mps2:g} m/s^2, not identified")
         return br, br_ci, False
-    if abs(0.5 * (br_ci[1] - br_ci[0]) / br) > cfg.max_rel_ci if br != 0 else True:
-        notes.append(f"brake scale known only to +-"
-                     f"{100 * abs(0.5 * (br_ci[1] - br_ci[0]) / br):.0f}%"
+    if _rel_half_width(br, br_ci) > cfg.max_rel_ci:
+        notes.append(f"brake scale known only to +-{100 * _rel_half_width(br, br_ci):.0f}%"
                      if br != 0 else "brake scale is zero")
         return br, br_ci, False
     return br, br_ci, True
