@@ -113,3 +113,45 @@ def test_angle_schedule_follows_iso_11270():
             assert v * v * abs(math.tan(delta)) / al.wheelbase_m == pytest.approx(3.0, rel=1e-6)
     assert al.angle_range_rad(0.0) == (-al.lock_rad, al.lock_rad)
     assert al.rate_max_radps(30.0) < al.rate_max_radps(5.0) <= al.actuator_rate_max_radps
+
+
+def _cut_stream(check, pattern, t0=0.0, dt=0.01, torque=100):
+    """Feed ``pattern`` (a string of '1' = request bit set, '0' = cleared, torque kept) at
+    100 Hz with a constant torque already reached; returns the reasons per frame."""
+    out = []
+    for k, bit in enumerate(pattern):
+        out.append(check.check(torque, bit == "1", t0 + k * dt, True))
+    return out
+
+
+def test_steer_request_cut_follows_panda_tolerance():
+    """panda's has_steer_req_tolerance for Toyota: one frame of torque without STEER_REQUEST is
+    allowed after 18 frames with it, at most every 170 ms; anything else is refused."""
+    lim = ToyotaLimits()
+    warm = ToyotaSteerCheck(lim)
+    # ramp to 100 units within the rate limit with the request set (7 frames of +15)
+    ramp = [warm.check(min(15 * (k + 1), 100), True, 0.01 * k, True) for k in range(7)]
+    assert ramp == [""] * 7
+    # 18 frames with the request, then one cut frame: allowed
+    r = _cut_stream(warm, "1" * 11 + "0", t0=0.07)
+    assert r == [""] * 12
+    # a second cut frame right after the first: refused (max_invalid_request_frames = 1)
+    assert "too many frames" in warm.check(100, False, 0.19, True)
+    # after a violation panda resets; torque without request on a fresh state is refused
+    fresh = ToyotaSteerCheck(lim)
+    assert "too few" in fresh.check(10, False, 0.0, True)
+    # too few valid frames since the last cut: refused
+    c = ToyotaSteerCheck(lim)
+    assert _cut_stream(c, "1" * 18 + "0", torque=0) == [""] * 19  # torque 0: never a cut
+    c = ToyotaSteerCheck(lim)
+    seq = [c.check(min(15 * (k + 1), 60), True, 0.01 * k, True) for k in range(18)]
+    assert seq == [""] * 18
+    assert c.check(60, False, 0.18, True) == ""                     # the first cut: allowed
+    later = _cut_stream(c, "1" * 10 + "0", t0=0.19, torque=60)      # 10 frames later: refused
+    assert later[:10] == [""] * 10 and "too few" in later[10]
+    # 18 valid frames but within 170 ms of the last cut (frames at 5 ms): refused
+    c = ToyotaSteerCheck(lim)
+    assert [c.check(min(15 * (k + 1), 60), True, 0.005 * k, True) for k in range(18)] == [""] * 18
+    assert c.check(60, False, 0.09, True) == ""
+    r = _cut_stream(c, "1" * 18 + "0", t0=0.095, dt=0.005, torque=60)
+    assert r[:18] == [""] * 18 and "too soon" in r[18]

@@ -57,6 +57,15 @@ class ToyotaLimits:
     accel_inactive_mps2: float = 0.0
     # STEERING_LKA is sent at 100 Hz (the rate limits are per frame).
     steer_period_s: float = 0.01
+    # STEER_REQUEST tolerance (.has_steer_req_tolerance = true): "the EPS faults when the
+    # steering angle rate is above a certain threshold for too long", so openpilot may clear
+    # the request bit while keeping the torque for .max_invalid_request_frames = 1 frame,
+    # after at least .min_valid_request_frames = 18 frames with the bit set, and no sooner
+    # than .min_valid_request_rt_interval = 170000 us ("a ~10% buffer on cutting every 19
+    # frames") after the last cut. Any other torque without the request bit is a violation.
+    min_valid_request_frames: int = 18
+    max_invalid_request_frames: int = 1
+    min_valid_request_interval_s: float = 0.170
 
 
 class ToyotaTorqueLimiter:
@@ -116,6 +125,9 @@ class ToyotaSteerCheck:
         self.desired_last = 0
         self.rt_last = 0
         self.ts_last_s = 0.0
+        self.valid_req = 0          # consecutive frames with the request bit matching
+        self.invalid_req = 0        # consecutive frames of torque without the request bit
+        self.req_cut_last_s = -math.inf  # time of the last cut (or reset) [s]
 
     def eps_torque(self, eps_raw: float) -> None:
         """A new STEER_TORQUE_EPS sample (raw DBC units)."""
@@ -145,12 +157,38 @@ class ToyotaSteerCheck:
                 reason = "real-time delta over 250 ms"
             if not reason and t_s - self.ts_last_s >= lim.rt_interval_s:
                 self.rt_last, self.ts_last_s = torque, t_s
+        req_reason = self._request_bit(torque, request, t_s)
+        reason = reason or req_reason
         if reason or not allowed:
             self.desired_last = 0
             self.rt_last = 0
             self.ts_last_s = t_s
+            self.valid_req = self.invalid_req = 0
+            self.req_cut_last_s = t_s
         else:
             self.desired_last = int(torque)
+        return reason
+
+    def _request_bit(self, torque: int, request: bool, t_s: float) -> str:
+        """panda's steer-request tolerance: torque with the request bit cleared is allowed for
+        ``max_invalid_request_frames`` frames, only after ``min_valid_request_frames`` frames
+        with the bit set and ``min_valid_request_interval_s`` after the previous cut."""
+        lim = self.limits
+        if request or torque == 0:
+            self.valid_req = min(self.valid_req + 1, lim.min_valid_request_frames)
+            self.invalid_req = 0
+            return ""
+        reason = ""
+        if self.invalid_req == 0:
+            if self.valid_req < lim.min_valid_request_frames:
+                reason = "torque without STEER_REQUEST after too few request frames"
+            elif t_s - self.req_cut_last_s < lim.min_valid_request_interval_s:
+                reason = "torque without STEER_REQUEST too soon after the last cut"
+        elif self.invalid_req >= lim.max_invalid_request_frames:
+            reason = "torque without STEER_REQUEST for too many frames"
+        self.valid_req = 0
+        self.req_cut_last_s = t_s
+        self.invalid_req = min(self.invalid_req + 1, lim.max_invalid_request_frames)
         return reason
 
 
