@@ -11,6 +11,7 @@ from _data import PARAMS_DIR
 from hmpc.controller.actuation import builders
 from hmpc.controller.actuation.checksums import crc8_j1850, toyota_checksum
 from hmpc.controller.actuation.profiles import load_profile
+from hmpc.controller.actuation.safety import ToyotaLimits, ToyotaSteerCheck
 from hmpc.models.errors import Problems
 from hmpc.models.logs.canlog import read_log
 from hmpc.models.logs.decode import decode_frames
@@ -107,3 +108,50 @@ def test_builder_refuses_values_that_do_not_fit(sent):
         builders.steering_lka(spec, 40000, True, 0)   # would wrap in 16 signed bits
     with pytest.raises(builders.EncodeError):
         builders.acc_control(prof.commands["accel"], float("nan"))
+
+
+def _panda_replay(comma_log, prof, perturb=None):
+    """Every openpilot STEERING_LKA frame of the minute through hmpc's encoder-side check, in
+    send order (6-bit counter unwrapped; the logger's receive batches reorder a few frames), on
+    the 100 Hz send clock, with the EPS torque (STEER_TORQUE_SENSOR) and controls allowed
+    (PCM_CRUISE.CRUISE_ACTIVE) as panda saw them. Returns the reasons of refused frames."""
+    frames = read_log(comma_log, Problems())
+    dec = decode_frames(frames, prof.db, Problems(), buses=[0],
+                        names=["STEERING_LKA", "STEER_TORQUE_SENSOR", "PCM_CRUISE"])
+    lka, eps, pcm = dec["STEERING_LKA"], dec["STEER_TORQUE_SENSOR"], dec["PCM_CRUISE"]
+    step = np.diff(lka.signals["COUNTER"].astype(int)) % 64
+    step[step > 32] -= 64
+    seq = np.concatenate([[0], np.cumsum(step)])
+    order = np.argsort(seq, kind="stable")
+    t_send = lka.t_s[order[0]] + 0.01 * seq[order]
+    torque = lka.signals["STEER_TORQUE_CMD"][order].astype(int)
+    request = lka.signals["STEER_REQUEST"][order].astype(bool)
+    if perturb is not None:
+        torque[perturb[0]] += perturb[1]
+    events = sorted([(t, 0, i) for i, t in enumerate(eps.t_s)] +
+                    [(t, 1, i) for i, t in enumerate(pcm.t_s)] +
+                    [(t, 2, j) for j, t in enumerate(t_send)])
+    check, allowed, refused = ToyotaSteerCheck(ToyotaLimits()), False, []
+    for t, kind, i in events:
+        if kind == 0:
+            check.eps_torque(eps.signals["STEER_TORQUE_EPS"][i])
+        elif kind == 1:
+            allowed = bool(pcm.signals["CRUISE_ACTIVE"][i])
+        else:
+            why = check.check(int(torque[i]), bool(request[i]), float(t), allowed)
+            if why:
+                refused.append((i, why))
+    return refused, torque, request
+
+
+def test_openpilot_steering_frames_pass_the_panda_checks(comma_log):
+    """The checks at hmpc's encoder accept what the real car's panda accepted: all 6000 frames
+    openpilot sent (engaged from t = 9 s, torques up to 630 units) pass; one frame pushed by
+    100 units is refused (rate), as are the next frames until the torque is back near 0."""
+    prof = load_profile(PARAMS_DIR / "toyota_rav4_2017.actuation.yaml")
+    refused, torque, request = _panda_replay(comma_log, prof)
+    assert len(torque) == 6000 and np.abs(torque).max() > 500 and request.sum() > 4000
+    assert refused == []
+    k = int(np.argmax(np.abs(torque)))
+    refused, _, _ = _panda_replay(comma_log, prof, perturb=(k, 100 if torque[k] > 0 else -100))
+    assert refused and refused[0][0] == k and "rate" in refused[0][1]
