@@ -87,29 +87,48 @@ def one_run(profile_name: str, controller_name: str, minutes: float, tmp: Path) 
 EFFECTS = ("steering_dead_time:delay_s=0.1", "steering_lag:tau_s=0.15",
            "steering_cubic:cubic_per_rad2=0.01", "understeer:gradient_rad_per_mps2=0.004",
            "pedal_dead_time:delay_s=0.2", "aero_drag:coeff_per_m=0.0004",
-           "road_grade:grade_rad=0.03", "wheel_radius_error:scale=1.01")
+           "road_grade:grade_rad=0.03", "wheel_radius_error:scale=1.01",
+           "idle_creep:accel_mps2=0.5,creep_speed_mps=2.0")
+#: idle creep acts only with the throttle released below the creep speed: run it where the car
+#: is held at 1 m/s (idle_hold), not on figure8
+SCENARIO_OF = {"idle_creep": "idle_hold"}
+
+
+def _effect(text: str):
+    """A concealed effect from ``name:key=value,...`` (idle creep lives in effects_extra)."""
+    from hmpc.models.sim.effects import parse_effect
+    from hmpc.models.sim.effects_extra import IdleCreep
+
+    name, _, rest = text.partition(":")
+    if name == "idle_creep":
+        kw = dict(item.split("=") for item in rest.split(","))
+        return IdleCreep(float(kw["accel_mps2"]), float(kw["creep_speed_mps"]))
+    return parse_effect(text)
 
 
 def effects_run(profile_name: str, seconds: float, tmp: Path) -> list[dict]:
     """The MPC on the identified (effect-free) model drives the node with each effect in turn."""
-    from hmpc.models.sim.effects import parse_effect
     from hmpc.models.sim.scenarios import make_scenario
 
     params = load_params(PARAMS_DIR / "report_2008.yaml", require_model=True)
     prof = load_profile(PARAMS_DIR / PROFILES[profile_name])
     rows = []
-    for i, text in enumerate(("none",) + EFFECTS):
-        ref = make_scenario("figure8", params)
+    runs = []
+    for scenario in ("figure8", "idle_hold"):  # each scenario's effect-free run first
+        runs += [("none", scenario)] + [(e, scenario) for e in EFFECTS
+                                        if SCENARIO_OF.get(e.partition(":")[0], "figure8") == scenario]
+    for i, (text, scenario) in enumerate(runs):
+        ref = make_scenario(scenario, params)
         kw = {"interface": "virtual", "channel": f"bench-eff-{os.getpid()}-{i}"}
-        eff = [] if text == "none" else [parse_effect(text)]
+        eff = [] if text == "none" else [_effect(text)]
         node = VehicleNode(prof, params, kw, start_state=ref.initial_state(params), effects=eff)
         loop = DriveLoop(prof, params, make_controller("mpc", params), ref, kw,
                          tmp / f"eff{i}.log", duration_s=seconds, node=node)
         s = loop.run().summary
-        rows.append({"effect": text, "speed_error_rms_mps": s["speed_error_rms_mps"],
+        rows.append({"effect": text, "scenario": scenario, "speed_error_rms_mps": s["speed_error_rms_mps"],
                      "lateral_error_rms_m": s["lateral_error_rms_m"], "failures": s["failures"],
                      "stop": s["stop"]["reason"], "rejected": s["frames_rejected_by_vehicle"]})
-        print(f"  {text:40s} speed RMS {s['speed_error_rms_mps']:.3f} m/s, lateral RMS "
+        print(f"  {text:45s} {scenario:9s} speed RMS {s['speed_error_rms_mps']:.3f} m/s, lateral RMS "
               f"{s['lateral_error_rms_m']:.3f} m, failures {s['failures']}, stop "
               f"{s['stop']['reason']}", file=sys.stderr, flush=True)
     return rows
@@ -121,7 +140,7 @@ def main(argv=None) -> int:
     ap.add_argument("--profile", choices=sorted(PROFILES), default="toyota")
     ap.add_argument("--json", metavar="FILE")
     ap.add_argument("--effects", type=float, metavar="S",
-                    help="instead: robustness runs, S seconds of figure8 per concealed effect")
+                    help="instead: robustness runs, S seconds per concealed effect (figure8; idle_hold for idle creep)")
     args = ap.parse_args(argv)
     if args.effects:
         with tempfile.TemporaryDirectory() as d:
