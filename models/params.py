@@ -14,11 +14,26 @@ Optional keys (all documented here, nowhere else):
   y left, from the rear-axle centre; unknown when absent, not assumed zero).
 - ``steering``: ``dead_time_s``, ``offset_ci95_rad``/``scale_ci95`` ([low, high]),
   ``method`` (text), ``identifiable`` (bool), ``note`` (text), ``rms_error_rad``.
-- ``longitudinal``: ``dead_time_s``, ``hysteresis_mps``, ``accel_source`` (text); per zone
+- ``longitudinal``: ``dead_time_s``, ``hysteresis_mps``, ``accel_source`` (text: how the
+  measured acceleration was obtained), ``accel_source_chosen`` (text: the source chosen by
+  held-out evidence, one of ``wheel_speeds``, ``speed``, ``gps_speed``, ``accel_x``),
+  ``accel_source_scores_mps2`` (mapping source -> held-out score [m/s^2], lower is better;
+  ``models.identify.longitudinal.choose_accel_source``); per zone
   ``*_ci95_mps2`` ([low, high]), ``nmse_pct``, ``speed_rmse_mps``, ``samples``,
   ``identifiable``, ``note``.
 - ``limits``: actuator and comfort limits used by the controller (see ``VehicleLimits``).
 - ``provenance``: free text/number fields (input hashes, time span, hmpc version).
+- ``extensions``: physics ``hmpc diagnose`` added to the report's model, by catalogue id
+  (``models.diagnose.catalogue``, the diagnosis issue's contract) and subsystem:
+  ``extensions: {aero_drag: {longitudinal: {coeff_per_m: 1.5e-3, intervals: {coeff_per_m:
+  [1.3e-3, 1.7e-3]}, equation: "..."}}}``. Each entry holds only its catalogue parameters
+  (numbers), ``intervals`` ({parameter: [low, high]}), ``base`` (the coefficients it was
+  fitted jointly with: ``{offset_rad, scale}`` for steering, ``{zones: [{name, offset_mps2,
+  scale_mps2, brake_scale_mps2 | accel_cmd_gain}]}`` for longitudinal; the conventions' keys
+  of the file are what a tool that ignores the section should use, see ``hmpc diagnose``) and
+  the text keys ``catalogue.EXTENSION_TEXT_KEYS``; ``on_top_of`` names another id of the
+  same section.
+  Unknown ids, subsystems or parameters are rejected like unknown keys.
 """
 from __future__ import annotations
 
@@ -193,10 +208,14 @@ class Params:
     longitudinal_dead_time_s: float | None = None
     hysteresis_mps: float | None = None
     accel_source: str | None = None
+    accel_source_chosen: str | None = None
+    accel_source_scores_mps2: dict | None = None
     limits: VehicleLimits | None = None
     provenance: dict = field(default_factory=dict)
     #: parts a recording could not identify -> the reason (CONVENTIONS: ``not_identified:``)
     not_identified: dict = field(default_factory=dict)
+    #: ``extensions:`` catalogue id -> subsystem -> {parameter: value, intervals, text keys}
+    extensions: dict = field(default_factory=dict)
     path: str | None = None
 
     @property
@@ -224,6 +243,10 @@ class Params:
                 lon["hysteresis_mps"] = self.hysteresis_mps
             if self.accel_source is not None:
                 lon["accel_source"] = self.accel_source
+            if self.accel_source_chosen is not None:
+                lon["accel_source_chosen"] = self.accel_source_chosen
+            if self.accel_source_scores_mps2:
+                lon["accel_source_scores_mps2"] = dict(self.accel_source_scores_mps2)
             out["longitudinal"] = lon
         if self.limits is not None:
             out["limits"] = clean(self.limits)
@@ -231,13 +254,24 @@ class Params:
             out["provenance"] = self.provenance
         if self.not_identified:
             out["not_identified"] = dict(self.not_identified)
+        if self.extensions:
+            out["extensions"] = self.extensions
         return out
 
 
-_TOP = {"vehicle", "steering", "longitudinal", "limits", "provenance", "not_identified"}
+_TOP = {"vehicle", "steering", "longitudinal", "limits", "provenance", "not_identified",
+        "extensions"}
 #: the parts ``not_identified:`` may name
 _PARTS = ("steering", "longitudinal")
-_LONG = {"zones": None, "dead_time_s": _num, "hysteresis_mps": _num, "accel_source": _text}
+def _scores(path, key, v) -> dict:
+    """A mapping name -> finite number (e.g. ``accel_source_scores_mps2``)."""
+    if not isinstance(v, dict) or not v:
+        raise ParamError(f"expected a mapping of name to number, got {v!r}", path, key=key)
+    return {str(k): _num(path, f"{key}.{k}", x) for k, x in v.items()}
+
+
+_LONG = {"zones": None, "dead_time_s": _num, "hysteresis_mps": _num, "accel_source": _text,
+         "accel_source_chosen": _text, "accel_source_scores_mps2": _scores}
 
 
 def parse_params(data: Any, path: str = "<params>", *, require_model: bool = False) -> Params:
@@ -283,6 +317,9 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
             p.hysteresis_mps = _num(path, "longitudinal.hysteresis_mps", lon["hysteresis_mps"])
         if "accel_source" in lon:
             p.accel_source = _text(path, "longitudinal.accel_source", lon["accel_source"])
+        for k in ("accel_source_chosen", "accel_source_scores_mps2"):
+            if k in lon:
+                setattr(p, k, _LONG[k](path, f"longitudinal.{k}", lon[k]))
     if "limits" in data:
         p.limits = VehicleLimits(**_check_keys(path, "limits", data["limits"], VehicleLimits))
     if "provenance" in data:
@@ -304,12 +341,100 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
                 raise ParamError(f"'{k}' is both given and listed as not identified", path,
                                  key=f"not_identified.{k}")
         p.not_identified = dict(ni)
+    if "extensions" in data:
+        p.extensions = _parse_extensions(path, data["extensions"])
     if require_model and not p.is_model:
         missing = "steering" if p.steering is None else "longitudinal"
         why = p.not_identified.get(missing)
         raise ParamError("this command needs a complete model; section is missing"
                          + (f" (not identified: {why})" if why else ""), path, key=missing)
     return p
+
+
+def _parse_extensions(path: str, data: Any) -> dict:
+    """Validate the ``extensions:`` section against the diagnosis catalogue (module doc)."""
+    from hmpc.models.diagnose.catalogue import CATALOGUE, EXTENSION_TEXT_KEYS  # no imports
+
+    def unknown(what, key, known):
+        close = difflib.get_close_matches(str(key).split(".")[-1], sorted(known), n=1)
+        return ParamError(f"unknown {what}" + (f" (did you mean '{close[0]}'?)" if close else ""),
+                          path, key=key)
+
+    if not isinstance(data, dict):
+        raise ParamError("section 'extensions' must map catalogue ids to subsystems", path,
+                         key="extensions")
+    out: dict = {}
+    for eid, subs in data.items():
+        if eid not in CATALOGUE:
+            raise unknown("catalogue id", f"extensions.{eid}", CATALOGUE)
+        allowed = CATALOGUE[eid]["equation"]
+        if not isinstance(subs, dict) or not subs:
+            raise ParamError("expected a mapping of subsystems", path, key=f"extensions.{eid}")
+        for sub, entry in subs.items():
+            key = f"extensions.{eid}.{sub}"
+            if sub not in allowed:
+                raise unknown(f"subsystem for {eid}", key, allowed)
+            if not isinstance(entry, dict):
+                raise ParamError("expected a mapping of parameters", path, key=key)
+            names = CATALOGUE[eid]["parameters"]
+            clean: dict = {}
+            for k, v in entry.items():
+                if k in names:
+                    clean[k] = _num(path, f"{key}.{k}", v)
+                elif k == "intervals":
+                    if not isinstance(v, dict):
+                        raise ParamError("expected {parameter: [low, high]}", path,
+                                         key=f"{key}.intervals")
+                    for pk, pv in v.items():
+                        if pk not in names:
+                            raise unknown("parameter", f"{key}.intervals.{pk}", names)
+                    clean[k] = {pk: list(_pair(path, f"{key}.intervals.{pk}", pv))
+                                for pk, pv in v.items()}
+                elif k in EXTENSION_TEXT_KEYS:
+                    clean[k] = _text(path, f"{key}.{k}", v)
+                elif k == "base":
+                    clean[k] = _extension_base(path, f"{key}.base", sub, v)
+                else:
+                    raise unknown("parameter", f"{key}.{k}", [*names, "intervals",
+                                                               *EXTENSION_TEXT_KEYS])
+            below = clean.get("on_top_of")
+            if below is not None and below not in data:
+                raise ParamError(f"names '{below}', which is not in the section", path,
+                                 key=f"{key}.on_top_of")
+            out.setdefault(eid, {})[sub] = clean
+    return out
+
+
+#: ``base:`` of an extension entry: the coefficients it was fitted jointly with
+_BASE_STEERING = ("offset_rad", "scale")
+_BASE_ZONE = ("offset_mps2", "scale_mps2", "brake_scale_mps2", "accel_cmd_gain")
+
+
+def _extension_base(path: str, key: str, sub: str, v: Any) -> dict:
+    """``base: {offset_rad, scale}`` (steering) or ``base: {zones: [{name, offset_mps2,
+    scale_mps2, brake_scale_mps2 | accel_cmd_gain}, ...]}`` (longitudinal)."""
+    if not isinstance(v, dict):
+        raise ParamError("expected a mapping", path, key=key)
+    if sub == "steering":
+        for k in v:
+            if k not in _BASE_STEERING:
+                raise ParamError(f"unknown key (one of {', '.join(_BASE_STEERING)})", path,
+                                 key=f"{key}.{k}")
+        return {k: _num(path, f"{key}.{k}", x) for k, x in v.items()}
+    if set(v) != {"zones"} or not isinstance(v["zones"], list):
+        raise ParamError("expected {zones: [...]}", path, key=key)
+    out = []
+    for i, z in enumerate(v["zones"]):
+        zk = f"{key}.zones[{i}]"
+        if not isinstance(z, dict) or "name" not in z:
+            raise ParamError("expected a mapping with a name", path, key=zk)
+        for k in z:
+            if k != "name" and k not in _BASE_ZONE:
+                raise ParamError(f"unknown key (one of name, {', '.join(_BASE_ZONE)})", path,
+                                 key=f"{zk}.{k}")
+        out.append({k: (_text(path, f"{zk}.{k}", x) if k == "name" else _num(path, f"{zk}.{k}", x))
+                    for k, x in z.items()})
+    return {"zones": out}
 
 
 def load_params(path: str | Path, *, require_model: bool = False) -> Params:
@@ -333,3 +458,42 @@ def dump_params(params: Params, path: str | Path) -> None:
     """Write ``params`` as YAML (keys in CONVENTIONS order)."""
     with open(path, "w", encoding="utf-8") as fh:
         yaml.safe_dump(params.to_dict(), fh, sort_keys=False, default_flow_style=None)
+
+
+#: the command-line flag that accepts values flagged ``identifiable: false`` (named in the refusal)
+ACCEPT_UNIDENTIFIABLE_FLAG = "--accept-unidentifiable"
+
+
+def unidentifiable_keys(params: Params) -> list[tuple[str, str]]:
+    """The parts of ``params`` that identification flagged ``identifiable: false``, as
+    ``(key, note)`` pairs: ``("steering", note)`` and ``("longitudinal.zones[i]", note)``.
+    An absent flag (a hand-written file) is not a refusal: only an explicit ``false`` is."""
+    out = []
+    if params.steering is not None and params.steering.identifiable is False:
+        out.append(("steering", params.steering.note or ""))
+    for i, z in enumerate(params.zones):
+        if z.identifiable is False:
+            out.append((f"longitudinal.zones[{i}]", f"zone '{z.name}'"
+                        + (f": {z.note}" if z.note else "")))
+    return out
+
+
+def check_identifiable(params: Params, *, accept: bool = False,
+                       flag: str = ACCEPT_UNIDENTIFIABLE_FLAG) -> list[str]:
+    """Refuse values the recording could not identify (issue 8): a steering map or zone flagged
+    ``identifiable: false`` raises :class:`ParamError` in one line naming the key(s) and
+    ``flag``, the option that accepts them. With ``accept`` nothing is raised and one warning
+    line naming every flagged key is returned for the caller to print."""
+    bad = unidentifiable_keys(params)
+    if not bad:
+        return []
+    if not accept:
+        key, note = bad[0]
+        note = f"{key}: {note}" if note else key
+        if len(note) > 160:
+            note = note[:157] + "..."
+        raise ParamError(f"values flagged 'identifiable: false' ({note}); {flag} accepts "
+                         "them", params.path, key=", ".join(k for k, _ in bad))
+    where = params.path or "<params>"
+    keys = ", ".join(f"'{k}'" for k, _ in bad)
+    return [f"{where}: using values flagged 'identifiable: false' ({flag}) at {keys}"]

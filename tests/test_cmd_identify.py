@@ -36,9 +36,11 @@ def test_cli_writes_a_strict_params_file_json_and_figures(sim_csv, tmp_path, cap
     assert "steering (eq. 7)" in cap.out and "NMSE" in cap.out
     assert "hmpc identify:" in cap.err  # progress on stderr
     p = load_params(out, require_model=True)
-    # measured offset error 0.00016 rad, scale error 0.034%; bounds 0.0003 rad, 0.1% (margin 2-3x)
+    # measured offset error 0.00015 rad, scale error -0.17% (the replay, with the dead time
+    # "not determined" since issue 8: 0 s used; it was -0.007 s before, scale +0.008%);
+    # bounds 0.0003 rad, 0.3% (margin 2x; issue 3: 0.002 rad, 2%)
     assert abs(p.steering.offset_rad - truth.steering.offset_rad) <= 0.0003
-    assert abs(p.steering.scale / truth.steering.scale - 1) <= 0.001
+    assert abs(p.steering.scale / truth.steering.scale - 1) <= 0.003
     assert [z.name for z in p.zones] == ["idle", "low", "high"]
     assert p.provenance["recording_sha256"] and p.provenance["hmpc_version"]
     assert p.provenance["duration_s"] > 0

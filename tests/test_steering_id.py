@@ -122,13 +122,119 @@ def test_wide_steering_is_identifiable_and_replay_refines(truth):
     assert ag["correlation"] > 0.998 and abs(ag["scale_ratio"] - 1) < 0.006
 
 
-def test_missing_channel_is_an_input_error(truth):
+WHEELS = ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")
+
+
+@pytest.fixture(scope="module")
+def wide(truth):
+    """Wide steering at several speeds (hmpc's simulator, seeded)."""
+    return concat_recordings([simulate_experiment(n, truth, seed=SEED)
+                              for n in ("arcs", "circles")])
+
+
+def _without(rec, *names):
+    from hmpc.models.logs.recording import Recording
+    return Recording({k: v for k, v in rec.channels.items() if k not in names}, {}, dict(rec.meta))
+
+
+def test_without_wheel_speeds_steering_comes_from_yaw_rate_and_speed(truth, wide):
+    """Issue 8: no wheel speeds -> the yaw-rate fit (with 'speed' at a point it estimates) and
+    the replay; the skipped method is named with its channel."""
+    res = identify_steering(_without(wide, *WHEELS), truth.vehicle)
+    sel = res.report["selection"]
+    assert "wheel_speed_difference" not in res.fits and "yaw_rate" in res.fits
+    assert "wheel_speed_fl" in sel["skipped"]["wheel_speed_difference"]
+    assert set(sel["scores"]) == set(res.fits) and sel["chosen"] == res.method
+    assert res.report["speed_source"] == "speed"
+    for f in (res.fits["yaw_rate"], res):
+        assert abs(f.offset_rad - truth.steering.offset_rad) <= 0.002
+        assert abs(f.scale / truth.steering.scale - 1) <= 0.02
+    assert "speed_point_k_ci95" in res.fits["yaw_rate"].extra
+
+
+def test_with_the_wheel_speeds_removed_the_yaw_fit_matches_the_full_recording(truth, wide):
+    """The yaw-rate method does not depend on the wheel speeds being there: its map without
+    them lies within the full recording's yaw-rate interval widened by 1%."""
+    full = identify_steering(wide, truth.vehicle).fits["yaw_rate"]
+    alone = identify_steering(_without(wide, *WHEELS), truth.vehicle).fits["yaw_rate"]
+    lo, hi = full.scale_ci95
+    assert lo * 0.99 <= alone.scale <= hi * 1.01, (alone.scale, full.scale_ci95)
+
+
+def test_no_method_with_its_channels_is_an_input_error_naming_them(truth):
     from hmpc.models.errors import InputError
 
     rec = simulate_experiment("arcs", truth, seed=SEED)
-    del rec.channels["wheel_speed_fl"]
-    with pytest.raises(InputError, match="wheel_speed_fl"):
-        identify_steering(rec, truth.vehicle)
+    with pytest.raises(InputError, match="wheel_speed_fl") as e:
+        identify_steering(_without(rec, *WHEELS, "yaw_rate", "x"), truth.vehicle)
+    assert "no channel 'yaw_rate'" in str(e.value) and "no channel 'x'" in str(e.value)
+    # yaw rate and positions, but no speed at all: named as such
+    with pytest.raises(InputError, match="no channel 'speed' and no channel 'gps_speed'"):
+        identify_steering(_without(rec, *WHEELS, "speed", "gps_speed"), truth.vehicle)
+
+
+def test_replay_alone_needs_only_positions_heading_and_a_speed(truth, wide):
+    res = identify_steering(_without(wide, *WHEELS, "yaw_rate"), truth.vehicle)
+    assert list(res.fits) == ["position_replay"]
+    assert set(res.report["selection"]["skipped"]) == {"wheel_speed_difference", "yaw_rate"}
+    assert res.report["dead_time"]["used"] is False
+
+
+def test_yaw_rate_only_reasons_are_computed_from_its_data(truth):
+    """The ramps without wheel speeds: the yaw-rate path's verdict names the measured
+    steering-wheel range, and its gyro-bias check carries the fit's own correlation."""
+    rec = _without(simulate_experiment("ramps", truth, seed=SEED), *WHEELS)
+    res = identify_steering(rec, truth.vehicle)
+    assert "yaw_rate" in res.fits
+    by_fit = res.report["identifiability_by_fit"]["yaw_rate"]
+    assert by_fit["identifiable"] is False and "steering-wheel range" in by_fit["note"]
+    lo, hi = res.report["steering_wheel_range_rad"]
+    checks = {c["name"]: c for c in res.report["identifiability"]["checks"]}
+    assert res.method == "yaw_rate", res.report["selection"]  # the replay is untrusted here
+    bias = checks["offset_gyro_bias_correlation"]
+    assert bias["value"] == pytest.approx(
+        abs(res.fits["yaw_rate"].extra["offset_bias_correlation"]))
+    assert checks["steering_range_rad"]["passed"] is False
+    assert checks["steering_range_rad"]["value"] <= hi - lo + 1e-12
+
+
+def test_gyro_bias_reason_only_for_a_fit_that_estimates_a_bias():
+    yaw = _fit(method="yaw_rate", extra={"offset_bias_correlation": 0.99})
+    n = 5000
+    sw, v = np.linspace(-3.0, 3.0, n), np.full(n, 3.0)
+    bad = _verdict(sw, v, yaw)
+    checks = {c["name"]: c for c in bad["checks"]}
+    assert checks["offset_gyro_bias_correlation"]["value"] == pytest.approx(0.99)
+    assert not bad["offset_identifiable"] and bad["scale_identifiable"]
+    assert "yaw-rate sensor's bias" in bad["note"]
+    good = _verdict(sw, v, _fit(method="yaw_rate", extra={"offset_bias_correlation": 0.5}))
+    assert good["identifiable"], good["note"]
+    assert "offset_gyro_bias_correlation" not in {c["name"] for c in _verdict(sw, v)["checks"]}
+
+
+# ---- the dead time is decided by held-out prediction (issue 8)
+def _delay_data(lag, seed):
+    rng = np.random.default_rng(seed)
+    n = 6000
+    sw = np.convolve(rng.normal(size=n + 400), np.ones(100) / 10, mode="same")[200:-200]
+    meas = 0.01 + 0.08 * np.concatenate([np.full(lag, sw[0]), sw[:n - lag]]) \
+        + 0.002 * rng.normal(size=n)
+    return sw, meas
+
+
+@pytest.mark.parametrize("lag", [0, 5])
+def test_dead_time_cv_uses_a_delay_only_when_it_predicts_better(lag):
+    from hmpc.models.identify.steering import SteeringIdConfig, dead_time_cv
+    dt = 0.02
+    for seed in range(5):
+        sw, meas = _delay_data(lag, seed)
+        cv = dead_time_cv(sw, meas, np.ones(len(sw), bool), dt, SteeringIdConfig())
+        lo, hi = cv["interval_s"]
+        assert lo <= lag * dt <= hi, (seed, cv)
+        assert cv["used"] is (lag > 0), (seed, cv)
+        if lag:
+            assert cv["best_s"] == pytest.approx(lag * dt, abs=0.5 * dt)
+        assert hi - lo <= 3 * dt
 
 
 # ---- each identifiability reason is computed from the data it describes (issue 8)
@@ -161,7 +267,7 @@ def test_slow_steering_that_is_too_short_is_not_called_fast():
 def test_fast_steering_is_called_fast_with_its_speeds():
     from hmpc.models.identify.steering import SteeringIdConfig
     cfg = SteeringIdConfig()
-    n = 4 * cfg.min_samples
+    n = 4 * int(cfg.min_trustworthy_s / 0.02)
     res = _verdict(np.linspace(-3.0, 3.0, n), np.full(n, cfg.kinematic_speed_mps + 5.0))
     assert not res["scale_identifiable"]
     assert f"above {cfg.kinematic_speed_mps:g} m/s" in res["note"]

@@ -59,8 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zones", type=_zones, metavar="NAME:VMIN:VMAX,...",
                    help="speed zones [m/s] (default idle:0:2,low:2:5,high:5:20)")
     p.add_argument("--accel-source", choices=ACCEL_SOURCES, default="auto",
-                   help="measured acceleration: auto (= speed: derivative of the front-axle "
-                        "speed from the wheel speeds), accel_x, gps_speed (default auto)")
+                   help="measured acceleration: auto (chosen by held-out evidence among the "
+                        "sources the recording has), wheel_speeds, speed, gps_speed, accel_x "
+                        "(default auto)")
     p.add_argument("--hysteresis", type=_nonneg, default=0.0, metavar="MPS",
                    help="zone hysteresis when assigning samples [m/s] (default 0: sharp "
                         "boundaries as in the report)")
@@ -89,8 +90,8 @@ def _steering_lines(res) -> list[str]:
            f"steering-wheel angle   [{sr['method']}]",
            f"  offset 95% CI [{st.offset_ci95_rad[0]:+.5f}, {st.offset_ci95_rad[1]:+.5f}] rad, "
            f"scale 95% CI [{st.scale_ci95[0]:.5f}, {st.scale_ci95[1]:.5f}]",
-           f"  dead time {st.dead_time_s:.3f} s; rms error {st.rms_error_rad:.5f} rad; "
-           f"{sr['samples']['trustworthy']} trustworthy samples"]
+           f"  dead time {_steering_dead_time(sr['dead_time'])}; rms error "
+           f"{st.rms_error_rad:.5f} rad; {sr['samples']['trustworthy']} trustworthy samples"]
     for k, f in sr["fits"].items():
         out.append(f"  fit {k:24s} offset {f['offset_rad']:+.5f} [{f['offset_ci95_rad'][0]:+.5f}, "
                    f"{f['offset_ci95_rad'][1]:+.5f}]  scale {f['scale']:.5f} "
@@ -98,6 +99,7 @@ def _steering_lines(res) -> list[str]:
     sel = sr.get("selection")
     if sel:
         out.append(f"  chosen: {sel['chosen']} ({sel['because']})")
+        out += [f"  skipped {k}: {why}" for k, why in sel.get("skipped", {}).items()]
     ag = sr.get("agreement_a_b")
     if ag:
         out.append(f"  (a) wheel speeds vs (b) yaw rate: rms difference "
@@ -107,13 +109,24 @@ def _steering_lines(res) -> list[str]:
     return out
 
 
+def _steering_dead_time(dt: dict) -> str:
+    """The steering dead time with its held-out interval, or why it is not determined."""
+    lo, hi = dt.get("interval_s") or (None, None)
+    if dt.get("used") and lo is not None and hi is not None:
+        return f"{dt['estimate_s']:.3f} s (held-out interval [{lo:.3f}, {hi:.3f}] s)"
+    return "not determined (0 s used: no lag predicts held-out data better than none)"
+
+
 def _longitudinal_lines(res) -> list[str]:
     p, r = res.params, res.report
     out = []
     lo = r["longitudinal"]
+    dci = lo.get("dead_time_ci95_s")
     out.append(f"accelerator models (eq. 8 + brake), acceleration from {lo['accel_source']}; "
                f"pedal dead time {lo['dead_time_s']:.2f} s"
-               + (f" ({lo['dead_time_note']})" if lo.get("dead_time_note") else ""))
+               + (f" ({lo['dead_time_note']})" if lo.get("dead_time_note") else
+                  f" (held-out 95% interval [{dci[0]:.2f}, {dci[1]:.2f}] s)" if dci else ""))
+    out += _source_lines(lo.get("selection"))
     for z, zr in zip(p.zones, lo["zones"]):
         nm = "   n/a" if z.nmse_pct is None else f"{z.nmse_pct:6.1f}%"
         sp = "  n/a" if z.speed_rmse_mps is None else f"{z.speed_rmse_mps:.3f}"
@@ -132,6 +145,20 @@ def _longitudinal_lines(res) -> list[str]:
                f"{ab['seconds']:.1f} s (not fitted)")
     out.append(f"  standstill (< {lo['standstill']['v_stop_mps']:g} m/s): "
                f"{lo['standstill']['seconds']:.1f} s excluded")
+    return out
+
+
+def _source_lines(sel: dict | None) -> list[str]:
+    """The acceleration source chosen by held-out evidence, every score, and disagreements."""
+    if not sel:
+        return []
+    scores = ", ".join(f"{k} {v['score_mps2']:.4f}" + (f" (dead time {v['dead_time_s']:.2f} s)"
+                                                      if v["dead_time_s"] else "")
+                       for k, v in sel["scores"].items())
+    out = [f"  acceleration source: {sel['chosen']} ({sel['because']})",
+           f"  held-out scores [m/s^2, lower is better]: {scores}"]
+    out += [f"  skipped {k}: {why}" for k, why in sel.get("skipped", {}).items()]
+    out += [f"  DISAGREEMENT {st}" for st in sel.get("disagreements", {}).get("statements", [])]
     return out
 
 

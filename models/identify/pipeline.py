@@ -155,6 +155,12 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
                     hysteresis_mps=(lcfg.hysteresis_mps if lo is not None
                                     and lcfg.hysteresis_mps > 0 else None),
                     accel_source=None if lo is None else lo.accel_source, provenance=prov,
+                    accel_source_chosen=(None if lo is None
+                                         else lo.report["selection"]["chosen"]),
+                    accel_source_scores_mps2=(None if lo is None else {
+                        k: float(v["score_mps2"])
+                        for k, v in lo.report["selection"]["scores"].items()
+                        if math.isfinite(v["score_mps2"])}),
                     not_identified=not_identified)
     report = {
         "hmpc_version": __version__,

@@ -19,6 +19,11 @@ covers the truth 4% of the time). hmpc's default, :func:`ols_hac` with ``method=
   residuals come in independent groups (replay windows), from the Jacobian.
 - :func:`block_bootstrap_ci`: a seeded moving-block bootstrap (Kuensch 1989) for statistics
   without a sandwich formula.
+- :func:`heldout_sse` and :func:`not_worse_than_best`: blocked cross-validation of a linear
+  fit from per-fold sums, and the fold-paired test of which candidates are not worse than the
+  best beyond fold-to-fold noise (choices of source and dead time).
+- :func:`half_sample_kernels`: the matched smoother read half a sample earlier and later (the
+  pedal timing bound of the zone intervals).
 
 Samples left out of a fit (masked) stay in the time series as zero scores, so lags and blocks
 are in time, across the gaps.
@@ -363,3 +368,83 @@ def apply_kernel(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     if bad.any():
         out[np.convolve(bad.astype(float), np.ones(w), mode="same") > 0.5] = np.nan
     return out
+
+
+def half_sample_kernels(d: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The matched smoother of :func:`matched_kernels` moved half a sample earlier and later.
+
+    :func:`matched_kernels` integrates the regressor over each sample interval by the trapezoid
+    rule (``(f[t+k] + f[t+k+1]) / 2``): right for an input that changes linearly between
+    samples. A CAN pedal is sampled and held, and *when* within a sample interval it changed
+    is not in the recording; the two zero-order-hold readings ``f[t+k]`` (the change came at
+    the start of the interval) and ``f[t+k+1]`` (at its end) bracket it. Returns the smoothing
+    kernels for those two readings (correlation weights, offsets -M..M, each summing to 1).
+    """
+    H = -np.cumsum(np.asarray(d, dtype=float))[:-1] * dt_s
+    early, late = np.zeros(len(d)), np.zeros(len(d))
+    early[:-1], late[1:] = H, H
+    return early, late
+
+
+def fold_ids(n: int, k: int) -> np.ndarray:
+    """Contiguous blocked cross-validation: fold index (0..k-1) of each of ``n`` samples."""
+    return np.minimum(np.arange(n) * k // max(n, 1), k - 1)
+
+
+def heldout_sse(X: np.ndarray, Y: np.ndarray, fold: np.ndarray, k: int,
+                fit_col: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Blocked cross-validation of a linear least-squares fit, from per-fold sums.
+
+    The coefficients are fitted to ``Y[:, fit_col]`` on every fold but one and evaluated on the
+    held-out fold against each column of ``Y`` (the target it was fitted to, and other
+    measurements of the same quantity).
+
+    Args:
+        X: regressors of the samples used [n, p] (finite).
+        Y: targets [n, c] (finite).
+        fold: fold index per sample [n] (0..k-1).
+        k: number of folds.
+        fit_col: the column of ``Y`` the fit is made to.
+
+    Returns:
+        (sse [k, c]: held-out sum of squared errors per fold and column; count [k]).
+    """
+    p, c = X.shape[1], Y.shape[1]
+    S, B, YY = np.zeros((k, p, p)), np.zeros((k, p, c)), np.zeros((k, c))
+    cnt = np.bincount(fold, minlength=k).astype(float)
+    ordered = bool(np.all(np.diff(fold) >= 0))   # contiguous folds: slices, no copies
+    edges = np.searchsorted(fold, np.arange(k + 1)) if ordered else None
+    for g in range(k):
+        sel = slice(edges[g], edges[g + 1]) if ordered else fold == g
+        Xg, Yg = X[sel], Y[sel]
+        S[g], B[g], YY[g] = Xg.T @ Xg, Xg.T @ Yg, np.sum(Yg * Yg, axis=0)
+    St, Bt = S.sum(axis=0), B.sum(axis=0)
+    sse = np.zeros((k, c))
+    for g in range(k):
+        if cnt[g] == 0:
+            continue
+        coef = np.linalg.lstsq(St - S[g], Bt[:, fit_col] - B[g][:, fit_col], rcond=None)[0]
+        sse[g] = YY[g] - 2.0 * coef @ B[g] + coef @ S[g] @ coef
+    return np.maximum(sse, 0.0), cnt
+
+
+def not_worse_than_best(E: np.ndarray) -> tuple[int, np.ndarray, float]:
+    """Which candidates a blocked cross-validation cannot tell from the best.
+
+    Args:
+        E: held-out loss per candidate and fold [m, k] (lower is better).
+
+    Returns:
+        (index of the best mean loss; per candidate whether its fold-paired excess over the
+        best is within ``t(k-1) * standard error`` (Student-t, 97.5%); that critical value).
+    """
+    from scipy.stats import t as student_t
+
+    E = np.asarray(E, dtype=float)
+    kk = E.shape[1]
+    jb = int(np.nanargmin(E.mean(axis=1)))
+    D = E - E[jb]
+    se = D.std(axis=1, ddof=1) / np.sqrt(kk) if kk > 1 else np.zeros(len(E))
+    crit = float(student_t.ppf(0.975, max(kk - 1, 1)))
+    within = D.mean(axis=1) <= crit * se + 1e-12 * abs(E[jb].mean())
+    return jb, within, crit

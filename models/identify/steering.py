@@ -18,7 +18,18 @@ road-wheel angle delta of the virtual middle tyre follow:
     domain, ``r = r_bias + v_R tan(offset + scale * sw) / b``, where the yaw-rate noise is white
     and a gyro bias ``r_bias`` [rad/s] is estimated with the map: at 2.4 m/s a 0.002 rad/s bias
     would otherwise shift the offset by 0.0022 rad. Separating the bias from the offset needs
-    a range of speeds (the parameter correlation is reported).
+    a range of speeds (the parameter correlation is reported). Without wheel speeds the speed
+    is ``gps_speed`` with the geometry's ``nav_lever_arm_m`` (then ``v_R`` follows exactly,
+    :func:`rear_axle_speed`), else ``speed`` or ``gps_speed`` at an unknown point on the centre
+    line, at |x_s| from the rear axle, which moves at ``v_R sqrt(1 + (x_s/b)^2 tan^2(delta))``:
+    ``k = (x_s/b)^2`` is estimated with the map (it acts on the cubic term only; 4% of the
+    angle at 0.3 rad), and the axle speeds for the replay follow from it and the yaw rate.
+
+**Methods the recording supports**: (a) needs the four wheel speeds, (b) ``yaw_rate`` and a
+speed, the replay ``x``, ``y``, ``heading`` and a speed; each skipped method is named with the
+missing channel (``report['selection']['skipped']``), and a recording that supports none is
+an InputError naming them. The sample checks use the measured angle available (the slip check
+needs the wheel speeds).
 
 **Trustworthy samples** (:class:`SteeringIdConfig`, each threshold with its reason): moving
 (front-axle speed >= ``v_min_mps``), forward gear, finite channels, no wheel slip (rear-axle
@@ -27,9 +38,13 @@ speed within ``slip_max`` of ``v cos(delta)``), longitudinal acceleration within
 range), and, for the least-squares fits, no transients (steering-wheel rate below
 ``sw_rate_max_radps``); every excluded sample also excludes ``guard_s`` around it.
 
-**Dead time**: cross-correlation of the Savitzky-Golay derivatives of the steering-wheel angle
-and of the measured road-wheel angle, peak interpolated by a parabola. The fits use the
-steering-wheel angle delayed by it.
+**Dead time** (:func:`dead_time_cv`): decided by held-out prediction. On a one-sample lag grid,
+eq. 7 is fitted to the measured road-wheel angle (the source whose derivative
+cross-correlates best with the steering rate: a cross-check, reported) over blocked folds;
+the interval is the run of lags whose held-out error is not worse than the best lag's beyond
+the fold-to-fold noise (fold-paired t-test), and a delay is used only when lag 0 lies outside
+it; otherwise it is "not determined" and 0 is used. The fits use the steering-wheel angle
+delayed by it.
 
 **Refinement** (the report's "compare the actual position with our estimate"): the bicycle model
 (eq. 1) is replayed over non-overlapping windows of ``window_s`` from the measured position and
@@ -61,6 +76,7 @@ note says plainly what the recording cannot separate.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -98,8 +114,13 @@ class SteeringIdConfig:
     #: [s] dead-time search range (negative: measurement leads, a clock problem).
     dead_time_min_s: float = -0.2
     dead_time_max_s: float = 1.0
-    #: [1] dead time is used only when the cross-correlation peak reaches this.
+    #: [1] a source's cross-correlation lag is reported as a cross-check only when its peak
+    #: reaches this (the dead time itself is decided by held-out prediction, below).
     dead_time_min_corr: float = 0.3
+    #: [1] contiguous folds of the blocked cross-validation over the dead time's lag grid: ten
+    #: folds of a 4-minute drive are 24 s each (several steering cycles), and t(9) = 2.26 keeps
+    #: the fold-paired test of "better than no delay" from needing a huge effect.
+    dead_time_cv_folds: int = 10
     #: [s] replay window of the refinement: long enough for a heading error to show in
     #: position, short enough that INS drift and model error stay small.
     window_s: float = 5.0
@@ -109,6 +130,14 @@ class SteeringIdConfig:
     #: (low, margin beyond the front axle); a GNSS/INS antenna sits on the body, from behind the
     #: rear axle to over the bonnet.
     lever_arm_x_bounds_m: tuple = (-1.0, 2.0)
+    #: [1] upper bound of k = (x_s / b)^2, x_s the unknown longitudinal distance of the speed
+    #: channel's point from the rear axle (``speed`` from CAN, or ``gps_speed`` without
+    #: ``nav_lever_arm_m``): 4 puts it up to two wheelbases away, beyond any antenna or any
+    #: average of wheel speeds.
+    speed_point_k_max: float = 4.0
+    #: [1] the replay's starting scale when no direct fit exists and the geometry gives no
+    #: ``steering_ratio``: 1/15, mid-range of passenger cars' ratios (12-18); the fit moves it.
+    replay_start_scale: float = 1.0 / 15.0
     #: [m] half-width of the estimated lever arm's 95% interval above which the replay is not
     #: trusted: 0.25 m of lever arm moves the replayed front axle by ~1% of a 2.7 m wheelbase.
     max_lever_arm_ci_m: float = 0.25
@@ -122,8 +151,9 @@ class SteeringIdConfig:
     agree_offset_rad: float = 0.0005
     agree_scale_rel: float = 0.01
     # ---- identifiability
-    #: [samples] fewest trustworthy samples (10 s at 50 Hz).
-    min_samples: int = 500
+    #: [s] least trustworthy data (500 samples at 50 Hz, 100 at 10 Hz: a duration, so that
+    #: the recording's rate does not decide identifiability).
+    min_trustworthy_s: float = 10.0
     #: [rad] steering-wheel range (2.5-97.5 percentile) needed: below ~29 deg at the wheel the
     #: road-wheel angle is < ~1.7 deg, comparable to sensor biases (tyre radius mismatch,
     #: gyro bias, angle-sensor zero).
@@ -223,6 +253,16 @@ def road_wheel_angle_from_yaw(yaw_rate_radps, v_rear_mps, wheelbase_m: float,
     v = np.asarray(v_rear_mps, dtype=float)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(v > 0, np.arctan(wheelbase_m * r / v), np.nan)
+
+
+def rear_axle_speed(speed_mps, yaw_rate_radps, lever_m) -> np.ndarray:
+    """Rear-axle-centre speed [m/s] from the speed [m/s] of a body point at ``lever_m`` = (x, y)
+    [m] (body axes from the rear-axle centre) and the yaw rate [rad/s]: with no side slip at the
+    rear axle the point moves at ``(v_R - r y, r x)``, so ``v_R = r y + sqrt(v^2 - (r x)^2)``."""
+    v = np.asarray(speed_mps, dtype=float)
+    r = np.asarray(yaw_rate_radps, dtype=float)
+    lx, ly = float(lever_m[0]), float(lever_m[1])
+    return r * ly + np.sqrt(np.maximum(v * v - (r * lx) ** 2, 0.0))
 
 
 def delayed(x: np.ndarray, delay_s: float, dt_s: float) -> np.ndarray:
@@ -365,20 +405,37 @@ def _fit_front(delta_a, sw_d, steady) -> MapFit:
                   r.rmse, "rad", r.method, {"condition_number": r.cond})
 
 
-def _fit_yaw(yaw, v_rear, sw_d, steady, b, x0) -> MapFit:
-    i = np.flatnonzero(steady & np.isfinite(yaw) & np.isfinite(v_rear) & np.isfinite(sw_d))
+def _fit_yaw(yaw, v, sw_d, steady, b, x0, k_max: float | None = None) -> MapFit:
+    """Eq. 7 in the rate domain, ``r = r_bias + v tan(delta) / (b sqrt(1 + k tan^2(delta)))``.
+
+    ``k_max`` None: ``v`` is the rear-axle speed and k = 0 (eq. (b) of the module doc).
+    Otherwise ``v`` is the speed of a body point at an unknown distance x_s ahead of or behind
+    the rear axle on the centre line, which moves at ``v_R sqrt(1 + (x_s/b)^2 tan^2(delta))``:
+    k = (x_s / b)^2 is estimated with the map, within [0, k_max]. It is separable from the scale
+    because it acts on the cubic term of the angle only; its interval is reported, and it
+    widens the map's intervals through their correlation."""
+    i = np.flatnonzero(steady & np.isfinite(yaw) & np.isfinite(v) & np.isfinite(sw_d))
     if len(i) < 10:
         raise ValueError("too few samples")
-    r, v, s = yaw[i], v_rear[i], sw_d[i]
+    r, vv, s = yaw[i], v[i], sw_d[i]
+    fit_k = k_max is not None
 
     def res(th):
-        return r - th[2] - v * np.tan(th[0] + th[1] * s) / b
+        t = np.tan(th[0] + th[1] * s)
+        k = th[3] if fit_k else 0.0
+        return r - th[2] - vv * t / (b * np.sqrt(1.0 + k * t * t))
 
-    sol = least_squares(res, np.array([x0[0], x0[1], 0.0]), method="lm")
+    if fit_k:
+        sol = least_squares(res, np.array([x0[0], x0[1], 0.0, 0.25 * k_max]), method="trf",
+                            bounds=([-np.inf, -np.inf, -np.inf, 0.0],
+                                    [np.inf, np.inf, np.inf, k_max]),
+                            x_scale=np.array([0.01, 0.01, 0.001, 0.1]))
+    else:
+        sol = least_squares(res, np.array([x0[0], x0[1], 0.0]), method="lm")
     th = sol.x
     full = np.zeros(len(yaw))
     full[i] = sol.fun
-    J = np.zeros((len(yaw), 3))
+    J = np.zeros((len(yaw), len(th)))
     J[i] = sol.jac
     m = np.zeros(len(yaw), dtype=bool)
     m[i] = True
@@ -387,15 +444,22 @@ def _fit_yaw(yaw, v_rear, sw_d, steady, b, x0) -> MapFit:
     crit = float(student_t.ppf(0.975, max(G - 1, 1)))
     d = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
     corr = np.divide(cov, d, out=np.zeros_like(cov), where=d > 0)
+    extra = {"yaw_rate_bias_radps": float(th[2]),
+             "yaw_rate_bias_ci95_radps": [float(th[2] - crit * se[2]),
+                                          float(th[2] + crit * se[2])],
+             "offset_bias_correlation": float(corr[0, 2])}
+    if fit_k:
+        k, hk = float(th[3]), float(crit * se[3])
+        extra.update({"speed_point_k": k, "speed_point_k_ci95": [k - hk, k + hk],
+                      "speed_point_x_m": float(b * np.sqrt(k)),
+                      "speed_point_source": "estimated with the map: |x| of the speed's point "
+                                            "from the rear axle (the sign is not observable)",
+                      "speed_point_at_bound": bool(min(k, k_max - k) < 1e-6)})
     return MapFit("yaw_rate", float(th[0]), float(th[1]),
                   (float(th[0] - crit * se[0]), float(th[0] + crit * se[0])),
                   (float(th[1] - crit * se[1]), float(th[1] + crit * se[1])), float(corr[0, 1]),
                   len(i), float(np.sqrt(np.mean(sol.fun ** 2))), "radps",
-                  f"time-block cluster-robust sandwich (Jacobian), t({G - 1})",
-                  {"yaw_rate_bias_radps": float(th[2]),
-                   "yaw_rate_bias_ci95_radps": [float(th[2] - crit * se[2]),
-                                                float(th[2] + crit * se[2])],
-                   "offset_bias_correlation": float(corr[0, 2])})
+                  f"time-block cluster-robust sandwich (Jacobian), t({G - 1})", extra)
 
 
 def _fit_replay(rec, v_front, sw_d, usable, dt, b, cfg, x0, lever=None):
@@ -472,8 +536,9 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
                        "passed": bool(passed), "text": text})
 
     n = len(sw_steady)
-    add("samples", n, cfg.min_samples, n >= cfg.min_samples,
-        f"{n} trustworthy samples (need {cfg.min_samples})")
+    need = int(math.ceil(cfg.min_trustworthy_s / dt_s - 1e-9))
+    add("samples", n, need, n >= need,
+        f"{n} trustworthy samples ({n * dt_s:.1f} s; need {cfg.min_trustworthy_s:g} s)")
     rng = float(np.subtract(*np.percentile(sw_steady, [97.5, 2.5]))) if n else 0.0
     add("steering_range_rad", rng, cfg.min_sw_range_rad, rng >= cfg.min_sw_range_rad,
         f"steering-wheel range {np.degrees(rng):.1f} deg (2.5-97.5%; need "
@@ -552,36 +617,55 @@ def _kinematic_note(v_steady: np.ndarray, slow_s: float, cfg) -> str:
             f"{cfg.kinematic_speed_mps:g} m/s{span}, {cfg.min_kinematic_s:g} s are needed{fast}")
 
 
+#: the four wheel speeds, which the wheel-speed-difference method needs
+WHEEL_SPEEDS = ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")
+#: speed channels for the yaw-rate method and the replay when the wheel speeds are absent
+SPEED_CHANNELS = ("speed", "gps_speed")
+#: the channel each direct fit is made on (its own channel); the replay uses neither
+OWN_CHANNEL = {"wheel_speed_difference": "wheel_speeds", "yaw_rate": "yaw_rate",
+               "position_replay": None}
+
+
 @dataclass
 class SteeringSignals:
     """The recording's channels for steering identification, and measurement (a).
 
     Attributes:
-        sw: steering-wheel angle [rad]; fl, fr, rl, rr: wheel speeds [m/s].
-        delta_a: road-wheel angle from the front wheel speeds [rad]; v_front: front-axle-centre
-            speed [m/s]; v_rear: rear-axle-centre speed [m/s].
+        sw: steering-wheel angle [rad]; fl, fr, rl, rr: wheel speeds [m/s] (None when absent).
+        delta_a: road-wheel angle from the front wheel speeds [rad] (None without them);
+            v_front: front-axle-centre speed [m/s]; v_rear: rear-axle-centre speed [m/s].
         yaw: yaw rate [rad/s], None when the recording has none.
         dt_s: sample interval [s]; b, T: wheelbase and front track [m].
+        speed_source: where the speeds come from ("wheel speeds", "speed", "gps_speed");
+            v_src: that channel [m/s]; speed_point_unknown: its body point is not known (the
+            yaw-rate fit estimates it, :func:`_fit_yaw`); speed_note: how v_front/v_rear follow.
+        skipped: method -> why the recording does not support it (named channel).
     """
 
     sw: np.ndarray
-    fl: np.ndarray
-    fr: np.ndarray
-    rl: np.ndarray
-    rr: np.ndarray
-    delta_a: np.ndarray
+    fl: np.ndarray | None
+    fr: np.ndarray | None
+    rl: np.ndarray | None
+    rr: np.ndarray | None
+    delta_a: np.ndarray | None
     v_front: np.ndarray
     v_rear: np.ndarray
     yaw: np.ndarray | None
     dt_s: float
     b: float
     T: float
+    speed_source: str = "wheel speeds"
+    v_src: np.ndarray | None = None
+    speed_point_unknown: bool = False
+    speed_note: str = "front- and rear-axle speeds from the wheel speeds"
+    skipped: dict = field(default_factory=dict)
 
 
 @dataclass
 class SampleMasks:
     """Which samples to trust (module doc): ``usable`` for the dead time and the replay,
-    ``steady`` (usable and no steering transient) for the direct fits; ``excluded`` counts why."""
+    ``steady`` (usable and no steering transient) for the direct fits; ``excluded`` counts why
+    (None: a check the channels do not allow)."""
 
     usable: np.ndarray
     steady: np.ndarray
@@ -590,13 +674,18 @@ class SampleMasks:
 
 @dataclass
 class DeadTime:
-    """Steering dead time by cross-correlation: the lag used and what it came from.
+    """Steering dead time, decided by held-out prediction (:func:`dead_time_cv`).
 
     Attributes:
-        tau_s: the dead time used [s] (0 when the estimate is not trusted).
-        estimate_s, peak_corr: the best source's lag [s] and peak correlation (NaN possible).
-        used: the estimate passed ``dead_time_min_corr``; source: the best source's name.
-        by_source: source -> (lag [s], peak correlation).
+        tau_s: the dead time used [s] (0 when it is not determined).
+        estimate_s: the lag [s] with the best held-out score (NaN without a measured angle).
+        interval_s: (low, high) [s], the lags whose held-out score is not worse than the best
+            beyond the fold-to-fold noise (NaN without a measured angle).
+        used: the best lag predicts held-out data better than no delay, beyond that noise.
+        source: the measured road-wheel angle it was decided on.
+        peak_corr: that source's cross-correlation peak (a cross-check).
+        by_source: source -> (cross-correlation lag [s], peak correlation).
+        cv: the held-out score curve (``dead_time_cv``), or None.
     """
 
     tau_s: float
@@ -605,133 +694,116 @@ class DeadTime:
     used: bool
     source: str
     by_source: dict[str, tuple[float, float]]
+    interval_s: tuple[float, float] = (float("nan"), float("nan"))
+    cv: dict | None = None
 
     def to_dict(self, smooth_s: float) -> dict:
-        return {"estimate_s": float(self.estimate_s) if np.isfinite(self.estimate_s) else None,
-                "peak_correlation": float(self.peak_corr) if np.isfinite(self.peak_corr) else None,
-                "used": self.used, "source": self.source,
-                "by_source": {k: {"lag_s": float(v[0]) if np.isfinite(v[0]) else None,
-                                  "peak_correlation": float(v[1]) if np.isfinite(v[1])
-                                  else None} for k, v in self.by_source.items()},
-                "method": "cross-correlation of Savitzky-Golay derivatives "
-                          f"({smooth_s} s), parabolic peak"}
-
-
-def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig | None = None,
-                      progress=None) -> SteeringResult:
-    """Identify eq. 7 from a canonical recording (see the module doc).
-
-    Needs ``steering_wheel_angle`` and the four wheel speeds; uses ``yaw_rate`` and
-    ``x``/``y``/``heading`` when present, and ``gear`` to drop reverse.
-
-    Raises:
-        InputError: a required channel is absent, or no trustworthy samples remain.
-    """
-    cfg = config or SteeringIdConfig()
-    say = progress or (lambda msg: None)
-    sig = steering_signals(rec, vehicle)
-    masks = trustworthy_samples(rec, sig, cfg)
-    say(f"steering: {int(masks.steady.sum())} trustworthy samples of {len(sig.sw)}")
-    dead = estimate_dead_time(sig, masks.usable, cfg)
-    sw_d = delayed(sig.sw, dead.tau_s, sig.dt_s)
-    steady = masks.steady & np.isfinite(sw_d)
-    usable = masks.usable & np.isfinite(sw_d)
-    say(f"steering: dead time {dead.tau_s:.3f} s (cross-correlation peak {dead.peak_corr:.2f}, "
-        f"from {dead.source})")
-    fits = direct_fits(sig, sw_d, steady)
-    start = fits["yaw_rate"] if "yaw_rate" in fits else fits["wheel_speed_difference"]
-    replay = None
-    if all(c in rec for c in ("x", "y", "heading")):
-        say("steering: refining by eq. 1 position replay")
-        out, _ = _fit_replay(rec, sig.v_front, sw_d, usable, sig.dt_s, sig.b, cfg,
-                             (start.offset_rad, start.scale),
-                             getattr(vehicle, "nav_lever_arm_m", None))
-        if out is not None:
-            fits["position_replay"], replay, _ = out
-    idents = {k: identifiability(f, sw_d[steady], sig.v_front[steady], sig.dt_s, cfg,
-                                 vehicle.steering_ratio) for k, f in fits.items()}
-    rp_fit = fits.get("position_replay")
-    if rp_fit is not None and not rp_fit.extra.get("trusted", True):
-        idents["position_replay"] = dict(idents["position_replay"], identifiable=False,
-                                         note="NOT trusted: " + rp_fit.extra["untrusted_because"])
-    say("steering: choosing by blocked cross-validation")
-    cv = cross_validate(rec, sig, fits, sw_d, steady, usable, cfg,
-                        getattr(vehicle, "nav_lever_arm_m", None))
-    chosen, why = choose_fit(fits, idents, cv)
-    final = fits[chosen]
-    pairs, disagree_note = disagreement(fits, cfg)
-    ident = dict(idents[chosen])
-    if disagree_note:
-        ident["identifiable"] = False
-        ident["note"] = ("NOT identifiable: " + disagree_note + ". " +
-                         ident["note"].removeprefix("NOT identifiable: "))
-    selection = {"chosen": chosen, "because": why, **cv, "disagreements": pairs,
-                 "untrusted": {k: f.extra["untrusted_because"] for k, f in fits.items()
-                               if not f.extra.get("trusted", True)}}
-    agreement, delta_b = agreement_a_b(sig, fits, steady)
-    delta_model = final.offset_rad + final.scale * sw_d
-    ref = delta_b if delta_b is not None else sig.delta_a
-    rms_rad = float(np.sqrt(np.mean((ref - delta_model)[steady] ** 2)))
-    report = {
-        "offset_rad": final.offset_rad, "scale": final.scale,
-        "offset_ci95_rad": list(final.offset_ci95_rad), "scale_ci95": list(final.scale_ci95),
-        "method": final.method,
-        "method_selected_because": why,
-        "selection": selection,
-        "dead_time_s": dead.tau_s,
-        "dead_time": dead.to_dict(cfg.smooth_s),
-        "fits": {k: f.to_dict() for k, f in fits.items()},
-        "agreement_a_b": agreement,
-        "rms_error_rad": rms_rad,
-        "identifiability": ident,
-        "identifiability_by_fit": {k: {"identifiable": v["identifiable"],
-                                       "offset_identifiable": v["offset_identifiable"],
-                                       "scale_identifiable": v["scale_identifiable"]}
-                                   for k, v in idents.items()},
-        "samples": {"total": int(len(sig.sw)), "usable": int(usable.sum()),
-                    "trustworthy": int(steady.sum()), "excluded": masks.excluded},
-        "speed_range_mps": [float(np.percentile(sig.v_front[steady], 2.5)),
-                            float(np.percentile(sig.v_front[steady], 97.5))],
-        "steering_wheel_range_rad": [float(np.percentile(sw_d[steady], 2.5)),
-                                     float(np.percentile(sw_d[steady], 97.5))],
-        "thresholds": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
-    }
-    series = _series(rec, sig, delta_b, delta_model, steady, replay, final)
-    return SteeringResult(
-        offset_rad=final.offset_rad, scale=final.scale, offset_ci95_rad=final.offset_ci95_rad,
-        scale_ci95=final.scale_ci95, dead_time_s=dead.tau_s, identifiable=ident["identifiable"],
-        note=ident["note"], method=final.method, rms_error_rad=rms_rad, fits=fits,
-        report=report, series=series)
+        fin = (lambda v: float(v) if np.isfinite(v) else None)
+        return {"estimate_s": fin(self.estimate_s), "interval_s": [fin(v) for v in self.interval_s],
+                "used": self.used, "determined": self.used,
+                "note": (f"dead time {self.tau_s:.3f} s" if self.used else
+                         "not determined: no lag predicts held-out data better than no delay "
+                         "beyond the fold-to-fold noise"),
+                "source": self.source, "peak_correlation": fin(self.peak_corr),
+                "by_source": {k: {"lag_s": fin(v[0]), "peak_correlation": fin(v[1])}
+                              for k, v in self.by_source.items()},
+                "cv": self.cv,
+                "method": "blocked cross-validation of eq. 7 over a one-sample lag grid "
+                          "(fold-paired t-test against the best lag; parabolic refinement); "
+                          "cross-check: cross-correlation of Savitzky-Golay derivatives "
+                          f"({smooth_s} s)"}
 
 
 def steering_signals(rec: Recording, vehicle: Vehicle) -> SteeringSignals:
-    """The channels steering identification uses, and the road-wheel angle from the front
-    wheel speeds (measurement (a)). Raises InputError when a required channel is absent."""
-    _need(rec, "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
-          "wheel_speed_rr")
+    """The channels steering identification uses, and which methods they support.
+
+    Wheel-speed difference: the four wheel speeds. Yaw rate: ``yaw_rate`` and a speed (the
+    rear wheel speeds, else ``gps_speed`` with the geometry's ``nav_lever_arm_m``, else
+    ``speed`` or ``gps_speed`` at a point estimated with the map). Replay: ``x``, ``y``,
+    ``heading`` and a speed. Raises InputError (naming the channels) when none is supported.
+    """
+    _need(rec, "steering_wheel_angle")
     b, T = float(vehicle.wheelbase_m), float(vehicle.track_front_m)
-    fl, fr, rl, rr = (np.asarray(rec[c], dtype=float) for c in
-                      ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr"))
-    delta_a, v_front = road_wheel_angle_from_front(fl, fr, b, T)
+    sw = np.asarray(rec["steering_wheel_angle"], dtype=float)
     yaw = np.asarray(rec["yaw_rate"], dtype=float) if "yaw_rate" in rec else None
-    return SteeringSignals(np.asarray(rec["steering_wheel_angle"], dtype=float), fl, fr, rl, rr,
-                           delta_a, v_front, 0.5 * (rl + rr), yaw, 1.0 / rec.rate_hz, b, T)
+    lever = getattr(vehicle, "nav_lever_arm_m", None)
+    missing_ws = next((c for c in WHEEL_SPEEDS if c not in rec), None)
+    missing_pos = next((c for c in ("x", "y", "heading") if c not in rec), None)
+    skipped: dict[str, str] = {}
+    kw: dict = {}
+    if missing_ws is None:
+        fl, fr, rl, rr = (np.asarray(rec[c], dtype=float) for c in WHEEL_SPEEDS)
+        delta_a, v_front = road_wheel_angle_from_front(fl, fr, b, T)
+        v_rear = 0.5 * (rl + rr)
+        kw["v_src"] = v_rear
+    else:
+        fl = fr = rl = rr = delta_a = None
+        skipped["wheel_speed_difference"] = (f"no channel '{missing_ws}' (needs the four wheel "
+                                             "speeds)")
+        src = ("gps_speed" if lever is not None and yaw is not None and "gps_speed" in rec
+               else next((c for c in SPEED_CHANNELS if c in rec), None))
+        if src is None:
+            why = "no speed: no wheel speeds, no channel 'speed' and no channel 'gps_speed'"
+            skipped.setdefault("yaw_rate", why)
+            skipped.setdefault("position_replay", why)
+            v_front = v_rear = v_src = np.full(len(sw), np.nan)
+        else:
+            v_src = np.asarray(rec[src], dtype=float)
+            if src == "gps_speed" and lever is not None and yaw is not None:
+                v_rear = rear_axle_speed(v_src, yaw, lever)
+                v_front = np.hypot(v_rear, b * yaw)
+                note = (f"rear- and front-axle speeds from 'gps_speed' at the geometry's "
+                        f"nav_lever_arm_m {list(lever)} and the yaw rate")
+                unknown = False
+            else:
+                v_front = v_rear = v_src
+                unknown = True
+                note = (f"'{src}' at an unknown body point: " +
+                        ("its distance from the rear axle is estimated with the map by the "
+                         "yaw-rate fit" if yaw is not None else
+                         "taken as the front-axle speed (no yaw rate to place it)"))
+            kw.update(speed_source=src, v_src=v_src, speed_point_unknown=unknown,
+                      speed_note=note)
+    if yaw is None:
+        skipped.setdefault("yaw_rate", "no channel 'yaw_rate'")
+    if missing_pos is not None:
+        skipped.setdefault("position_replay", f"no channel '{missing_pos}' (needs x, y, heading)")
+    if len(skipped) == 3:
+        raise InputError("no steering method has its channels: " + "; ".join(
+            f"{m}: {why}" for m, why in skipped.items()), rec.meta.get("path"),
+            channel=missing_ws or "yaw_rate")
+    return SteeringSignals(sw, fl, fr, rl, rr, delta_a, v_front, v_rear, yaw, 1.0 / rec.rate_hz,
+                           b, T, skipped=skipped, **kw)
+
+
+def _measured_angle(sig: SteeringSignals) -> np.ndarray:
+    """A measured road-wheel angle [rad] for the sample checks: from the wheel speeds, else
+    from the yaw rate and the rear-axle speed (provisional), else zeros (replay only)."""
+    if sig.delta_a is not None:
+        return sig.delta_a
+    if sig.yaw is not None:
+        return road_wheel_angle_from_yaw(sig.yaw, sig.v_rear, sig.b)
+    return np.where(np.isfinite(sig.v_rear), 0.0, np.nan)
 
 
 def trustworthy_samples(rec: Recording, sig: SteeringSignals,
                         cfg: SteeringIdConfig) -> SampleMasks:
-    """The samples to trust (module doc), with a count per reason of exclusion.
+    """The samples to trust (module doc), with a count per reason of exclusion (the slip check
+    needs the wheel speeds: None when they are absent).
 
     Raises:
         InputError: fewer than 20 trustworthy samples.
     """
-    dt, sw, delta_a, v_front, v_rear = sig.dt_s, sig.sw, sig.delta_a, sig.v_front, sig.v_rear
-    finite = np.isfinite(sw) & np.isfinite(delta_a) & np.isfinite(v_rear)
+    dt, sw, v_front, v_rear = sig.dt_s, sig.sw, sig.v_front, sig.v_rear
+    delta_m = _measured_angle(sig)
+    finite = np.isfinite(sw) & np.isfinite(delta_m) & np.isfinite(v_rear)
     moving = finite & (np.nan_to_num(v_front) >= cfg.v_min_mps)
-    with np.errstate(invalid="ignore"):
-        slip = np.abs(v_rear - v_front * np.cos(delta_a)) / np.maximum(v_front, 1e-6)
+    slip = np.zeros(len(sw))
+    if sig.delta_a is not None:
+        with np.errstate(invalid="ignore"):
+            slip = np.abs(v_rear - v_front * np.cos(delta_m)) / np.maximum(v_front, 1e-6)
     accel = savgol_derivative(v_rear, dt, cfg.smooth_s)
-    lat = v_rear ** 2 * np.tan(np.nan_to_num(delta_a)) / sig.b
+    lat = v_rear ** 2 * np.tan(np.nan_to_num(delta_m)) / sig.b
     sw_rate = savgol_derivative(sw, dt, cfg.smooth_s)
     reverse = np.zeros(len(sw), dtype=bool)
     if "gear" in rec:
@@ -747,7 +819,8 @@ def trustworthy_samples(rec: Recording, sig: SteeringSignals,
     steady = usable & ~dilate(transient, guard)
     excluded = {
         "not_moving_or_missing": int(np.sum(~moving)),
-        "wheel_slip": int(np.sum(moving & (np.nan_to_num(slip, nan=1.0) > cfg.slip_max))),
+        "wheel_slip": (int(np.sum(moving & (np.nan_to_num(slip, nan=1.0) > cfg.slip_max)))
+                       if sig.delta_a is not None else None),
         "longitudinal_accel": int(np.sum(moving & (np.abs(np.nan_to_num(accel, nan=0)) >
                                                    cfg.accel_max_mps2))),
         "lateral_accel": int(np.sum(moving & (np.abs(lat) > cfg.lat_accel_max_mps2))),
@@ -761,42 +834,163 @@ def trustworthy_samples(rec: Recording, sig: SteeringSignals,
     return SampleMasks(usable, steady, excluded)
 
 
+def _shifted(x: np.ndarray, lag: int) -> np.ndarray:
+    """``x[t - lag]`` on the same grid (integer lag in samples), NaN where it reaches outside."""
+    out = np.full(len(x), np.nan)
+    if lag >= 0:
+        out[lag:] = x[:len(x) - lag]
+    else:
+        out[:lag] = x[-lag:]
+    return out
+
+
+def dead_time_cv(sw: np.ndarray, meas: np.ndarray, mask: np.ndarray, dt_s: float,
+                 cfg: SteeringIdConfig) -> dict | None:
+    """Held-out evidence for a steering dead time, on a one-sample lag grid.
+
+    For each lag L in [``dead_time_min_s``, ``dead_time_max_s``] eq. 7 (linear) is fitted to the
+    measured road-wheel angle ``meas`` [rad] against ``sw(t - L)`` on all but one of
+    ``dead_time_cv_folds`` contiguous folds, and scored by its mean squared error on the
+    held-out fold (the same samples for every lag). Against the best lag L*, each lag's
+    fold-paired excess error is tested (Student-t, K-1 degrees of freedom): the interval is the
+    run of lags around L* not worse beyond that noise, and a delay is used only when lag 0 is
+    outside it. L* is refined by a parabola through its neighbours; the interval reaches half a
+    sample beyond the grid lags at its ends (the grid's resolution). None: too few samples.
+    """
+    n = len(sw)
+    lags = np.arange(int(np.ceil(cfg.dead_time_min_s / dt_s - 1e-9)),
+                     int(np.floor(cfg.dead_time_max_s / dt_s + 1e-9)) + 1)
+    K = max(3, int(cfg.dead_time_cv_folds))
+    fold = np.minimum(np.arange(n) * K // n, K - 1)
+    xs = [_shifted(sw, int(L)) for L in lags]
+    ok = np.asarray(mask, bool) & np.isfinite(meas)
+    for x in xs:
+        ok &= np.isfinite(x)
+    f, y = fold[ok], meas[ok]
+    cnt = np.bincount(f, minlength=K).astype(float)
+    keep = cnt >= 10
+    if keep.sum() < 3:
+        return None
+    E = np.empty((len(lags), K))
+    Sy, Syy = np.bincount(f, y, K), np.bincount(f, y * y, K)
+    for j, x in enumerate(xs):
+        x = x[ok]
+        Sx, Sxx, Sxy = np.bincount(f, x, K), np.bincount(f, x * x, K), np.bincount(f, x * y, K)
+        tn, tx, ty = cnt.sum() - cnt, Sx.sum() - Sx, Sy.sum() - Sy
+        txx, txy = Sxx.sum() - Sxx, Sxy.sum() - Sxy
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = (tn * txy - tx * ty) / (tn * txx - tx * tx)
+            a = (ty - c * tx) / tn
+            sse = Syy - 2 * a * Sy - 2 * c * Sxy + a * a * cnt + 2 * a * c * Sx + c * c * Sxx
+            E[j] = sse / cnt
+    E = E[:, keep]
+    Kk = E.shape[1]
+    mean = E.mean(axis=1)
+    jb = int(np.nanargmin(mean))
+    D = E - E[jb]
+    se = D.std(axis=1, ddof=1) / np.sqrt(Kk)
+    crit = float(student_t.ppf(0.975, Kk - 1))
+    within = D.mean(axis=1) <= crit * se + 1e-15 * mean[jb]
+    lo = hi = jb
+    while lo > 0 and within[lo - 1]:
+        lo -= 1
+    while hi < len(lags) - 1 and within[hi + 1]:
+        hi += 1
+    best = float(lags[jb])
+    if 0 < jb < len(lags) - 1:
+        y0, y1, y2 = mean[jb - 1], mean[jb], mean[jb + 1]
+        den = y0 - 2 * y1 + y2
+        if den > 0:
+            best += 0.5 * (y0 - y2) / den
+    j0 = int(np.flatnonzero(lags == 0)[0]) if 0 in lags else None
+    used = j0 is not None and not within[j0]
+    # the grid resolves lags to one sample: the interval reaches half a sample beyond its ends
+    return {"best_s": best * dt_s,
+            "interval_s": [(float(lags[lo]) - 0.5) * dt_s, (float(lags[hi]) + 0.5) * dt_s],
+            "used": bool(used), "folds": int(Kk), "samples": int(ok.sum()),
+            "excess_at_zero": (float(D[j0].mean() / mean[jb]) if j0 is not None else None),
+            "excess_at_zero_t": (float(D[j0].mean() / se[j0]) if j0 is not None and se[j0] > 0
+                                 else None), "t_critical": crit}
+
+
 def estimate_dead_time(sig: SteeringSignals, usable: np.ndarray,
                        cfg: SteeringIdConfig) -> DeadTime:
-    """Dead time by cross-correlating the steering rate with the rate of each measured
-    road-wheel angle (wheel speeds; yaw rate when present); the best peak wins, and is used
-    only when it reaches ``dead_time_min_corr``."""
+    """Dead time: each measured road-wheel angle (wheel speeds; yaw rate) is cross-correlated
+    with the steering-wheel angle (a cross-check, derivatives); the source with the best peak is
+    then cross-validated over the lag grid (:func:`dead_time_cv`), which decides whether a
+    delay is used and gives its interval. Replay only: not determined."""
     dt = sig.dt_s
     d_sw = savgol_derivative(sig.sw, dt, cfg.smooth_s)
-    dead = {}
-    da = savgol_derivative(sig.delta_a, dt, cfg.smooth_s)
-    dead["wheel_speed_difference"] = xcorr_dead_time(d_sw, da, usable, dt,
-                                                     min_lag_s=cfg.dead_time_min_s,
-                                                     max_lag_s=cfg.dead_time_max_s)
+    meas = {}
+    if sig.delta_a is not None:
+        meas["wheel_speed_difference"] = sig.delta_a
     if sig.yaw is not None:
-        delta_b_raw = road_wheel_angle_from_yaw(sig.yaw, sig.v_rear, sig.b)
-        db = savgol_derivative(delta_b_raw, dt, cfg.smooth_s)
-        dead["yaw_rate"] = xcorr_dead_time(d_sw, db, usable, dt, min_lag_s=cfg.dead_time_min_s,
-                                           max_lag_s=cfg.dead_time_max_s)
-    best = max(dead.items(), key=lambda kv: (np.nan_to_num(kv[1][1], nan=-1)))
-    dead_time, dead_corr = best[1]
-    dead_ok = bool(np.isfinite(dead_time) and dead_corr >= cfg.dead_time_min_corr)
-    return DeadTime(float(dead_time) if dead_ok else 0.0, dead_time, dead_corr, dead_ok,
-                    best[0], dead)
+        meas["yaw_rate"] = road_wheel_angle_from_yaw(sig.yaw, sig.v_rear, sig.b)
+    nan = float("nan")
+    if not meas:
+        return DeadTime(0.0, nan, nan, False, "none (no measured road-wheel angle)", {})
+    dead = {k: xcorr_dead_time(d_sw, savgol_derivative(m, dt, cfg.smooth_s), usable, dt,
+                               min_lag_s=cfg.dead_time_min_s, max_lag_s=cfg.dead_time_max_s)
+            for k, m in meas.items()}
+    src = max(dead, key=lambda k: np.nan_to_num(dead[k][1], nan=-1))
+    cv = dead_time_cv(sig.sw, meas[src], usable, dt, cfg)
+    if cv is None:
+        return DeadTime(0.0, nan, dead[src][1], False, src, dead)
+    tau = cv["best_s"] if cv["used"] else 0.0
+    return DeadTime(float(tau), cv["best_s"], dead[src][1], cv["used"], src, dead,
+                    tuple(cv["interval_s"]), cv)
 
 
-def direct_fits(sig: SteeringSignals, sw_d: np.ndarray, steady: np.ndarray) -> dict[str, MapFit]:
-    """The direct fits of eq. 7: (a) on the wheel-speed angle, and (b) on the yaw rate when
-    present and it converges (started from (a))."""
-    fits: dict[str, MapFit] = {"wheel_speed_difference": _fit_front(sig.delta_a, sw_d, steady)}
-    start = fits["wheel_speed_difference"]
-    if sig.yaw is not None:
+def _speed_point_update(sig: SteeringSignals, fit: MapFit) -> None:
+    """With the speed channel's point estimated by the yaw-rate fit (k = (x_s/b)^2), the
+    rear- and front-axle speeds follow from it and the bias-free yaw rate (in place)."""
+    k = fit.extra.get("speed_point_k")
+    if k is None or sig.v_src is None:
+        return
+    r = sig.yaw - fit.extra["yaw_rate_bias_radps"]
+    sig.v_rear = rear_axle_speed(sig.v_src, r, (sig.b * np.sqrt(k), 0.0))
+    sig.v_front = np.hypot(sig.v_rear, sig.b * r)
+
+
+def _fit_direct(sig: SteeringSignals, sw_d: np.ndarray, mask: np.ndarray, cfg: SteeringIdConfig,
+                methods=("wheel_speed_difference", "yaw_rate"), start=None) -> dict[str, MapFit]:
+    """The direct fits the channels support, on ``mask``: (a) on the wheel-speed angle, (b) on
+    the yaw rate (started from (a), ``start``, or a linear fit of its own angle; the speed's
+    point estimated when unknown). A yaw-rate fit that does not converge is left out."""
+    fits: dict[str, MapFit] = {}
+    if sig.delta_a is not None and "wheel_speed_difference" in methods:
+        fits["wheel_speed_difference"] = _fit_front(sig.delta_a, sw_d, mask)
+    if sig.yaw is not None and "yaw_rate" in methods:
+        x0 = fits.get("wheel_speed_difference") or start
         try:
-            fits["yaw_rate"] = _fit_yaw(sig.yaw, sig.v_rear, sw_d, steady, sig.b,
-                                        (start.offset_rad, start.scale))
-        except ValueError:
+            if x0 is None:
+                x0 = _fit_front(road_wheel_angle_from_yaw(sig.yaw, sig.v_src, sig.b), sw_d,
+                                mask & np.isfinite(sig.v_src) & (np.nan_to_num(sig.v_src) > 0))
+            k_max = cfg.speed_point_k_max if sig.speed_point_unknown else None
+            fits["yaw_rate"] = _fit_yaw(sig.yaw, sig.v_src if k_max else sig.v_rear, sw_d,
+                                        mask, sig.b, (x0.offset_rad, x0.scale), k_max)
+        except (ValueError, np.linalg.LinAlgError):
             pass
     return fits
+
+
+def direct_fits(sig: SteeringSignals, sw_d: np.ndarray, steady: np.ndarray,
+                cfg: SteeringIdConfig | None = None) -> dict[str, MapFit]:
+    """The direct fits of eq. 7 on the trustworthy samples (:func:`_fit_direct`); a yaw-rate
+    fit that estimated its speed's point updates ``sig``'s axle speeds."""
+    fits = _fit_direct(sig, sw_d, steady, cfg or SteeringIdConfig())
+    if "yaw_rate" in fits and sig.speed_point_unknown:
+        _speed_point_update(sig, fits["yaw_rate"])
+    return fits
+
+
+def _yaw_angle(sig: SteeringSignals, fit: MapFit) -> np.ndarray:
+    """The yaw-rate road-wheel angle [rad] with ``fit``'s gyro bias (and speed point) applied."""
+    bias = fit.extra["yaw_rate_bias_radps"]
+    k = fit.extra.get("speed_point_k")
+    v_r = sig.v_rear if k is None else rear_axle_speed(sig.v_src, sig.yaw - bias,
+                                                       (sig.b * np.sqrt(k), 0.0))
+    return road_wheel_angle_from_yaw(sig.yaw, v_r, sig.b, bias)
 
 
 def cross_validate(rec: Recording, sig: SteeringSignals, fits: dict[str, MapFit],
@@ -806,23 +1000,19 @@ def cross_validate(rec: Recording, sig: SteeringSignals, fits: dict[str, MapFit]
 
     Each candidate is refitted without the fold and its map predicts, on the fold's trustworthy
     samples, the road-wheel angle measured by the independent channel(s) it did not use: the
-    wheel-speed fit predicts the yaw-rate angle ``atan(b (r - r_bias) / v_R)`` (gyro bias from the
-    yaw-rate fit of the same training folds), the yaw-rate fit the wheel-speed angle, the
-    replay both. Each channel's held-out RMS error is divided by that of the channel's own fit
-    (its noise floor, = 1 for a perfect rival), and a candidate's score is the mean over its
-    channels (lower is better). Without a yaw rate, the wheel-speed fit is scored on its own
-    channel. Returns ``{method: {"score", "channels": {channel: ratio}, "rms_rad": {...}}}``.
+    wheel-speed fit predicts the yaw-rate angle ``atan(b (r - r_bias) / v_R)`` (gyro bias and
+    speed point from the yaw-rate fit of the same training folds), the yaw-rate fit the
+    wheel-speed angle, the replay both. A fit whose recording has no other channel is scored on
+    its own. Each channel's held-out RMS error is divided by that of the channel's own fit (its
+    noise floor, = 1 for a perfect rival), and a candidate's score is the mean over its
+    channels (lower is better). Returns ``{method: {"score", "channels": {channel: ratio},
+    "rms_rad": {...}}}``.
     """
     n = len(sw_d)
     K = max(2, int(cfg.cv_folds))
     edges = np.linspace(0, n, K + 1).astype(int)
-    has_yaw = "yaw_rate" in fits
     err: dict[str, dict[str, list]] = {k: {} for k in fits}
-    own: dict[str, list] = {"wheel_speeds": [], "yaw_rate": []}
-
-    def add(method, channel, res):
-        err[method].setdefault(channel, []).append(res)
-
+    own: dict[str, list] = {}
     for k in range(K):
         fold = np.zeros(n, dtype=bool)
         fold[edges[k]:edges[k + 1]] = True
@@ -830,17 +1020,14 @@ def cross_validate(rec: Recording, sig: SteeringSignals, fits: dict[str, MapFit]
         if test.sum() < 10 or train.sum() < 20:
             continue
         try:
-            fa = _fit_front(sig.delta_a, sw_d, train)
-            fb = _fit_yaw(sig.yaw, sig.v_rear, sw_d, train, sig.b, (fa.offset_rad, fa.scale)) \
-                if has_yaw else None
+            maps = _fit_direct(sig, sw_d, train, cfg, tuple(fits), fits.get("yaw_rate"))
         except (ValueError, np.linalg.LinAlgError):
             continue
-        maps = {"wheel_speed_difference": fa}
-        chans = {"wheel_speeds": sig.delta_a[test]}
-        if fb is not None:
-            maps["yaw_rate"] = fb
-            chans["yaw_rate"] = road_wheel_angle_from_yaw(
-                sig.yaw, sig.v_rear, sig.b, fb.extra["yaw_rate_bias_radps"])[test]
+        chans = {}
+        if "wheel_speed_difference" in maps:
+            chans["wheel_speeds"] = sig.delta_a[test]
+        if "yaw_rate" in maps:
+            chans["yaw_rate"] = _yaw_angle(sig, maps["yaw_rate"])[test]
         if "position_replay" in fits:
             f = fits["position_replay"]
             out, _ = _fit_replay(rec, sig.v_front, sw_d, usable & ~fold, sig.dt_s, sig.b, cfg,
@@ -848,19 +1035,13 @@ def cross_validate(rec: Recording, sig: SteeringSignals, fits: dict[str, MapFit]
             if out is not None:
                 maps["position_replay"] = out[0]
         sw_t = sw_d[test]
-        pred = {m: f.offset_rad + f.scale * sw_t for m, f in maps.items()}
-        own["wheel_speeds"].append(chans["wheel_speeds"] - pred["wheel_speed_difference"])
-        if fb is not None:
-            own["yaw_rate"].append(chans["yaw_rate"] - pred["yaw_rate"])
-            add("wheel_speed_difference", "yaw_rate", chans["yaw_rate"] - pred[
-                "wheel_speed_difference"])
-            add("yaw_rate", "wheel_speeds", chans["wheel_speeds"] - pred["yaw_rate"])
-        else:
-            add("wheel_speed_difference", "wheel_speeds",
-                chans["wheel_speeds"] - pred["wheel_speed_difference"])
-        if "position_replay" in pred:
-            for c, meas in chans.items():
-                add("position_replay", c, meas - pred["position_replay"])
+        for m, f in maps.items():
+            pred = f.offset_rad + f.scale * sw_t
+            c_own = OWN_CHANNEL[m]
+            if c_own in chans:
+                own.setdefault(c_own, []).append(chans[c_own] - pred)
+            for c in [c for c in chans if c != c_own] or [c for c in chans if c == c_own]:
+                err[m].setdefault(c, []).append(chans[c] - pred)
 
     def rms(parts):
         v = np.concatenate(parts) if parts else np.array([])
@@ -878,8 +1059,124 @@ def cross_validate(rec: Recording, sig: SteeringSignals, fits: dict[str, MapFit]
     return {"folds": K, "noise_floor_rad": floor, "scores": out_d,
             "method": (f"blocked cross-validation over {K} contiguous folds: each fit, refitted "
                        "without the fold, predicts the road-wheel angle of the independent "
-                       "channel(s) it did not use; score = held-out RMS / that channel's own "
-                       "fit's held-out RMS, averaged over channels (lower is better)")}
+                       "channel(s) it did not use (its own when there is no other); score = "
+                       "held-out RMS / that channel's own fit's held-out RMS, averaged over "
+                       "channels (lower is better)")}
+
+
+def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig | None = None,
+                      progress=None) -> SteeringResult:
+    """Identify eq. 7 from a canonical recording (see the module doc).
+
+    Needs ``steering_wheel_angle`` and the channels of at least one method: the four wheel
+    speeds (wheel-speed difference), ``yaw_rate`` and a speed (yaw rate), ``x``/``y``/
+    ``heading`` and a speed (replay); uses every method the channels support, chooses among
+    them by held-out evidence, and names each skipped method and why
+    (``report['selection']['skipped']``). Uses ``gear`` to drop reverse.
+
+    Raises:
+        InputError: no method has its channels, or no trustworthy samples remain.
+    """
+    cfg = config or SteeringIdConfig()
+    say = progress or (lambda msg: None)
+    sig = steering_signals(rec, vehicle)
+    for m, why in sig.skipped.items():
+        say(f"steering: {m} skipped: {why}")
+    masks = trustworthy_samples(rec, sig, cfg)
+    say(f"steering: {int(masks.steady.sum())} trustworthy samples of {len(sig.sw)}")
+    dead = estimate_dead_time(sig, masks.usable, cfg)
+    sw_d = delayed(sig.sw, dead.tau_s, sig.dt_s)
+    steady = masks.steady & np.isfinite(sw_d)
+    usable = masks.usable & np.isfinite(sw_d)
+    say(f"steering: dead time {dead.tau_s:.3f} s (" + (
+        f"held-out interval {dead.interval_s[0]:.3f}-{dead.interval_s[1]:.3f} s" if dead.used
+        else "not determined") + f", from {dead.source})")
+    fits = direct_fits(sig, sw_d, steady, cfg)
+    lever = getattr(vehicle, "nav_lever_arm_m", None)
+    replay = None
+    if "position_replay" not in sig.skipped:
+        start = fits.get("yaw_rate") or fits.get("wheel_speed_difference")
+        x0 = ((start.offset_rad, start.scale) if start is not None else
+              (0.0, 1.0 / vehicle.steering_ratio if vehicle.steering_ratio
+               else cfg.replay_start_scale))
+        say("steering: refining by eq. 1 position replay")
+        out, _ = _fit_replay(rec, sig.v_front, sw_d, usable, sig.dt_s, sig.b, cfg, x0, lever)
+        if out is not None:
+            fits["position_replay"], replay, _ = out
+        else:
+            sig.skipped["position_replay"] = (f"fewer than 3 replay windows of {cfg.window_s} s "
+                                              "with finite x, y, heading")
+    if not fits:
+        raise InputError("no steering fit converged (" + "; ".join(
+            f"{m}: {w}" for m, w in sig.skipped.items()) + ")", rec.meta.get("path"),
+            channel="steering_wheel_angle")
+    idents = {k: identifiability(f, sw_d[steady], sig.v_front[steady], sig.dt_s, cfg,
+                                 vehicle.steering_ratio) for k, f in fits.items()}
+    rp_fit = fits.get("position_replay")
+    if rp_fit is not None and not rp_fit.extra.get("trusted", True):
+        idents["position_replay"] = dict(idents["position_replay"], identifiable=False,
+                                         note="NOT trusted: " + rp_fit.extra["untrusted_because"])
+    say("steering: choosing by blocked cross-validation")
+    cv = cross_validate(rec, sig, fits, sw_d, steady, usable, cfg, lever)
+    chosen, why = choose_fit(fits, idents, cv)
+    final = fits[chosen]
+    pairs, disagree_note = disagreement(fits, cfg)
+    ident = dict(idents[chosen])
+    if disagree_note:
+        ident["identifiable"] = False
+        ident["note"] = ("NOT identifiable: " + disagree_note + ". " +
+                         ident["note"].removeprefix("NOT identifiable: "))
+    if sig.skipped:  # the parameter file's note names the methods the recording did not allow
+        ident["note"] += " Not run: " + "; ".join(f"{m} ({w})" for m, w in sig.skipped.items()) \
+            + "."
+    selection = {"chosen": chosen, "because": why, **cv, "disagreements": pairs,
+                 "untrusted": {k: f.extra["untrusted_because"] for k, f in fits.items()
+                               if not f.extra.get("trusted", True)},
+                 "skipped": dict(sig.skipped), "speeds": sig.speed_note}
+    agreement, delta_b = agreement_a_b(sig, fits, steady)
+    delta_model = final.offset_rad + final.scale * sw_d
+    ref = delta_b if delta_b is not None else sig.delta_a
+    rms_rad = (float(np.sqrt(np.mean((ref - delta_model)[steady] ** 2))) if ref is not None
+               else float("nan"))
+    report = _report(sig, cfg, final, why, selection, dead, fits, agreement, rms_rad, ident,
+                     idents, masks, steady, usable, sw_d)
+    series = _series(rec, sig, delta_b, delta_model, steady, replay, final)
+    return SteeringResult(
+        offset_rad=final.offset_rad, scale=final.scale, offset_ci95_rad=final.offset_ci95_rad,
+        scale_ci95=final.scale_ci95, dead_time_s=dead.tau_s, identifiable=ident["identifiable"],
+        note=ident["note"], method=final.method, rms_error_rad=rms_rad, fits=fits,
+        report=report, series=series)
+
+
+def _report(sig, cfg, final, why, selection, dead, fits, agreement, rms_rad, ident, idents,
+            masks, steady, usable, sw_d) -> dict:
+    """The JSON-ready figures of :func:`identify_steering` (stable keys)."""
+    return {
+        "offset_rad": final.offset_rad, "scale": final.scale,
+        "offset_ci95_rad": list(final.offset_ci95_rad), "scale_ci95": list(final.scale_ci95),
+        "method": final.method,
+        "method_selected_because": why,
+        "selection": selection,
+        "dead_time_s": dead.tau_s,
+        "dead_time": dead.to_dict(cfg.smooth_s),
+        "fits": {k: f.to_dict() for k, f in fits.items()},
+        "agreement_a_b": agreement,
+        "rms_error_rad": rms_rad,
+        "identifiability": ident,
+        "identifiability_by_fit": {k: {"identifiable": v["identifiable"],
+                                       "offset_identifiable": v["offset_identifiable"],
+                                       "scale_identifiable": v["scale_identifiable"],
+                                       "note": v["note"]}
+                                   for k, v in idents.items()},
+        "samples": {"total": int(len(sig.sw)), "usable": int(usable.sum()),
+                    "trustworthy": int(steady.sum()), "excluded": masks.excluded},
+        "speed_source": sig.speed_source,
+        "speed_range_mps": [float(np.percentile(sig.v_front[steady], 2.5)),
+                            float(np.percentile(sig.v_front[steady], 97.5))],
+        "steering_wheel_range_rad": [float(np.percentile(sw_d[steady], 2.5)),
+                                     float(np.percentile(sw_d[steady], 97.5))],
+        "thresholds": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
+    }
 
 
 def choose_fit(fits: dict[str, MapFit], idents: dict[str, dict],
@@ -945,12 +1242,14 @@ def disagreement(fits: dict[str, MapFit],
 def agreement_a_b(sig: SteeringSignals, fits: dict[str, MapFit],
                   steady: np.ndarray) -> tuple[dict | None, np.ndarray | None]:
     """How measurements (a) and (b) agree on the trustworthy samples, and (b)'s road-wheel
-    angle with the fitted gyro bias removed; (None, None) without a yaw-rate fit."""
+    angle with the fitted gyro bias removed; (None, None) without a yaw-rate fit, (None, (b))
+    without the wheel speeds."""
     if "yaw_rate" not in fits:
         return None, None
-    bias = fits["yaw_rate"].extra["yaw_rate_bias_radps"]
+    delta_b = _yaw_angle(sig, fits["yaw_rate"])
+    if "wheel_speed_difference" not in fits:
+        return None, delta_b
     delta_a = sig.delta_a
-    delta_b = road_wheel_angle_from_yaw(sig.yaw, sig.v_rear, sig.b, bias)
     dd = (delta_a - delta_b)[steady]
     fa, fb = fits["wheel_speed_difference"], fits["yaw_rate"]
     agreement = {
@@ -967,9 +1266,12 @@ def agreement_a_b(sig: SteeringSignals, fits: dict[str, MapFit],
 def _series(rec: Recording, sig: SteeringSignals, delta_b, delta_model, steady, replay,
             final: MapFit) -> dict:
     """Time series for the plots (``models.report``)."""
-    series = {"time": rec.time, "steering_wheel_angle": sig.sw, "wheel_speed_fl": sig.fl,
-              "wheel_speed_fr": sig.fr, "turn_rate_wheels_radps": (sig.fr - sig.fl) / sig.T,
-              "delta_wheels_rad": sig.delta_a, "delta_yaw_rad": delta_b,
+    nan = np.full(len(sig.sw), np.nan)  # channels the recording lacks plot as gaps
+    fl, fr = (nan if w is None else w for w in (sig.fl, sig.fr))
+    series = {"time": rec.time, "steering_wheel_angle": sig.sw, "wheel_speed_fl": fl,
+              "wheel_speed_fr": fr, "turn_rate_wheels_radps": (fr - fl) / sig.T,
+              "delta_wheels_rad": nan if sig.delta_a is None else sig.delta_a,
+              "delta_yaw_rad": delta_b,
               "delta_model_rad": delta_model, "trustworthy": steady}
     if replay is not None:
         xp, yp = replay.predict((final.offset_rad, final.scale))
@@ -981,7 +1283,7 @@ def _series(rec: Recording, sig: SteeringSignals, delta_b, delta_model, steady, 
 
 __all__ = ["SteeringIdConfig", "SteeringResult", "MapFit", "identify_steering",
            "SteeringSignals", "SampleMasks", "DeadTime", "steering_signals", "trustworthy_samples",
-           "estimate_dead_time", "direct_fits", "choose_fit", "cross_validate", "disagreement",
-           "agreement_a_b",
+           "estimate_dead_time", "dead_time_cv", "direct_fits", "rear_axle_speed", "choose_fit",
+           "cross_validate", "disagreement", "agreement_a_b",
            "identifiability", "road_wheel_angle_from_front", "road_wheel_angle_from_yaw",
            "xcorr_dead_time", "delayed", "Z95"]

@@ -24,10 +24,11 @@ centre of gravity), with CommonRoad's parameter set 2 (BMW 320i: wheelbase 2.579
 
 **The truth** is exactly the report's family, with no concealed effect and no dead time:
 road-wheel angle = ``steer_offset_rad + steer_scale * steering-wheel angle`` (the model's
-steering state ``delta`` equals it at every sample), and per speed zone (idle [0, 2], low
-(2, 5], high (5, 20] m/s, sharp boundaries, the zone taken at the start of each 10 ms
-step) the acceleration of the FRONT-axle-centre speed ``v_F`` (the report's eq. 1 point F;
-the speed hmpc derives from the front wheels) is
+steering state ``delta`` equals it at every sample; ``Scenario.steer_delay_s`` > 0 delays the
+road wheels behind the recorded steering-wheel angle, a known dead time for the tests), and
+per speed zone (idle [0, 2], low (2, 5], high (5, 20] m/s, sharp boundaries, the zone taken
+at the start of each 10 ms step) the acceleration of the FRONT-axle-centre speed ``v_F``
+(the report's eq. 1 point F; the speed hmpc derives from the front wheels) is
 ``offset + scale * accel_pedal - brake_scale * brake_pedal``. For the kinematic model the
 rear-axle speed is ``v_R = v_F cos(delta)``, so the model is driven with
 ``dv_R/dt = a cos(delta) - v_F sin(delta) d(delta)/dt``; at rest the car is held (no rolling
@@ -188,6 +189,9 @@ class Scenario:
     #: state, the rear-axle speed; then the front-axle speed hmpc derives from the front wheels
     #: has d/dt = a / cos(delta) + v_R tan(delta) d(delta)/dt / cos(delta) instead).
     accel_point: str = "front"
+    #: [s] steering dead time: the road wheels follow the recorded steering-wheel angle this
+    #: much later (a multiple of the 10 ms step; 0 = the report's family, no dead time).
+    steer_delay_s: float = 0.0
 
 
 def vehicle_params():
@@ -387,7 +391,12 @@ def simulate(sc: Scenario) -> Run:
     n = int(round(sc.duration_s / dt)) + 1
     v_ref, a_ref, sw, dither = _driver_profiles(sc, n, rng)
     tr = sc.truth
-    delta = tr.steer_offset_rad + tr.steer_scale * sw
+    k_delay = int(round(sc.steer_delay_s / dt))
+    if k_delay < 0 or abs(k_delay * dt - sc.steer_delay_s) > 1e-9:
+        raise ValueError(f"steer_delay_s must be a non-negative multiple of {dt} s, "
+                         f"got {sc.steer_delay_s}")
+    sw_wheels = np.concatenate([np.full(k_delay, sw[0]), sw[:n - k_delay]]) if k_delay else sw
+    delta = tr.steer_offset_rad + tr.steer_scale * sw_wheels
     d_rate = np.append(np.diff(delta) / dt, 0.0)
     if np.max(np.abs(d_rate)) > p.steering.v_max:
         raise ValueError("steering schedule faster than the model's steering-rate limit")
