@@ -16,7 +16,8 @@ optional callback (the CLI prints it).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -24,9 +25,11 @@ import numpy as np
 from hmpc.models.params import Params
 from hmpc.models.plant import DelayLine, HybridPlant, heading_rate
 from hmpc.models.logs.recording import Recording
+from hmpc.models.sim.live_sensors import SensorConfig
 from hmpc.models.sim.scenarios import Reference
 
 from hmpc.controller.base import Controller, Status
+from hmpc.controller.estimator import EstimatorConfig, SensorFeedback
 from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
 
 
@@ -46,6 +49,14 @@ class ClosedLoopResult:
         step_time_s: wall time of each controller step [s].
         control_time_s: time of each control step [s].
         internal_errors: (time [s], traceback) of every step that was an internal error.
+        estimator_time_s: wall time of the estimator per control step [s]: the messages
+            that arrived since the previous step, the prediction to now and the input
+            changes (the sensors' own simulation excluded).
+        estimate_latency_s: of that, the estimate at the control instant itself [s] (the
+            prediction to now: what delays the command; the messages are processed as they
+            arrive, between steps).
+        estimated_state, true_state: (steps, 4) what the controller was given and the
+            plant's state at each control step (x_m, y_m, psi_rad, v_mps).
     """
 
     recording: Recording
@@ -59,16 +70,31 @@ class ClosedLoopResult:
     control_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     reasons: list = field(default_factory=list)
     internal_errors: list = field(default_factory=list)
+    estimator_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    estimated_state: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    true_state: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    estimate_latency_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def run_closed_loop(controller: Controller, reference: Reference, params: Params, *,
                     plant_params: Params | None = None, control_period_s: float = 0.1,
-                    plant_dt_s: float = 0.02, seed: int = 0, speed_noise_mps: float = 0.0,
-                    position_noise_m: float = 0.0, extra_time_s: float = 0.0,
+                    plant_dt_s: float = 0.02, seed: int = 0,
+                    speed_noise_mps: float | None = None,
+                    position_noise_m: float | None = None, extra_time_s: float = 0.0,
                     limits: ActuatorLimits | None = None,
                     progress: Callable[[float, float], None] | None = None,
-                    initial_state: np.ndarray | None = None) -> ClosedLoopResult:
-    """Closed loop: ``controller.step(measured_state, reference, t)`` every control period.
+                    initial_state: np.ndarray | None = None,
+                    sensors: SensorConfig | None = None,
+                    estimator_config: EstimatorConfig | None = None) -> ClosedLoopResult:
+    """Closed loop: ``controller.step(estimated_state, reference, t)`` every control period.
+
+    The controller never sees the plant state: the truth goes, every plant step, to the
+    simulated car sensors (``models.sim.live_sensors``: CAN wheel speeds and steering angle,
+    IMU, GNSS with its rate and latency), whose messages feed the EKF
+    (``controller.estimator.SensorFeedback``); each control step the controller gets the
+    estimator's state at that instant. The estimator starts from the plant's start pose (a
+    car parked where its last fix put it) with its initial uncertainty, and is told every
+    change of the plant input (the applied, delayed command).
 
     Args:
         controller: a :class:`controller.base.Controller`.
@@ -77,26 +103,23 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
         plant_params: a different plant (model mismatch).
         control_period_s: controller period [s] (commands held in between).
         plant_dt_s: plant integration step and recording period [s].
-        seed: seed of the measurement noise (printed in the metrics).
-        speed_noise_mps, position_noise_m: white measurement noise std [m/s], [m].
+        seed: seed of the sensors' noise (printed in the metrics).
+        speed_noise_mps, position_noise_m: when given, replace ``sensors``' speed noise
+            (wheel speeds and GNSS speed) [m/s] and GNSS position noise [m]; None keeps
+            the sensor configuration's (default 0.05 m/s, 0.02 m).
         extra_time_s: run this long past the reference's end [s].
         limits: limits applied at the actuation boundary (default from ``params``).
         progress: called as ``progress(fraction_done, t_s)`` (t_s since the start [s])
             at every further tenth of the run; None: no reports.
         initial_state: plant start state (default: on the reference).
+        sensors: rates, latencies, noise, GNSS outages (default ``SensorConfig()``).
+        estimator_config: the EKF's noise model (default matched to ``sensors``).
     """
-    if not (plant_dt_s > 0 and control_period_s >= plant_dt_s - 1e-12):
-        raise ValueError("need 0 < plant_dt_s <= control_period_s")
-    ratio = control_period_s / plant_dt_s
-    if abs(ratio - round(ratio)) > 1e-6:
-        raise ValueError("control_period_s must be a whole number of plant_dt_s")
-    if progress is not None and not callable(progress):
-        raise ValueError("progress must be a callable progress(fraction, t_s) or None")
-    every = int(round(ratio))
+    every = _check_rates(control_period_s, plant_dt_s, progress)
     pp = plant_params if plant_params is not None else params
     plant = HybridPlant(pp)
     lim = limits or ActuatorLimits.from_params(params)
-    rng = np.random.default_rng(seed)
+    sensor_cfg = sensor_config(sensors, speed_noise_mps, position_noise_m)
     d_steer = DelayLine(float(pp.steering.dead_time_s or 0.0), plant_dt_s)
     d_acc = DelayLine(float(pp.longitudinal_dead_time_s or 0.0), plant_dt_s)
     d_brk = DelayLine(float(pp.longitudinal_dead_time_s or 0.0), plant_dt_s)
@@ -106,36 +129,33 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
     n = int(math.floor((reference.duration_s + extra_time_s) / plant_dt_s + 1e-9)) + 1
     s = np.array(initial_state, dtype=float) if initial_state is not None \
         else reference.initial_state(params)
+    fb = SensorFeedback(params, sensor_cfg, estimator_config, seed=seed, t0_s=t0,
+                        initial_state=s)
     zone = plant.select_zone(float(s[3]), None)
     cols = {k: np.zeros(n) for k in ("time", "x", "y", "heading", "speed", "steering_wheel_angle",
                                      "accel_pedal", "brake_pedal", "yaw_rate", "accel_x",
                                      "steering_cmd", "accel_pedal_cmd", "brake_pedal_cmd")}
     zones = np.zeros(n, dtype=np.int64)
-    statuses, reasons, errors, solve_t, step_t, ctl_t = [], [], [], [], [], []
+    log = _StepLog()
     cmd = Command(0.0, 0.0, 0.0)
     prev_applied: Command | None = None
+    u = np.zeros(3)        # plant input over the previous step (what the sensors saw)
+    u_fed = None           # the plant input the estimator holds
+    accel = 0.0            # true acceleration over the previous step [m/s^2]
     last_report = -1
     for i in range(n):
         t = t0 + i * plant_dt_s
+        log.pending_est_s += _observe(fb, t, s, u[0], accel, plant.road_wheel_angle(u[0]))
         if i % every == 0:
-            meas = s.copy()
-            if speed_noise_mps > 0:
-                meas[3] = max(meas[3] + rng.normal(0.0, speed_noise_mps), 0.0)
-            if position_noise_m > 0:
-                meas[:2] += rng.normal(0.0, position_noise_m, 2)
+            t_w = time.perf_counter()
+            est = fb.estimate(t)
+            meas = est[0] if est is not None else s.copy()  # reset above: never None
+            t_est = time.perf_counter() - t_w
             res = controller.step(meas, reference, t)
-            c = res.command
             # the actuation boundary applies the limits again, whatever the controller did
-            cmd = apply_limits(c, prev_applied, lim, control_period_s)
+            cmd = apply_limits(res.command, prev_applied, lim, control_period_s)
             prev_applied = cmd
-            status = Status(res.status)
-            statuses.append(status)
-            reasons.append(res.reason)
-            if status is Status.INTERNAL_ERROR:
-                errors.append((t, res.traceback or res.reason))
-            solve_t.append(float(res.solve_time_s))
-            step_t.append(float(res.step_time_s))
-            ctl_t.append(t)
+            log.add(t, res, t_est, meas, s)
             if progress is not None:
                 tenth = int(100 * i / max(n - 1, 1)) // 10
                 if tenth != last_report:
@@ -143,16 +163,14 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
                     progress(tenth / 10, t - t0)
         u = np.array([d_steer.push(cmd.steering_wheel_angle_rad), d_acc.push(cmd.accel_pedal),
                       d_brk.push(cmd.brake_pedal)])
-        cols["time"][i] = t
-        cols["x"][i], cols["y"][i], cols["heading"][i], cols["speed"][i] = s
-        cols["steering_wheel_angle"][i], cols["accel_pedal"][i], cols["brake_pedal"][i] = u
-        cols["steering_cmd"][i] = cmd.steering_wheel_angle_rad
-        cols["accel_pedal_cmd"][i] = cmd.accel_pedal
-        cols["brake_pedal_cmd"][i] = cmd.brake_pedal
-        delta = plant.road_wheel_angle(u[0])
-        cols["yaw_rate"][i] = heading_rate(s[3], float(delta), plant.wheelbase_m, ops=math)
+        if u_fed is None or not np.array_equal(u, u_fed):
+            t_w = time.perf_counter()
+            fb.command(t, u)
+            log.pending_est_s += time.perf_counter() - t_w
+            u_fed = u
+        _record(cols, i, t, s, u, cmd, plant)
         r = plant.step(s, u, plant_dt_s, zone)
-        cols["accel_x"][i] = r.accel_mps2
+        cols["accel_x"][i] = accel = r.accel_mps2
         zones[i] = r.zone
         s, zone = r.state, r.zone
     cols["heading"] = (cols["heading"] + np.pi) % (2 * np.pi) - np.pi
@@ -161,11 +179,108 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
                                "rate_hz": 1.0 / plant_dt_s})
     v_ref = reference.speed_at(cols["time"])
     lat = reference.lateral_errors(cols["x"], cols["y"], cols["time"])
-    result = ClosedLoopResult(rec, {}, zones, v_ref, lat, statuses, np.array(solve_t),
-                              np.array(step_t), np.array(ctl_t), reasons, errors)
+    result = ClosedLoopResult(rec, {}, zones, v_ref, lat, log.statuses, np.array(log.solve_t),
+                              np.array(log.step_t), np.array(log.ctl_t), log.reasons,
+                              log.errors, np.array(log.est_t),
+                              np.array(log.est_state).reshape(-1, 4),
+                              np.array(log.true_state).reshape(-1, 4), np.array(log.est_now_t))
     result.metrics = metrics_of(result, lim)
     result.metrics["seed"] = seed
+    result.metrics["estimator"] = _estimator_figures(result, fb)
     return result
+
+
+def _check_rates(control_period_s: float, plant_dt_s: float, progress) -> int:
+    """Plant steps per control period (ValueError on bad periods or progress)."""
+    if not (plant_dt_s > 0 and control_period_s >= plant_dt_s - 1e-12):
+        raise ValueError("need 0 < plant_dt_s <= control_period_s")
+    ratio = control_period_s / plant_dt_s
+    if abs(ratio - round(ratio)) > 1e-6:
+        raise ValueError("control_period_s must be a whole number of plant_dt_s")
+    if progress is not None and not callable(progress):
+        raise ValueError("progress must be a callable progress(fraction, t_s) or None")
+    return int(round(ratio))
+
+
+def _record(cols: dict, i: int, t: float, s: np.ndarray, u: np.ndarray, cmd: Command,
+            plant: HybridPlant) -> None:
+    """Row ``i`` of the recording: time, plant state, applied input, command, yaw rate."""
+    cols["time"][i] = t
+    cols["x"][i], cols["y"][i], cols["heading"][i], cols["speed"][i] = s
+    cols["steering_wheel_angle"][i], cols["accel_pedal"][i], cols["brake_pedal"][i] = u
+    cols["steering_cmd"][i] = cmd.steering_wheel_angle_rad
+    cols["accel_pedal_cmd"][i] = cmd.accel_pedal
+    cols["brake_pedal_cmd"][i] = cmd.brake_pedal
+    delta = plant.road_wheel_angle(u[0])
+    cols["yaw_rate"][i] = heading_rate(s[3], float(delta), plant.wheelbase_m, ops=math)
+
+
+def sensor_config(sensors: SensorConfig | None = None, speed_noise_mps: float | None = None,
+                  position_noise_m: float | None = None) -> SensorConfig:
+    """``sensors`` (default ``SensorConfig()``) with the legacy noise arguments applied:
+    ``speed_noise_mps`` sets the wheel-speed and GNSS speed noise [m/s], ``position_noise_m``
+    the GNSS position noise [m]."""
+    cfg = sensors or SensorConfig()
+    kw = {}
+    if speed_noise_mps is not None:
+        kw.update(speed_noise_mps=float(speed_noise_mps), gnss_speed_noise_mps=float(speed_noise_mps))
+    if position_noise_m is not None:
+        kw["position_noise_m"] = float(position_noise_m)
+    return replace(cfg, **kw) if kw else cfg
+
+
+def _observe(fb: SensorFeedback, t: float, s: np.ndarray, sw_rad: float, accel_mps2: float,
+             delta_rad: float) -> float:
+    """Truth at ``t`` to the sensors, arrived messages to the estimator; returns the wall time
+    the estimator spent on them [s] (the sensors' simulation is not the controller's time)."""
+    msgs = fb.sensors.observe(t, s, sw_rad, accel_mps2, float(delta_rad))
+    if not msgs:
+        return 0.0
+    t_w = time.perf_counter()
+    for m in msgs:
+        fb.estimator.feed(m, t)
+    return time.perf_counter() - t_w
+
+
+class _StepLog:
+    """Per-control-step records of a run (statuses, timings, estimate and truth)."""
+
+    def __init__(self):
+        self.statuses, self.reasons, self.errors = [], [], []
+        self.solve_t, self.step_t, self.ctl_t, self.est_t, self.est_now_t = [], [], [], [], []
+        self.est_state, self.true_state = [], []
+        self.pending_est_s = 0.0  # estimator time spent after the last control step [s]
+
+    def add(self, t: float, res, t_est_s: float, est: np.ndarray, truth: np.ndarray) -> None:
+        status = Status(res.status)
+        self.statuses.append(status)
+        self.reasons.append(res.reason)
+        if status is Status.INTERNAL_ERROR:
+            self.errors.append((t, res.traceback or res.reason))
+        self.solve_t.append(float(res.solve_time_s))
+        self.step_t.append(float(res.step_time_s))
+        self.est_t.append(t_est_s + self.pending_est_s)
+        self.est_now_t.append(t_est_s)
+        self.pending_est_s = 0.0
+        self.ctl_t.append(t)
+        self.est_state.extend(float(q) for q in est[:4])
+        self.true_state.extend(float(q) for q in truth[:4])
+
+
+def _estimator_figures(res: "ClosedLoopResult", fb: SensorFeedback) -> dict:
+    """How well the controller's view matched the truth, and the sensors' message counts."""
+    e = res.estimated_state - res.true_state
+    st = fb.estimator.stats
+    if len(e):
+        pos = float(np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2)))
+        hd = float(np.sqrt(np.mean((np.remainder(e[:, 2] + np.pi, 2 * np.pi) - np.pi) ** 2)))
+        sp = float(np.sqrt(np.mean(e[:, 3] ** 2)))
+    else:
+        pos = hd = sp = 0.0
+    return {"position_error_rms_m": pos, "heading_error_rms_rad": hd, "speed_error_rms_mps": sp,
+            "gnss_accepted": int(st["gnss"]["accepted"]),
+            "gnss_rejected": int(st["gnss"]["rejected"]),
+            "messages": dict(fb.sensors.counts)}
 
 
 def pedal_switches(accel_pedal: np.ndarray, brake_pedal: np.ndarray, deadband: float = 1e-3) -> int:
@@ -183,8 +298,73 @@ def pedal_switches(accel_pedal: np.ndarray, brake_pedal: np.ndarray, deadband: f
     return count
 
 
+def steering_reversals(angle_deg, threshold_deg: float) -> int:
+    """Steering reversals of at least ``threshold_deg`` in a steering-wheel angle [deg].
+
+    The reversal-rate count of driver studies (a gap size on the steering-wheel angle):
+    the signal's last extremum is tracked; a reversal is counted when the angle has come
+    back from it by ``threshold_deg`` or more, and that point starts the next swing. The
+    first swing of at least the threshold sets the direction and is not a reversal (a sine
+    of amplitude A >= threshold over n periods from a zero crossing gives 2n).
+    """
+    a = np.asarray(angle_deg, dtype=float)
+    if not threshold_deg > 0:
+        raise ValueError(f"threshold_deg must be positive, got {threshold_deg!r}")
+    if len(a) == 0:
+        return 0
+    count, direction = 0, 0
+    lo = hi = ext = float(a[0])
+    for v in a:
+        v = float(v)
+        if direction == 0:
+            lo, hi = min(lo, v), max(hi, v)
+            if v - lo >= threshold_deg:
+                direction, ext = 1, v
+            elif hi - v >= threshold_deg:
+                direction, ext = -1, v
+        elif direction > 0:
+            if v > ext:
+                ext = v
+            elif ext - v >= threshold_deg:
+                count, direction, ext = count + 1, -1, v
+        else:
+            if v < ext:
+                ext = v
+            elif v - ext >= threshold_deg:
+                count, direction, ext = count + 1, 1, v
+    return count
+
+
+def rate_rms(time_s, signal) -> float:
+    """RMS of a signal's rate [unit/s] over its samples: finite differences over the
+    recording's sample period. A command held for a control period T and sampled every dt
+    reads sqrt(T / dt) times its per-period rate (the issue 9 figures use this, at 50 Hz)."""
+    t = np.asarray(time_s, dtype=float)
+    x = np.asarray(signal, dtype=float)
+    if len(t) < 2:
+        return 0.0
+    return float(np.sqrt(np.mean((np.diff(x) / np.diff(t)) ** 2)))
+
+
+def smoothness_of(time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd) -> dict:
+    """The issue 9 smoothness figures of a run's COMMANDS (stable keys): steering-wheel
+    reversals per minute of at least 1 and 5 deg, the steering-wheel rate RMS [rad/s] and
+    the pedal rates RMS [full travel / s] (see :func:`rate_rms`)."""
+    t = np.asarray(time_s, dtype=float)
+    minutes = max((t[-1] - t[0]) / 60.0, 1e-9) if len(t) else 1e-9
+    sw_deg = np.degrees(np.asarray(steering_cmd_rad, dtype=float))
+    return {
+        "steering_reversals_per_min": {f"{g}deg": steering_reversals(sw_deg, float(g)) / minutes
+                                       for g in (1, 5)},
+        "steering_rate_rms_radps": rate_rms(t, steering_cmd_rad),
+        "accel_pedal_rate_rms_ps": rate_rms(t, accel_pedal_cmd),
+        "brake_pedal_rate_rms_ps": rate_rms(t, brake_pedal_cmd),
+    }
+
+
 def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
-    """The issue 4 figures (stable keys, SI units), and the internal errors."""
+    """The issue 4 figures (stable keys, SI units), the internal errors, the issue 9
+    smoothness figures (:func:`smoothness_of`) and the whole step with the estimator."""
     rec = res.recording
     t = rec.channels["time"]
     minutes = max((t[-1] - t[0]) / 60.0, 1e-9)
@@ -192,6 +372,8 @@ def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
     ev = v - res.speed_ref_mps
     solve_ms = res.solve_time_s[res.solve_time_s > 0] * 1e3
     step_ms = res.step_time_s * 1e3
+    whole_ms = step_ms + (res.estimator_time_s * 1e3 if len(res.estimator_time_s) == len(step_ms)
+                          else 0.0)
 
     def pct(a, q):
         return float(np.percentile(a, q)) if len(a) else 0.0
@@ -207,9 +389,12 @@ def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
         "steps": int(len(res.statuses)),
         "failures": int(sum(1 for s in res.statuses if not Status(s).ok)),
         "internal_errors": int(sum(1 for s in res.statuses if s == Status.INTERNAL_ERROR)),
+        **smoothness_of(t, rec.channels["steering_cmd"], ap, bp),
         # extras (not in the issue's list, kept stable too)
         "step_time_ms": {"p50": pct(step_ms, 50), "p99": pct(step_ms, 99),
                          "max": float(step_ms.max()) if len(step_ms) else 0.0},
+        "step_with_estimator_ms": {"p50": pct(whole_ms, 50), "p99": pct(whole_ms, 99),
+                                   "max": float(whole_ms.max()) if len(whole_ms) else 0.0},
         "speed_error_max_mps": float(np.max(np.abs(ev))),
         "lateral_error_max_m": float(np.max(np.abs(res.lateral_error_m))),
         "pedal_switches": pedal_switches(ap, bp, limits.pedal_deadband),

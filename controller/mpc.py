@@ -17,6 +17,12 @@ map (eq. 7), one linear accelerator model per speed zone (eq. 8, with brake). Ev
    - lateral and heading error to the reference path, speed error to the speed profile;
    - effort: pedal changes cost more than steering changes (report VI: "velocity control
      should have a higher cost"; checked in :class:`MpcConfig`);
+   - smoothness (issue 9), terms of their own beside tracking: the change of the input
+     rates (second differences, against the rate the last plan had), the unplanned part of
+     the rate (distance of the first second's inputs from the last plan, shifted to now)
+     and the steering-wheel rate per metre driven (path sharpness, weight 1/v^2). Tuned so
+     that the EKF's estimate noise at the default sensor noise (about 1 cm, 1 mrad,
+     0.02 m/s) does not move the wheel by a degree (tests/test_smooth_control.py);
    - terminal cost from python-control's ``dlqr`` on the path-error linearisation;
    - soft limits (slack variables, exact L1 penalties): jerk, speed >= 0;
    - the report's two ways to stay in the most accurate zone (VI): a **minimum-speed
@@ -91,6 +97,36 @@ class MpcConfig:
     # angle / its max, pedals as fractions). Report VI: velocity effort above steering.
     w_speed_effort: float = 4.0
     w_steer_effort: float = 1.0
+    # smoothness (issue 9), separate from tracking: the effort weights above are the RATE
+    # terms (a change per stage is the rate times dt: w * (du/range/dt)^2 * dt per stage);
+    # these weight the change of that rate, per (normalised rate change per s)^2 per s
+    # (second differences: w * (d2u/range/dt^2)^2 * dt per stage). A reversal of the
+    # command is a large second difference, a steady ramp (a curve coming) none, so they
+    # damp the chatter that estimate noise causes without holding back a planned turn.
+    # Velocity above steering here too (report VI). Tuned at the default sensor noise
+    # (estimate noise about 1 cm, 1 mrad, 0.02 m/s) on report_2008; checked on a parameter
+    # set not used for tuning (tests/test_smooth_control.py holds the figures).
+    w_steer_rate_change: float = 0.3
+    w_pedal_rate_change: float = 1.0
+    # the standstill HOLD brake is reached at this rate [full travel / s] from the brake the
+    # plan already had on (the car is already stopping; a step jolts it and the pedal)
+    hold_brake_rate_ps: float = 0.25
+    # path sharpness: the steering-wheel rate per metre driven, (d sw / ds)^2 = (d sw/dt)^2
+    # / v^2, normalised like the effort, per s. Noise in the estimate (1 cm, 1 mrad) asks
+    # for a steering correction that grows as 1 / v^2 (a lateral offset y is undone over a
+    # time T with a road-wheel angle of about 2 b y / (v T)^2): without this the wheel
+    # chases 1 cm of estimate noise by several degrees at 1 m/s. At speed it fades (8 m/s:
+    # 1/64 of its 1 m/s weight). Below the floor speed the weight stops growing [m/s].
+    w_steer_sharpness: float = 100.0
+    steer_sharpness_speed_floor_mps: float = 0.5
+    # the UNPLANNED part of the rate: each step the inputs of the first ``replan_window_s``
+    # cost their squared distance from the previous plan (shifted to now), normalised like
+    # the effort, per s. A turn the reference announced is in that plan and passes freely;
+    # what a new estimate adds (noise, 1 cm / 1 mrad) is low-pass filtered step to step.
+    # Pedals above steering (report VI).
+    w_steer_replan: float = 3000.0
+    w_pedal_replan: float = 6000.0
+    replan_window_s: float = 1.0
     w_pedal_level: float = 0.02    # per pedal^2 per s: prefer the lighter pedal
     w_steer_level: float = 0.02    # per (sw - feedforward)^2 / max^2 per s
     # terminal LQR input weights (per rad^2 of steering wheel, per (m/s^2)^2)
@@ -149,7 +185,17 @@ class MpcConfig:
                      "r_terminal_steer", "r_terminal_accel", "w_limit_violation", "w_standstill"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"MpcConfig.{name} must be positive")
-        for name in ("w_floor", "w_transition", "w_pedal_level", "w_steer_level"):
+        if self.w_steer_rate_change > 0 and not self.w_pedal_rate_change > self.w_steer_rate_change:
+            raise ValueError("MpcConfig: the report (section VI) weights velocity effort above "
+                             "steering effort: need w_pedal_rate_change > w_steer_rate_change")
+        if self.w_steer_replan > 0 and not self.w_pedal_replan > self.w_steer_replan:
+            raise ValueError("MpcConfig: the report (section VI) weights velocity effort above "
+                             "steering effort: need w_pedal_replan > w_steer_replan")
+        if not self.hold_brake_rate_ps > 0:
+            raise ValueError("MpcConfig.hold_brake_rate_ps must be positive")
+        for name in ("w_floor", "w_transition", "w_pedal_level", "w_steer_level",
+                     "w_steer_rate_change", "w_pedal_rate_change", "w_steer_sharpness",
+                     "w_steer_replan", "w_pedal_replan", "replan_window_s"):
             if getattr(self, name) < 0:
                 raise ValueError(f"MpcConfig.{name} must be >= 0")
         if self.check_termination < 1 or self.adaptive_rho_interval < 0:
@@ -202,10 +248,13 @@ class _QpLayout:
         for k in range(1, N):
             for i in range(NU):
                 pr.append(iu(k - 1, i)); pc.append(iu(k, i))
+        for k in range(2, N):  # second differences (rate changes) couple k-2 and k
+            for i in range(NU):
+                pr.append(iu(k - 2, i)); pc.append(iu(k, i))
         for k in range(N):
             for i in range(NS):
                 pr.append(isl(k, i)); pc.append(isl(k, i))
-        self.p_seg = np.cumsum([0, 10 * N, NU * N, NU * (N - 1), NS * N])
+        self.p_seg = np.cumsum([0, 10 * N, NU * N, NU * (N - 1), NU * (N - 2), NS * N])
         self.P, self.P_perm = _pattern(pr, pc, self.n, self.n)
 
         # ---------------- A pattern, rows by block
@@ -286,6 +335,28 @@ class _QpLayout:
         ] + [(self.r_s, NS)]
         self.A_vals = np.array(av)
         self.A, self.A_perm = _pattern(ar, ac, self.m, self.n)
+
+
+def _difference_bands(w_rate: np.ndarray, w_rate_change: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bands of the Hessian (1/2 u'Hu convention) over [u_-2, u_-1, u_0 .. u_{n-1}] of
+    sum_k w_rate[k]/2 (u_k - u_{k-1})^2 + w_rate_change[k]/2 (u_k - 2 u_{k-1} + u_{k-2})^2,
+    k = 0 .. n-1 (u_-1, u_-2: the inputs before the horizon). Returns (diag (n+2,),
+    first off-diagonal (n+1,): entry j couples j and j+1, second (n,): j and j+2)."""
+    w1 = np.asarray(w_rate, dtype=float)
+    w2 = np.asarray(w_rate_change, dtype=float)
+    n = len(w1)
+    diag, off1, off2 = np.zeros(n + 2), np.zeros(n + 1), np.zeros(n)
+    diag[2:] += w1           # first differences: +1 at k+2, -1 at k+1
+    diag[1:-1] += w1
+    off1[1:] -= w1
+    diag[:-2] += w2          # second differences: (1, -2, 1) at k, k+1, k+2
+    diag[1:-1] += 4.0 * w2
+    diag[2:] += w2
+    off1[:-1] -= 2.0 * w2
+    off1[1:] -= 2.0 * w2
+    off2 += w2
+    return diag, off1, off2
 
 
 def _pattern(rows, cols, m, n):
@@ -375,17 +446,16 @@ class MpcController:
         self._w_pr = c.w_speed_effort / dt               # per pedal^2 of change per stage
         self._w_sl = c.w_steer_level * sw_n * dt
         self._w_pl = c.w_pedal_level * dt
-        # constant part of P values: inputs and slacks
-        ud = np.empty((N, NU))
-        ud[:, 0] = self._w_sl + 2 * self._w_sr
-        ud[:, 1:] = self._w_pl + 2 * self._w_pr
-        ud[-1, 0] -= self._w_sr
-        ud[-1, 1:] -= self._w_pr
-        uo = np.empty((N - 1, NU))
-        uo[:, 0] = -self._w_sr
-        uo[:, 1:] = -self._w_pr
-        self._P_u = np.concatenate([ud.ravel(), uo.ravel(),
-                                    np.full(NS * N, c.w_slack_quadratic * dt)])
+        self._w_src = c.w_steer_rate_change * sw_n / dt ** 3  # per rad^2 of 2nd difference
+        self._w_prc = c.w_pedal_rate_change / dt ** 3          # per pedal^2 of 2nd difference
+        # per unit of 1 / v^2 [(m/s)^2]: the sharpness term, per stage at the nominal speed
+        self._w_sharp = c.w_steer_sharpness * sw_n / dt
+        self._pedal_bands = _difference_bands(np.full(N, self._w_pr), np.full(N, self._w_prc))
+        self._P_slack = np.full(NS * N, c.w_slack_quadratic * dt)
+        k_re = min(int(round(c.replan_window_s / dt)), N)
+        self._w_replan = np.zeros((N, NU))  # per unit^2 of distance from the last plan
+        self._w_replan[:k_re, 0] = c.w_steer_replan * sw_n * dt
+        self._w_replan[:k_re, 1:] = c.w_pedal_replan * dt
         self._Px_vals = np.zeros(L.P.nnz)
 
     # ------------------------------------------------------------------ step
@@ -684,6 +754,11 @@ class MpcController:
         z = self.params.zones[0]
         hold_bp = self._standstill.hold_brake(z.offset_mps2, z.brake_scale_mps2)
         prev = self._last_cmd
+        if prev is not None and prev.brake_pedal < hold_bp and self._last_t is not None:
+            # ramp from the brake on, never below what holds idle creep
+            creep_bp = max(z.offset_mps2, 0.0) / max(z.brake_scale_mps2, 1e-6)
+            ramp = cfg.hold_brake_rate_ps * max(t - self._last_t, 0.0)
+            hold_bp = min(hold_bp, max(prev.brake_pedal + ramp, creep_bp))
         sw = prev.steering_wheel_angle_rad if prev is not None else 0.0
         cmd = self._finish(Command(sw, 0.0, hold_bp), t, zone0)
         if self._s_prog is not None:
@@ -896,7 +971,9 @@ class MpcController:
         qv = np.array([Q[:, a, b] for a, b in _UT4]).T.ravel()
         Px = self._Px_vals
         Px[:L.p_seg[1]] = qv
-        Px[L.p_seg[1]:] = self._P_u
+        bands_s = self._steer_bands(stage.states[:N, 3])
+        replan = self._shift_stages is not None  # a previous plan, shifted to now
+        Px[L.p_seg[1]:] = self._input_cost_values(bands_s, replan)
         # slack quadratic weights stay constant; P in CSC order
         Pdata = Px[L.P_perm]
 
@@ -906,11 +983,13 @@ class MpcController:
         q[NX:L.nx_all] = -np.einsum("kij,kj->ki", Qfull, rk).ravel()
         qu = np.zeros((N, NU))
         qu[:, 0] = -self._w_sl * path.steering_ff_rad[:N]
-        prev = self._last_cmd
-        if prev is not None:
-            qu[0, 0] -= self._w_sr * prev.steering_wheel_angle_rad
-            qu[0, 1] -= self._w_pr * prev.accel_pedal
-            qu[0, 2] -= self._w_pr * prev.brake_pedal
+        if replan:
+            qu -= self._w_replan * stage.inputs
+        prior = self._prior_inputs()
+        if prior is not None:  # the terms that couple stage 0 and 1 to the inputs before
+            for i, (_dg, o1, o2) in enumerate((bands_s, self._pedal_bands, self._pedal_bands)):
+                qu[0, i] += o2[0] * prior[0, i] + o1[1] * prior[1, i]
+                qu[1, i] += o2[1] * prior[1, i]
         q[L.nx_all:L.nx_all + L.nu_all] = qu.ravel()
         qs = np.empty((N, NS))
         qs[:, 0] = cfg.w_limit_violation * dt
@@ -918,6 +997,45 @@ class MpcController:
         qs[:, 2] = stage.band.w_hi
         q[L.nx_all + L.nu_all:] = qs.ravel()
         return Pdata, q
+
+    def _steer_bands(self, v_nominal_mps: np.ndarray):
+        """Steering's rate and rate-change bands (:func:`_difference_bands`): the rate weight
+        is the effort plus the sharpness term at each stage's nominal speed."""
+        cfg, N = self.config, self.N
+        v = np.maximum(np.asarray(v_nominal_mps, dtype=float), cfg.steer_sharpness_speed_floor_mps)
+        return _difference_bands(self._w_sr + self._w_sharp / (v * v), np.full(N, self._w_src))
+
+    def _input_cost_values(self, bands_s, replan: bool) -> np.ndarray:
+        """P values of the inputs (diagonal, first and second off-diagonal, in the layout's
+        order) and of the slacks."""
+        ud = np.empty((self.N, NU))
+        uo = np.empty((self.N - 1, NU))
+        uo2 = np.empty((self.N - 2, NU))
+        for i, (dg, o1, o2) in enumerate((bands_s, self._pedal_bands, self._pedal_bands)):
+            ud[:, i] = dg[2:] + (self._w_sl if i == 0 else self._w_pl)
+            if replan:
+                ud[:, i] += self._w_replan[:, i]
+            uo[:, i] = o1[2:]
+            uo2[:, i] = o2[2:]
+        return np.concatenate([ud.ravel(), uo.ravel(), uo2.ravel(), self._P_slack])
+
+    def _prior_inputs(self) -> np.ndarray | None:
+        """(2, NU): the two inputs before stage 0 as the rate terms see them, one stage
+        apart: the last command, and before it the last command minus the change the last
+        plan had over one stage then (its planned rate: a planned turn keeps its rate, while
+        the step-to-step jitter of the commands gives the rate-change terms no momentum).
+        None before the first command."""
+        prev = self._last_cmd
+        if prev is None:
+            return None
+        u1 = np.array([prev.steering_wheel_angle_rad, prev.accel_pedal, prev.brake_pedal])
+        out = np.vstack([u1, u1])
+        plan = self._plan
+        if plan is not None and self._last_t is not None:
+            tp = plan.t0_s + self.dt * np.arange(self.N)
+            k = int(np.clip(np.searchsorted(tp, self._last_t + self.dt), 1, self.N - 1))
+            out[0] = u1 - (plan.inputs[k] - plan.inputs[k - 1])
+        return out
 
     def _qp_dynamics(self, Ad: np.ndarray, Bd: np.ndarray) -> np.ndarray:
         """A values (CSC order): the dynamics blocks written into the fixed pattern."""

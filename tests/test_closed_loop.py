@@ -1,7 +1,7 @@
 """Closed loop on the hybrid plant: issue 4's acceptance for the MPC.
 
-Every run uses seeded wheel-speed noise (0.05 m/s) and position noise (0.02 m); seeds are
-fixed and printed. The figures are printed (pytest -s) so the closing note can quote them.
+The controller sees the plant through simulated sensors and the EKF (issue 9), with seeded
+wheel-speed noise (0.05 m/s) and GNSS position noise (0.02 m); seeds are fixed and printed. The figures are printed (pytest -s) so the closing note can quote them.
 """
 from __future__ import annotations
 
@@ -145,6 +145,46 @@ def test_recording_is_canonical_and_round_trips(params, tmp_path):
     back = Recording.load(tmp_path / "run.csv")
     assert np.allclose(back["speed"], rec["speed"])
     assert res.metrics["steps"] == len(res.statuses) == 60
+
+
+class _Spy:
+    """A controller that records the state it is given (and drives with the MPC)."""
+
+    def __init__(self, inner):
+        self.inner, self.name, self.seen = inner, "spy", []
+
+    def reset(self):
+        self.inner.reset()
+        self.seen = []
+
+    def step(self, state, reference, t_s, **kw):
+        self.seen.append(np.array(state, dtype=float))
+        return self.inner.step(state, reference, t_s, **kw)
+
+
+def test_controller_sees_the_estimate_never_the_plant(params):
+    """Issue 9: the truth reaches the controller only through the simulated sensors and the
+    EKF. The states it is given are the estimates (equal to ``estimated_state``), differ from
+    the plant's at every step but the first (the estimator starts on the start pose), and stay
+    within centimetres of it. Measured on this 6 s run: position error RMS about 1 cm."""
+    ref = _boundary_reference(seconds=6.0)
+    spy = _Spy(MpcController(params))
+    res = run_closed_loop(spy, ref, params, **NOISE)
+    seen = np.array(spy.seen)
+    assert np.array_equal(seen, res.estimated_state)
+    err = res.estimated_state - res.true_state
+    assert np.all(np.abs(err[1:, :2]).max(axis=1) > 0)
+    pos = np.hypot(err[:, 0], err[:, 1])
+    assert pos.max() < 0.1 and res.metrics["estimator"]["position_error_rms_m"] < 0.04
+    assert res.metrics["estimator"]["gnss_accepted"] > 100
+    assert np.all(res.estimator_time_s > 0)
+    # no GNSS for 2 s: the estimate dead-reckons on wheel speeds, gyro and steering angle
+    from hmpc.models.sim.live_sensors import SensorConfig
+    out = run_closed_loop(MpcController(params), ref, params, seed=SEED,
+                          sensors=SensorConfig(gnss_outages=((2.0, 4.0),)))
+    assert out.metrics["failures"] == 0
+    assert out.metrics["estimator"]["messages"]["gnss_outage"] == 40
+    assert out.metrics["estimator"]["position_error_rms_m"] < 0.1
 
 
 def test_pedal_switch_count():

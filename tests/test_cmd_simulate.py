@@ -76,12 +76,12 @@ def test_pid_and_plant_params(tmp_path, short_ref):
     assert rc == 0
     d = json.loads(js.read_text())
     assert d["controller"] == "pid" and d["plant_params"] == str(weak)
-    # the PID tracks the weaker plant (measured speed RMS 0.030 m/s, lateral 0.025 m; bounds
-    # 3x and 2.4x) but chatters between the pedals (measured 83 switches/min, the MPC 7.6/min
-    # on the nominal plant): that contrast is the README's point, so it is held here
+    # the PID tracks the weaker plant (measured speed RMS 0.035 m/s, lateral 0.024 m). Its
+    # pedal chatter (83 switches/min on the noised plant state before issue 9) is no longer
+    # held here: through the estimator and with issue 9's PID it measured 7.6/min, and the
+    # PID's smoothness is tests/test_pid_smooth.py's.
     assert d["failures"] == 0 and d["internal_errors"] == 0 and d["steps"] == 80
     assert d["speed_error_rms_mps"] < 0.1 and d["lateral_error_rms_m"] < 0.06
-    assert d["pedal_switches_per_min"] > 30.0
 
 
 def test_experiment_writes_a_canonical_recording(tmp_path):
@@ -141,3 +141,41 @@ def test_reference_csv_round_trip(tmp_path):
     with open(tmp_path / "nohead.csv", "w") as fh:
         fh.write("time,x,y,speed\n0,0,0,1\n1,1,1,1\n2,2,2,1\n")
     assert np.allclose(load_reference_csv(tmp_path / "nohead.csv").heading_rad, np.pi / 4)
+
+
+def test_sensor_options_reach_the_run_and_the_json(tmp_path, short_ref, capsys):
+    """Issue 9: the controller sees the plant through simulated sensors and the estimator;
+    their settings are options, echoed in the JSON with the smoothness figures."""
+    js = tmp_path / "s.json"
+    rc = main(["simulate", "--params", PARAMS, "--reference", str(short_ref), "--json", str(js),
+               "--sensor-noise-scale", "3", "--gnss-rate", "10", "--gnss-latency", "0.1",
+               "--gnss-outage", "2:4", "--gnss-outage", "5.5:6"])
+    assert rc == 0
+    d = json.loads(js.read_text())
+    assert d["sensors"]["noise_scale"] == 3.0 and d["sensors"]["gnss_rate_hz"] == 10.0
+    assert d["sensors"]["gnss_latency_s"] == 0.1
+    assert d["sensors"]["gnss_outages_s"] == [[2.0, 4.0], [5.5, 6.0]]
+    assert d["sensors"]["position_noise_m"] == 0.02 and d["sensors"]["speed_noise_mps"] == 0.05
+    est = d["details"]["estimator"]
+    # 8 s at 10 Hz less 2.5 s of outage: about 55 fixes; 25 fell in the outages
+    assert 50 <= est["messages"]["gnss"] <= 56 and 24 <= est["messages"]["gnss_outage"] <= 26
+    assert est["position_error_rms_m"] < 0.1 and d["failures"] == 0
+    rv = d["steering_reversals_per_min"]
+    assert set(rv) == {"1deg", "5deg"} and 0.0 <= rv["5deg"] <= rv["1deg"]
+    for k in ("steering_rate_rms_radps", "accel_pedal_rate_rms_ps", "brake_pedal_rate_rms_ps"):
+        assert d[k] >= 0.0
+    assert "smoothness: steering reversals" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("args, what", [
+    (["--gnss-outage", "4:2"], "--gnss-outage"),
+    (["--gnss-outage", "abc"], "T0:T1"),
+    (["--gnss-rate", "0"], "--gnss-rate"),
+    (["--sensor-noise-scale", "-1"], "--sensor-noise-scale"),
+    (["--position-noise", "-0.1"], "--position-noise"),
+])
+def test_bad_sensor_option_is_exit_2(short_ref, capsys, args, what):
+    rc = main(["simulate", "--params", PARAMS, "--reference", str(short_ref)] + args)
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and what in err[0]

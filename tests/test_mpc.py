@@ -235,3 +235,68 @@ def test_commands_respect_limits_every_step(params):
     assert np.max(np.abs(np.diff(sw))) <= 1.0 * 0.1 + 1e-9
     assert np.max(np.abs(np.diff(sw))) >= 0.099  # it did bind
     assert all(not (c.accel_pedal > 0 and c.brake_pedal > 0) for c in cmds)
+
+
+# ------------------------------------------------------------ issue 9: smoothness terms
+def test_difference_bands_are_the_dense_hessian():
+    from hmpc.controller.mpc import _difference_bands
+    rng = np.random.default_rng(SEED)
+    n = 7
+    w1, w2 = rng.uniform(0.5, 2.0, n), rng.uniform(0.5, 2.0, n)
+    D1, D2 = np.zeros((n, n + 2)), np.zeros((n, n + 2))
+    for k in range(n):
+        D1[k, k + 2], D1[k, k + 1] = 1.0, -1.0
+        D2[k, k + 2], D2[k, k + 1], D2[k, k] = 1.0, -2.0, 1.0
+    H = D1.T @ np.diag(w1) @ D1 + D2.T @ np.diag(w2) @ D2
+    dg, o1, o2 = _difference_bands(w1, w2)
+    assert np.allclose(dg, np.diag(H)) and np.allclose(o1, np.diag(H, 1))
+    assert np.allclose(o2, np.diag(H, 2)) and np.allclose(np.diag(H, 3), 0.0)
+    # the cost it encodes: 1/2 sum w1 (du)^2 + 1/2 sum w2 (d2u)^2 on a known sequence
+    u = rng.normal(size=n + 2)
+    want = 0.5 * np.sum(w1 * np.diff(u)[1:] ** 2) + 0.5 * np.sum(w2 * np.diff(u, 2) ** 2)
+    Hb = np.diag(dg) + np.diag(o1, 1) + np.diag(o1, -1) + np.diag(o2, 2) + np.diag(o2, -2)
+    assert 0.5 * u @ Hb @ u == pytest.approx(want)
+
+
+def test_smoothness_weights_keep_velocity_above_steering():
+    with pytest.raises(ValueError, match="w_pedal_rate_change > w_steer_rate_change"):
+        MpcConfig(w_steer_rate_change=2.0, w_pedal_rate_change=1.0)
+    with pytest.raises(ValueError, match="w_pedal_replan > w_steer_replan"):
+        MpcConfig(w_steer_replan=100.0, w_pedal_replan=100.0)
+    with pytest.raises(ValueError, match="w_steer_sharpness"):
+        MpcConfig(w_steer_sharpness=-1.0)
+    c = MpcConfig()
+    assert c.w_pedal_rate_change > c.w_steer_rate_change > 0
+    assert c.w_pedal_replan > c.w_steer_replan > 0 and c.w_speed_effort > c.w_steer_effort
+
+
+def test_smoothness_terms_keep_one_qp_pattern_and_damp_estimate_noise(params):
+    """The QP is set up once (the pattern holds the rate-change band); every step only
+    writes values. On a straight at 1 m/s with 1 cm / 1 mrad of white noise on the state
+    (the EKF's at the default sensors), the issue 9 terms cut the steering command's
+    step-to-step change: measured RMS 0.06 deg with them, 1.19 deg without."""
+    ref = straight(1.0, seconds=30.0)
+    rng = np.random.default_rng(SEED)
+    noise = rng.normal(size=(100, 4)) * [0.01, 0.01, 0.001, 0.02]
+    moves = {}
+    for name, cfg in (("smooth", MpcConfig()),
+                      ("off", MpcConfig(w_steer_rate_change=0.0, w_pedal_rate_change=0.0,
+                                        w_steer_sharpness=0.0, w_steer_replan=0.0,
+                                        w_pedal_replan=0.0))):
+        ctl = MpcController(params, cfg)
+        s = ref.initial_state(params)
+        s[3] = 1.0
+        sw = []
+        for i in range(100):
+            r = ctl.step(s + noise[i], ref, 0.1 * i)
+            assert r.ok, r.reason
+            sw.append(r.command.steering_wheel_angle_rad)
+            if i == 0:
+                solver = ctl._solver
+            s = s + np.array([0.1 * np.cos(s[2]), 0.1 * np.sin(s[2]), 0.0, 0.0])
+        assert ctl._solver is solver  # never rebuilt
+        moves[name] = float(np.degrees(np.sqrt(np.mean(np.diff(sw[20:]) ** 2))))
+    L = MpcController(params).layout
+    assert L.P.nnz == L.p_seg[-1]  # the pattern includes the second off-diagonal band
+    print("steering step RMS [deg]", moves)
+    assert moves["smooth"] < 0.2 * moves["off"]

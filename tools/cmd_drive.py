@@ -17,6 +17,7 @@ import os
 import sys
 
 from hmpc.models.errors import InputError
+from hmpc.tools.cmd_simulate import add_accept_unidentifiable
 
 CONTROLLERS = ("mpc", "nmpc", "pid")
 
@@ -29,6 +30,7 @@ def add_arguments(p) -> None:
                    help="the CAN bus (default virtual: python-can's in-process virtual bus)")
     p.add_argument("--vehicle-sim", action="store_true",
                    help="run the vehicle simulator node on the other end of the bus")
+    add_accept_unidentifiable(p)
     p.add_argument("--plant-params", metavar="P2.yaml",
                    help="the simulated car's parameters (default: --params)")
     what = p.add_mutually_exclusive_group(required=True)
@@ -60,26 +62,25 @@ def run(args) -> int:
     from hmpc.controller.actuation.drive import DriveLoop, audit_candump, parse_fault
     from hmpc.controller.actuation.profiles import load_profile
     from hmpc.controller.actuation.vehicle_node import VehicleNode
-    from hmpc.models.params import load_params
     from hmpc.models.sim.scenarios import load_reference_csv, make_scenario
     from hmpc.tools.cli import write_json
-    from hmpc.tools.cmd_simulate import make_controller
+    from hmpc.tools.cmd_simulate import load_model_params, make_controller
 
-    params = load_params(args.params, require_model=True)
+    params = load_model_params(args.params, args, "drive")
     profile = load_profile(args.actuation)
     faults = [parse_fault(f) for f in args.fault]
     if args.plant_params and not args.vehicle_sim:
         raise InputError("--plant-params belongs to --vehicle-sim")
     if args.duration is not None and not args.duration > 0:
         raise InputError("--duration must be > 0")
-    truth = load_params(args.plant_params, require_model=True) if args.plant_params else params
+    truth = load_model_params(args.plant_params, args, "drive") if args.plant_params else params
     ref = make_scenario(args.scenario, params) if args.scenario is not None \
         else load_reference_csv(args.reference)
     kw = bus_kwargs(args.bus)
     node = None
     if args.vehicle_sim:
         node = VehicleNode(profile, truth, kw, start_state=ref.initial_state(truth))
-    ctl = make_controller(args.controller, params)
+    ctl = make_controller(args.controller, params, accept_unidentifiable=args.accept_unidentifiable)
     duration = args.duration if args.duration is not None else ref.duration_s
     print(f"hmpc drive: {args.controller} on {ref.name} via {profile.name} "
           f"({args.bus}{', vehicle sim' if node else ''}), {duration:.1f} s", file=sys.stderr)

@@ -10,8 +10,14 @@ Two uses:
   [--json FILE] [--seed N]``: a controller drives the hybrid plant along a reference. The
   JSON holds ``speed_error_rms_mps``, ``lateral_error_rms_m``, ``pedal_switches_per_min``,
   ``zone_transitions_per_min``, ``solve_time_ms`` {p50, p99, max}, ``steps``, ``failures``,
-  ``internal_errors`` (controller bugs; the first traceback goes to stderr) and, under
-  ``details``, more.
+  ``internal_errors`` (controller bugs; the first traceback goes to stderr), the smoothness
+  figures of issue 9 (``steering_reversals_per_min`` {1deg, 5deg}, ``steering_rate_rms_radps``,
+  ``accel_pedal_rate_rms_ps``, ``brake_pedal_rate_rms_ps``), the ``sensors`` used and, under
+  ``details``, more (``details.estimator``: the estimate's error against the truth).
+
+  The controller sees the plant only through simulated car sensors and the EKF
+  (``controller.estimator``): ``--speed-noise``, ``--position-noise``,
+  ``--sensor-noise-scale``, ``--gnss-rate``, ``--gnss-latency``, ``--gnss-outage T0:T1``.
 """
 from __future__ import annotations
 
@@ -38,6 +44,7 @@ def add_arguments(p) -> None:
                            "open_loop")
     p.add_argument("--controller", choices=CONTROLLERS, default="mpc",
                    help="closed-loop controller (default mpc)")
+    add_accept_unidentifiable(p)
     p.add_argument("--plant-params", metavar="OTHER.yaml",
                    help="run the controller against a plant built from these parameters "
                         "(model mismatch)")
@@ -52,8 +59,20 @@ def add_arguments(p) -> None:
     p.add_argument("--control-period", type=float, default=0.1, metavar="S",
                    help="controller period [s]; the plant runs at 50 Hz (default 0.1)")
     p.add_argument("--speed-noise", type=float, default=0.05, metavar="MPS",
-                   help="std of the measured-speed noise [m/s] (default 0.05, wheel-speed "
-                        "noise of a real car)")
+                   help="std of the speed noise of the wheel speeds and the GNSS speed [m/s] "
+                        "(default 0.05, wheel-speed noise of a real car)")
+    p.add_argument("--position-noise", type=float, default=None, metavar="M",
+                   help="std of the GNSS position noise [m] (default 0.4 x --speed-noise: "
+                        "0.02, an RTK fix)")
+    p.add_argument("--sensor-noise-scale", type=float, default=1.0, metavar="K",
+                   help="multiply every random sensor error by K (default 1; 3 for the "
+                        "robustness runs)")
+    p.add_argument("--gnss-rate", type=float, default=20.0, metavar="HZ",
+                   help="GNSS/INS fix rate [Hz] (default 20)")
+    p.add_argument("--gnss-latency", type=float, default=0.05, metavar="S",
+                   help="GNSS/INS fix latency [s] (default 0.05)")
+    p.add_argument("--gnss-outage", action="append", default=[], metavar="T0:T1",
+                   help="no GNSS fix from T0 to T1 [s on the reference's clock] (repeatable)")
     p.add_argument("--no-transition-penalty", action="store_true",
                    help="MPC without the zone-transition penalty (for comparison)")
     p.add_argument("--noise", choices=("typical", "quantised", "none"), default="typical",
@@ -63,10 +82,9 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from hmpc.models.params import load_params
     from hmpc.tools.cli import write_json
 
-    params = load_params(args.params, require_model=True)
+    params = load_model_params(args.params, args, "simulate")
     if args.experiment is not None:
         return _run_experiment(args, params, write_json)
     return _run_closed_loop(args, params, write_json)
@@ -97,9 +115,31 @@ def _run_experiment(args, params, write_json) -> int:
     return 0
 
 
+def add_accept_unidentifiable(p) -> None:
+    """The option that accepts values flagged ``identifiable: false`` (simulate and drive)."""
+    from hmpc.models.params import ACCEPT_UNIDENTIFIABLE_FLAG
+    p.add_argument(ACCEPT_UNIDENTIFIABLE_FLAG, action="store_true",
+                   help="use steering or zone values that identification flagged "
+                        "'identifiable: false' (refused without it; a warning line each)")
+
+
+def load_model_params(path, args, command: str):
+    """A complete model from ``path`` for a controller or plant: refuses a file lacking a part
+    and, unless ``--accept-unidentifiable``, values flagged ``identifiable: false`` (one line
+    naming the key and the flag); with the flag prints one warning line naming them."""
+    from hmpc.models.params import check_identifiable, load_params
+    params = load_params(path, require_model=True)
+    for line in check_identifiable(params, accept=getattr(args, "accept_unidentifiable", False)):
+        print(f"hmpc {command}: warning: {line}", file=sys.stderr)
+    return params
+
+
 def make_controller(name: str, params, *, dt_s: float = 0.2, horizon_s: float = 10.0,
-                    transition_penalty: bool = True):
-    """The controller ``name`` (mpc, nmpc, pid) for ``params``."""
+                    transition_penalty: bool = True, accept_unidentifiable: bool = False):
+    """The controller ``name`` (mpc, nmpc, pid) for ``params``; refuses values flagged
+    ``identifiable: false`` unless ``accept_unidentifiable`` (ParamError naming key and flag)."""
+    from hmpc.models.params import check_identifiable
+    check_identifiable(params, accept=accept_unidentifiable)
     from hmpc.controller.mpc import MpcConfig, MpcController
 
     if name == "pid":
@@ -117,19 +157,18 @@ def make_controller(name: str, params, *, dt_s: float = 0.2, horizon_s: float = 
 
 def _run_closed_loop(args, params, write_json) -> int:
     from hmpc.controller.closed_loop import run_closed_loop
-    from hmpc.models.params import load_params
     from hmpc.models.sim.scenarios import load_reference_csv, make_scenario
 
     if args.horizon <= 0 or abs(args.horizon / args.dt - round(args.horizon / args.dt)) > 1e-6:
         raise InputError(f"--horizon {args.horizon} must be a positive multiple of --dt {args.dt}")
-    if args.speed_noise < 0:
-        raise InputError("--speed-noise must be >= 0")
-    plant_params = load_params(args.plant_params, require_model=True) if args.plant_params \
+    sensors = _sensor_config(args)
+    plant_params = load_model_params(args.plant_params, args, "simulate") if args.plant_params \
         else None
     ref = make_scenario(args.scenario, params) if args.scenario is not None \
         else load_reference_csv(args.reference)
     ctl = make_controller(args.controller, params, dt_s=args.dt, horizon_s=args.horizon,
-                          transition_penalty=not args.no_transition_penalty)
+                          transition_penalty=not args.no_transition_penalty,
+                          accept_unidentifiable=args.accept_unidentifiable)
     print(f"hmpc simulate: {args.controller} on {ref.name} ({ref.duration_s:.1f} s), "
           f"seed {args.seed}", file=sys.stderr)
     def progress(fraction: float, t_s: float) -> None:
@@ -138,8 +177,7 @@ def _run_closed_loop(args, params, write_json) -> int:
 
     res = run_closed_loop(ctl, ref, params, plant_params=plant_params,
                           control_period_s=args.control_period, seed=args.seed,
-                          speed_noise_mps=args.speed_noise,
-                          position_noise_m=0.4 * args.speed_noise, progress=progress)
+                          sensors=sensors, progress=progress)
     m = res.metrics
     if res.internal_errors:
         t_err, tb = res.internal_errors[0]
@@ -150,9 +188,12 @@ def _run_closed_loop(args, params, write_json) -> int:
         res.recording.save(args.out)
     payload = {k: m[k] for k in ("speed_error_rms_mps", "lateral_error_rms_m",
                                  "pedal_switches_per_min", "zone_transitions_per_min",
-                                 "solve_time_ms", "steps", "failures", "internal_errors")}
+                                 "solve_time_ms", "steps", "failures", "internal_errors",
+                                 "steering_reversals_per_min", "steering_rate_rms_radps",
+                                 "accel_pedal_rate_rms_ps", "brake_pedal_rate_rms_ps")}
     payload.update({"controller": args.controller, "reference": ref.name,
                     "plant_params": args.plant_params, "seed": args.seed,
+                    "sensors": _sensor_echo(sensors),
                     "details": {k: v for k, v in m.items() if k not in payload}})
     if args.plots:
         payload["plots"] = _plots(res, ref, args.plots, args.controller,
@@ -172,6 +213,77 @@ def _print_summary(p: dict) -> None:
           f"solve time p50/p99/max {st['p50']:.2f}/{st['p99']:.2f}/{st['max']:.2f} ms, "
           f"{p['steps']} steps, {p['failures']} failures, "
           f"{p['internal_errors']} internal errors")
+    rv = p["steering_reversals_per_min"]
+    print(f"  smoothness: steering reversals >= 1/5 deg {rv['1deg']:.1f}/{rv['5deg']:.1f} per "
+          f"min, steering-wheel rate RMS {p['steering_rate_rms_radps']:.3f} rad/s, pedal rate "
+          f"RMS accel {p['accel_pedal_rate_rms_ps']:.3f} brake "
+          f"{p['brake_pedal_rate_rms_ps']:.3f} /s")
+
+
+def _sensor_config(args):
+    """The simulated sensors from the options (InputError naming the bad option)."""
+    from hmpc.models.sim.live_sensors import SensorConfig
+
+    if not args.speed_noise >= 0:
+        raise InputError("--speed-noise must be >= 0")
+    pos = round(0.4 * args.speed_noise, 9) if args.position_noise is None else args.position_noise
+    if not pos >= 0:
+        raise InputError("--position-noise must be >= 0")
+    outages = []
+    for w in args.gnss_outage:
+        try:
+            a, b = (float(q) for q in w.split(":"))
+        except ValueError:
+            raise InputError(f"--gnss-outage {w!r}: expected T0:T1 in seconds") from None
+        if not a < b:
+            raise InputError(f"--gnss-outage {w!r}: T0 must be before T1")
+        outages.append((a, b))
+    try:
+        return SensorConfig(speed_noise_mps=args.speed_noise,
+                            gnss_speed_noise_mps=args.speed_noise, position_noise_m=pos,
+                            noise_scale=args.sensor_noise_scale,
+                            gnss_rate_hz=args.gnss_rate, gnss_latency_s=args.gnss_latency,
+                            gnss_outages=tuple(outages))
+    except ValueError as exc:  # e.g. a negative rate: name it as an option
+        msg = str(exc).replace("noise_scale", "--sensor-noise-scale").replace(
+            "gnss_rate_hz", "--gnss-rate").replace("gnss_latency_s", "--gnss-latency")
+        raise InputError(msg) from None
+
+
+def _sensor_echo(cfg) -> dict:
+    """The sensor settings of a run, for its JSON."""
+    return {"speed_noise_mps": cfg.speed_noise_mps, "position_noise_m": cfg.position_noise_m,
+            "noise_scale": cfg.noise_scale, "gnss_rate_hz": cfg.gnss_rate_hz,
+            "gnss_latency_s": cfg.gnss_latency_s,
+            "gnss_outages_s": [list(w) for w in cfg.gnss_outages],
+            "can_rate_hz": cfg.can_rate_hz, "imu_rate_hz": cfg.imu_rate_hz}
+
+
+def _smoothness_panel(ax, t, ch, m) -> None:
+    """The commands' rates (steering wheel [rad/s] left, pedals [1/s] right) with the
+    issue 9 smoothness figures written on the panel."""
+    import numpy as np
+
+    dt = np.diff(t)
+    tm = t[1:]
+    ax.plot(tm, np.diff(ch["steering_cmd"]) / dt, color="C0", lw=0.8,
+            label="steering-wheel cmd rate")
+    ax.set_ylabel("steering-wheel rate [rad/s]")
+    ax2 = ax.twinx()
+    ax2.plot(tm, np.diff(ch["accel_pedal_cmd"]) / dt, color="C2", lw=0.8,
+             label="accel pedal cmd rate")
+    ax2.plot(tm, np.diff(ch["brake_pedal_cmd"]) / dt, color="C3", lw=0.8,
+             label="brake pedal cmd rate")
+    ax2.set_ylabel("pedal rate [1/s]")
+    rv = m["steering_reversals_per_min"]
+    ax.text(0.01, 0.95, f"steering reversals >= 1 deg: {rv['1deg']:.1f}/min, >= 5 deg: "
+            f"{rv['5deg']:.1f}/min; steering rate RMS {m['steering_rate_rms_radps']:.3f} rad/s; "
+            f"pedal rate RMS accel {m['accel_pedal_rate_rms_ps']:.3f} /s, brake "
+            f"{m['brake_pedal_rate_rms_ps']:.3f} /s", transform=ax.transAxes, va="top",
+            fontsize=8, bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = ax2.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, loc="lower right", fontsize=8)
 
 
 def _plots(res, ref, out_dir: str, controller: str, params) -> list[str]:
@@ -185,7 +297,7 @@ def _plots(res, ref, out_dir: str, controller: str, params) -> list[str]:
     ch = res.recording.channels
     t = ch["time"]
     files = []
-    fig, ax = plt.subplots(5, 1, figsize=(10, 12), sharex=True)
+    fig, ax = plt.subplots(6, 1, figsize=(10, 14), sharex=True)
     ax[0].plot(t, res.speed_ref_mps, "k--", label="reference")
     ax[0].plot(t, ch["speed"], label="speed")
     ax[0].set_ylabel("speed [m/s]")
@@ -200,12 +312,13 @@ def _plots(res, ref, out_dir: str, controller: str, params) -> list[str]:
     ax[3].plot(t, ch["steering_wheel_angle"], label="applied")
     ax[3].set_ylabel("steering-wheel angle [rad]")
     ax[3].legend(loc="best")
-    ax[4].step(t, res.zone, where="post")
-    ax[4].set_yticks(range(len(params.zones)), [f"{z.name} ({z.v_min_mps:g}-{z.v_max_mps:g} m/s)"
-                                         for z in params.zones])
-    ax[4].set_ylabel("plant zone")
-    ax[4].set_xlabel("time [s]")
     m = res.metrics
+    _smoothness_panel(ax[4], t, ch, m)
+    ax[5].step(t, res.zone, where="post")
+    ax[5].set_yticks(range(len(params.zones)), [f"{z.name} ({z.v_min_mps:g}-{z.v_max_mps:g} m/s)"
+                                         for z in params.zones])
+    ax[5].set_ylabel("plant zone")
+    ax[5].set_xlabel("time [s]")
     fig.suptitle(f"{controller} on {ref.name}: speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
                  f"lateral RMS {m['lateral_error_rms_m']:.3f} m, "
                  f"{m['pedal_switches_per_min']:.1f} pedal switches/min")
