@@ -7,6 +7,7 @@ experiments in a row (8-11 minutes at 50 Hz)."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ import yaml
 
 from hmpc.models.diagnose.diagnose import diagnose
 from hmpc.models.diagnose.testdata import CASES, make_case
-from hmpc.models.errors import InputError
+from hmpc.models.errors import InputError, ParamError
 from hmpc.models.logs.recording import Recording
 from hmpc.models.params import load_params
 from hmpc.tools import cli
@@ -102,8 +103,39 @@ def test_cli_contract_json_and_params_out(delay_csv, tmp_path):
     assert abs(f["parameters"]["delay_s"] - 0.3) < 0.06
     p = load_params(p2, require_model=True)  # the strict loader accepts what we wrote
     assert p.longitudinal_dead_time_s == pytest.approx(f["parameters"]["delay_s"])
-    ext = yaml.safe_load((tmp_path / "p2.extensions.yaml").read_text())
-    assert ext["extensions"]["findings"][0]["effect"] == "actuator_delay"
+    # one file: the findings are its extensions: section, which the loader validates
+    assert not (tmp_path / "p2.extensions.yaml").exists()
+    ext = p.extensions["actuator_delay"]["longitudinal"]
+    assert ext["delay_s"] == pytest.approx(f["parameters"]["delay_s"])
+    lo, hi = ext["intervals"]["delay_s"]
+    assert lo <= ext["delay_s"] <= hi
+    assert ext["input"] == "accel_pedal+brake_pedal"
+    assert yaml.safe_load(p2.read_text())["extensions"] == p.extensions
+
+
+def test_params_extensions_section_is_validated_against_the_catalogue(tmp_path):
+    """An unknown catalogue id, subsystem or parameter is refused in one line naming the key
+    (exit 2 through any command that loads the file)."""
+    good = yaml.safe_load(open(REPORT).read())
+    good["extensions"] = {"aero_drag": {"longitudinal": {
+        "coeff_per_m": 1.5e-3, "intervals": {"coeff_per_m": [1.2e-3, 1.8e-3]}}}}
+    f = tmp_path / "p2.yaml"
+    f.write_text(yaml.safe_dump(good))
+    assert load_params(f).extensions["aero_drag"]["longitudinal"]["coeff_per_m"] == 1.5e-3
+    for bad, key in (({"aero_dragg": {"longitudinal": {}}}, "extensions.aero_dragg"),
+                     ({"aero_drag": {"steering": {}}}, "extensions.aero_drag.steering"),
+                     ({"aero_drag": {"longitudinal": {"coeff_m": 1.0}}},
+                      "extensions.aero_drag.longitudinal.coeff_m"),
+                     ({"actuator_lag": {"longitudinal": {"tau_s": 0.3, "on_top_of": "road_grade"}}},
+                      "extensions.actuator_lag.longitudinal.on_top_of"),
+                     ({"aero_drag": {"longitudinal": {"base": {"zones": [
+                         {"name": "high", "gain_mps2": 1.0}]}}}},
+                      "extensions.aero_drag.longitudinal.base.zones[0].gain_mps2")):
+        good["extensions"] = bad
+        f.write_text(yaml.safe_dump(good))
+        with pytest.raises(ParamError, match=re.escape(f"key '{key}'")) as exc:
+            load_params(f)
+        assert "\n" not in str(exc.value) and "p2.yaml" in str(exc.value)
 
 
 def test_cli_given_params_are_replayed(delay_csv, tmp_path):

@@ -6,8 +6,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import yaml
-
 from hmpc.models.errors import InputError
 from hmpc.tools.cmd_ingest import recording_or_log
 from hmpc.models.params import dump_params, load_params
@@ -27,8 +25,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="FILE", help="findings, unexplained mismatch, replay")
     p.add_argument("--report", metavar="DIR", help="write an HTML report with figures")
     p.add_argument("--params-out", metavar="P2.yaml",
-                   help="write the extended model (conventions keys; extension parameters the "
-                        "loader cannot hold yet go to P2.extensions.yaml beside it)")
+                   help="write the extended model: the conventions' keys plus the findings in "
+                        "its extensions: section (catalogue id -> subsystem -> parameters)")
     g = p.add_argument_group("raw log input (the options of `hmpc ingest`)")
     add_ingest_options(g, log_required=False)
 
@@ -51,7 +49,8 @@ def summary_lines(dg) -> list[str]:
         ps = ", ".join(f"{k} {v:.4g} [{f['intervals'][k][0]:.4g}, {f['intervals'][k][1]:.4g}]"
                        if k in f["intervals"] else f"{k} {v:.4g}"
                        for k, v in f["parameters"].items() if isinstance(v, float))
-        out.append(f"{i}. {f['effect']} ({f['subsystem']}): {ps}")
+        below = f" (on top of {', '.join(f['on_top_of'])})" if f.get("on_top_of") else ""
+        out.append(f"{i}. {f['effect']} ({f['subsystem']}){below}: {ps}")
         out.append(f"   held-out {f['channel']} RMSE {f['heldout_rmse_before']:.4g} -> "
                    f"{f['heldout_rmse_after']:.4g} ({100 * f['gain']:.0f} % better)")
     for u in dg.unexplained:
@@ -80,18 +79,15 @@ def run(args) -> int:
         payload["ingest"] = ingest_summary
     if args.params_out:
         out = Path(args.params_out)
-        ext_path = out.with_name(out.stem + ".extensions.yaml")
-        dg.params_out.provenance["extensions_file"] = ext_path.name
         try:
             dump_params(dg.params_out, out)
-            with open(ext_path, "w", encoding="utf-8") as fh:
-                yaml.safe_dump(dg.extensions, fh, sort_keys=False)
         except OSError as exc:
             raise InputError(f"cannot write the parameter file ({exc.strerror or exc})",
                              str(out)) from None
         load_params(out, require_model=True)  # what we wrote must load strictly
-        print(f"wrote {out} and {ext_path}")
-        payload["params_out"] = {"file": str(out), "extensions_file": str(ext_path)}
+        print(f"wrote {out}")
+        payload["params_out"] = {"file": str(out),
+                                 "extensions": sorted(dg.params_out.extensions)}
     if args.report:
         from hmpc.models.diagnose.report import write_report
         _progress(f"writing the HTML report to {args.report}")

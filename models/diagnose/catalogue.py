@@ -39,8 +39,15 @@ CATALOGUE: dict[str, dict] = {
     },
     "road_grade": {
         "physics": "gravity along the road, from altitude, pitch, or accelerometer against dv/dt",
-        "equation": {"longitudinal": "dv/dt = eq. 8 - k * g * sin(theta(t)),  theta = asin(dz/ds)"},
+        "equation": {"longitudinal": "dv/dt = eq. 8 - k * g * (sin(theta) - F[sin(theta)]),  "
+                                     "theta = asin(dz/ds),  F = 1 / (s / comp_rate + 1) "
+                                     "(F = 0 when the pedal drives)"},
         "parameters": {"gain": "k [1] (1: the measured grade acts in full), 0..2",
+                       "comp_rate_per_s": "rate 1/T [1/s] at which a car driven by an "
+                                          "acceleration request (ACC) compensates the grade "
+                                          "itself: the grade acts as g (sin theta - F(sin theta)), "
+                                          "F = 1 / (T s + 1); 0..1, 0 = not compensated "
+                                          "(pedal-driven cars)",
                        "grade_rms_rad": "rms measured grade [rad]",
                        "grade_mean_rad": "mean measured grade [rad]"},
     },
@@ -61,6 +68,10 @@ CATALOGUE: dict[str, dict] = {
         "parameters": {"offset_s": "CAN clock minus INS clock c [s], -1..1"},
     },
 }
+
+#: text keys an ``extensions:`` entry of a parameter file may carry beside the parameters
+#: (models.params validates the section against this catalogue)
+EXTENSION_TEXT_KEYS = ("equation", "input", "on_top_of", "grade_source", "note")
 
 #: hypotheses that describe the same mismatch in two ways: only the better one is a finding
 #: (the steering-map shapes too: both change the gain, one with angle, one with speed, and

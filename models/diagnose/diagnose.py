@@ -11,9 +11,11 @@ the held-out fit with it added.
    ``DiagnoseConfig.min_gain`` and by more than the channel's resolution, lowers the BIC (with
    the effective sample size of autocorrelated residuals) and, for a linear term, is selected
    by FOS (Korenberg) among the baseline's terms. Of two alternative descriptions (delay or
-   lag, v^2 or v resistance) only the better is a finding. A physically impossible baseline
-   (a pedal map that is not monotone, a negative drag when drag is fitted) is recorded as
-   evidence of missing physics.
+   lag, v^2 or v resistance) only the better is a finding. Findings stack: a static term is
+   refitted on top of an accepted delay or lag, and a delay or lag on top of the best static
+   term when it was not a finding alone (each scored against the model below it). A
+   physically impossible baseline (a pedal map that is not monotone, a negative drag when
+   drag is fitted) is recorded as evidence of missing physics.
 4. **Unexplained**: a change in the car that no hypothesis models (a split fit of the final
    model lowers its error by ``change_min_reduction``) is reported with its windows and its
    share of the error, never named.
@@ -67,7 +69,9 @@ class Diagnosis:
     longitudinal_input: str
     series: dict = field(repr=False, default_factory=dict)
     params_out: Params | None = None
-    extensions: dict = field(default_factory=dict)
+    #: the report's baseline (eq. 7, eq. 8) fitted on the recording as it came, without any
+    #: finding or sensor correction: what the extended model is compared against in closed loop
+    baseline_out: Params | None = None
     timing_s: float = 0.0
     notes: list = field(default_factory=list)
 
@@ -100,10 +104,12 @@ def _zones(params: Params | None):
     return lon.DEFAULT_ZONES
 
 
-def _fos_selects(d: lon.LonData, name: str, base: dict | None = None) -> bool:
-    """FOS (forced baseline terms) keeps the extension's term on its blocked hold-out."""
+def _fos_selects(d: lon.LonData, name: str, base: dict | None = None,
+                 spec: lon.LonSpec | None = None) -> bool:
+    """FOS (forced baseline terms) keeps the extension's term on its blocked hold-out
+    (``spec``: the fitted hypothesis, e.g. a grade with its compensation rate)."""
     from hmpc.models.identify.fos import fos
-    spec = lon.LonSpec(name, **(base or {}))
+    spec = spec or lon.LonSpec(name, **(base or {}))
     X, _ = lon._design(d, lon.inputs(d, spec), spec)
     use = d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) & np.isfinite(X).all(axis=1)
     Xs = X[use]
@@ -175,22 +181,22 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
     say(f"longitudinal: eq. 8 zones driven by {', '.join(ld.input_names)}")
     lon_scores, cl = _longitudinal_step(w, ld, cfg, res)
     _stack_on_dynamics(ld, w.cands, lon_scores, cfg, cl, res)
+    _stack_dynamics_on_static(ld, w.cands, lon_scores, cfg, cl, res)
 
     _drop_alternatives(w.cands)
     findings = _rank_findings(w, regimes)
     _locate_channels(w, regimes, cfg)
     t = w.series["t"]
-    lon_best = next((f["effect"] for f in findings if f["subsystem"] == "longitudinal"
-                     and f["channel"] == "speed"), None)
     unexplained = []
-    u = _change_unexplained(ld, lon_best, cfg, t)
+    u = _change_unexplained(ld, _final_lon_spec(findings, lon_scores), cfg, t)
     if u is not None:
         unexplained.append(u)
 
-    params_out, ext = _params_out(rec, vehicle, params, ld, lon_scores, steer_final, findings,
-                                  zones, cfg)
+    params_out = _params_out(rec, vehicle, params, ld, lon_scores, steer_final, findings,
+                             zones, cfg)
+    baseline_out = _baseline_out(rec, vehicle, params, zones, cfg)
     return Diagnosis(findings, unexplained, _clean(w.channels), w.hyps, w.evidence,
-                     "+".join(ld.input_names), w.series, params_out, ext,
+                     "+".join(ld.input_names), w.series, params_out, baseline_out,
                      round(time.perf_counter() - t_start, 3), w.notes)
 
 
@@ -311,7 +317,7 @@ def _longitudinal_step(w: _Work, ld: lon.LonData, cfg: DiagnoseConfig,
         s = lon.evaluate(ld, h, cfg, cl)
         lon_scores[h] = s
         ok, why = _accept(b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic, res.speed_mps, cfg)
-        if ok and h in lon.LINEAR_EXT and not _fos_selects(ld, h):
+        if ok and h in lon.LINEAR_EXT and not _fos_selects(ld, h, spec=s.model.spec):
             ok, why = False, "FOS does not select the term on its hold-out"
         c = _cand(h, "longitudinal", "speed", b.heldout_rmse_mps, s.heldout_rmse_mps, s.params,
                   s.intervals, ok, why, b.heldout_err, s.heldout_err, cfg.window_lon_s,
@@ -362,9 +368,11 @@ def _rank_findings(w: _Work, regimes) -> list:
         if "_ok" in c:
             c.pop("_before"), c.pop("_after"), c.pop("_window_s")
             ok = c.pop("_ok")
-            w.hyps.append({**{k: c[k] for k in _HYP_KEYS}, "finding": ok, "why": c["why"]})
+            w.hyps.append({**{k: c[k] for k in _HYP_KEYS}, "finding": ok, "why": c["why"],
+                           **({"stacked": c["stacked"]} if "stacked" in c else {})})
     for f in findings:
-        w.hyps.append({**{k: f[k] for k in _HYP_KEYS}, "finding": True, "why": "accepted"})
+        w.hyps.append({**{k: f[k] for k in _HYP_KEYS}, "finding": True, "why": "accepted",
+                       **({"on_top_of": f["on_top_of"]} if "on_top_of" in f else {})})
     return findings
 
 
@@ -448,9 +456,10 @@ def _stack_on_dynamics(ld, cands, lon_scores, cfg, cl, res) -> None:
         h = c["effect"]
         s = lon.evaluate(ld, h, cfg, cl, base=base)
         ok, why = _accept(b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic, res.speed_mps, cfg)
-        if ok and not _fos_selects(ld, h, base):
+        if ok and not _fos_selects(ld, h, spec=s.model.spec):
             ok, why = False, "FOS does not select the term on its hold-out"
         if ok:
+            lon_scores[("on_top", h)] = s
             new = _cand(h, "longitudinal", "speed", b.heldout_rmse_mps, s.heldout_rmse_mps,
                         s.params, s.intervals, True, f"accepted on top of {top['effect']}",
                         b.heldout_err, s.heldout_err, cfg.window_lon_s, s.bic - b.bic)
@@ -462,6 +471,44 @@ def _stack_on_dynamics(ld, cands, lon_scores, cfg, cl, res) -> None:
         elif c["_ok"]:
             c["_ok"] = False
             c["why"] = f"explained by {top['effect']}: on top of it {why}"
+
+
+def _stack_dynamics_on_static(ld, cands, lon_scores, cfg, cl, res) -> None:
+    """An actuator's delay or lag can hide behind a larger static mismatch (on the comma minute
+    a grade change the ACC compensates only over seconds dwarfs its 0.3 s response). When no
+    delay or lag is a finding on its own but a static term is, each is refitted on top of the
+    best static term (its parameters searched again) and scored against that model."""
+    lon_speed = [c for c in cands if c["subsystem"] == "longitudinal" and c["channel"] == "speed"]
+    if any(c["_ok"] and c["effect"] in _DYNAMICS for c in lon_speed):
+        return
+    static = [c for c in lon_speed if c["_ok"] and c["effect"] in lon.LINEAR_EXT]
+    if not static:
+        return
+    top = min(static, key=lambda c: c["heldout_rmse_after"])
+    b = lon_scores[top["effect"]]
+    base = {"ext_name": top["effect"], "comp_rate_per_s": b.model.spec.comp_rate_per_s,
+            "creep_speed_mps": b.model.spec.creep_speed_mps}
+    below = {k: v for k, v in top["parameters"].items() if isinstance(v, float)}
+    for c in [c for c in lon_speed if c["effect"] in _DYNAMICS]:
+        h = c["effect"]
+        s = lon.evaluate(ld, h, cfg, cl, base=base)
+        ok, why = _accept(b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic, res.speed_mps, cfg)
+        new = _cand(h, "longitudinal", "speed", b.heldout_rmse_mps, s.heldout_rmse_mps, s.params,
+                    s.intervals, ok, f"accepted on top of {top['effect']}" if ok
+                    else f"on top of {top['effect']}: {why}", b.heldout_err, s.heldout_err,
+                    cfg.window_lon_s, s.bic - b.bic)
+        new["on_top_of"] = {top["effect"]: below}
+        if not ok:  # the hypothesis alone stays on record; the stacked try goes beside it
+            c["why"] = f"{c['why']}; {new['why']}"
+            c["stacked"] = {k: new[k] for k in ("parameters", "intervals", "heldout_rmse_before",
+                                                "heldout_rmse_after", "gain", "on_top_of")}
+            continue
+        lon_scores[("on_top", h)] = s
+        c.clear()
+        c.update(new)
+
+
+_DYNAMICS = ("actuator_delay", "actuator_lag")
 
 
 def _fit_windows(cfg: DiagnoseConfig, ch: dict) -> DiagnoseConfig:
@@ -511,18 +558,44 @@ def _position_errors(ch, d: ste.SteerData, m: ste.SteerModel, cfg) -> np.ndarray
     return out
 
 
-def _change_unexplained(d: lon.LonData, best: str | None, cfg: DiagnoseConfig, t) -> dict | None:
-    """A change in the car no hypothesis models: the final longitudinal model fitted before
-    and after a split explains the data much better than one model for all of it."""
-    spec = lon.LonSpec(best) if best else lon.LonSpec()
-    pooled, _, _ = lon.fit_best(d, best, d.ok, cfg)
-    spec = pooled.spec
+def _final_lon_spec(findings: list, lon_scores: dict) -> lon.LonSpec:
+    """The longitudinal model with every finding on the speed channel: the best stacked model
+    (a term on top of another) when there is one, else the top finding's, else the baseline."""
+    lf = [f for f in findings if f["subsystem"] == "longitudinal" and f["channel"] == "speed"]
+    stacked = [f for f in lf if "on_top_of" in f and ("on_top", f["effect"]) in lon_scores]
+    if stacked:
+        f = min(stacked, key=lambda f: f["heldout_rmse_after"])
+        return lon_scores[("on_top", f["effect"])].model.spec
+    if lf:
+        return lon_scores[lf[0]["effect"]].model.spec
+    return lon.LonSpec()
+
+
+def _inputs_on_both_sides(d: lon.LonData, left: np.ndarray, right: np.ndarray) -> bool:
+    """Every input the recording uses is used on both sides of a split (at least 10 % of its
+    active samples on each): a side that never saw an input (the driver's pedal before an ACC
+    engages) cannot fit its gain, and its split fit would fake a change in the car."""
+    act = np.abs(np.nan_to_num(d.U)) > 0.01
+    n = act[d.ok].sum(axis=0)
+    used = n > 0
+    return bool(np.all(act[left].sum(axis=0)[used] >= 0.1 * n[used])
+                and np.all(act[right].sum(axis=0)[used] >= 0.1 * n[used]))
+
+
+def _change_unexplained(d: lon.LonData, spec: lon.LonSpec, cfg: DiagnoseConfig,
+                        t) -> dict | None:
+    """A change in the car no hypothesis models: the final longitudinal model (``spec``)
+    fitted before and after a split explains the data much better than one model for all of
+    it."""
+    pooled = lon.fit(d, spec, d.ok)
     idx = np.flatnonzero(d.ok & (d.vs > cfg.v_stop_mps) & np.isfinite(d.a))
     if len(idx) < 200 or not np.isfinite(pooled.sse) or pooled.sse <= 0:
         return None
     best_red, t_cp = 0.0, None
     for q in np.arange(0.2, 0.81, 0.05):
         tk = t[idx[int(q * (len(idx) - 1))]]
+        if not _inputs_on_both_sides(d, d.ok & (t < tk), d.ok & (t >= tk)):
+            continue
         m1 = lon.fit(d, spec, d.ok & (t < tk))
         m2 = lon.fit(d, spec, d.ok & (t >= tk))
         red = 1.0 - (m1.sse + m2.sse) / pooled.sse
@@ -547,13 +620,58 @@ def _change_unexplained(d: lon.LonData, best: str | None, cfg: DiagnoseConfig, t
             "heldout_note": "windows after the change replayed with the model fitted before it"}
 
 
+def extensions_section(findings: list, longitudinal_input: str) -> dict:
+    """The findings as a parameter file's ``extensions:`` section (models.params): catalogue
+    id -> subsystem -> its catalogue parameters, their intervals, the equation and, for the
+    longitudinal part, the input the model is driven by."""
+    out: dict = {}
+    for f in findings:
+        names = CATALOGUE[f["effect"]]["parameters"]
+        e = {k: float(v) for k, v in f["parameters"].items() if k in names}
+        iv = {k: [float(a), float(b)] for k, (a, b) in f["intervals"].items() if k in names}
+        if iv:
+            e["intervals"] = iv
+        e["equation"] = f["equation"]
+        if f["subsystem"] == "longitudinal" and f["channel"] == "speed":
+            e["input"] = longitudinal_input
+        if isinstance(f["parameters"].get("grade_source"), str):
+            e["grade_source"] = f["parameters"]["grade_source"]
+        below = next(iter(f.get("on_top_of", {})), None)
+        if below is not None:
+            e["on_top_of"] = below
+        out.setdefault(f["effect"], {})[f["subsystem"]] = e
+    return out
+
+
+def _baseline_out(rec, vehicle, params, zones, cfg) -> Params:
+    """The report's model fitted on the uncorrected recording (no finding, no sensor fix)."""
+    from types import SimpleNamespace
+    ch = dict(rec.channels)
+    sdt = ste.prepare(ch, vehicle.wheelbase_m, cfg)
+    steer = None if sdt is None else {None: SimpleNamespace(model=ste.fit(sdt, None, 0.0, sdt.ok))}
+    ld = lon.prepare(ch, zones, cfg)
+    lon_scores = {None: SimpleNamespace(model=lon.fit(ld, lon.LonSpec(), ld.ok))}
+    p = _params_out(rec, vehicle, params, ld, lon_scores, steer, [], zones, cfg)
+    p.provenance["source"] = "hmpc diagnose (the report's baseline, no findings)"
+    return p
+
+
+#: longitudinal findings whose fit the conventions' keys take (see :func:`_params_out`)
+_KEYS_HOLD = ("actuator_delay", "road_grade")
+
+
 def _params_out(rec, vehicle, params, ld, lon_scores, steer_scores, findings, zones, cfg):
-    """The extended model: the conventions' keys (steering map, zones, dead times) plus the
-    extension parameters that the parameter loader cannot hold yet (``extensions``)."""
+    """The extended model: the findings in the parameter file's ``extensions:`` section
+    (models.params), and the conventions' keys (steering map, zones, dead times) as a tool that
+    ignores ``extensions:`` should use them: fitted with a dead time (which the keys hold) or
+    with the road grade taken out (a disturbance of this road, not of the car: another road
+    has another grade); for the car's own terms the keys cannot hold (lag, drag, creep, a
+    steering-map shape) the baseline's fit, whose coefficients absorb them at the speeds and
+    angles driven (the jointly fitted coefficients without the term would be worse there)."""
     fx = {(f["effect"], f["subsystem"]): f for f in findings}
     steering = params.steering if params is not None else None
     if steer_scores is not None:
-        best = next((f["effect"] for f in findings if f["subsystem"] == "steering"), None)
+        best = "actuator_delay" if ("actuator_delay", "steering") in fx else None
         m = steer_scores[best].model
         steering = Steering(offset_rad=m.offset_rad, scale=m.scale,
                             method=f"hmpc diagnose ({best or 'baseline'})")
@@ -564,7 +682,7 @@ def _params_out(rec, vehicle, params, ld, lon_scores, steer_scores, findings, zo
         ch = {k: v for k, v in rec.channels.items() if k != "accel_cmd"}
         d_pedal = lon.prepare(ch, zones, cfg)
     best_lon = next((f["effect"] for f in findings if f["subsystem"] == "longitudinal"
-                     and f["channel"] == "speed"), None)
+                     and f["channel"] == "speed" and f["effect"] in _KEYS_HOLD), None)
     if d_pedal is ld:
         m = lon_scores[best_lon].model
     else:
@@ -593,16 +711,27 @@ def _params_out(rec, vehicle, params, ld, lon_scores, steer_scores, findings, zo
                            "recording": str(rec.meta.get("path", "?"))})
     if ("actuator_delay", "longitudinal") in fx and d_pedal is ld:
         p.longitudinal_dead_time_s = fx[("actuator_delay", "longitudinal")]["parameters"]["delay_s"]
-    ext = {"extensions": {
-        "doc": "hmpc diagnose extensions of the report's model (catalogue ids of the diagnosis "
-               "issue); models.params cannot load these keys yet",
-        "longitudinal_input": "+".join(ld.input_names),
-        "findings": [{"effect": f["effect"], "subsystem": f["subsystem"],
-                      "equation": f["equation"], "parameters": f["parameters"],
-                      "intervals": f["intervals"]} for f in findings]}}
-    if "accel_cmd" in ld.input_names:
-        mc = lon_scores[best_lon].model
-        ext["extensions"]["accel_cmd_zones"] = [
-            {"name": nm, "offset_mps2": float(mc.C[i, 0]), "gain": float(mc.C[i, 1])}
-            for i, (nm, _, _) in enumerate(zones)]
-    return p, ext
+    p.extensions = extensions_section(findings, "+".join(ld.input_names))
+    for f in findings:  # each entry carries the coefficients it was fitted jointly with
+        e = p.extensions[f["effect"]][f["subsystem"]]
+        if f["subsystem"] == "steering" and steer_scores is not None:
+            sm = steer_scores[f["effect"]].model
+            e["base"] = {"offset_rad": float(sm.offset_rad), "scale": float(sm.scale)}
+        elif f["channel"] == "speed":
+            sc = lon_scores.get(("on_top", f["effect"])) or lon_scores[f["effect"]]
+            e["base"] = {"zones": _base_zones(sc.model, ld.input_names, zones)}
+    return p
+
+
+def _base_zones(m: lon.LonModel, names: list, zones) -> list[dict]:
+    """Per zone the offset and one gain per input of ``m`` (``models.params``' ``base``)."""
+    key = {"accel_pedal": "scale_mps2", "brake_pedal": "brake_scale_mps2",
+           "accel_cmd": "accel_cmd_gain"}
+    out = []
+    for i, (nm, _, _) in enumerate(zones):
+        z = {"name": nm, "offset_mps2": float(m.C[i, 0])}
+        for j, inp in enumerate(names):
+            g = float(m.C[i, 1 + j])
+            z[key[inp]] = -g if inp == "brake_pedal" else g  # U holds -brake_pedal
+        out.append(z)
+    return out

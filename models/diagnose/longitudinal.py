@@ -12,7 +12,11 @@ Extensions (``CATALOGUE`` ids), each refitted jointly with every zone coefficien
 - ``rolling_resistance``: - r v added to the zone offsets (which hold the constant part),
   r in [0, 0.01] 1/s (four times a tyre's speed-dependent rolling resistance);
 - ``road_grade``: - k g sin(theta(t)), theta measured from the altitude over distance (or the
-  pitch), k in [0, 2] (1 = the measured grade acts in full);
+  pitch), k in [0, 2] (1 = the measured grade acts in full). A car driven by an acceleration
+  request (``accel_cmd``: the ACC closes its own loop on acceleration) compensates the grade
+  itself, only not at once: there the term is the grade's change the ACC has not yet caught up
+  with, - k g (sin theta - F(sin theta)), F = 1 / (T s + 1), its rate 1/T in [0, 1] 1/s
+  fitted (0: not compensated);
 - ``idle_creep``: + a0 max(0, 1 - v / v_c) with the throttle released, a0 in [0, 2] m/s^2,
   v_c in [0.5, 5] m/s.
 
@@ -42,7 +46,8 @@ LINEAR_EXT = {
     "road_grade": ("gain", (0.0, 2.0)),
     "idle_creep": ("accel_mps2", (0.0, 2.0)),
 }
-NONLINEAR = {"actuator_delay": "delay_s", "actuator_lag": "tau_s", "idle_creep": "creep_speed_mps"}
+NONLINEAR = {"actuator_delay": "delay_s", "actuator_lag": "tau_s", "idle_creep": "creep_speed_mps",
+             "road_grade": "comp_rate_per_s"}
 HYPOTHESES = ("actuator_delay", "actuator_lag", "aero_drag", "rolling_resistance", "road_grade",
               "idle_creep")
 
@@ -64,6 +69,29 @@ class LonData:
     zones: tuple
     segs: list[tuple[int, int]]
     ok: np.ndarray          #: samples inside a usable segment
+    _grade_cache: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def commanded(self) -> bool:
+        """The car follows an acceleration request (an ACC with its own acceleration loop)."""
+        return "accel_cmd" in self.input_names
+
+    def grade_accel(self, rate_per_s: float) -> np.ndarray:
+        """g sin(theta) [m/s^2] the car has not compensated: all of it (``rate_per_s`` 0), or
+        what a compensation F = 1 / (T s + 1), T = 1 / rate, has not yet caught up with (per
+        segment, starting compensated)."""
+        key = round(float(rate_per_s), 6)
+        if key not in self._grade_cache:
+            gs = G_MPS2 * np.sin(self.grade)
+            if key > 0:
+                al = 1.0 - np.exp(-self.dt * key)
+                out = np.full_like(gs, np.nan)
+                for a, b in self.segs:
+                    x = gs[a:b]
+                    out[a:b] = x - lfilter([al], [1.0, al - 1.0], x, zi=[(1.0 - al) * x[0]])[0]
+                gs = out
+            self._grade_cache[key] = gs
+        return self._grade_cache[key]
 
     @property
     def n(self) -> int:
@@ -136,6 +164,15 @@ class LonSpec:
     delay_s: float = 0.0
     tau_s: float = 0.0
     creep_speed_mps: float = 2.0
+    #: rate 1/T [1/s] at which an acceleration-commanded car compensates the grade (0: never)
+    comp_rate_per_s: float = 0.0
+    #: the linear extension term when it is not ``name`` (a delay fitted on top of a grade)
+    ext_name: str | None = None
+
+    @property
+    def term(self) -> str | None:
+        """The linear extension term this model carries (None: none)."""
+        return self.ext_name or (self.name if self.name in LINEAR_EXT else None)
 
 
 @dataclass
@@ -150,7 +187,8 @@ class LonModel:
 
 
 def inputs(d: LonData, spec: LonSpec) -> np.ndarray:
-    """Inputs as the actuator delivers them under ``spec`` (delay or lag, per segment)."""
+    """Inputs as the actuator delivers them under ``spec``: the dead time, then the lag (each
+    when set; per segment)."""
     U = d.U
     if spec.delay_s > 0:
         out = np.full_like(U, np.nan)
@@ -158,7 +196,7 @@ def inputs(d: LonData, spec: LonSpec) -> np.ndarray:
             tt = d.t[a:b]
             for j in range(U.shape[1]):
                 out[a:b, j] = np.interp(tt - spec.delay_s, tt, U[a:b, j])  # held before the start
-        return out
+        U = out
     if spec.tau_s > 0:
         al = 1.0 - np.exp(-d.dt / spec.tau_s)
         out = np.full_like(U, np.nan)
@@ -166,20 +204,20 @@ def inputs(d: LonData, spec: LonSpec) -> np.ndarray:
             for j in range(U.shape[1]):
                 x = U[a:b, j]
                 out[a:b, j] = lfilter([al], [1.0, al - 1.0], x, zi=[(1.0 - al) * x[0]])[0]
-        return out
+        U = out
     return U
 
 
 def ext_column(d: LonData, spec: LonSpec, v: np.ndarray, idx=None) -> np.ndarray | None:
     """The extension's regressor at speed ``v`` (samples ``idx``); None for the baseline."""
-    name = spec.name
+    name = spec.term
     sel = slice(None) if idx is None else idx
     if name == "aero_drag":
         return -v * v
     if name == "rolling_resistance":
         return -v
     if name == "road_grade":
-        return -G_MPS2 * np.sin(d.grade[sel])
+        return -d.grade_accel(spec.comp_rate_per_s)[sel]
     if name == "idle_creep":
         return np.maximum(0.0, 1.0 - v / spec.creep_speed_mps) * d.idle[sel]
     return None
@@ -231,7 +269,7 @@ def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None
     Xs = Xs[:, keep]
     bounds = {}
     if ext and cols[-1] == X.shape[1] - 1:
-        bounds[len(cols) - 1] = LINEAR_EXT[spec.name][1]
+        bounds[len(cols) - 1] = LINEAR_EXT[spec.term][1]
     coef, sse = lstsq_bounded(Xs, d.a[use], bounds)
     C = np.zeros((nz, 1 + m))
     ext_coef = 0.0
@@ -243,7 +281,9 @@ def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None
     for z in range(nz):  # a zone without data takes the nearest fitted zone's model
         if z not in fitted:
             C[z] = C[min(fitted, key=lambda f: abs(f - z))]
-    return LonModel(spec, C, ext_coef, fitted, sse, int(use.sum()), len(cols) + (spec.name in NONLINEAR))
+    n_nl = sum(1 for k in ("delay_s", "tau_s", "comp_rate_per_s") if getattr(spec, k) > 0) \
+        + (spec.name == "idle_creep")
+    return LonModel(spec, C, ext_coef, fitted, sse, int(use.sum()), len(cols) + n_nl)
 
 
 def free_run(d: LonData, model: LonModel, idx: np.ndarray, U: np.ndarray | None = None
@@ -269,7 +309,14 @@ def free_run(d: LonData, model: LonModel, idx: np.ndarray, U: np.ndarray | None 
     return out - d.v[idx]
 
 
-def _grid(name: str, cfg: DiagnoseConfig, dt: float) -> np.ndarray:
+#: compensation rates 1/T [1/s] tried for an acceleration-commanded car's grade: 0 (never) and
+#: T from 1 s (an ACC's integral action is not faster than its 0.3-1 s response) to 20 s
+GRADE_COMP_RATES = np.array([0.0, 0.05, 0.1, 1 / 7, 0.2, 0.25, 1 / 3, 0.5, 0.75, 1.0])
+
+
+def _grid(name: str, cfg: DiagnoseConfig, dt: float, commanded: bool = False) -> np.ndarray:
+    if name == "road_grade":
+        return GRADE_COMP_RATES if commanded else np.zeros(1)
     if name == "actuator_delay":
         return np.arange(0.0, cfg.delay_max_s + 1e-9, 0.05)
     if name == "actuator_lag":
@@ -295,11 +342,11 @@ def fit_best(d: LonData, name: str | None, mask: np.ndarray, cfg: DiagnoseConfig
     (``grid`` overrides the default grid; delays and lags are refined around the best point).
 
     Returns (model, grid, sse per sample per grid point)."""
-    if name is None or name not in NONLINEAR:
+    if name is None or name not in NONLINEAR or (name == "road_grade" and not d.commanded):
         m = fit(d, _spec(name, 0.0, base), mask)
         return m, np.zeros(1), np.array([m.sse / max(m.n, 1)])
     refine = grid is None and name in ("actuator_delay", "actuator_lag")
-    grid = _grid(name, cfg, d.dt) if grid is None else np.asarray(grid, float)
+    grid = _grid(name, cfg, d.dt, d.commanded) if grid is None else np.asarray(grid, float)
     models = [fit(d, _spec(name, g, base), mask) for g in grid]
     sse = np.array([m.sse / max(m.n, 1) for m in models])  # per sample: a delay drops a few
     best = int(np.nanargmin(sse))
@@ -355,7 +402,9 @@ def evaluate(d: LonData, name: str | None, cfg: DiagnoseConfig, corr_len: float,
     vals = []
     full, grid, sse_grid = fit_best(d, name, d.ok, cfg, base=base)
     local = None
-    if name in NONLINEAR:  # each fold searches near the full-data optimum, on its own data
+    if name == "road_grade":
+        local = None if d.commanded else np.zeros(1)  # a handful of rates: each fold tries all
+    elif name in NONLINEAR:  # each fold searches near the full-data optimum, on its own data
         g0 = _param_value(full)
         step = {"actuator_delay": 0.05, "actuator_lag": 0.05, "idle_creep": 0.25}[name]
         lo = 0.5 if name == "idle_creep" else 0.0
@@ -385,6 +434,8 @@ def _covered(d: LonData, train: np.ndarray, idx: np.ndarray) -> np.ndarray:
 
 def _param_value(m: LonModel):
     key = NONLINEAR.get(m.spec.name)
+    if m.spec.name == "road_grade":
+        return m.ext
     return getattr(m.spec, key) if key else m.ext
 
 
@@ -393,7 +444,7 @@ def _params(d: LonData, m: LonModel, grid, sse_grid, corr_len, cfg) -> tuple[dic
     if name is None:
         return {}, {}
     params, intervals = {}, {}
-    if name in NONLINEAR:
+    if name in NONLINEAR and (name != "road_grade" or d.commanded):
         key = NONLINEAR[name]
         params[key] = float(getattr(m.spec, key))
         lo_, hi_ = profile_interval(grid, sse_grid * m.n, m.n, corr_len)

@@ -1,0 +1,119 @@
+"""`hmpc diagnose` on the real comma minute (raw CAN + nav + IMU, openpilot driving through
+`ACC_CONTROL.ACCEL_CMD`): what the data support, with the checks available without a truth.
+
+On this minute the road falls about 11 m and climbs 18 m; the car's ACC closes its own loop
+on acceleration, so it compensates the grade, only over seconds: until the grade is modelled
+that way (road_grade with its compensation rate), the grade change after 24 s dwarfs the
+response of the car to the request. On top of the grade the response to ``accel_cmd`` is
+named with its interval and held-out gain. Measured: a first-order lag of 0.34 s
+[0.15, 0.56] (held-out speed error 0.272 -> 0.252 m/s, 7 %); a pure dead time fits 0.29 s
+[0.15, 0.46] but gains only 4 % (below the 5 % of a finding) and is kept on record; about
+0.3 s whichever speed source (wheel speeds or GNSS) measures the acceleration."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hmpc.models.diagnose.diagnose import diagnose
+from hmpc.models.logs.ingest import ingest_files
+from hmpc.models.logs.recording import Recording
+from hmpc.models.params import load_params
+from _data import PARAMS_DIR, bundled
+
+RESPONSE = {"actuator_lag": "tau_s", "actuator_delay": "delay_s"}
+
+
+@pytest.fixture(scope="module")
+def comma():
+    ing = ingest_files(bundled("rav4-comma2k19/can.log.gz"), bundled("dbc/toyota_rav4_2017.dbc.gz"),
+                       PARAMS_DIR / "toyota_rav4_2017.signals.yaml",
+                       nav_path=bundled("rav4-comma2k19/nav.csv.gz"),
+                       imu_path=bundled("rav4-comma2k19/imu.csv.gz"))
+    vehicle = load_params(PARAMS_DIR / "toyota_rav4_2017.yaml").vehicle
+    return ing.recording, vehicle, diagnose(ing.recording, vehicle)
+
+
+def _by_effect(dg, sub="longitudinal"):
+    return {f["effect"]: f for f in dg.findings if f["subsystem"] == sub}
+
+
+def test_acc_request_response_is_named_with_interval_and_heldout_gain(comma):
+    _, _, dg = comma
+    assert dg.longitudinal_input.startswith("accel_cmd")
+    got = _by_effect(dg)
+    dyn = [e for e in RESPONSE if e in got]
+    assert len(dyn) == 1, [(f["effect"], round(f["gain"], 3)) for f in dg.findings]
+    f = got[dyn[0]]
+    key = RESPONSE[f["effect"]]
+    val = f["parameters"][key]
+    lo, hi = f["intervals"][key]
+    print(f"comma: {f['effect']} {key} {val:.3f} [{lo:.3f}, {hi:.3f}] s, held-out speed "
+          f"{f['heldout_rmse_before']:.3f} -> {f['heldout_rmse_after']:.3f} m/s")
+    assert lo <= val <= hi and hi - lo < 0.6
+    # an ACC powertrain answers in tenths of a second, not instantly and not after a second
+    assert 0.15 <= val <= 0.5
+    assert f["gain"] >= 0.05 and f["heldout_rmse_after"] < f["heldout_rmse_before"]
+    assert list(f["on_top_of"]) == ["road_grade"]  # scored against the model with the grade
+    # the other description (dead time for a lag, lag for a dead time) stays on record with
+    # its own stacked fit, interval and gain
+    other = next(e for e in RESPONSE if e != f["effect"])
+    h = next(h for h in dg.hypotheses if h["effect"] == other
+             and h["subsystem"] == "longitudinal")
+    st = h.get("stacked") or h
+    olo, ohi = st["intervals"][RESPONSE[other]]
+    assert olo <= st["parameters"][RESPONSE[other]] <= ohi
+    assert olo <= hi and lo <= ohi  # both describe the same ~0.3 s response
+
+
+def test_grade_is_compensated_by_the_acc_over_seconds(comma):
+    _, _, dg = comma
+    g = _by_effect(dg)["road_grade"]
+    rate = g["parameters"]["comp_rate_per_s"]
+    lo, hi = g["intervals"]["comp_rate_per_s"]
+    assert 0.0 < lo <= rate <= hi <= 1.0  # compensated, over 1-13 s
+    # physics, not a free fudge factor: before compensation the measured grade acts in full
+    glo, ghi = g["intervals"]["gain"]
+    assert glo <= 1.0 <= ghi
+    assert g["gain"] > 0.2
+
+
+def test_response_does_not_depend_on_which_speed_sensor_measures_it(comma):
+    """The same diagnosis with the GNSS ground speed as the speed channel (no wheel speeds):
+    the response time falls inside the wheel-speed finding's interval."""
+    rec, vehicle, dg = comma
+    f = next(f for f in dg.findings if f["effect"] in RESPONSE)
+    ch = {k: v for k, v in rec.channels.items() if not k.startswith("wheel_speed")}
+    ch["speed"] = np.asarray(ch.pop("gps_speed"), float)
+    dg2 = diagnose(Recording(ch, meta={"path": "comma-gnss-speed"}), vehicle)
+    g = next((g for g in dg2.findings if g["effect"] == f["effect"]), None)
+    if g is None:  # not a finding there: its hypothesis record still carries the fit
+        g = next(h for h in dg2.hypotheses if h["effect"] == f["effect"]
+                 and h["subsystem"] == "longitudinal")
+        g = g.get("stacked") or g
+    key = RESPONSE[f["effect"]]
+    lo, hi = f["intervals"][key]
+    print(f"GNSS speed: {f['effect']} {g['parameters'][key]:.3f} s")
+    assert lo <= g["parameters"][key] <= hi
+
+
+def test_wheel_radius_and_separability_verdict(comma):
+    _, _, dg = comma
+    w = _by_effect(dg)["wheel_radius_error"]
+    assert 0.985 < w["parameters"]["scale"] < 0.998  # wheel speeds 0.8 % below GNSS
+    assert any("understeer" in n and "steering ratio" in n for n in dg.notes)
+    sep = dg.channels["heading"]["understeer_vs_ratio"]
+    assert isinstance(sep["separable"], bool) and sep["verdict"]
+
+
+def test_extended_model_carries_the_findings(comma):
+    _, _, dg = comma
+    ext = dg.params_out.extensions
+    assert {"road_grade", "wheel_radius_error"} <= set(ext)
+    dyn = next(e for e in RESPONSE if e in ext)
+    e = ext[dyn]["longitudinal"]
+    assert e["on_top_of"] == "road_grade"
+    assert e["input"].startswith("accel_cmd")
+    # physics check: with the grade and the response modelled, the ACC delivers the request
+    # (unit gain, no offset) in the zone the minute was driven in (8-20 m/s); measured 0.999
+    high = next(z for z in e["base"]["zones"] if z["name"] == "high")
+    assert abs(high["accel_cmd_gain"] - 1.0) < 0.1 and abs(high["offset_mps2"]) < 0.1
