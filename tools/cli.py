@@ -22,7 +22,9 @@ SUBCOMMANDS = {
     "simulate": ("hmpc.tools.cmd_simulate", "simulate an experiment or run the closed loop"),
     "drive": ("hmpc.tools.cmd_drive", "the real-time actuation loop on a CAN bus"),
     "diagnose": ("hmpc.tools.cmd_diagnose", "where model and recording differ, the missing physics named"),
+    "teleop": ("hmpc.tools.cmd_teleop", "the vehicle side of tele-operation: the drive loop fed by the authenticated operator link"),
     "operator": ("hmpc.tools.cmd_operator", "the tele-operation station: scripted, experiment, keyboard or gamepad operator"),
+    "replay": ("hmpc.tools.cmd_replay", "offline closed-loop replay of a recorded drive: on the plant, or its log through the drive loop"),
 }
 
 

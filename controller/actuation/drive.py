@@ -280,6 +280,16 @@ class _Run:
     k: int = 0
 
 
+class SystemClock:
+    """The drive loop's default clock: the real ones (``time.monotonic`` [s], ``time.time``
+    [s since the epoch], ``time.sleep``). A replay injects a simulated clock with the same three
+    methods, so that a recorded log runs through the loop deterministically."""
+
+    monotonic = staticmethod(time.monotonic)
+    sleep = staticmethod(time.sleep)
+    time = staticmethod(time.time)   # last: it shadows the module name in this class body
+
+
 @dataclass
 class _Tick:
     """One tick's clock and measurements."""
@@ -309,11 +319,14 @@ class DriveLoop:
         faults: injected faults.
         node: the vehicle simulator node (for truth-based tracking figures and node-side faults).
         config: timing and stop behaviour.
+        clock: ``monotonic()``, ``time()`` and ``sleep(s)`` of the loop (default
+            :class:`SystemClock`, the real clocks; ``controller/replay.py`` injects a simulated one).
     """
 
     def __init__(self, profile: ActuationProfile, params: Params, controller, reference: Reference,
                  bus_kwargs: dict, candump: str | Path, *, duration_s: float,
-                 faults: list[Fault] = (), node=None, config: DriveConfig = DriveConfig()):
+                 faults: list[Fault] = (), node=None, config: DriveConfig = DriveConfig(),
+                 clock=None):
         self.profile = profile
         self.params = params
         self.controller = controller
@@ -324,6 +337,7 @@ class DriveLoop:
         self.faults = list(faults)
         self.node = node
         self.config = config
+        self.clock = clock if clock is not None else SystemClock()
         self.plant = HybridPlant(params)
         self.toyota = profile.steering == "torque"
         if any(f.name in ("driver_override", "vehicle_rejects") for f in self.faults) and node is None:
@@ -363,6 +377,7 @@ class DriveLoop:
                 tk = self._tick_clock(r)
                 self._receive(r, tk)
                 self._estimate(r, tk)
+                self._poll_source(r, tk)
                 if self._engagement(r, tk):
                     break
                 r.stop_reason_pending = ""
@@ -420,7 +435,8 @@ class DriveLoop:
             sent={spec.message.name: 0 for spec in prof.commands.values()},
             trace={k: [] for k in ("t_s", "x", "y", "v", "v_ref", "sw_cmd", "sw", "ap_cmd",
                                    "bp_cmd", "accel_req", "zone", "t_ref", "engaged", "stopping")},
-            est=x0.copy(), ekf=ekf, mono0=time.monotonic(), epoch0=time.time())
+            est=x0.copy(), ekf=ekf, mono0=self.clock.monotonic(),
+            epoch0=self.clock.time())
         if self.node is not None:
             self.node.start(r.mono0)
             if self._fault_time("driver_override") is not None:
@@ -440,7 +456,7 @@ class DriveLoop:
         except can.CanError:
             r.stop_reason_pending = r.stop_reason_pending or "bus_error"
             return False
-        msg.timestamp = r.epoch0 + (time.monotonic() - r.mono0)
+        msg.timestamp = r.epoch0 + (self.clock.monotonic() - r.mono0)
         msg.channel = 0
         msg.is_rx = False
         r.writer.on_message_received(msg)
@@ -459,10 +475,10 @@ class DriveLoop:
         """Step 1: wait for the tick, read the loop clock (fault: frozen), run the clock watchdog."""
         cfg = self.config
         target = r.mono0 + r.k * cfg.tick_s
-        delay = target - time.monotonic()
+        delay = target - self.clock.monotonic()
         if delay > 0:
-            time.sleep(delay)
-        mono = time.monotonic()
+            self.clock.sleep(delay)
+        mono = self.clock.monotonic()
         t_mono = mono - r.mono0
         if self._fault_active("clock_freeze", t_mono) and not r.use_mono:
             r.t_freeze = r.t_freeze if r.t_freeze is not None else t_mono
@@ -527,13 +543,30 @@ class DriveLoop:
             est[3] = v_meas
         r.t_est = t
 
+    def _poll_source(self, r: _Run, tk: _Tick) -> None:
+        """Command-source hook (tele-operation, ``controller/teleop/vehicle.py``): a controller
+        with ``poll`` is polled every tick, engaged or not; it says whether its operator has
+        engaged (the loop engages only then) and may ask for a controlled stop by reason."""
+        poll = getattr(self.controller, "poll", None)
+        if poll is None:
+            return
+        gate = poll(tk.t, loop_state=r.state, speed_mps=tk.v_meas,
+                    steering_wheel_angle_rad=tk.sw_meas)
+        self._source_engage = bool(gate.engage)
+        if gate.stop and r.state == "disengaged":
+            self.request_stop(gate.stop)          # never engaged: the run ends
+        elif gate.stop:
+            r.stop_reason_pending = r.stop_reason_pending or gate.stop
+
     def _engagement(self, r: _Run, tk: _Tick) -> bool:
         """Step 3: engagement, override, the car's status. True: end the run now (never engaged)."""
         cfg, prof, fb, t = self.config, self.profile, r.fb, tk.t
         accepts = fb.flag("accepts_steer") and fb.flag("accepts_long")
         tk.fresh = tk.period_ws is not None \
             and not r.wd.feedback(t, tk.last_ws, max(tk.period_ws, 1e-3))
-        if r.state == "disengaged" and t >= cfg.engage_at_s and tk.fresh and accepts:
+        src = getattr(self, "_source_engage", None)  # None: no command source (_poll_source)
+        if r.state == "disengaged" and t >= cfg.engage_at_s and tk.fresh and accepts \
+                and src is not False:
             r.state, r.engaged_at = "engaged", t
         if r.state == "engaged":
             why = ""
@@ -558,7 +591,8 @@ class DriveLoop:
         elif r.state == "disengaged" and self._stop_request:
             r.stop["reason"] = self._stop_request  # never engaged: nothing to stop
             return True
-        elif r.state == "disengaged" and t > cfg.engage_at_s + 5.0:
+        elif r.state == "disengaged" and t > cfg.engage_at_s + 5.0 \
+                and not (src is False and tk.fresh and accepts):  # a source waits for its operator
             r.stop["reason"] = "car_not_accepting" if tk.fresh else "no_feedback"
             return True
         return False
@@ -567,7 +601,7 @@ class DriveLoop:
         """Step 4: the controller, every control period; a failed solve or a missed deadline
         starts the controlled stop."""
         cfg, t, ref = self.config, tk.t, self.reference
-        c0 = time.monotonic()
+        c0 = self.clock.monotonic()
         if r.last_ctl_start is not None:
             r.periods.append(c0 - r.last_ctl_start)
         r.last_ctl_start = c0
@@ -585,7 +619,7 @@ class DriveLoop:
             r.sw_cmd, r.ap_cmd, r.bp_cmd = (float(x) for x in res.command.as_tuple())
         self._record(r.trace, t, t_ref, r.est, r.sw_cmd, tk.sw_meas, r.ap_cmd, r.bp_cmd, res,
                      engaged=1, stopping=0)
-        late = (time.monotonic() - (r.mono0 + r.k * cfg.tick_s)) > cfg.control_period_s
+        late = (self.clock.monotonic() - (r.mono0 + r.k * cfg.tick_s)) > cfg.control_period_s
         r.late_steps += int(late)
         why = r.wd.deadline(late)
         if why and r.state == "engaged":
