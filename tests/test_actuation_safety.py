@@ -155,3 +155,27 @@ def test_steer_request_cut_follows_panda_tolerance():
     assert c.check(60, False, 0.09, True) == ""
     r = _cut_stream(c, "1" * 18 + "0", t0=0.095, dt=0.005, torque=60)
     assert r[:18] == [""] * 18 and "too soon" in r[18]
+
+
+def test_cutting_torque_to_zero_is_always_allowed_as_in_panda():
+    """panda's rate and real-time checks bound the torque by max(last, 0) + delta and
+    min(last, 0) - delta: a cut to 0 passes from any torque (a controller may always let go),
+    while the same jump away from 0 is refused."""
+    lim = ToyotaLimits()
+    c = ToyotaSteerCheck(lim)
+    t, tq = 0.0, 0
+    while t < 0.7:                                       # ramp to 600, hold past a window
+        c.eps_torque(tq / lim.eps_torque_factor)        # the EPS follows the command
+        tq = min(tq + lim.max_rate_up, 600)
+        t += lim.steer_period_s
+        assert c.check(tq, True, t, True) == ""
+    assert c.rt_last > lim.max_rt_delta                  # the window's reference is high
+    assert c.check(0, True, t + 0.01, True) == ""        # 600 -> 0 in one frame: allowed
+    c2 = ToyotaSteerCheck(lim)
+    assert c2.check(60, True, 0.01, True) != ""          # 0 -> 60 in one frame: refused
+    lt = ToyotaTorqueLimiter(lim)                        # the limiter agrees: it may cut to 0
+    t = 0.0
+    for _ in range(60):
+        t += lim.steer_period_s
+        out = lt.clip(600.0, t, -1e4, 1e4)
+    assert out > lim.max_rt_delta and lt.clip(0.0, t + 0.01, -1e4, 1e4) == 0

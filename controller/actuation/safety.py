@@ -98,8 +98,10 @@ class ToyotaTorqueLimiter:
         lo = min(last, 0) - lim.max_rate_up
         hi = min(hi, max(last - lim.max_rate_down, max(eps_max, 0) + lim.max_torque_error - 2))
         lo = max(lo, min(last + lim.max_rate_down, min(eps_min, 0) - lim.max_torque_error + 2))
-        hi = min(hi, self.rt_ref + lim.max_rt_delta - 1, lim.max_torque)
-        lo = max(lo, self.rt_ref - lim.max_rt_delta + 1, -lim.max_torque)
+        # panda's rt_rate_limit_check: within max_rt_delta of the window's reference, but
+        # always allowed towards 0 (the bounds are taken from max(ref, 0) and min(ref, 0))
+        hi = min(hi, max(self.rt_ref, 0) + lim.max_rt_delta - 1, lim.max_torque)
+        lo = max(lo, min(self.rt_ref, 0) - lim.max_rt_delta + 1, -lim.max_torque)
         if lo <= hi:
             out = int(min(max(round(desired), math.ceil(lo)), math.floor(hi)))
         else:  # no room (cannot happen from a state this limiter made): step towards 0
@@ -153,8 +155,9 @@ class ToyotaSteerCheck:
             lo = max(lo, min(last + lim.max_rate_down, min(mmin, 0) - lim.max_torque_error))
             if not reason and not lo <= torque <= hi:
                 reason = "torque rate / error vs EPS torque"
-            if not reason and abs(torque - self.rt_last) > lim.max_rt_delta:
-                reason = "real-time delta over 250 ms"
+            if not reason and not (min(self.rt_last, 0) - lim.max_rt_delta <= torque
+                                   <= max(self.rt_last, 0) + lim.max_rt_delta):
+                reason = "real-time delta over 250 ms"  # panda: rt_rate_limit_check
             if not reason and t_s - self.ts_last_s >= lim.rt_interval_s:
                 self.rt_last, self.ts_last_s = torque, t_s
         req_reason = self._request_bit(torque, request, t_s)
