@@ -59,6 +59,7 @@ from hmpc.models.plant import HybridPlant, heading_rate
 from hmpc.models.sim.scenarios import Reference
 
 from hmpc.controller.base import Status
+from hmpc.controller.closed_loop import pedal_switches, smoothness_of
 from hmpc.controller.actuation import builders
 from hmpc.controller.actuation.profiles import ActuationProfile
 from hmpc.controller.actuation.safety import (AngleCheck, AngleLimiter, AngleLimits, ToyotaLimits,
@@ -805,25 +806,22 @@ class DriveLoop:
         tr = {k: np.asarray(v, dtype=float) for k, v in trace.items()}
         eng = tr["engaged"] > 0.5 if len(tr["t_s"]) else np.zeros(0, bool)
         kpi = {"speed_error_rms_mps": None, "lateral_error_rms_m": None,
-               "pedal_switches_per_min": None, "zone_transitions_per_min": None}
+               "pedal_switches_per_min": None, "zone_transitions_per_min": None,
+               "steering_reversals_per_min": None, "steering_rate_rms_radps": None,
+               "accel_pedal_rate_rms_ps": None, "brake_pedal_rate_rms_ps": None}
         if eng.sum() >= 2:
             t = tr["t_ref"][eng]
             minutes = max((t[-1] - t[0]) / 60.0, 1e-9)
             ev = tr["v"][eng] - tr["v_ref"][eng]
             lat = self.reference.lateral_errors(tr["x"][eng], tr["y"][eng], t)
             ap, bp = tr["ap_cmd"][eng], tr["bp_cmd"][eng]
-            sw = 0
-            last = None
-            for a, b in zip(ap, bp):
-                cur = "T" if a > 1e-3 else "B" if b > 1e-3 else None
-                if cur is not None:
-                    sw += int(last is not None and cur != last)
-                    last = cur
             z = tr["zone"][eng]
             kpi = {"speed_error_rms_mps": float(np.sqrt(np.mean(ev ** 2))),
                    "lateral_error_rms_m": float(np.sqrt(np.mean(np.asarray(lat) ** 2))),
-                   "pedal_switches_per_min": sw / minutes,
-                   "zone_transitions_per_min": int(np.count_nonzero(np.diff(z))) / minutes}
+                   "pedal_switches_per_min": pedal_switches(ap, bp) / minutes,
+                   "zone_transitions_per_min": int(np.count_nonzero(np.diff(z))) / minutes,
+                   # issue 9's smoothness of the commands the controller gave, as simulate's
+                   **smoothness_of(tr["t_s"][eng], tr["sw_cmd"][eng], ap, bp)}
         sm = np.asarray(solve_ms)
         node = self.node.stats.to_dict() if self.node is not None else None
         # the node's count; without a node, what the car reports (the kit's REJECTED_FRAMES)
