@@ -53,7 +53,8 @@ def drive(profile: str, scenario: str, duration_s: float, tmp_path, faults=(),
 
 def simulate_baseline(scenario: str, t_end_s: float) -> dict:
     """``hmpc simulate``'s closed loop on the same stretch of reference, at the drive loop's
-    50 Hz and without added noise (the node adds only CAN quantisation)."""
+    50 Hz, with simulate's default sensors and estimator (the figures the issue compares
+    with; the node adds CAN quantisation and the drive loop dead-reckons from CAN)."""
     p = params()
     ref = truncated(make_scenario(scenario, p), t_end_s)
     res = run_closed_loop(MpcController(p, MpcConfig()), ref, p, control_period_s=0.02)
