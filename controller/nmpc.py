@@ -9,6 +9,15 @@ with the same explicit midpoint rule the QP is discretised from) is solved by IP
 (CasADi ``Opti``), warm-started from the previous plan. The NLP is built once; each step
 sets its parameters.
 
+The input cost is the fast path's, term for term (issue 9's smoothness included, read
+from the same :class:`MpcConfig`): per stage the steering-wheel and pedal rates (the
+effort weights, velocity above steering, report VI; the steering rate also weighted by
+the path-sharpness term at the stage's nominal speed), their changes (second
+differences), the two inputs before the horizon as the fast path sees them
+(``MpcController._prior_inputs``: the last command, and its planned rate), and the cost
+of moving the first ``replan_window_s`` of inputs away from the previous plan. The
+smoothness is thus a separate term from tracking in both, and both solve one problem.
+
 It is used to check the fast path (tests: both agree on simple cases) and as the
 baseline of ``tools/bench_mpc.py``. Its model is models/plant.py's eq. 1, 7 and 8, the same
 functions the plant and the fast path call, evaluated on CasADi symbols (``ops=casadi``).
@@ -62,8 +71,9 @@ class NmpcController(MpcController):
             "PT": o.parameter(NX, NX), "rN": o.parameter(NX), "sw_ff": o.parameter(N),
             "z_off": o.parameter(N), "z_scale": o.parameter(N), "z_brake": o.parameter(N),
             "u_lo": o.parameter(NU, N), "u_hi": o.parameter(NU, N), "sr_lo": o.parameter(N),
-            "sr_hi": o.parameter(N), "prev": o.parameter(NU),
-            "has_prev": o.parameter(), "a_prev": o.parameter(), "v_lo": o.parameter(N),
+            "sr_hi": o.parameter(N), "prior": o.parameter(NU, 2), "w_rate_s": o.parameter(N),
+            "u_plan": o.parameter(NU, N), "has_plan": o.parameter(),
+            "a_prev": o.parameter(), "v_lo": o.parameter(N),
             "v_hi": o.parameter(N), "w_lo": o.parameter(N), "w_hi": o.parameter(N),
         }
         b, off, sc = pl.wheelbase_m, pl.offset_rad, pl.scale
@@ -85,12 +95,6 @@ class NmpcController(MpcController):
             e_lat = p["nvec"][0, k] * (X[0, k + 1] - r[0]) + p["nvec"][1, k] * (X[1, k + 1] - r[1])
             J += 0.5 * (wl * e_lat ** 2 + wh * (X[2, k + 1] - r[2]) ** 2
                         + wv * (X[3, k + 1] - r[3]) ** 2)
-            up = U[:, k - 1] if k else p["prev"]
-            hp = 1 if k else p["has_prev"]
-            J += 0.5 * hp * (self._w_sr * (uk[0] - up[0]) ** 2
-                             + self._w_pr * ((uk[1] - up[1]) ** 2 + (uk[2] - up[2]) ** 2))
-            J += 0.5 * (self._w_sl * (uk[0] - p["sw_ff"][k]) ** 2
-                        + self._w_pl * (uk[1] ** 2 + uk[2] ** 2))
             J += (cfg.w_limit_violation * dt * S[0, k] + p["w_lo"][k] * S[1, k]
                   + p["w_hi"][k] * S[2, k]
                   + 0.5 * cfg.w_slack_quadratic * dt * ca.sumsqr(S[:, k]))
@@ -110,11 +114,32 @@ class NmpcController(MpcController):
             o.subject_to(S[:, k] >= 0)
         eN = X[:, N] - p["rN"]
         J += 0.5 * ca.mtimes([eN.T, p["PT"], eN])
+        J += self._input_cost(U, p)
         o.minimize(J)
         o.solver("ipopt", {"print_time": False, "error_on_fail": False, "expand": True},
                  {"print_level": 0, "max_iter": self.ipopt_max_iter, "sb": "yes",
                   "tol": 1e-6, "acceptable_tol": 1e-4})
         self._opti, self._X, self._U, self._S, self._p = o, X, U, S, p
+
+    def _input_cost(self, U, p):
+        """The fast path's input cost (``MpcController._input_cost_values`` and the input
+        part of its q) as a CasADi expression: rates and rate changes from the inputs before
+        the horizon, levels, and the distance from the previous plan."""
+        w_pr, w_src, w_prc = self._w_pr, self._w_src, self._w_prc
+        J = 0
+        for k in range(self.N):
+            u, u1 = U[:, k], (U[:, k - 1] if k >= 1 else p["prior"][:, 1])
+            u2 = U[:, k - 2] if k >= 2 else p["prior"][:, k]  # k=0: u_-2, k=1: u_-1
+            d1, d2 = u - u1, u - 2 * u1 + u2
+            J += 0.5 * (p["w_rate_s"][k] * d1[0] ** 2 + w_pr * (d1[1] ** 2 + d1[2] ** 2)
+                        + w_src * d2[0] ** 2 + w_prc * (d2[1] ** 2 + d2[2] ** 2)
+                        + self._w_sl * (u[0] - p["sw_ff"][k]) ** 2
+                        + self._w_pl * (u[1] ** 2 + u[2] ** 2))
+            w_re = self._w_replan[k]
+            if np.any(w_re > 0):
+                J += 0.5 * p["has_plan"] * sum(float(w_re[i]) * (u[i] - p["u_plan"][i, k]) ** 2
+                                               for i in range(NU))
+        return J
 
     def _solve(self, stage: StageData) -> SolveOutcome:
         """Set the NLP's parameters from ``stage``, warm-start from its nominal, solve."""
@@ -171,9 +196,14 @@ class NmpcController(MpcController):
         o.set_value(p["u_hi"], uhi.T)
         o.set_value(p["sr_lo"], np.maximum(srlo, -big))
         o.set_value(p["sr_hi"], np.minimum(srhi, big))
-        prev = self._last_cmd
-        o.set_value(p["prev"], np.zeros(3) if prev is None else np.array(prev.as_tuple()))
-        o.set_value(p["has_prev"], 0.0 if prev is None else 1.0)
+        # the fast path's input-cost data: the inputs before the horizon (zero before the
+        # first command, as there), the steering rate weight at the nominal speeds, the plan
+        prior = self._prior_inputs()
+        o.set_value(p["prior"], np.zeros((NU, 2)) if prior is None else prior.T)
+        v = np.maximum(stage.states[:N, 3], self.config.steer_sharpness_speed_floor_mps)
+        o.set_value(p["w_rate_s"], self._w_sr + self._w_sharp / (v * v))
+        o.set_value(p["u_plan"], stage.inputs.T)
+        o.set_value(p["has_plan"], 0.0 if self._shift_stages is None else 1.0)
         o.set_value(p["a_prev"], stage.a_prev_mps2)
         o.set_value(p["v_lo"], band.v_lo_mps)
         o.set_value(p["v_hi"], np.minimum(band.v_hi_mps, 1e3))
