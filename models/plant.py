@@ -237,6 +237,9 @@ class HybridPlant:
         self.n_zones = len(z)
         self._v_min_list = self.v_min.tolist()
         self._v_max_list = self.v_max.tolist()
+        # eq. 8 per zone as Python floats for the scalar step: (offset, scale, brake scale)
+        self._eq8 = list(zip(self.z_offset.tolist(), self.z_scale.tolist(),
+                             self.z_brake.tolist()))
 
     # ----------------------------------------------------------------- zones
     def zone_by_speed(self, v_mps: float) -> int:
@@ -260,8 +263,8 @@ class HybridPlant:
 
     def accel(self, zone: int, accel_pedal: float, brake_pedal: float) -> float:
         """Eq. 8 with brake for ``zone`` [m/s^2]."""
-        return float(zone_accel(self.z_offset[zone], self.z_scale[zone], self.z_brake[zone],
-                                accel_pedal, brake_pedal))
+        off, sc, br = self._eq8[zone]
+        return float(zone_accel(off, sc, br, accel_pedal, brake_pedal))
 
     def derivative(self, s: np.ndarray, u: np.ndarray, zone: int) -> np.ndarray:
         """Continuous-time ds/dt (no standstill clamp): :func:`derivative_batch` of one row."""
@@ -277,10 +280,13 @@ class HybridPlant:
         clamped at standstill), midpoint in heading and position (eq. 1 over the distance
         travelled: its rates are linear in v).
         """
-        s = np.asarray(s, dtype=float)
-        z = self.select_zone(float(s[IV]), zone)
-        a = self.accel(z, float(u[IAP]), float(u[IBP])) + accel_extra_mps2
-        v0 = max(float(s[IV]), 0.0)
+        # scalar arithmetic in Python floats and math (this runs per plant step, per
+        # estimator prediction and per simulator sample: numpy on scalars costs 10x more)
+        x0, y0, psi0, vs = np.asarray(s, dtype=float)[:4].tolist()
+        z = self.select_zone(vs, zone)
+        off, sc, br = self._eq8[z]
+        a = zone_accel(off, sc, br, float(u[IAP]), float(u[IBP])) + accel_extra_mps2
+        v0 = max(vs, 0.0)
         v1 = v0 + a * dt_s
         if v1 < 0.0:  # stops within the step and stays stopped: never rolls backwards
             t_move = v0 / -a if a < 0 else 0.0
@@ -291,11 +297,11 @@ class HybridPlant:
             dist = 0.5 * (v0 + v1) * dt_s
             a_eff = a
         delta = road_wheel_angle(float(u[ISW]), self.offset_rad, self.scale)
-        dpsi = heading_rate(dist, delta, self.wheelbase_m)
-        psi_mid = s[IPSI] + 0.5 * dpsi
-        dx, dy = position_rates(psi_mid, dist, delta)
-        out = np.array([s[IX] + dx, s[IY] + dy, s[IPSI] + dpsi, v1])
-        return StepResult(out, z, a_eff, bool(s[IV] > self.v_max[-1]))
+        dpsi = heading_rate(dist, delta, self.wheelbase_m, ops=math)
+        psi_mid = psi0 + 0.5 * dpsi
+        dx, dy = position_rates(psi_mid, dist, delta, ops=math)
+        out = np.array([x0 + dx, y0 + dy, psi0 + dpsi, v1])
+        return StepResult(out, z, a_eff, bool(vs > self.v_max[-1]))
 
     def jacobians(self, s: np.ndarray, u: np.ndarray, zone: int) -> tuple[np.ndarray, np.ndarray]:
         """Continuous-time Jacobians (A = df/ds, B = df/du) at (s, u) in ``zone``:
