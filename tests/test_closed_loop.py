@@ -55,8 +55,11 @@ def test_idle_hold_without_throttle_brake_chatter(params):
     assert m["failures"] == 0
     assert m["speed_error_rms_mps"] <= 0.2
     assert m["pedal_switches_per_min"] <= 6.0
-    # the naive PID on the same noisy run is the chatter the mode logic removes
-    assert pid.metrics["pedal_switches_per_min"] > 3 * max(m["pedal_switches_per_min"], 1.0)
+    # the PID baseline on the same run still changes pedal by the sign of its speed error
+    # (3.1/min measured, filtered input and rate-limited pedals); the MPC's mode logic holds
+    # one pedal (0/min measured)
+    assert m["pedal_switches_per_min"] < pid.metrics["pedal_switches_per_min"]
+    assert m["pedal_switches_per_min"] <= 1.0
     # and it really held 1.0 m/s below the idle speed (with the brake against idle creep)
     t, v = mpc.recording["time"], mpc.recording["speed"]
     hold = (t > 8) & (t < 24)

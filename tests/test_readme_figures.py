@@ -65,7 +65,7 @@ README_FIGURES = (
     "under 10%",
     "within 0.0004 rad, the scale within 0.05% and\n  every zone coefficient within 0.3%",
     "within 0.015 m/s\n  RMS with no throttle-brake switches",
-    "about 47 times a minute",
+    "about 3 times a minute",
 )
 
 
@@ -177,7 +177,8 @@ def test_idle_mpc_holds_speed_without_pedal_switches(idle_runs):
 
 
 def test_idle_pid_switches_pedals_every_few_seconds(idle_runs):
-    """README: a naive PID switches about 47 times a minute. Measured 46.8/min; tolerance 3."""
+    """README: the PID baseline switches about 3 times a minute. Measured 3.1/min; tolerance
+    1.5 (one switch more or less in the run is about 1.4/min)."""
     d = idle_runs["pid"]
-    assert d["pedal_switches_per_min"] == pytest.approx(47.0, abs=3.0)
+    assert d["pedal_switches_per_min"] == pytest.approx(3.0, abs=1.5)
     assert d["failures"] == 0
