@@ -22,10 +22,9 @@ from hmpc.tools.cmd_simulate import add_accept_unidentifiable
 CONTROLLERS = ("mpc", "nmpc", "pid")
 
 
-def add_arguments(p) -> None:
-    p.add_argument("--params", required=True, metavar="P.yaml", help="the controller's model")
-    p.add_argument("--actuation", required=True, metavar="A.yaml",
-                   help="actuation profile (params/*.actuation.yaml)")
+def add_bus_arguments(p) -> None:
+    """The options every loop on a CAN bus shares (``drive``, ``teleop``): the bus, the
+    simulated car on its other end, and the model refusal flag."""
     p.add_argument("--bus", default="virtual", metavar="virtual|socketcan:CHANNEL",
                    help="the CAN bus (default virtual: python-can's in-process virtual bus)")
     p.add_argument("--vehicle-sim", action="store_true",
@@ -33,6 +32,13 @@ def add_arguments(p) -> None:
     add_accept_unidentifiable(p)
     p.add_argument("--plant-params", metavar="P2.yaml",
                    help="the simulated car's parameters (default: --params)")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--params", required=True, metavar="P.yaml", help="the controller's model")
+    p.add_argument("--actuation", required=True, metavar="A.yaml",
+                   help="actuation profile (params/*.actuation.yaml)")
+    add_bus_arguments(p)
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--scenario", metavar="NAME", help="a named reference (figure8, ramp_sequence, ...)")
     what.add_argument("--reference", metavar="REF.csv", help="a reference CSV")

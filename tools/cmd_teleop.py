@@ -32,8 +32,7 @@ import sys
 import numpy as np
 
 from hmpc.models.errors import InputError
-from hmpc.tools.cmd_drive import CONTROLLERS, bus_kwargs
-from hmpc.tools.cmd_simulate import add_accept_unidentifiable
+from hmpc.tools.cmd_drive import CONTROLLERS, add_bus_arguments, bus_kwargs
 
 
 def add_arguments(p) -> None:
@@ -44,13 +43,7 @@ def add_arguments(p) -> None:
                    help="pre-shared key file: one line of hex, >= 32 bytes, mode 0600")
     p.add_argument("--listen", default="127.0.0.1:47700", metavar="HOST:PORT",
                    help="where the operator's packets arrive (default 127.0.0.1:47700)")
-    p.add_argument("--bus", default="virtual", metavar="virtual|socketcan:CHANNEL",
-                   help="the CAN bus (default virtual: python-can's in-process virtual bus)")
-    p.add_argument("--vehicle-sim", action="store_true",
-                   help="run the vehicle simulator node on the other end of the bus")
-    add_accept_unidentifiable(p)
-    p.add_argument("--plant-params", metavar="P2.yaml",
-                   help="the simulated car's parameters (default: --params)")
+    add_bus_arguments(p)
     p.add_argument("--controller", choices=CONTROLLERS, default="mpc",
                    help="who drives after a handover and follows reference commands (default mpc)")
     what = p.add_mutually_exclusive_group()
