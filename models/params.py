@@ -13,7 +13,10 @@ Optional keys (all documented here, nowhere else):
   ``nav_lever_arm_m`` ([x, y]: where the GNSS/INS position is taken, body axes x forward,
   y left, from the rear-axle centre; unknown when absent, not assumed zero).
 - ``steering``: ``dead_time_s``, ``offset_ci95_rad``/``scale_ci95`` ([low, high]),
-  ``method`` (text), ``identifiable`` (bool), ``note`` (text), ``rms_error_rad``.
+  ``method`` (text: the fit chosen by held-out evidence), ``method_scores`` (mapping method ->
+  held-out score, lower is better; ``models.identify.steering.cross_validate``),
+  ``dead_time_ci95_s`` ([low, high] [s]; absent when the dead time is not determined),
+  ``identifiable`` (bool), ``note`` (text), ``rms_error_rad``.
 - ``longitudinal``: ``dead_time_s``, ``hysteresis_mps``, ``accel_source`` (text: how the
   measured acceleration was obtained), ``accel_source_chosen`` (text: the source chosen by
   held-out evidence, one of ``wheel_speeds``, ``speed``, ``gps_speed``, ``accel_x``),
@@ -77,7 +80,8 @@ def _flag(path, key, v) -> bool:
     return v
 
 
-_KIND = {float: _num, tuple: _pair, str: _text, bool: _flag}
+_KIND = {float: _num, tuple: _pair, str: _text, bool: _flag,
+         dict: lambda path, key, v: _scores(path, key, v)}
 
 
 def _check_keys(path: str, section: str, data: Any, cls) -> dict:
@@ -113,7 +117,7 @@ def _typed(cls):
     for f in fields(cls):
         t = str(f.type)
         kinds[f.name] = (tuple if "tuple" in t else str if "str" in t else
-                         bool if "bool" in t else float)
+                         bool if "bool" in t else dict if "dict" in t else float)
     cls.__annotations_types__ = kinds
     return cls
 
@@ -151,6 +155,10 @@ class Steering:
     scale_ci95: tuple | None = None
     rms_error_rad: float | None = None
     method: str | None = None
+    #: the held-out score of each method (lower is better; the report's steering.selection)
+    method_scores: dict | None = None
+    #: the dead time's held-out interval [s] (None: not determined)
+    dead_time_ci95_s: tuple | None = None
     identifiable: bool | None = None
     note: str | None = None
     __required__ = ("offset_rad", "scale")

@@ -52,6 +52,14 @@ def test_cli_writes_a_strict_params_file_json_and_figures(sim_csv, tmp_path, cap
         assert 0.0 <= z.nmse_pct < 0.1 and abs(z.scale_mps2 / t.scale_mps2 - 1) <= 0.003, z.name
     rep = json.loads(js.read_text())
     assert rep["params"]["steering"]["scale"] == pytest.approx(p.steering.scale)
+    # the evidence behind each choice is in the file too (issue 8): every steering method's
+    # held-out score, the chosen one the best of the trusted; every acceleration source's
+    sel = rep["steering"]["selection"]
+    assert set(p.steering.method_scores) == set(sel["scores"]) and p.steering.method == sel["chosen"]
+    trusted = {k: v for k, v in p.steering.method_scores.items() if k not in sel["untrusted"]}
+    assert p.steering.method_scores[p.steering.method] == min(trusted.values())
+    assert p.accel_source_chosen in p.accel_source_scores_mps2
+    assert p.steering.dead_time_ci95_s is None  # the simulator has no steering delay
     assert {"steering", "longitudinal", "provenance"} <= set(rep)
     pngs = sorted(x.name for x in plots.glob("*.png"))
     assert pngs == ["fig2_steering.png", "fig3_idle.png", "fig4_low.png", "fig5_high.png",

@@ -28,6 +28,23 @@ from hmpc.models.logs.recording import Recording
 from hmpc.models.identify.steering import SteeringIdConfig, SteeringResult, identify_steering
 
 
+def _steering_scores(report: dict) -> dict | None:
+    """Each steering method's held-out score (``selection.scores``), finite ones only."""
+    scores = (report.get("selection") or {}).get("scores") or {}
+    out = {k: float(v["score"]) for k, v in scores.items()
+           if isinstance(v, dict) and v.get("score") is not None and math.isfinite(v["score"])}
+    return out or None
+
+
+def _dead_time_ci(report: dict) -> tuple | None:
+    """The steering dead time's held-out interval [s], when it was determined."""
+    dt = report.get("dead_time") or {}
+    ci = dt.get("interval_s")
+    if not dt.get("determined") or not ci or not all(math.isfinite(float(x)) for x in ci):
+        return None
+    return (float(ci[0]), float(ci[1]))
+
+
 @dataclass
 class IdentifyResult:
     """``params``: the identified model; ``report``: every figure (JSON-ready);
@@ -139,6 +156,7 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
         offset_ci95_rad=tuple(float(x) for x in st.offset_ci95_rad),
         scale_ci95=tuple(float(x) for x in st.scale_ci95),
         rms_error_rad=float(st.rms_error_rad), method=st.method,
+        method_scores=_steering_scores(st.report), dead_time_ci95_s=_dead_time_ci(st.report),
         identifiable=bool(st.identifiable), note=st.note)
     t = recording.time
     prov: dict = {"hmpc_version": __version__,
