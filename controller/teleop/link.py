@@ -489,8 +489,9 @@ class LinkReceiver:
         """Drain up to ``max_datagrams_per_poll`` datagrams; check the link timeout.
 
         Args:
-            now_s: the receiver's time [s] (default ``clock()``), used for freshness, latency
-                and the timeout of every datagram read in this poll.
+            now_s: the receiver's time [s], used for freshness, latency and the timeout of
+                every datagram read in this poll (default: ``clock()`` read at the poll for
+                the timeout and again at each datagram for its freshness and latency).
         """
         now = self.clock() if now_s is None else float(now_s)
         out = PollResult()
@@ -511,11 +512,14 @@ class LinkReceiver:
                 raise
             out.datagrams += 1
             self.received += 1
-            got = self._check(n, addr, now)
+            # the receive time of THIS datagram: one may have arrived after the poll began
+            # (read once, a later datagram would show a negative latency)
+            t_rx = self.clock() if now_s is None else now
+            got = self._check(n, addr, t_rx)
             if isinstance(got, str):
                 self.rejected[got] += 1
                 continue
-            self._accept(got, addr, now, out)
+            self._accept(got, addr, t_rx, out)
         else:
             out.budget_exhausted = True
             self.polls_budget_exhausted += 1
