@@ -26,6 +26,7 @@ from hmpc.models.params import Params
 from hmpc.models.plant import DelayLine, HybridPlant, heading_rate
 from hmpc.models.logs.recording import Recording
 from hmpc.models.sim.live_sensors import SensorConfig
+from hmpc.models.sim.simulator import TruthPlant
 from hmpc.models.sim.scenarios import Reference
 
 from hmpc.controller.base import Controller, Status
@@ -85,7 +86,8 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
                     progress: Callable[[float, float], None] | None = None,
                     initial_state: np.ndarray | None = None,
                     sensors: SensorConfig | None = None,
-                    estimator_config: EstimatorConfig | None = None) -> ClosedLoopResult:
+                    estimator_config: EstimatorConfig | None = None,
+                    effects: list | None = None) -> ClosedLoopResult:
     """Closed loop: ``controller.step(estimated_state, reference, t)`` every control period.
 
     The controller never sees the plant state: the truth goes, every plant step, to the
@@ -114,10 +116,14 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
         initial_state: plant start state (default: on the reference).
         sensors: rates, latencies, noise, GNSS outages (default ``SensorConfig()``).
         estimator_config: the EKF's noise model (default matched to ``sensors``).
+        effects: concealed physics in the plant (``models.sim.effects``: delays, lag, rack
+            nonlinearity, understeer, drag, grade, idle creep, ...): the plant is then the
+            ground-truth simulator's (``TruthPlant``), which the controller's model lacks.
     """
     every = _check_rates(control_period_s, plant_dt_s, progress)
     pp = plant_params if plant_params is not None else params
     plant = HybridPlant(pp)
+    truth = TruthPlant(pp, list(effects), dt_s=plant_dt_s) if effects else None
     lim = limits or ActuatorLimits.from_params(params)
     sensor_cfg = sensor_config(sensors, speed_noise_mps, position_noise_m)
     d_steer = DelayLine(float(pp.steering.dead_time_s or 0.0), plant_dt_s)
@@ -142,10 +148,11 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
     u = np.zeros(3)        # plant input over the previous step (what the sensors saw)
     u_fed = None           # the plant input the estimator holds
     accel = 0.0            # true acceleration over the previous step [m/s^2]
+    sw_eff = 0.0           # steering-wheel angle the road wheels followed (after effects)
     last_report = -1
     for i in range(n):
         t = t0 + i * plant_dt_s
-        log.pending_est_s += _observe(fb, t, s, u[0], accel, plant.road_wheel_angle(u[0]))
+        log.pending_est_s += _observe(fb, t, s, u[0], accel, plant.road_wheel_angle(sw_eff))
         if i % every == 0:
             t_w = time.perf_counter()
             est = fb.estimate(t)
@@ -168,8 +175,13 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
             fb.command(t, u)
             log.pending_est_s += time.perf_counter() - t_w
             u_fed = u
-        _record(cols, i, t, s, u, cmd, plant)
-        r = plant.step(s, u, plant_dt_s, zone)
+        if truth is None:
+            r = plant.step(s, u, plant_dt_s, zone)
+            sw_eff = float(u[0])
+        else:
+            ts = truth.step(s, u)
+            r, sw_eff = ts.result, float(ts.u_eff[0])
+        _record(cols, i, t, s, u, cmd, plant, sw_eff)
         cols["accel_x"][i] = accel = r.accel_mps2
         zones[i] = r.zone
         s, zone = r.state, r.zone
@@ -203,15 +215,16 @@ def _check_rates(control_period_s: float, plant_dt_s: float, progress) -> int:
 
 
 def _record(cols: dict, i: int, t: float, s: np.ndarray, u: np.ndarray, cmd: Command,
-            plant: HybridPlant) -> None:
-    """Row ``i`` of the recording: time, plant state, applied input, command, yaw rate."""
+            plant: HybridPlant, sw_eff: float) -> None:
+    """Row ``i`` of the recording: time, plant state, applied input, command, yaw rate (from
+    the steering-wheel angle the road wheels followed, ``sw_eff``, after concealed effects)."""
     cols["time"][i] = t
     cols["x"][i], cols["y"][i], cols["heading"][i], cols["speed"][i] = s
     cols["steering_wheel_angle"][i], cols["accel_pedal"][i], cols["brake_pedal"][i] = u
     cols["steering_cmd"][i] = cmd.steering_wheel_angle_rad
     cols["accel_pedal_cmd"][i] = cmd.accel_pedal
     cols["brake_pedal_cmd"][i] = cmd.brake_pedal
-    delta = plant.road_wheel_angle(u[0])
+    delta = plant.road_wheel_angle(sw_eff)
     cols["yaw_rate"][i] = heading_rate(s[3], float(delta), plant.wheelbase_m, ops=math)
 
 

@@ -236,3 +236,29 @@ def test_property_limits_never_exceeded(params, speeds, curv, noise_seed):
     assert all(isinstance(s, Status) for s in res.statuses)
     assert res.metrics["failures"] == 0, res.metrics["statuses"]
     assert res.metrics["internal_errors"] == 0 and res.internal_errors == []
+
+
+def test_concealed_effects_reach_the_plant_not_the_model(params):
+    """``effects=``: the plant is the ground-truth simulator with physics the controller's
+    model lacks. A 0.3 s steering dead time shows in the recorded yaw rate (it follows the
+    commanded steering 0.3 s late: best lag 0.28-0.32 s) and a 0.05 rad uphill grade slows the
+    car below what the effect-free run reaches; the loop stays stable, without failures."""
+    from hmpc.models.sim.effects import parse_effect
+    from hmpc.models.plant import heading_rate
+    ref = make_scenario("figure8", params)
+    ref = Reference(ref.time_s[:1000], ref.x_m[:1000], ref.y_m[:1000], ref.heading_rad[:1000],
+                    ref.speed_mps[:1000], name="figure8[:20s]")
+    run = {e: _run_closed_loop(MpcController(params), ref, params, seed=SEED,
+                               effects=[parse_effect(e)] if e else None)
+           for e in ("", "steering_dead_time:delay_s=0.3", "road_grade:grade_rad=0.05")}
+    for e, r in run.items():
+        assert r.metrics["failures"] == 0, e
+    rec = run["steering_dead_time:delay_s=0.3"].recording
+    sw, v, yaw = rec["steering_wheel_angle"], rec["speed"], rec["yaw_rate"]
+    b = params.vehicle.wheelbase_m
+    pred = heading_rate(v, params.steering.offset_rad + params.steering.scale * sw, b)
+    dt = float(rec["time"][1] - rec["time"][0])
+    errs = [np.mean((yaw[k:] - pred[: len(pred) - k]) ** 2) for k in range(0, 30)]
+    assert 0.28 <= int(np.argmin(errs)) * dt <= 0.32
+    clean = run[""].recording["speed"].mean()
+    assert run["road_grade:grade_rad=0.05"].recording["speed"].mean() < clean - 0.05

@@ -179,3 +179,24 @@ def test_bad_sensor_option_is_exit_2(short_ref, capsys, args, what):
     assert rc == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and what in err[0]
+
+
+def test_effect_option_runs_the_truth_plant_and_refuses_bad_specs(tmp_path, short_ref, capsys):
+    """``--effect``: the simulated car has physics the model lacks; the JSON echoes it. An
+    uphill grade slows the car against the same run without it. A bad spec exits 2 in one
+    line naming the key."""
+    out = {}
+    for name, extra in (("clean", []), ("grade", ["--effect", "road_grade:grade_rad=0.05"])):
+        js = tmp_path / f"{name}.json"
+        assert main(["simulate", "--params", PARAMS, "--reference", str(short_ref),
+                     "--out", str(tmp_path / f"{name}.csv"), "--json", str(js)] + extra) == 0
+        out[name] = json.loads(js.read_text())
+    assert out["clean"]["effects"] == []
+    assert out["grade"]["effects"] == [{"type": "road_grade", "grade_rad": 0.05}]
+    v = {k: Recording.load(tmp_path / f"{k}.csv")["speed"].mean() for k in out}
+    assert v["grade"] < v["clean"] - 0.02
+    capsys.readouterr()
+    rc = main(["simulate", "--params", PARAMS, "--reference", str(short_ref),
+               "--effect", "road_grade:slope=0.05"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "'slope'" in err[0]

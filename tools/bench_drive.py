@@ -94,20 +94,9 @@ EFFECTS = ("steering_dead_time:delay_s=0.1", "steering_lag:tau_s=0.15",
 SCENARIO_OF = {"idle_creep": "idle_hold"}
 
 
-def _effect(text: str):
-    """A concealed effect from ``name:key=value,...`` (idle creep lives in effects_extra)."""
-    from hmpc.models.sim.effects import parse_effect
-    from hmpc.models.sim.effects_extra import IdleCreep
-
-    name, _, rest = text.partition(":")
-    if name == "idle_creep":
-        kw = dict(item.split("=") for item in rest.split(","))
-        return IdleCreep(float(kw["accel_mps2"]), float(kw["creep_speed_mps"]))
-    return parse_effect(text)
-
-
 def effects_run(profile_name: str, seconds: float, tmp: Path) -> list[dict]:
     """The MPC on the identified (effect-free) model drives the node with each effect in turn."""
+    from hmpc.models.sim.effects import parse_effect
     from hmpc.models.sim.scenarios import make_scenario
 
     params = load_params(PARAMS_DIR / "report_2008.yaml", require_model=True)
@@ -120,7 +109,7 @@ def effects_run(profile_name: str, seconds: float, tmp: Path) -> list[dict]:
     for i, (text, scenario) in enumerate(runs):
         ref = make_scenario(scenario, params)
         kw = {"interface": "virtual", "channel": f"bench-eff-{os.getpid()}-{i}"}
-        eff = [] if text == "none" else [_effect(text)]
+        eff = [] if text == "none" else [parse_effect(text)]
         node = VehicleNode(prof, params, kw, start_state=ref.initial_state(params), effects=eff)
         loop = DriveLoop(prof, params, make_controller("mpc", params), ref, kw,
                          tmp / f"eff{i}.log", duration_s=seconds, node=node)

@@ -73,6 +73,10 @@ def add_arguments(p) -> None:
                    help="GNSS/INS fix latency [s] (default 0.05)")
     p.add_argument("--gnss-outage", action="append", default=[], metavar="T0:T1",
                    help="no GNSS fix from T0 to T1 [s on the reference's clock] (repeatable)")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME:KEY=VALUE,...",
+                   help="concealed physics in the simulated car that the controller's model "
+                        "lacks, e.g. road_grade:grade_rad=0.03, steering_lag:tau_s=0.15, "
+                        "idle_creep:accel_mps2=0.5,creep_speed_mps=2 (repeatable)")
     p.add_argument("--no-transition-penalty", action="store_true",
                    help="MPC without the zone-transition penalty (for comparison)")
     p.add_argument("--noise", choices=("typical", "quantised", "none"), default="typical",
@@ -157,11 +161,13 @@ def make_controller(name: str, params, *, dt_s: float = 0.2, horizon_s: float = 
 
 def _run_closed_loop(args, params, write_json) -> int:
     from hmpc.controller.closed_loop import run_closed_loop
+    from hmpc.models.sim.effects import parse_effect
     from hmpc.models.sim.scenarios import load_reference_csv, make_scenario
 
     if args.horizon <= 0 or abs(args.horizon / args.dt - round(args.horizon / args.dt)) > 1e-6:
         raise InputError(f"--horizon {args.horizon} must be a positive multiple of --dt {args.dt}")
     sensors = _sensor_config(args)
+    effects = [parse_effect(e) for e in args.effect]
     plant_params = load_model_params(args.plant_params, args, "simulate") if args.plant_params \
         else None
     ref = make_scenario(args.scenario, params) if args.scenario is not None \
@@ -177,7 +183,7 @@ def _run_closed_loop(args, params, write_json) -> int:
 
     res = run_closed_loop(ctl, ref, params, plant_params=plant_params,
                           control_period_s=args.control_period, seed=args.seed,
-                          sensors=sensors, progress=progress)
+                          sensors=sensors, progress=progress, effects=effects or None)
     m = res.metrics
     if res.internal_errors:
         t_err, tb = res.internal_errors[0]
@@ -194,6 +200,7 @@ def _run_closed_loop(args, params, write_json) -> int:
     payload.update({"controller": args.controller, "reference": ref.name,
                     "plant_params": args.plant_params, "seed": args.seed,
                     "sensors": _sensor_echo(sensors),
+                    "effects": [e.describe() for e in effects],
                     "details": {k: v for k, v in m.items() if k not in payload}})
     if args.plots:
         payload["plots"] = _plots(res, ref, args.plots, args.controller,

@@ -322,6 +322,13 @@ EFFECTS: dict[str, type[Effect]] = {
 }
 
 
+def _extra_effects() -> dict[str, type[Effect]]:
+    """The effects kept in ``models.sim.effects_extra`` (idle creep, hilly road, mass change),
+    which imports this module: looked up when a name is not one of ``EFFECTS``."""
+    from hmpc.models.sim.effects_extra import EXTRA_EFFECTS
+    return EXTRA_EFFECTS
+
+
 def effect_from_dict(spec: dict, *, where: str | None = None) -> Effect:
     """Build an effect from ``{"type": name, <keyword>: value, ...}`` (the ``describe()`` form).
 
@@ -330,9 +337,10 @@ def effect_from_dict(spec: dict, *, where: str | None = None) -> Effect:
     if not isinstance(spec, dict) or "type" not in spec:
         raise InputError("an effect needs a 'type'", where, key="type")
     kind = spec["type"]
-    cls = EFFECTS.get(kind) if isinstance(kind, str) else None
+    known = {**EFFECTS, **_extra_effects()}
+    cls = known.get(kind) if isinstance(kind, str) else None
     if cls is None:
-        raise InputError(f"unknown effect {kind!r} (known: {', '.join(sorted(EFFECTS))})", where,
+        raise InputError(f"unknown effect {kind!r} (known: {', '.join(sorted(known))})", where,
                          key="type")
     kwargs = {k: v for k, v in spec.items() if k != "type"}
     try:

@@ -103,3 +103,9 @@ class MassChange(Effect):
 
     def describe(self) -> dict:
         return {"type": self.name, "at_s": self.at_s, "factor": self.factor}
+
+
+#: the effects of this module by name, for ``models.sim.effects.effect_from_dict`` and
+#: ``parse_effect`` (e.g. ``idle_creep:accel_mps2=0.5,creep_speed_mps=2``)
+EXTRA_EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (IdleCreep, HillyRoad,
+                                                                     MassChange)}
