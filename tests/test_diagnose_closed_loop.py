@@ -3,7 +3,8 @@
 baseline model and once with the extended model ``diagnose`` writes (``--params-out``), both
 fitted on that case's recording. A dead time reaches the MPC through the conventions' keys and
 tracking improves; an effect the MPC cannot represent leaves its tracking as it was (the keys
-hold the baseline's fit), never worse. Seed 1; ``tools/bench_diagnose.py --closed-loop`` runs
+hold the baseline's fit), never worse. The MPC is fed as a car is (simulated sensors through
+the EKF, ``run_closed_loop(effects=)``). Seed 1; ``tools/bench_diagnose.py --closed-loop`` runs
 every case."""
 from __future__ import annotations
 

@@ -204,34 +204,21 @@ def ten_minutes(seed: int) -> dict:
 CL_SCENARIO = {"steering": "figure8", "longitudinal": "ramps", "idle_creep": "idle_hold"}
 
 
-def _track(model, truth, effects, ref, plant_dt_s: float = 0.02, period_s: float = 0.1) -> dict:
+def _track(model, truth, effects, ref, plant_dt_s: float = 0.02, period_s: float = 0.1,
+           seed: int = 0) -> dict:
     """The MPC built on ``model`` drives the ground-truth plant (``truth`` with the concealed
-    ``effects``, models.sim.simulator.TruthPlant) along ``ref``; the controller is given the
-    true state (no sensors: only the model differs between runs). Returns the tracking RMSEs."""
-    from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
+    ``effects``: ``run_closed_loop(effects=)``, models.sim.simulator.TruthPlant) along ``ref``,
+    fed as a car is: simulated sensors through the EKF, at the default noise, the same seed for
+    every model (only the model differs between runs). Returns the tracking RMSEs."""
+    from hmpc.controller.closed_loop import run_closed_loop
     from hmpc.controller.mpc import MpcController
-    from hmpc.models.sim.simulator import TruthPlant
 
-    ctl = MpcController(model)
-    lim = ActuatorLimits.from_params(model)
-    plant = TruthPlant(truth, effects, plant_dt_s)
-    every = int(round(period_s / plant_dt_s))
-    n = int(ref.duration_s / plant_dt_s) + 1
-    s = ref.initial_state(truth)
-    t = ref.time_s[0] + np.arange(n) * plant_dt_s
-    X = np.zeros((n, 4))
-    cmd, prev, status = Command(0.0, 0.0, 0.0), None, []
-    for i in range(n):
-        if i % every == 0:
-            res = ctl.step(s, ref, float(t[i]))
-            cmd = apply_limits(res.command, prev, lim, period_s)
-            prev = cmd
-            status.append(str(res.status))
-        X[i] = s
-        s = plant.step(s, cmd.as_tuple()).result.state
-    lat = ref.lateral_errors(X[:, 0], X[:, 1], t)
-    return {"speed_rmse_mps": rmse(X[:, 3] - ref.speed_at(t)), "lateral_rmse_m": rmse(lat),
-            "not_ok_steps": int(sum(1 for x in status if not x.lower().endswith("ok")))}
+    res = run_closed_loop(MpcController(model), ref, model, plant_params=truth,
+                          control_period_s=period_s, plant_dt_s=plant_dt_s, seed=seed,
+                          effects=effects)
+    m = res.metrics
+    return {"speed_rmse_mps": m["speed_error_rms_mps"], "lateral_rmse_m": m["lateral_error_rms_m"],
+            "not_ok_steps": int(m["failures"])}
 
 
 def controller_view(p) -> tuple[object, list[str]]:
@@ -303,7 +290,7 @@ def main(argv=None) -> int:
                  else ""))
         return 0
     if args.closed_loop:
-        print("=== closed loop: MPC tracking RMSE on the ground-truth plant (true state fed back)")
+        print("=== closed loop: MPC tracking RMSE on the ground-truth plant (sensors -> EKF -> MPC)")
         cl = closed_loop(args.seeds[0])
         if args.json:
             with open(args.json, "w") as fh:
