@@ -138,9 +138,7 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
     fb = SensorFeedback(params, sensor_cfg, estimator_config, seed=seed, t0_s=t0,
                         initial_state=s)
     zone = plant.select_zone(float(s[3]), None)
-    cols = {k: np.zeros(n) for k in ("time", "x", "y", "heading", "speed", "steering_wheel_angle",
-                                     "accel_pedal", "brake_pedal", "yaw_rate", "accel_x",
-                                     "steering_cmd", "accel_pedal_cmd", "brake_pedal_cmd")}
+    cols = {k: np.zeros(n) for k in _COLUMNS}
     zones = np.zeros(n, dtype=np.int64)
     log = _StepLog()
     cmd = Command(0.0, 0.0, 0.0)
@@ -175,12 +173,7 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
             fb.command(t, u)
             log.pending_est_s += time.perf_counter() - t_w
             u_fed = u
-        if truth is None:
-            r = plant.step(s, u, plant_dt_s, zone)
-            sw_eff = float(u[0])
-        else:
-            ts = truth.step(s, u)
-            r, sw_eff = ts.result, float(ts.u_eff[0])
+        r, sw_eff = _plant_step(plant, truth, s, u, plant_dt_s, zone)
         _record(cols, i, t, s, u, cmd, plant, sw_eff)
         cols["accel_x"][i] = accel = r.accel_mps2
         zones[i] = r.zone
@@ -200,6 +193,23 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
     result.metrics["seed"] = seed
     result.metrics["estimator"] = _estimator_figures(result, fb)
     return result
+
+
+#: the recording's channels: plant state, applied input, commands, yaw rate, acceleration
+_COLUMNS = ("time", "x", "y", "heading", "speed", "steering_wheel_angle", "accel_pedal",
+            "brake_pedal", "yaw_rate", "accel_x", "steering_cmd", "accel_pedal_cmd",
+            "brake_pedal_cmd")
+
+
+def _plant_step(plant: HybridPlant, truth, s: np.ndarray, u: np.ndarray, dt_s: float,
+                zone: int):
+    """One plant step: the hybrid plant, or the ground-truth plant with its concealed effects
+    (``truth``). Returns the step result and the steering-wheel angle the road wheels
+    followed [rad] (after the effects)."""
+    if truth is None:
+        return plant.step(s, u, dt_s, zone), float(u[0])
+    ts = truth.step(s, u)
+    return ts.result, float(ts.u_eff[0])
 
 
 def _check_rates(control_period_s: float, plant_dt_s: float, progress) -> int:
