@@ -496,18 +496,7 @@ class DriveLoop:
     def _receive(self, r: _Run, tk: _Tick) -> None:
         """Step 2: drain the bus, log and decode what arrived, read the measured speed and angle."""
         fb = r.fb
-        rx = []
-        while True:
-            m = r.bus.recv(timeout=0.0)
-            if m is None:
-                break
-            if self._fault_active("feedback_loss", tk.t_mono):
-                continue  # lost on the way: never seen, never logged
-            m.channel = 0
-            m.is_rx = True
-            r.writer.on_message_received(m)
-            rx.append(m)
-        tk.seen = fb.update(rx, tk.t)
+        tk.seen = fb.update(self._drain(r, tk), tk.t)
         # eq. 1's speed is the front-axle centre's: the front wheels' mean (the
         # signal map's `speed`, the four-wheel mean, reads low by cos(delta) in turns)
         v_meas = 0.5 * (fb.value("wheel_speed_fl") + fb.value("wheel_speed_fr"))
@@ -518,6 +507,21 @@ class DriveLoop:
         # the wheel-speed period, learned from the frames (median interval)
         tk.period_ws = float(np.median(np.diff(fb.ws_times))) if len(fb.ws_times) > 5 else None
         tk.last_ws = fb.ws_times[-1] if fb.ws_times else None
+
+    def _drain(self, r: _Run, tk: _Tick) -> list:
+        """Every frame waiting on the bus, logged as received (none while the
+        ``feedback_loss`` fault is active: lost on the way, never seen, never logged)."""
+        rx = []
+        while True:
+            m = r.bus.recv(timeout=0.0)
+            if m is None:
+                return rx
+            if self._fault_active("feedback_loss", tk.t_mono):
+                continue
+            m.channel = 0
+            m.is_rx = True
+            r.writer.on_message_received(m)
+            rx.append(m)
 
     def _estimate(self, r: _Run, tk: _Tick) -> None:
         """The state estimate, every tick from the start (the car starts on the reference)."""
@@ -649,6 +653,12 @@ class DriveLoop:
     def _send_frames(self, r: _Run, tk: _Tick) -> None:
         """Step 6: each command frame at its own rate, limited, checked, encoded and sent."""
         t = tk.t
+        # a last look at the bus before encoding: a status frame that arrived since step 2 (the
+        # car no longer accepting commands) must reach the checks, as it reaches the panda
+        # before our frame does
+        late = self._drain(r, tk)
+        if late:
+            r.fb.update(late, t)
         active = r.state in ("engaged", "stopping", "holding")
         steer_active = r.state == "engaged" or (r.state in ("stopping", "holding")
                                                 and r.stop["reason"] not in ("driver_override",
