@@ -279,6 +279,8 @@ class _Run:
     t_est: float | None = None
     stop_reason_pending: str = ""
     k: int = 0
+    # messages decoded by the last look before encoding (step 6), counted as seen next tick
+    late_seen: list = field(default_factory=list)
 
 
 class SystemClock:
@@ -496,7 +498,8 @@ class DriveLoop:
     def _receive(self, r: _Run, tk: _Tick) -> None:
         """Step 2: drain the bus, log and decode what arrived, read the measured speed and angle."""
         fb = r.fb
-        tk.seen = fb.update(self._drain(r, tk), tk.t)
+        tk.seen = fb.update(self._drain(r, tk), tk.t) + r.late_seen
+        r.late_seen = []
         # eq. 1's speed is the front-axle centre's: the front wheels' mean (the
         # signal map's `speed`, the four-wheel mean, reads low by cos(delta) in turns)
         v_meas = 0.5 * (fb.value("wheel_speed_fl") + fb.value("wheel_speed_fr"))
@@ -658,7 +661,7 @@ class DriveLoop:
         # before our frame does
         late = self._drain(r, tk)
         if late:
-            r.fb.update(late, t)
+            r.late_seen = r.fb.update(late, t)
         active = r.state in ("engaged", "stopping", "holding")
         steer_active = r.state == "engaged" or (r.state in ("stopping", "holding")
                                                 and r.stop["reason"] not in ("driver_override",
