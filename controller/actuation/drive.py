@@ -203,9 +203,11 @@ class _Feedback:
                 if it.name == "eps_torque":
                     for x in vals:
                         self.eps.append(float(x) * ToyotaLimits().eps_torque_factor)
-            if name == self.speed_msg:
-                for _ in range(len(d)):
-                    self.ws_times.append(t_s)
+            if name == self.speed_msg and (not self.ws_times or self.ws_times[-1] != t_s):
+                # one arrival time per tick: frames decoded twice in a tick (step 2 and the
+                # last look before encoding) must not add zero intervals, which would shrink
+                # the learned wheel-speed period and trip the stale-feedback watchdog
+                self.ws_times.append(t_s)
         return list(dec)
 
     def value(self, channel: str, default: float = math.nan) -> float:
