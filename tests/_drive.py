@@ -34,6 +34,18 @@ def truncated(ref: Reference, t_end_s: float) -> Reference:
 
 def drive(profile: str, scenario: str, duration_s: float, tmp_path, faults=(),
           ref_s: float | None = None):
+    """One real-time run; run once more (a fresh bus and node) only when the first one was
+    stopped by ``deadline_misses``: three consecutive control steps more than a period late
+    is a host stall on a shared CI machine (the loop's own safety rule, tested on its own in
+    test_actuation_safety.py), not the property these tests check. A second stall fails the test."""
+    res, log = _drive_once(profile, scenario, duration_s, tmp_path, faults, ref_s, 0)
+    if res.summary["stop"]["reason"] == "deadline_misses":
+        print(f"host stall: deadline_misses at t = {res.summary['stop']['t_s']} s; run again")
+        res, log = _drive_once(profile, scenario, duration_s, tmp_path, faults, ref_s, 1)
+    return res, log
+
+
+def _drive_once(profile, scenario, duration_s, tmp_path, faults, ref_s, attempt):
     p = params()
     prof = load_profile(PROFILES[profile])
     ref = make_scenario(scenario, p)
@@ -41,7 +53,7 @@ def drive(profile: str, scenario: str, duration_s: float, tmp_path, faults=(),
         ref = truncated(ref, ref_s)
     kw = {"interface": "virtual", "channel": f"hmpc-test-{os.getpid()}-{next(_n)}"}
     node = VehicleNode(prof, p, kw, start_state=ref.initial_state(p))
-    log = tmp_path / f"{profile}-{scenario}.log"
+    log = tmp_path / f"{profile}-{scenario}-{attempt}.log"
     loop = DriveLoop(prof, p, MpcController(p, MpcConfig()), ref, kw, log,
                      duration_s=duration_s, faults=[parse_fault(f) for f in faults], node=node)
     res = loop.run()

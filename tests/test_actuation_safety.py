@@ -179,3 +179,15 @@ def test_cutting_torque_to_zero_is_always_allowed_as_in_panda():
         t += lim.steer_period_s
         out = lt.clip(600.0, t, -1e4, 1e4)
     assert out > lim.max_rt_delta and lt.clip(0.0, t + 0.01, -1e4, 1e4) == 0
+
+
+def test_watchdog_stops_on_three_consecutive_late_steps_only():
+    """The deadline rule the drive tests rely on (they run again once after a host stall):
+    one or two late control steps are counted, three in a row stop the car; an on-time step
+    resets the count."""
+    from hmpc.controller.actuation.watchdog import Watchdog
+    wd = Watchdog()
+    assert [wd.deadline(x) for x in (True, True, False, True, True)] == [""] * 5
+    assert wd.deadline(True) == "deadline_misses"
+    wd2 = Watchdog()
+    assert [wd2.deadline(True) for _ in range(3)] == ["", "", "deadline_misses"]
