@@ -284,8 +284,7 @@ class HybridPlant:
         # estimator prediction and per simulator sample: numpy on scalars costs 10x more)
         x0, y0, psi0, vs = np.asarray(s, dtype=float)[:4].tolist()
         z = self.select_zone(vs, zone)
-        off, sc, br = self._eq8[z]
-        a = zone_accel(off, sc, br, float(u[IAP]), float(u[IBP])) + accel_extra_mps2
+        a = self.accel(z, float(u[IAP]), float(u[IBP])) + accel_extra_mps2
         v0 = max(vs, 0.0)
         v1 = v0 + a * dt_s
         if v1 < 0.0:  # stops within the step and stays stopped: never rolls backwards
