@@ -10,7 +10,7 @@ import numpy as np
 from _data import PARAMS_DIR, REPORT_PARAMS
 from hmpc.controller.actuation.drive import DriveLoop, audit_candump, parse_fault
 from hmpc.controller.actuation.profiles import load_profile
-from hmpc.controller.actuation.vehicle_node import VehicleNode
+from hmpc.controller.actuation.vehicle_node import BYWIRE_RATES_HZ, TOYOTA_RATES_HZ, VehicleNode
 from hmpc.controller.closed_loop import run_closed_loop
 from hmpc.controller.mpc import MpcConfig, MpcController
 from hmpc.models.params import load_params
@@ -34,15 +34,38 @@ def truncated(ref: Reference, t_end_s: float) -> Reference:
 
 def drive(profile: str, scenario: str, duration_s: float, tmp_path, faults=(),
           ref_s: float | None = None):
-    """One real-time run; run once more (a fresh bus and node) only when the first one was
-    stopped by ``deadline_misses``: three consecutive control steps more than a period late
-    is a host stall on a shared CI machine (the loop's own safety rule, tested on its own in
-    test_actuation_safety.py), not the property these tests check. A second stall fails the test."""
+    """One real-time run; run once more (a fresh bus and node) only after a host stall:
+    a ``deadline_misses`` stop (three consecutive control steps more than a period late), or
+    a ``feedback_loss`` stop while the simulator node's own thread went silent for more than
+    the stale rule's 3 wheel-speed periods (the node's ``max_gap_s``: the simulated car really
+    stopped talking, and the loop was right to stop). Both rules are tested on their own in
+    test_actuation_safety.py; a stall on a shared CI machine is not what these tests check.
+    A second stall fails the test."""
     res, log = _drive_once(profile, scenario, duration_s, tmp_path, faults, ref_s, 0)
-    if res.summary["stop"]["reason"] == "deadline_misses":
-        print(f"host stall: deadline_misses at t = {res.summary['stop']['t_s']} s; run again")
+    stall = host_stall(profile, res.summary, faults)
+    if stall:
+        print(f"host stall: {stall}; run again")
         res, log = _drive_once(profile, scenario, duration_s, tmp_path, faults, ref_s, 1)
     return res, log
+
+
+def host_stall(profile: str, summary: dict, faults=()) -> str:
+    """Why this run's stop was a host stall, or "" (see ``drive``); never when the test
+    injected that stop's fault itself."""
+    stop = summary["stop"]
+    if any(f.split("@")[0] == stop["reason"] for f in faults):
+        return ""
+    if stop["reason"] == "deadline_misses":
+        return f"deadline_misses at t = {stop['t_s']} s"
+    if stop["reason"] == "feedback_loss" and summary.get("node"):
+        prof = load_profile(PROFILES[profile])
+        msg = prof.signal_map.channels["speed"].message
+        period = 1.0 / (TOYOTA_RATES_HZ if profile == "toyota" else BYWIRE_RATES_HZ)[msg]
+        gap = summary["node"]["max_gap_s"].get(msg, 0.0)
+        if gap > 3.0 * period:
+            return (f"feedback_loss at t = {stop['t_s']} s: the node's thread did not publish "
+                    f"{msg} for {gap * 1e3:.0f} ms (period {period * 1e3:.0f} ms)")
+    return ""
 
 
 def _drive_once(profile, scenario, duration_s, tmp_path, faults, ref_s, attempt):

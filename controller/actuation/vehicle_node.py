@@ -75,12 +75,17 @@ class NodeStats:
     rejected: dict = field(default_factory=dict)
     faults: list = field(default_factory=list)
     published: dict = field(default_factory=dict)
+    # longest interval between two publications of a message [s]: a simulator thread the host
+    # starved (a gap of several periods) tells a test that a ``feedback_loss`` stop was the
+    # simulated car's silence, which the loop is right to stop on, not a loop defect
+    max_gap_s: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {"accepted": dict(self.accepted), "rejected": dict(self.rejected),
                 "rejected_total": int(sum(self.rejected.values())),
                 "faults": [{"t_s": round(t, 4), "what": w} for t, w in self.faults],
-                "published": dict(self.published)}
+                "published": dict(self.published),
+                "max_gap_s": {k: round(v, 4) for k, v in self.max_gap_s.items()}}
 
 
 class VehicleNode:
@@ -180,6 +185,7 @@ class VehicleNode:
     # ------------------------------------------------------------------- thread
     def _run(self) -> None:
         due = {n: 0.0 for n in self.rates}
+        last_pub: dict = {}
         t_prev = self.now()
         nxt = t_prev
         while not self._stop.is_set():
@@ -205,6 +211,10 @@ class VehicleNode:
                     try:
                         self._bus.send(self._feedback(name, t))
                         self.stats.published[name] = self.stats.published.get(name, 0) + 1
+                        if name in last_pub:
+                            self.stats.max_gap_s[name] = max(self.stats.max_gap_s.get(name, 0.0),
+                                                             t - last_pub[name])
+                        last_pub[name] = t
                     except can.CanError:
                         pass
 
