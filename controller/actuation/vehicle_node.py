@@ -41,6 +41,7 @@ import numpy as np
 
 from hmpc.models.params import Params
 from hmpc.models.plant import HybridPlant
+from hmpc.models.sim.sensors import wheel_speeds
 
 from hmpc.controller.actuation.checksums import SCHEMES
 from hmpc.controller.actuation.profiles import ActuationProfile
@@ -400,26 +401,27 @@ class VehicleNode:
         return can.Message(arbitration_id=m.frame_id, data=bytes(data), is_extended_id=False,
                            dlc=len(data))
 
-    def _wheels(self, v_front: float, yaw_radps: float) -> dict:
-        """Speeds of the four wheels of a rigid car without slip [m/s]: eq. 1's point is the
-        front-axle centre moving at ``v_front`` along the road-wheel angle; the rear axle centre
-        moves at v cos(delta); each side adds -+ yaw * track / 2."""
+    def _wheels(self, v_front: float, scale: float) -> dict:
+        """Speeds of the four wheels of a rigid car without slip [m/s], each read ``scale``
+        times (a tyre-radius error): eq. 1's point is the front-axle centre moving at
+        ``v_front`` along the road-wheel angle; the wheel-centre speeds are the rigid body's
+        (``models.sim.sensors.wheel_speeds``, the physics identify inverts: a front wheel
+        moves at |(v cos delta -+ yaw track / 2, v sin delta)|, not v -+ yaw track / 2)."""
         delta = float(self.plant.road_wheel_angle(self.sw_rad))
         tf = float(self.truth.vehicle.track_front_m)
         tr = float(self.truth.vehicle.track_rear_m or tf)
-        vr = v_front * math.cos(delta)
-        return {"FL": max(v_front - yaw_radps * tf / 2, 0.0), "FR": max(v_front + yaw_radps * tf / 2, 0.0),
-                "RL": max(vr - yaw_radps * tr / 2, 0.0), "RR": max(vr + yaw_radps * tr / 2, 0.0)}
+        speeds = wheel_speeds(v_front, delta, self.plant.wheelbase_m, tf, tr)
+        return {w: scale * float(x) for w, x in zip(("FL", "FR", "RL", "RR"), speeds)}
 
     def _values(self, name: str, t: float) -> dict:
         v = float(self.state[3])
-        ws = v * math.prod(e.wheel_speed_scale() for e in self.effects)  # tyre radius error
+        ws_scale = math.prod(e.wheel_speed_scale() for e in self.effects)  # tyre radius error
         deg = math.degrees(self.sw_rad)
         yaw = v * math.sin(float(self.plant.road_wheel_angle(self.sw_rad))) / self.plant.wheelbase_m
         self._pub_counter = (self._pub_counter + 1) % 16
         faulted = t < self.fault_until or self._rejecting(t)
         if name == "WHEEL_SPEEDS":
-            return {f"WHEEL_SPEED_{w}": 3.6 * x for w, x in self._wheels(ws, yaw).items()}
+            return {f"WHEEL_SPEED_{w}": 3.6 * x for w, x in self._wheels(v, ws_scale).items()}
         if name == "STEER_ANGLE_SENSOR":
             coarse = 1.5 * round(deg / 1.5)
             frac = min(max(round((deg - coarse) / 0.1) * 0.1, -0.7), 0.7)
@@ -454,7 +456,7 @@ class VehicleNode:
                     "PEDALS_ENABLED": int(self.pedal_enable and self.engaged),
                     "ACCEL_OVERRIDE": 0, "BRAKE_OVERRIDE": 0, "COUNTER": self._pub_counter}
         if name == "BW_WHEEL_SPEEDS":
-            return {f"WHEEL_SPEED_{w}": x for w, x in self._wheels(ws, yaw).items()}
+            return {f"WHEEL_SPEED_{w}": x for w, x in self._wheels(v, ws_scale).items()}
         if name == "BW_STATUS":
             return {"SYSTEM_READY": int(not faulted), "ENGAGED": int(self.engaged),
                     "FAULT": int(faulted),

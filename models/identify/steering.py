@@ -18,7 +18,11 @@ road-wheel angle delta of the virtual middle tyre follow:
     domain, ``r = r_bias + v_R tan(offset + scale * sw) / b``, where the yaw-rate noise is white
     and a gyro bias ``r_bias`` [rad/s] is estimated with the map: at 2.4 m/s a 0.002 rad/s bias
     would otherwise shift the offset by 0.0022 rad. Separating the bias from the offset needs
-    a range of speeds (the parameter correlation is reported). Without wheel speeds the speed
+    a range of speeds (the parameter correlation is reported). Standstill samples are not used
+    to pin the bias: a quantised channel at rest reads its step nearest 0 (Toyota's YAW_RATE,
+    0.244 deg/s steps, reads -0.072 deg/s throughout the 2019 RAV4's 24 s at rest in
+    tools/data), which bounds the bias only to +-0.0021 rad/s, i.e. the offset to +-b/v times
+    that (+-12% of a 0.017 rad offset at 2.5 m/s). Without wheel speeds the speed
     is ``gps_speed`` with the geometry's ``nav_lever_arm_m`` (then ``v_R`` follows exactly,
     :func:`rear_axle_speed`), else ``speed`` or ``gps_speed`` at an unknown point on the centre
     line, at |x_s| from the rear axle, which moves at ``v_R sqrt(1 + (x_s/b)^2 tan^2(delta))``:
@@ -586,8 +590,15 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
     if not ok["offset_ci95_rad"]:
         notes.append(f"the offset is known only to +-{half_o:.4f} rad")
     if not bias_ok:
+        # the offset's yaw rate is v tan(offset)/b, the bias a constant: only the spread of
+        # the speeds tells them apart; say which speeds there were and what that left
+        vs = np.asarray(v_steady, dtype=float)
+        vs = vs[np.isfinite(vs)]
+        span = (f"{np.percentile(vs, 2.5):.1f}-{np.percentile(vs, 97.5):.1f} m/s, "
+                if vs.size else "")
         notes.append("the speed range is too narrow to separate the offset from the yaw-rate "
-                     "sensor's bias")
+                     f"sensor's bias ({span}|corr(offset, bias)| = {abs(bias_corr):.3f}: "
+                     f"offset +-{half_o:.4f} rad; arcs at other speeds separate them)")
     if not ok["kinematic_speed_s"]:
         notes.append(_kinematic_note(v_steady, slow_s, cfg))
     if notes:
