@@ -110,7 +110,7 @@ def _fos_selects(d: lon.LonData, name: str, base: dict | None = None,
     (``spec``: the fitted hypothesis, e.g. a grade with its compensation rate)."""
     from hmpc.models.identify.fos import fos
     spec = spec or lon.LonSpec(name, **(base or {}))
-    X, _ = lon._design(d, lon.inputs(d, spec), spec)
+    X, _ = lon._design(d, lon.fit_inputs(d, spec), spec)
     use = d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) & np.isfinite(X).all(axis=1)
     Xs = X[use]
     keep = np.abs(Xs).max(axis=0) > 1e-12
@@ -182,6 +182,7 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
     lon_scores, cl = _longitudinal_step(w, ld, cfg, res)
     _stack_on_dynamics(ld, w.cands, lon_scores, cfg, cl, res)
     _stack_dynamics_on_static(ld, w.cands, lon_scores, cfg, cl, res)
+    _joint_response(w, ld, lon_scores, cfg, cl)
 
     _drop_alternatives(w.cands)
     findings = _rank_findings(w, regimes)
@@ -509,6 +510,58 @@ def _stack_dynamics_on_static(ld, cands, lon_scores, cfg, cl, res) -> None:
 
 
 _DYNAMICS = ("actuator_delay", "actuator_lag")
+
+
+def _joint_response(w: _Work, ld: lon.LonData, lon_scores: dict, cfg: DiagnoseConfig,
+                    cl: float) -> None:
+    """The actuator's response as a dead time and a lag fitted together
+    (:func:`longitudinal.joint_response`), on top of the model the single delay and lag were
+    scored against: its total effective delay d + tau with intervals, its held-out speed
+    RMSE, and whether the recording can tell a dead time from a lag. Recorded in
+    ``channels["speed"]["response"]`` and as a note; it names no finding (the catalogue's
+    delay and lag stay the descriptions that are ranked)."""
+    lon_speed = [c for c in w.cands if c["subsystem"] == "longitudinal"
+                 and c["channel"] == "speed"]
+    dyn = [c for c in lon_speed if c["effect"] in _DYNAMICS and (
+        c["_ok"] or max(c["gain"], c.get("stacked", {}).get("gain", 0.0)) >= cfg.min_gain / 2)]
+    if not dyn:  # no delay or lag found or hinted at (half a finding's gain, alone or on top
+        return   # of a static term): nothing to qualify, and the map costs seconds
+    # the static term of the final model: the one a delay or lag was fitted on top of, or one
+    # accepted on top of the delay or lag
+    below = next((next(iter(c.get("on_top_of") or c.get("stacked", {}).get("on_top_of") or {}))
+                  for c in dyn if c.get("on_top_of") or "stacked" in c), None)
+    below = below or next((c["effect"] for c in lon_speed if c["_ok"] and c["effect"]
+                           in lon.LINEAR_EXT and set(c.get("on_top_of") or ()) & set(_DYNAMICS)),
+                          None)
+    base, before = {}, lon_scores[None].heldout_rmse_mps
+    if below is not None and below in lon_scores:
+        sp = lon_scores[below].model.spec
+        base = {"ext_name": sp.term, "comp_rate_per_s": sp.comp_rate_per_s,
+                "creep_speed_mps": sp.creep_speed_mps}
+        before = lon_scores[below].heldout_rmse_mps
+    r = lon.joint_response(ld, base, cfg, cl)
+    after = r["heldout_rmse_mps"]
+    r.update(on_top_of=below, heldout_rmse_before=before,
+             gain=(before - after) / before if before > 0 and np.isfinite(after) else 0.0)
+    iv = r["intervals"]
+    split = ("no delay or lag beyond the model's" if iv["effective_delay_s"][0] == 0.0
+             and r["gain"] < cfg.min_gain else
+             "it separates a dead time from a lag" if r["separable"] else
+             "it cannot tell a dead time from a lag (the dead time alone fits within likelihood "
+             f"ratio {r['lr_dead_time_only']:.1f}, the lag alone within "
+             f"{r['lr_lag_only']:.1f} of the joint fit, both below 3.84): it fixes the total "
+             "delay, not its split")
+    r["verdict"] = (
+        f"response of the acceleration to {r['input']}"
+        + (f" on top of {below}" if below else "")
+        + f": dead time {r['dead_time_s']:.2f} s [{iv['dead_time_s'][0]:.2f}, "
+        f"{iv['dead_time_s'][1]:.2f}] and lag {r['tau_s']:.2f} s [{iv['tau_s'][0]:.2f}, "
+        f"{iv['tau_s'][1]:.2f}] fitted together, effective delay d + tau "
+        f"{r['effective_delay_s']:.2f} s [{iv['effective_delay_s'][0]:.2f}, "
+        f"{iv['effective_delay_s'][1]:.2f}] (63 % of a step), held-out speed RMSE "
+        f"{before:.3f} -> {after:.3f} m/s ({100 * r['gain']:.0f} %); {split}")
+    w.channels.setdefault("speed", {})["response"] = r
+    w.notes.append(r["verdict"])
 
 
 def _fit_windows(cfg: DiagnoseConfig, ch: dict) -> DiagnoseConfig:

@@ -20,8 +20,10 @@ Extensions (``CATALOGUE`` ids), each refitted jointly with every zone coefficien
 - ``idle_creep``: + a0 max(0, 1 - v / v_c) with the throttle released, a0 in [0, 2] m/s^2,
   v_c in [0.5, 5] m/s.
 
-Fits are equation error (measured dv/dt, Savitzky-Golay) on moving samples; scores are speed
-free-run replays from the measured speed at each window start.
+Fits are equation error (measured dv/dt, Savitzky-Golay, against the inputs smoothed alike:
+:func:`fit_inputs`) on moving samples; scores are speed free-run replays from the measured
+speed at each window start. :func:`joint_response` fits a dead time and a lag together (the
+total effective delay of an actuator, and whether a recording tells the two apart).
 """
 from __future__ import annotations
 
@@ -48,6 +50,9 @@ LINEAR_EXT = {
 }
 NONLINEAR = {"actuator_delay": "delay_s", "actuator_lag": "tau_s", "idle_creep": "creep_speed_mps",
              "road_grade": "comp_rate_per_s"}
+#: an input whose magnitude never exceeds this in the training samples is not used there
+#: (pedal fractions, m/s^2 requests: 0.01 is below any deliberate actuation)
+INPUT_USED = 0.01
 HYPOTHESES = ("actuator_delay", "actuator_lag", "aero_drag", "rolling_resistance", "road_grade",
               "idle_creep")
 
@@ -208,6 +213,23 @@ def inputs(d: LonData, spec: LonSpec) -> np.ndarray:
     return U
 
 
+def fit_inputs(d: LonData, spec: LonSpec) -> np.ndarray:
+    """Inputs as the equation-error fit sees them: :func:`inputs` smoothed the way the measured
+    dv/dt is (the Savitzky-Golay derivative of ``deriv_window_s`` applied to the input's
+    integral, per segment). The measured acceleration is a derivative smoothed over 0.5 s, so
+    a model of it must be smoothed alike: fitted against raw inputs, a pure dead time looks
+    like a shorter dead time plus a lag (0.30 s + 0.12 s for the benchmark's 0.4 s), and
+    the split between the two is what the joint fit reports. Free-run replays use
+    :func:`inputs`."""
+    U = inputs(d, spec)
+    out = np.full_like(U, np.nan)
+    for a, b in d.segs:
+        for j in range(U.shape[1]):
+            out[a:b, j] = savgol_derivative(np.cumsum(U[a:b, j]) * d.dt, d.dt,
+                                            DiagnoseConfig.deriv_window_s)
+    return out
+
+
 def ext_column(d: LonData, spec: LonSpec, v: np.ndarray, idx=None) -> np.ndarray | None:
     """The extension's regressor at speed ``v`` (samples ``idx``); None for the baseline."""
     name = spec.term
@@ -248,7 +270,7 @@ def _near_zone_change(zone: np.ndarray, dt: float) -> np.ndarray:
 
 def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None) -> LonModel:
     """Equation-error fit of the baseline and the extension jointly on ``mask``."""
-    U = inputs(d, spec) if U is None else U
+    U = fit_inputs(d, spec) if U is None else U
     X, zone = _design(d, U, spec)
     use = mask & d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) \
         & np.isfinite(X).all(axis=1) & ~_near_zone_change(zone, d.dt)
@@ -264,7 +286,11 @@ def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None
     if not fitted:
         return LonModel(spec, np.zeros((nz, 1 + m)), 0.0, [], float("inf"), 0, 0)
     Xs = X[use][:, cols]
-    keep = np.abs(Xs).max(axis=0) > 1e-12  # an input never used in a zone is not fitted there
+    # an input never used in a zone is not fitted there: below 0.01 (the threshold of
+    # ``_covered``) only the decaying tail of a lag reaches the training samples (a driver's
+    # pedal released seconds before), and a gain fitted on such a tail is arbitrary
+    floor = np.array([INPUT_USED if c < nz * (1 + m) and c % (1 + m) else 1e-12 for c in cols])
+    keep = np.abs(Xs).max(axis=0) > floor
     cols = [c for c, k in zip(cols, keep) if k]
     Xs = Xs[:, keep]
     bounds = {}
@@ -365,7 +391,7 @@ def fit_best(d: LonData, name: str | None, mask: np.ndarray, cfg: DiagnoseConfig
 
 def residual(d: LonData, m: LonModel) -> np.ndarray:
     """Equation error dv/dt - model [m/s^2] at the measured speed (NaN where not fitted)."""
-    U = np.nan_to_num(inputs(d, m.spec), nan=np.nan)
+    U = fit_inputs(d, m.spec)
     vmax = np.array([z[2] for z in d.zones])
     z = np.minimum(np.searchsorted(vmax, d.vs, side="left"), len(d.zones) - 1)
     a = m.C[z, 0] + np.einsum("ij,ij->i", m.C[z, 1:], U)
@@ -426,9 +452,9 @@ def _covered(d: LonData, train: np.ndarray, idx: np.ndarray) -> np.ndarray:
     training (a driver's pedal used only in the held-out fold) cannot be scored there."""
     if idx.size == 0:
         return idx
-    used = np.nanmax(np.abs(d.U[train & d.ok]), axis=0) > 0.01 if (train & d.ok).any() \
+    used = np.nanmax(np.abs(d.U[train & d.ok]), axis=0) > INPUT_USED if (train & d.ok).any() \
         else np.zeros(d.U.shape[1], bool)
-    moved = np.nanmax(np.abs(d.U[idx]), axis=1) > 0.01  # [n_win, m]
+    moved = np.nanmax(np.abs(d.U[idx]), axis=1) > INPUT_USED  # [n_win, m]
     return idx[~(moved & ~used).any(axis=1)]
 
 
@@ -464,7 +490,7 @@ def _params(d: LonData, m: LonModel, grid, sse_grid, corr_len, cfg) -> tuple[dic
 def _ext_interval(d: LonData, m: LonModel, corr_len: float, lo: float, hi: float):
     """95 % profile interval of the linear extension coefficient (the others refitted): the
     SSE is quadratic in it, so the interval is where n_eff ln(SSE / SSE_min) <= 3.84."""
-    U = inputs(d, m.spec)
+    U = fit_inputs(d, m.spec)
     X, _ = _design(d, U, m.spec)
     use = d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) & np.isfinite(X).all(axis=1)
     Xs, y = X[use], d.a[use]
@@ -498,10 +524,100 @@ def baseline_checks(m: LonModel, d: LonData) -> list[dict]:
 
 def unconstrained_ext(d: LonData, name: str) -> float:
     """The extension coefficient fitted without its bounds (a negative drag is evidence)."""
-    U = d.U
+    U = fit_inputs(d, LonSpec(name))
     X, _ = _design(d, U, LonSpec(name))
     use = d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) & np.isfinite(X).all(axis=1)
     Xs = X[use]
     Xs = Xs[:, np.abs(Xs).max(axis=0) > 1e-12]
     c, _ = lstsq_bounded(Xs, d.a[use])
     return float(c[-1])
+
+
+#: grid steps [s] of the joint dead-time + lag fit (:func:`joint_response`): a coarse map of
+#: the whole range, then a fine one around the coarse 95 % region (0.025 s: finer than the
+#: 0.05 s an interval is quoted to), or 0.05 s when that region is large (a short recording)
+JOINT_STEPS_S = (0.1, 0.025, 0.05)
+#: most fine-grid fits before the fine step is coarsened (bounds the cost on long recordings)
+JOINT_MAX_FINE = 300
+
+
+def joint_response(d: LonData, base: dict | None, cfg: DiagnoseConfig, corr_len: float) -> dict:
+    """The actuator's response to its input fitted as a dead time d AND a first-order lag tau
+    together (u(t - d) through 1 / (tau s + 1)), on top of ``base`` (LonSpec keywords of the
+    static term the final model carries), to say what one of them alone cannot: the total
+    effective delay d + tau (the centroid of the response, the 63 % time of a step) and
+    whether the recording tells a dead time from a lag.
+
+    The SSE is mapped on a coarse grid (d + tau up to the larger search bound), then on a fine
+    grid around the coarse points within twice the 95 % likelihood-ratio bound. Intervals are
+    95 % profile-likelihood intervals with the effective sample size, widened by half a fine
+    step. ``separable`` is False when the dead time alone or the lag alone fits within the
+    chi-square(1) 95 % point (3.84) of the joint fit: the data then fix the total delay, not
+    its split. The held-out speed RMSE [m/s] refits d and tau per fold near the full-data
+    optimum, like :func:`evaluate`."""
+    top = max(cfg.delay_max_s, cfg.tau_max_s)
+    kw = dict(base or {})
+
+    def spec(a, b):
+        return LonSpec(None, **{**kw, "delay_s": float(a), "tau_s": float(b)})
+
+    sse: dict = {}
+
+    def run(pairs):
+        for a, b in pairs:
+            key = (round(float(a), 6), round(float(b), 6))
+            if key not in sse and key[0] + key[1] <= top + 1e-9:
+                m = fit(d, spec(*key), d.ok)
+                sse[key] = (m.sse / max(m.n, 1), m.n)
+
+    coarse, fine, wide = JOINT_STEPS_S
+    g = np.arange(0.0, top + 1e-9, coarse)
+    run([(a, b) for a in g for b in g])
+    ne = max(min(n for _, n in sse.values()) / max(corr_len, 1.0), 3.0)
+    s0 = min(v for v, _ in sse.values())
+    near = np.array([k for k, (v, _) in sse.items() if ne * np.log(v / s0) <= 2 * 3.84])
+    lo, hi = np.maximum(near.min(axis=0) - coarse, 0.0), near.max(axis=0) + coarse
+    step = fine if np.prod((hi - lo) / fine + 1) <= JOINT_MAX_FINE else wide
+    run([(a, b) for a in np.arange(lo[0], hi[0] + 1e-9, step)
+         for b in np.arange(lo[1], hi[1] + 1e-9, step)])
+    P = np.array(list(sse))
+    v = np.array([x for x, _ in sse.values()])
+    i = int(np.argmin(v))
+    lr = ne * np.log(v / v[i])
+
+    def interval(x):
+        inside = x[lr <= 3.84]
+        return [max(float(inside.min()) - step / 2, 0.0), float(inside.max()) + step / 2]
+
+    lr_delay = float(lr[P[:, 1] == 0].min())
+    lr_lag = float(lr[P[:, 0] == 0].min())
+    d_hat, tau_hat = float(P[i, 0]), float(P[i, 1])
+    return {"input": "+".join(d.input_names), "dead_time_s": d_hat, "tau_s": tau_hat,
+            "effective_delay_s": d_hat + tau_hat,
+            "intervals": {"dead_time_s": interval(P[:, 0]), "tau_s": interval(P[:, 1]),
+                          "effective_delay_s": interval(P.sum(axis=1))},
+            "lr_dead_time_only": lr_delay, "lr_lag_only": lr_lag,
+            "separable": bool(min(lr_delay, lr_lag) > 3.84),
+            "heldout_rmse_mps": _joint_heldout(d, spec, (d_hat, tau_hat), cfg),
+            "n_eff": ne, "grid_step_s": step}
+
+
+def _joint_heldout(d: LonData, spec, best: tuple, cfg: DiagnoseConfig) -> float:
+    """Held-out free-run speed RMSE [m/s] of the joint fit (blocked folds as in
+    :func:`evaluate`; each fold picks d and tau on its own data, each within 0.05 s of the
+    full-data optimum)."""
+    folds = fold_ids(d.n, d.segs, cfg.n_folds)
+    guard = int(cfg.guard_s / d.dt)
+    L = int(cfg.window_lon_s / d.dt)
+    near = JOINT_STEPS_S[2] * np.arange(-1, 2)
+    local = sorted({(round(float(a), 6), round(float(b), 6))
+                    for a in np.maximum(best[0] + near, 0.0)
+                    for b in np.maximum(best[1] + near, 0.0)})
+    err = np.full(d.n, np.nan)
+    for f in range(cfg.n_folds):
+        tr = train_mask(folds, f, guard)
+        m = min((fit(d, spec(a, b), tr) for a, b in local), key=lambda m: m.sse / max(m.n, 1))
+        idx = _covered(d, tr, windows(folds == f, L))
+        if idx.size:
+            err[idx] = free_run(d, m, idx)
+    return rmse(err)
