@@ -785,6 +785,8 @@ def _base_zones(m: lon.LonModel, names: list, zones) -> list[dict]:
         z = {"name": nm, "offset_mps2": float(m.C[i, 0])}
         for j, inp in enumerate(names):
             g = float(m.C[i, 1 + j])
-            z[key[inp]] = -g if inp == "brake_pedal" else g  # U holds -brake_pedal
+            # U holds -brake_pedal (longitudinal.py), so the gain on it is the report's
+            # positive brake scale: dv/dt = offset + scale * ap - brake_scale * bp
+            z[key[inp]] = g
         out.append(z)
     return out
