@@ -94,7 +94,7 @@ def desired_accel(v_ref_mps: np.ndarray, v_mps: np.ndarray, dt_s: float,
     """
     vr = np.asarray(v_ref_mps, dtype=float)
     n = len(vr) - 1
-    return np.diff(vr) / dt_s + (vr[:n] - np.asarray(v_mps, dtype=float)[:n]) / tau_s
+    return (vr[1:] - vr[:-1]) / dt_s + (vr[:n] - np.asarray(v_mps, dtype=float)[:n]) / tau_s
 
 
 def next_mode(mode: PedalMode, a_des_mps2: float, coast_mps2: float, h_mps2: float) -> PedalMode:
@@ -157,25 +157,45 @@ class PedalModeLogic:
 
         ``pedals`` (N, 2): the nominal plan's [accel, brake] pedal per stage; a stage may
         leave a mode only where the nominal has released that mode's pedal.
+
+        :func:`next_mode` and the dwell rule, stage by stage (each decision depends on the
+        last). Run every MPC step, so the loop works on plain floats and ints: the band
+        edges are computed for all stages at once, the same sums as :func:`next_mode`'s.
         """
         c = self.config
-        eps = PEDAL_RELEASED
         n = len(a_des_mps2)
-        out = np.empty(n, dtype=np.int8)
-        mode = first
-        out[0] = mode
+        coast = np.asarray(coast_mps2, dtype=float)
+        a_arr = np.asarray(a_des_mps2, dtype=float)
+        up_arr = coast + c.accel_hysteresis_mps2     # brake -> throttle above
+        down_arr = coast - c.accel_hysteresis_mps2   # else -> brake below
+        mode = int(first)
+        # the common case, no stage asks to leave the first mode: it holds throughout
+        if mode == PedalMode.BRAKE and not (a_arr[1:] > up_arr[1:]).any():
+            return np.full(n, mode, dtype=np.int8)
+        if mode == PedalMode.THROTTLE and not (a_arr[1:] < down_arr[1:]).any():
+            return np.full(n, mode, dtype=np.int8)
+        a, up, down = a_arr.tolist(), up_arr.tolist(), down_arr.tolist()
+        urgent = (coast - c.urgent_mps2).tolist()
+        released = None if pedals is None else (np.asarray(pedals) <= PEDAL_RELEASED).tolist()
+        thr, brk, hold = int(PedalMode.THROTTLE), int(PedalMode.BRAKE), int(PedalMode.HOLD)
+        dwell = c.min_dwell_s
+        out = [mode] * n
         age = (0.0 if since_switch_s is None else since_switch_s)
         for k in range(1, n):
             age += dt_s
-            new = next_mode(mode, a_des_mps2[k], coast_mps2[k], c.accel_hysteresis_mps2)
-            urgent = new == PedalMode.BRAKE and a_des_mps2[k] < coast_mps2[k] - c.urgent_mps2
-            free = True
-            if pedals is not None and new != mode:
-                free = pedals[k, 0 if mode == PedalMode.THROTTLE else 1] <= eps
-            if new != mode and ((age >= c.min_dwell_s and free) or urgent):
-                mode, age = new, 0.0
+            ak = a[k]
+            if mode == brk:
+                new = thr if ak > up[k] else brk
+            elif ak < down[k]:
+                new = brk
+            else:
+                new = thr if mode == hold else mode
+            if new != mode:
+                free = released is None or released[k][0 if mode == thr else 1]
+                if (age >= dwell and free) or (new == brk and ak < urgent[k]):
+                    mode, age = new, 0.0
             out[k] = mode
-        return out
+        return np.array(out, dtype=np.int8)
 
     def since_switch_s(self, t_s: float) -> float:
         return float(t_s - self._t_switch_s)

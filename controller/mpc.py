@@ -52,6 +52,7 @@ the zone rule) is models/plant.py's; this module only discretises it.
 """
 from __future__ import annotations
 
+import bisect
 import math
 import time
 from collections import deque
@@ -63,6 +64,7 @@ import scipy.sparse as sp
 from hmpc.models.params import Params
 from hmpc.models.plant import HybridPlant, bicycle_jacobian, derivative_batch, jacobians_batch, \
     steering_wheel_angle_for
+from hmpc.models.plant import first_order_lag
 from hmpc.models.sim.scenarios import Reference
 
 from hmpc.controller.base import ControlResult, Status, internal_error
@@ -79,7 +81,13 @@ NX, NU, NS = 4, 3, 3  # state, input, slack (per stage)
 _UT4 = [(a, b) for a in range(4) for b in range(a, 4)]   # upper triangle of a 4x4 block
 _APAT = [(0, 0), (1, 1), (2, 2), (3, 3), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]  # A_d pattern
 _BPAT = [(i, j) for i in range(4) for j in range(3)]
+_APAT_FLAT = np.array([NX * i + j for i, j in _APAT])  # _APAT in a flattened 4x4 block
+_BPAT_FLAT = np.array([NU * i + j for i, j in _BPAT])  # _BPAT in a flattened 4x3 block
 _STRICT_UPPER4 = np.triu(np.ones((4, 4)), 1)
+_THROTTLE, _BRAKE = int(PedalMode.THROTTLE), int(PedalMode.BRAKE)
+_STRICT_LOWER4 = np.tril(np.ones((4, 4)), -1)
+_UT4_ROWS = np.array([a for a, _ in _UT4])
+_UT4_COLS = np.array([b for _, b in _UT4])
 
 
 @dataclass(frozen=True)
@@ -335,6 +343,8 @@ class _QpLayout:
         ] + [(self.r_s, NS)]
         self.A_vals = np.array(av)
         self.A, self.A_perm = _pattern(ar, ac, self.m, self.n)
+        self.slack_shift = _Shift([(slice(0, NS * N), NS)])  # warm start: slacks
+        self.dual_shift = _Shift(self.row_blocks)             # and the dual
 
 
 def _difference_bands(w_rate: np.ndarray, w_rate_change: np.ndarray
@@ -346,17 +356,92 @@ def _difference_bands(w_rate: np.ndarray, w_rate_change: np.ndarray
     w1 = np.asarray(w_rate, dtype=float)
     w2 = np.asarray(w_rate_change, dtype=float)
     n = len(w1)
-    diag, off1, off2 = np.zeros(n + 2), np.zeros(n + 1), np.zeros(n)
+    buf = np.zeros(3 * n + 3)  # one allocation (run every MPC step for the steering)
+    diag, off1, off2 = buf[:n + 2], buf[n + 2:2 * n + 3], buf[2 * n + 3:]
     diag[2:] += w1           # first differences: +1 at k+2, -1 at k+1
     diag[1:-1] += w1
     off1[1:] -= w1
     diag[:-2] += w2          # second differences: (1, -2, 1) at k, k+1, k+2
     diag[1:-1] += 4.0 * w2
     diag[2:] += w2
-    off1[:-1] -= 2.0 * w2
-    off1[1:] -= 2.0 * w2
+    w2x2 = 2.0 * w2
+    off1[:-1] -= w2x2
+    off1[1:] -= w2x2
     off2 += w2
     return diag, off1, off2
+
+
+class _Shift:
+    """Shifts a vector made of per-stage blocks ((slice, entries per stage), contiguous
+    from 0) in time by ``sh`` stages: each entry is linearly interpolated between the same
+    entry of stages floor(k + sh) and the next, clipped to its block's last stage (the
+    warm start, :meth:`MpcController._warm_start_vectors`).
+
+    The interpolation indices and weights are kept for the last few shifts: at a steady
+    control rate the shift takes only a few values (the same period, up to round-off)."""
+
+    def __init__(self, blocks):
+        stage, last, base, width, start = [], [], [], [], 0
+        for sl, w in blocks:
+            if sl.start != start:
+                raise RuntimeError("_Shift: blocks must be contiguous")  # a layout bug
+            n = (sl.stop - sl.start) // w
+            stage.append(np.repeat(np.arange(n), w))
+            last.append(np.full(n * w, n - 1))
+            base.append(sl.start + np.tile(np.arange(w), n))
+            width.append(np.full(n * w, w))
+            start = sl.stop
+        self.stage = np.concatenate(stage).astype(float)
+        self.last = np.concatenate(last).astype(float)
+        self.base = np.concatenate(base)
+        self.width = np.concatenate(width).astype(float)
+        self._cache: dict = {}
+
+    def __call__(self, v: np.ndarray, sh: float) -> np.ndarray:
+        got = self._cache.get(sh)
+        if got is None:
+            pos = np.clip(self.stage + sh, 0, self.last)
+            k0 = np.floor(pos)
+            f = pos - k0
+            k1 = np.minimum(k0 + 1, self.last)
+            got = (self.base + (k0 * self.width).astype(np.int64), 1 - f,
+                   self.base + (k1 * self.width).astype(np.int64), f)
+            if len(self._cache) >= 16:
+                self._cache.clear()
+            self._cache[sh] = got
+        i0, g0, i1, g1 = got
+        return v[i0] * g0 + v[i1] * g1
+
+
+_STEPS6 = np.arange(6.0)
+
+
+def _linspace6(start: float, stop: float) -> np.ndarray:
+    """``np.linspace(start, stop, 6)``, the same arithmetic without its generality (called
+    every step)."""
+    step = (stop - start) / 5
+    if step == 0:  # np.linspace's branch for a denormal step
+        y = _STEPS6 / 5 * (stop - start)
+    else:
+        y = _STEPS6 * step
+    y += start
+    y[-1] = stop
+    return y
+
+
+_BLAS_THREADS = None  # threadpoolctl's controller of the loaded BLAS libraries, made once
+
+
+def _one_blas_thread():
+    """Context in which BLAS runs on one thread: the 3x3 DARE (``control.dlqr``) calls
+    LAPACK's triangular solve, which OpenBLAS spreads over its threads; on a loaded machine
+    waking them took 10-40 ms instead of 0.6 ms (tools/bench_mpc.py's p99). Same
+    arithmetic on one thread for matrices this small."""
+    global _BLAS_THREADS
+    if _BLAS_THREADS is None:
+        from threadpoolctl import ThreadpoolController
+        _BLAS_THREADS = ThreadpoolController()
+    return _BLAS_THREADS.limit(limits=1, user_api="blas")
 
 
 def _pattern(rows, cols, m, n):
@@ -368,6 +453,30 @@ def _pattern(rows, cols, m, n):
         raise RuntimeError("duplicate entries in a QP pattern")  # a bug in _QpLayout
     perm = (M.data - 1).astype(np.int64)
     return M, perm
+
+
+def _lag_through(e: float, t0_s: float, t1_s: float, times_s: list, values: list,
+                 tau_s: float) -> float:
+    """A first-order lag's output at ``t1_s`` from ``e`` at ``t0_s`` [s], its input
+    piecewise constant: ``values[i]`` from ``times_s[i]`` on (before the first: ``values[0]``);
+    exact (models.plant.first_order_lag per piece)."""
+    i = bisect.bisect_right(times_s, t0_s) - 1
+    t = t0_s
+    while t < t1_s - 1e-12:
+        tn = min(times_s[i + 1] if i + 1 < len(times_s) else math.inf, t1_s)
+        e = first_order_lag(e, values[max(i, 0)], tn - t, tau_s)
+        t, i = tn, i + 1
+    return e
+
+
+@dataclass
+class _LagState:
+    """The actuator lags' outputs (steering-wheel angle, accel, brake pedal) at ``t_s``, as
+    the MPC simulates them from the commands it issued (``history``: a reset starts anew)."""
+
+    t_s: float
+    e: list
+    history: object
 
 
 class MpcController:
@@ -390,7 +499,9 @@ class MpcController:
         self.config = config or MpcConfig()
         self.limits = limits or ActuatorLimits.from_params(params)
         self.mode_config = mode_config or ModeConfig()
-        self.plant = HybridPlant(params)
+        # the prediction model: the report's, plus the physics of ``extensions:`` that a
+        # prediction model has (models.plant.plant_extensions; none: bit-identical)
+        self.plant = HybridPlant(params, extensions=True)
         self.N = self.config.n_stages
         self.dt = self.config.dt_s
         self.layout = _QpLayout(self.N, self.dt)
@@ -399,6 +510,10 @@ class MpcController:
         self.floor_mps = params.zones[self.pref_zone].v_min_mps if floor is None else float(floor)
         self.dead_time_steer_s = float(params.steering.dead_time_s or 0.0)
         self.dead_time_long_s = float(params.longitudinal_dead_time_s or 0.0)
+        ext = self.plant.ext
+        #: actuator_lag time constants [s] (steering, pedals): see :meth:`_lag_command`
+        self.lag_s = (0.0, 0.0) if ext is None else (ext.lag_steer_s, ext.lag_long_s)
+        self._lag = None  # the simulated lag states: _LagState, set on the first step
         self._lqr_cache: dict = {}
         self._solver = None
         self._update_s = 0.0
@@ -457,6 +572,45 @@ class MpcController:
         self._w_replan[:k_re, 0] = c.w_steer_replan * sw_n * dt
         self._w_replan[:k_re, 1:] = c.w_pedal_replan * dt
         self._Px_vals = np.zeros(L.P.nnz)
+        self._build_step_constants()
+
+    def _build_step_constants(self) -> None:
+        """What every step would otherwise rebuild: arrays that do not change from step to
+        step, the constant parts of P's values, per-zone bounds and bands (issue 9: the
+        whole step no slower than before the estimator)."""
+        N, dt, lim, c = self.N, self.dt, self.limits, self.config
+        self._pedal_bounds = self._pedal_bound_table()
+        pl = self.plant  # each zone's hysteresis band [m/s] (models.plant.zone_with_hysteresis)
+        self._zone_bands = [(-math.inf if z == 0 else pl.v_min[z] - pl.hysteresis_mps,
+                             pl.v_max[z] + pl.hysteresis_mps if z < pl.n_zones - 1 else math.inf)
+                            for z in range(pl.n_zones)]
+        self._band_v_hi = np.full(N, lim.speed_max_mps)     # _speed_band's defaults
+        self._band_w_hi = np.full(N, c.w_speed_max * dt)
+        self._w_src_all = np.full(N, self._w_src)            # _steer_bands
+        self._t_stages = dt * np.arange(N + 1)               # stage times from stage 0 [s]
+        self._sr_free = np.full(N, lim.steering_wheel_rate_max_radps * dt)  # _rate_and_fixed
+        # per-step constants of the cost (_qp_cost, _input_cost_values)
+        self._w_lat, self._w_head = c.w_lateral * dt, c.w_heading * dt
+        self._w_spd = c.w_speed * dt
+        self._w_jerk_slack = c.w_limit_violation * dt
+        self._q_template = np.zeros(len(_UT4))
+        self._q_template[_UT4.index((2, 2))] = self._w_head
+        self._q_template[_UT4.index((3, 3))] = self._w_spd
+        self._P_input_template = {}
+        for replan in (False, True):
+            ud = np.empty((N, NU))
+            uo = np.empty((N - 1, NU))
+            uo2 = np.empty((N - 2, NU))
+            ud[:, 0] = uo[:, 0] = uo2[:, 0] = 0.0  # steering: written per step
+            for i in (1, 2):
+                dg, o1, o2 = self._pedal_bands
+                ud[:, i] = dg[2:] + self._w_pl
+                if replan:
+                    ud[:, i] += self._w_replan[:, i]
+                uo[:, i] = o1[2:]
+                uo2[:, i] = o2[2:]
+            self._P_input_template[replan] = np.concatenate(
+                [ud.ravel(), uo.ravel(), uo2.ravel(), self._P_slack])
 
     # ------------------------------------------------------------------ step
     def step(self, state, reference: Reference, t_s: float, *, stop: bool = False,
@@ -487,8 +641,14 @@ class MpcController:
 
     # -------------------------------------------------------------- internals
     def _finish(self, cmd: Command, t_s: float, zone: int, *,
-                controlled_stop: bool = False) -> Command:
+                controlled_stop: bool = False, plan_inputs: np.ndarray | None = None
+                ) -> Command:
+        """The command through ``apply_limits``, recorded; with ``plan_inputs`` (the QP's
+        inputs, the lags' outputs) and an actuator lag, first its inverse
+        (:meth:`_lag_command`)."""
         dt = self.dt if self._last_t is None else max(t_s - self._last_t, 1e-3)
+        if plan_inputs is not None and self._lag_act is not None:
+            cmd = self._lag_command(cmd, plan_inputs, zone)
         z = self.params.zones[zone]
         out = apply_limits(cmd, self._last_cmd, self.limits, dt, zone=z,
                            controlled_stop=controlled_stop)
@@ -555,8 +715,10 @@ class MpcController:
         (both channels are known up to t + d0). The channel with the longer dead time has
         its first round((d_c - d0) / dt) QP stages fixed to its in-flight commands
         (``self._fixed``); its command now is the QP input at the stage where it will act.
-        Returns (state at t + d0, d0).
+        Returns (state at t + d0, d0). With an actuator lag, :meth:`_predict_through_lag`.
         """
+        if self.lag_s != (0.0, 0.0) and self.lag_method in ("inverse", "stage"):
+            return self._predict_through_lag(x, t_s)
         ds, dl = self.dead_time_steer_s, self.dead_time_long_s
         d0 = min(ds, dl)
         hist = list(self._history)
@@ -593,37 +755,147 @@ class MpcController:
             s, zone = r.state, r.zone
         return s, d0
 
+    # ------------------------------------------------------ actuator lag (extensions)
+    #: how an ``actuator_lag`` of the model is handled (chosen by evidence, see
+    #: tools/bench_diagnose.py and the drive tests): "inverse" (the lag simulated in the
+    #: prediction through the commands in flight, the QP plans the lag's output and the
+    #: command is u + tau du/dt of the plan), "stage" (the same prediction, the command
+    #: brings the lag's output to the plan's next stage in one stage), "delay" (the lag
+    #: taken as a dead time of tau), "none" (ignored)
+    lag_method = "inverse"
+    _lag_act = None  # lag outputs (sw, ap, bp) where this step's command starts to act
+
+    def use_lag_method(self, method: str) -> None:
+        """Choose how an ``actuator_lag`` is handled (``lag_method``) before the first step."""
+        if method not in ("inverse", "stage", "delay", "none"):
+            raise ValueError(f"unknown lag method {method!r}")
+        if self.lag_method == "delay":
+            self.dead_time_steer_s -= self.lag_s[0]
+            self.dead_time_long_s -= self.lag_s[1]
+        self.lag_method = method
+        if method == "delay":
+            self.dead_time_steer_s += self.lag_s[0]
+            self.dead_time_long_s += self.lag_s[1]
+
+    def _lag_outputs(self, t_s: float, t_query: np.ndarray) -> np.ndarray:
+        """The lags' outputs (sw [rad], accel, brake pedal) at the ascending times
+        ``t_query`` >= ``t_s`` [s], (n, 3): the issued commands through the dead times and
+        the first-order lags (models.plant.first_order_lag), from the state kept at the
+        last step (advanced to ``t_s`` here: every command acting until then is issued)."""
+        hist = list(self._history)
+        if not hist:
+            c = self._last_cmd or Command(0.0, 0.0, 0.0)
+            return np.tile([c.steering_wheel_angle_rad, c.accel_pedal, c.brake_pedal],
+                           (len(t_query), 1))
+        taus = (self.lag_s[0], self.lag_s[1], self.lag_s[1])
+        dts = (self.dead_time_steer_s, self.dead_time_long_s, self.dead_time_long_s)
+        vals = [[c.steering_wheel_angle_rad for _, c in hist], [c.accel_pedal for _, c in hist],
+                [c.brake_pedal for _, c in hist]]
+        times = [[ti + d for ti, _ in hist] for d in dts]
+        st = self._lag
+        if st is None or st.history is not self._history:  # a new run: at rest on the first
+            st = self._lag = _LagState(hist[0][0], [v[0] for v in vals], self._history)
+        if t_s > st.t_s:
+            st.e = [_lag_through(st.e[c], st.t_s, t_s, times[c], vals[c], taus[c])
+                    for c in range(3)]
+            st.t_s = t_s
+        out = np.empty((len(t_query), 3))
+        e, t = list(st.e), t_s
+        for k, tq in enumerate(t_query):
+            e = [_lag_through(e[c], t, tq, times[c], vals[c], taus[c]) for c in range(3)]
+            t = max(t, float(tq))
+            out[k] = e
+        return out
+
+    def _predict_through_lag(self, x: np.ndarray, t_s: float) -> tuple[np.ndarray, float]:
+        """:meth:`_predict_through_delay` with the lags' outputs as the plant's inputs: the
+        state at t + d0, the in-flight stages fixed to the lags' outputs at their middles,
+        and ``_lag_act``, the outputs where this step's command starts to act (t + d of
+        its channel), for :meth:`_lag_command`."""
+        ds, dl = self.dead_time_steer_s, self.dead_time_long_s
+        d0, dt = min(ds, dl), self.dt
+        k_s, k_l = int(round((ds - d0) / dt)), int(round((dl - d0) / dt))
+        n_sub = max(int(math.ceil(d0 / 0.05)), 1) if d0 > 0 else 0
+        h = d0 / n_sub if n_sub else 0.0
+        t_sub = t_s + (np.arange(n_sub) + 0.5) * h
+        t_fix = t_s + d0 + (np.arange(max(k_s, k_l)) + 0.5) * dt
+        t_act = np.array([t_s + ds, t_s + dl])
+        tq = np.concatenate([t_sub, t_fix, t_act])
+        order = np.argsort(tq, kind="stable")
+        e = np.empty((len(tq), 3))
+        e[order] = self._lag_outputs(t_s, tq[order])
+        e_sub, e_fix, e_act = e[:n_sub], e[n_sub:n_sub + len(t_fix)], e[n_sub + len(t_fix):]
+        self._fixed = InFlight(k_s, e_fix[:k_s, 0].copy(), k_l, e_fix[:k_l, 1:].copy())
+        self._lag_act = np.array([e_act[0, 0], e_act[1, 1], e_act[1, 2]])
+        s, zone = x.copy(), self._zone
+        for j in range(n_sub):
+            r = self.plant.step(s, e_sub[j], h, zone)
+            s, zone = r.state, r.zone
+        return s, d0
+
+    def _lag_command(self, cmd: Command, U: np.ndarray, zone: int) -> Command:
+        """The command that makes the lags' outputs follow the plan ``U`` (the QP's inputs
+        are the lags' outputs): per ``lag_method``, u + tau (u_next - u) / dt ("inverse") or
+        the lag's output at the plan's next stage one stage on ("stage"). The pedals are
+        inverted as one signal, the pedal force of ``zone`` (scale ap - brake_scale bp): a
+        positive result is throttle, a negative one brake, never both."""
+        k_s, k_l = self._fixed.steer_stages, self._fixed.pedal_stages
+        (ts, tl), e, pl, N = self.lag_s, self._lag_act, self.plant, self.N
+        sw, ap, bp = cmd.steering_wheel_angle_rad, cmd.accel_pedal, cmd.brake_pedal
+        if ts > 0 and k_s + 1 < N:
+            sw = self._inverse_lag(sw, float(U[k_s + 1, 0]), float(e[0]), ts)
+        if tl > 0 and k_l + 1 < N:
+            sc, br = max(float(pl.z_scale[zone]), 1e-6), max(float(pl.z_brake[zone]), 1e-6)
+            g = self._inverse_lag(sc * ap - br * bp, sc * float(U[k_l + 1, 1])
+                                  - br * float(U[k_l + 1, 2]), sc * e[1] - br * e[2], tl)
+            ap, bp = (min(g / sc, 1.0), 0.0) if g >= 0 else (0.0, min(-g / br, 1.0))
+        return Command(float(sw), float(ap), float(bp))
+
+    def _inverse_lag(self, u0: float, u1: float, e: float, tau_s: float) -> float:
+        """One channel of :meth:`_lag_command`: plan u0 now, u1 a stage on, lag output e."""
+        if self.lag_method == "stage":
+            return e + (u1 - e) / (1.0 - math.exp(-self.dt / tau_s))
+        return u0 + tau_s * (u1 - u0) / self.dt
+
     def _input_bounds(self, modes: np.ndarray, zones: np.ndarray | None = None):
         """Input bounds (N, 3) and steering-rate row bounds (N,): pedal modes, in-flight
         inputs fixed, rate relative to the last command. With ``zones`` (zone per stage),
         the acceleration limits too, as bounds on the free pedal (the stage's zone model);
         without (the NMPC keeps them as soft constraints), the free pedal spans [0, 1]."""
-        pl, lim = self.plant, self.limits
         ulo, uhi = self._u_lo.copy(), self._u_hi.copy()
-        thr = modes == PedalMode.THROTTLE
+        thr = modes == _THROTTLE
         if zones is None:
             uhi[:, 1] = np.where(thr, 1.0, 0.0)
             uhi[:, 2] = np.where(thr, 0.0, 1.0)
             return self._rate_and_fixed(ulo, uhi)
-        off = pl.z_offset[zones]
-        sc = np.maximum(pl.z_scale[zones], 1e-6)
-        br = np.maximum(pl.z_brake[zones], 1e-6)
+        tab = self._pedal_bounds[(~thr).view(np.int8), zones]  # (N, 4), per mode and zone
+        ulo[:, 1:] = tab[:, 0::2]
+        uhi[:, 1:] = tab[:, 1::2]
+        return self._rate_and_fixed(ulo, uhi)
+
+    def _pedal_bound_table(self) -> np.ndarray:
+        """(2, n_zones, 4): [accel lo, accel hi, brake lo, brake hi] pedal bounds of a stage
+        whose free pedal is the throttle (row 0) or the brake (row 1), per zone: the
+        acceleration limits as bounds on the free pedal (the other is fixed at 0). Built
+        once: they depend only on the zone models and the limits."""
+        pl, lim = self.plant, self.limits
+        off = np.asarray(pl.z_offset, dtype=float)
+        sc = np.maximum(pl.z_scale, 1e-6)
+        br = np.maximum(pl.z_brake, 1e-6)
         # throttle: -decel_max <= off + sc*ap <= accel_max; brake: same with -br*bp
         ap_lo, ap_hi = (-lim.decel_max_mps2 - off) / sc, (lim.accel_max_mps2 - off) / sc
         bp_lo, bp_hi = (off - lim.accel_max_mps2) / br, (off + lim.decel_max_mps2) / br
-        p_hi = np.clip(np.where(thr, ap_hi, bp_hi), 0.0, 1.0)
-        p_lo = np.minimum(np.clip(np.where(thr, ap_lo, bp_lo), 0.0, 1.0), p_hi)
-        ulo[:, 1] = np.where(thr, p_lo, 0.0)
-        uhi[:, 1] = np.where(thr, p_hi, 0.0)
-        ulo[:, 2] = np.where(thr, 0.0, p_lo)
-        uhi[:, 2] = np.where(thr, 0.0, p_hi)
-        return self._rate_and_fixed(ulo, uhi)
+        out = np.zeros((2, len(off), 4))
+        for row, (lo, hi) in enumerate(((ap_lo, ap_hi), (bp_lo, bp_hi))):
+            p_hi = np.clip(hi, 0.0, 1.0)
+            p_lo = np.minimum(np.clip(lo, 0.0, 1.0), p_hi)
+            out[row, :, 2 * row], out[row, :, 2 * row + 1] = p_lo, p_hi
+        return out
 
     def _rate_and_fixed(self, ulo: np.ndarray, uhi: np.ndarray):
         """Steering-rate row bounds; in-flight inputs fixed in ``ulo``/``uhi``."""
-        N, dt = self.N, self.dt
-        r = self.limits.steering_wheel_rate_max_radps * dt
-        srlo, srhi = np.full(N, -r), np.full(N, r)
+        srhi = self._sr_free.copy()
+        srlo = -srhi
         prev = self._last_cmd
         if prev is not None:
             srlo[0] += prev.steering_wheel_angle_rad
@@ -659,7 +931,8 @@ class MpcController:
             Bd = (np.eye(3) * dt + Ac * dt * dt / 2) @ Bc
             Q = np.diag([c.w_lateral, c.w_heading, c.w_speed]) * dt
             R = np.diag([c.r_terminal_steer, c.r_terminal_accel]) * dt
-            _K, P3, _E = control.dlqr(Ad, Bd, Q, R)
+            with _one_blas_thread():
+                _K, P3, _E = control.dlqr(Ad, Bd, Q, R)
             P3 = np.asarray(P3)
             if len(self._lqr_cache) > 512:
                 self._lqr_cache.clear()
@@ -682,12 +955,12 @@ class MpcController:
         """One step in named stages: delay compensation, standstill hold, path progress,
         nominal trajectory, then the SQP iterations (one when warm) of
         :meth:`_stage_data` + :meth:`_solve`."""
-        cfg, L, N, dt, pl = self.config, self.layout, self.N, self.dt, self.plant
+        cfg, L, N, pl = self.config, self.layout, self.N, self.plant
         x0, d = self._predict_through_delay(x_meas, t)
         x0[3] = max(x0[3], 0.0)
         self._zone = pl.select_zone(float(x_meas[3]), self._zone)
         zone0 = pl.select_zone(float(x0[3]), self._zone)
-        tk = t + d + dt * np.arange(N + 1)
+        tk = t + d + self._t_stages
         override = stop or (obstacle_m is not None and obstacle_m < 1e9)
         held = self._standstill_hold(x_meas, ref, t, d, stop, obstacle_m, zone0)
         if held is not None:
@@ -727,14 +1000,15 @@ class MpcController:
         # bounds make the non-free pedal exactly 0 (clean solver round-off)
         k_s, k_l = self._fixed.steer_stages, self._fixed.pedal_stages
         modes, zones = stage.modes, stage.zones
-        ap = float(Ub[k_l, 1]) if modes[k_l] == PedalMode.THROTTLE else 0.0
-        bp = float(Ub[k_l, 2]) if modes[k_l] == PedalMode.BRAKE else 0.0
-        cmd = self._finish(Command(float(Ub[k_s, 0]), ap, bp), t, zone0)
+        mode_l = int(modes[k_l])  # plain ints: comparing NumPy values with an IntEnum is slow
+        ap = float(Ub[k_l, 1]) if mode_l == _THROTTLE else 0.0
+        bp = float(Ub[k_l, 2]) if mode_l == _BRAKE else 0.0
+        cmd = self._finish(Command(float(Ub[k_s, 0]), ap, bp), t, zone0, plan_inputs=Ub)
         self._plan = Plan(float(tk[0]), Xb, Ub, zones, modes)
         status = Status.SOLVED_INACCURATE if out.inaccurate else Status.SOLVED
         return ControlResult(cmd, status, solve_time_s=total_solve, plan=Xb,
                              plan_inputs=Ub, zone_plan=zones, mode_plan=modes, zone=zone0,
-                             pedal_mode=int(modes[k_l]), iterations=total_it,
+                             pedal_mode=mode_l, iterations=total_it,
                              info={"v_ref_mps": stage.v_ref_mps, "s0_m": s0,
                                    "update_time_s": total_update})
 
@@ -744,7 +1018,7 @@ class MpcController:
         """Standstill HOLD (mode logic; no QP needed while the car is held): the result of
         this step if the car is held, else None."""
         cfg = self.config
-        look = ref.speed_at(np.linspace(t, t + d + self.mode_config.hold_lookahead_s, 6))
+        look = ref.speed_at(_linspace6(t, t + d + self.mode_config.hold_lookahead_s))
         stop_now = stop or (obstacle_m is not None and obstacle_m <= cfg.obstacle_margin_m)
         if not self._standstill.update(float(x_meas[3]), float(look.max()), stop_now):
             return None
@@ -789,18 +1063,18 @@ class MpcController:
         plan = self._plan
         if plan is not None:
             Xp, Up = plan.states, plan.inputs
-            tp = plan.t0_s + dt * np.arange(N + 1)
+            tp = plan.t0_s + self._t_stages
             Xb = np.column_stack([np.interp(tk, tp, Xp[:, j]) for j in range(NX)])
             Ub = np.column_stack([np.interp(tk[:-1], tp[:-1], Up[:, j]) for j in range(NU)])
             a_prev = float(np.interp(tk[0], tp[:-1], np.diff(Xp[:, 3]) / dt))
             self._shift_stages = (float(tk[0]) - plan.t0_s) / dt
             return Xb, Ub, a_prev
         self._shift_stages = None
-        v_r0 = ref.speed_at(tk)
-        vb = np.empty(N + 1)
-        vb[0] = x0[3]
+        v_r0 = ref.speed_at(tk).tolist()
+        vb = [float(x0[3])]
+        dv_lo, dv_hi = -1.5 * dt, 1.0 * dt  # the ramp's speed change per stage [m/s]
         for k in range(N):
-            vb[k + 1] = max(vb[k] + np.clip(v_r0[k + 1] - vb[k], -1.5 * dt, 1.0 * dt), 0.0)
+            vb.append(max(vb[k] + min(max(v_r0[k + 1] - vb[k], dv_lo), dv_hi), 0.0))
         Xb = np.zeros((N + 1, NX))
         Xb[:, 3] = vb
         return Xb, np.zeros((N, NU)), 0.0
@@ -814,7 +1088,10 @@ class MpcController:
         first iteration (None) and kept for the others; returned with the data."""
         dt = self.dt
         vb = np.maximum(Xb[:, 3], 0.0)
-        s_k = s0 + np.concatenate([[0.0], np.cumsum(0.5 * (vb[1:] + vb[:-1]) * dt)])
+        s_k = np.empty(self.N + 1)  # s0 + distance along the nominal (trapezoidal) [m]
+        s_k[0] = 0.0
+        np.cumsum(0.5 * (vb[1:] + vb[:-1]) * dt, out=s_k[1:])
+        s_k += s0
         path = self._path_reference(ref, s_k, Xb, Ub, x0, seed_guess)
         v_r = self._speed_reference(ref, tk, float(x0[3]), stop, obstacle_m, s_k - s0)
         zones = self._zone_schedule(zone0, vb)
@@ -829,14 +1106,15 @@ class MpcController:
         path, in place."""
         pl = self.plant
         xr, yr, th, kap = ref.point_at(s_k)
-        dref = np.arcsin(np.clip(kap * pl.wheelbase_m, -0.95, 0.95))
+        dref = np.arcsin(np.minimum(np.maximum(kap * pl.wheelbase_m, -0.95), 0.95))  # clip
         psi_r = th - dref
         if seed_guess:  # the cold guess lies on the path
             Xb[1:, 0], Xb[1:, 1], Xb[1:, 2] = xr[1:], yr[1:], psi_r[1:]
             Xb[1:, 2] += 2 * np.pi * np.round((x0[2] - psi_r[0]) / (2 * np.pi))
         psi_r = psi_r + 2 * np.pi * np.round((Xb[:, 2] - psi_r) / (2 * np.pi))
         sw_max = self.limits.steering_wheel_angle_max_rad
-        sw_ff = np.clip(steering_wheel_angle_for(dref, pl.offset_rad, pl.scale), -sw_max, sw_max)
+        sw_ff = np.minimum(np.maximum(steering_wheel_angle_for(dref, pl.offset_rad, pl.scale),
+                                      -sw_max), sw_max)
         if seed_guess:
             Ub[:, 0] = sw_ff[:-1]
         return PathReference(xr, yr, th, psi_r, dref, sw_ff)
@@ -858,7 +1136,7 @@ class MpcController:
             cur = self._pedal.mode
             if not cold and cur in (PedalMode.THROTTLE, PedalMode.BRAKE):
                 k_ex = max(int(round(self.mode_config.exhausted_lookahead_s / dt)), 1)
-                exhausted = bool(np.all(Ub[k_l:k_l + k_ex, 1 + int(cur)] <= PEDAL_RELEASED))
+                exhausted = bool((Ub[k_l:k_l + k_ex, 1 + int(cur)] <= PEDAL_RELEASED).all())
             first = self._pedal.first(float(a_des[k_l]), float(coast[k_l]), t, exhausted)
         modes = np.empty(N, dtype=np.int8)
         modes[k_l:] = self._pedal.schedule(first, a_des[k_l:], coast[k_l:], dt,
@@ -870,7 +1148,13 @@ class MpcController:
         return modes, first
 
     def _zone_schedule(self, zone0: int, vb: np.ndarray) -> np.ndarray:
-        """Zone per stage along the nominal speeds, with the plant's hysteresis."""
+        """Zone per stage along the nominal speeds, with the plant's hysteresis. Most steps
+        the nominal stays inside ``zone0``'s hysteresis band: then the schedule is
+        ``zone0`` throughout (what the plant's stage-by-stage loop gives, checked at once)."""
+        lo, hi = self._zone_bands[zone0]
+        v = vb[1:self.N]
+        if ((v >= lo) & (v <= hi)).all():
+            return np.full(self.N, zone0, dtype=np.int64)
         out = np.empty(self.N, dtype=np.int64)
         out[0] = zone0
         out[1:] = self.plant.zone_schedule(vb[1:self.N], zone0)
@@ -885,8 +1169,8 @@ class MpcController:
         # standstill the quadratic slack term alone keeps the plan at 0 (the brake may
         # press harder than needed at rest; an L1 kink there only slows the solver down)
         w_lo = np.where(vr > self.mode_config.standstill_speed_mps, cfg.w_standstill * dt, 0.0)
-        v_hi = np.full(N, self.limits.speed_max_mps)
-        w_hi = np.full(N, cfg.w_speed_max * dt)
+        v_hi = self._band_v_hi.copy()
+        w_hi = self._band_w_hi.copy()
         if self.floor_mps > 0 and cfg.w_floor > 0 and not override:
             on = vr >= self.floor_mps
             v_lo = np.where(on, self.floor_mps, v_lo)
@@ -898,16 +1182,16 @@ class MpcController:
             outside = (v_r < lo) | (v_r > hi)
             allowed = True
             if outside.any():
-                k = int(np.argmax(outside))
+                k = int(outside.argmax())
                 target = pl.zone_by_speed(float(v_r[k]))
                 # a reference that comes to a standstill is a stop command: it overrides
                 # the band like the floor (report VI), whatever the acceleration does
                 stopping = float(v_r[k:].min()) <= self.mode_config.standstill_speed_mps
                 if target != self.pref_zone and not stopping:
-                    a_ref = np.diff(v_r) / dt
+                    a_ref = (v_r[1:] - v_r[:-1]) / dt  # np.diff
                     win = max(int(round(cfg.transition_window_s / dt)), 1)
                     dwell = max(int(round(cfg.transition_dwell_s / dt)), 1)
-                    stays = bool(np.all(outside[k:min(k + dwell, N + 1)]))
+                    stays = bool(outside[k:min(k + dwell, N + 1)].all())
                     allowed = stays and transition_allowed(a_ref, k, win,
                                                            cfg.transition_accel_tol_mps2)
             else:
@@ -917,7 +1201,7 @@ class MpcController:
                     use = lo > v_lo
                     v_lo = np.where(use, lo, v_lo)
                     w_lo = np.where(use, cfg.w_transition * dt, w_lo)
-                if np.isfinite(hi):
+                if math.isfinite(hi):
                     use = hi < v_hi
                     v_hi = np.where(use, hi, v_hi)
                     w_hi = np.where(use, cfg.w_transition * dt, w_hi)
@@ -950,39 +1234,51 @@ class MpcController:
 
     def _qp_cost(self, stage: StageData) -> tuple[np.ndarray, np.ndarray]:
         """P values (CSC order) and q: tracking (state blocks from the path geometry),
-        terminal cost from dlqr, input effort, slack penalties."""
-        cfg, L, N, dt = self.config, self.layout, self.N, self.dt
+        terminal cost from dlqr, input effort, slack penalties.
+
+        Stage k's state block is [[wl nx^2, wl nx ny, 0, 0], [., wl ny^2, 0, 0],
+        [0, 0, wh, 0], [0, 0, 0, wv]] (n = the path normal), the last one plus the
+        terminal cost: only the path-dependent entries are written each step, into the
+        constant ones (``_q_template``)."""
+        L, N = self.layout, self.N
         path = stage.path
         th = path.heading_rad
         nxv, nyv = -np.sin(th[1:]), np.cos(th[1:])
-        wl, wh, wv = cfg.w_lateral * dt, cfg.w_heading * dt, cfg.w_speed * dt
-        Q = np.zeros((N, 4, 4))
-        Q[:, 0, 0] = wl * nxv * nxv
-        Q[:, 0, 1] = wl * nxv * nyv
-        Q[:, 1, 1] = wl * nyv * nyv
-        Q[:, 2, 2] = wh
-        Q[:, 3, 3] = wv
+        wl = self._w_lat
+        Px = self._Px_vals
+        qb = Px[:L.p_seg[1]].reshape(N, len(_UT4))  # view: state blocks, _UT4 order
+        qb[:] = self._q_template
+        q00, q01, q11 = wl * nxv * nxv, wl * nxv * nyv, wl * nyv * nyv
+        qb[:, _UT4.index((0, 0))], qb[:, _UT4.index((0, 1))] = q00, q01
+        qb[:, _UT4.index((1, 1))] = q11
         T = np.array([[nxv[-1], nyv[-1], 0.0, 0.0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
         P3 = self._lqr_terminal(float(stage.states[-1, 3]),
                                 float(path.road_wheel_angle_rad[-1]))
         PT = T.T @ P3 @ T
-        Q[-1] += np.triu(PT)  # blocks are stored as their upper triangle
-        Qfull = Q + (Q * _STRICT_UPPER4).transpose(0, 2, 1)
-        qv = np.array([Q[:, a, b] for a, b in _UT4]).T.ravel()
-        Px = self._Px_vals
-        Px[:L.p_seg[1]] = qv
-        bands_s = self._steer_bands(stage.states[:N, 3])
+        qb[-1] += PT[_UT4_ROWS, _UT4_COLS]  # blocks are stored as their upper triangle
         replan = self._shift_stages is not None  # a previous plan, shifted to now
-        Px[L.p_seg[1]:] = self._input_cost_values(bands_s, replan)
-        # slack quadratic weights stay constant; P in CSC order
-        Pdata = Px[L.P_perm]
+        bands_s = self._steer_bands(stage.states[:N, 3])
+        self._input_cost_values(bands_s, replan, out=Px[L.p_seg[1]:])
+        Pdata = Px[L.P_perm]  # slack quadratic weights stay constant; P in CSC order
 
-        q = np.zeros(L.n)
-        rk = np.column_stack([path.x_m[1:], path.y_m[1:], path.psi_rad[1:],
-                              stage.v_ref_mps[1:]])
-        q[NX:L.nx_all] = -np.einsum("kij,kj->ki", Qfull, rk).ravel()
-        qu = np.zeros((N, NU))
+        q = np.empty(L.n)
+        qx = q[NX:L.nx_all].reshape(N, NX)
+        x_r, y_r = path.x_m[1:], path.y_m[1:]
+        # -Q_k r_k: the blocks' nonzero terms written out (the zeros an einsum over the
+        # full blocks adds change no bit); the last stage's full block through the einsum
+        qx[:, 0] = -(q00 * x_r + q01 * y_r)
+        qx[:, 1] = -(q01 * x_r + q11 * y_r)
+        qx[:, 2] = -(self._w_head * path.psi_rad[1:])
+        qx[:, 3] = -(self._w_spd * stage.v_ref_mps[1:])
+        QN = np.zeros((1, NX, NX))
+        QN[0][_UT4_ROWS, _UT4_COLS] = qb[-1]
+        QN[0] += QN[0].T * _STRICT_LOWER4
+        rN = np.array([[x_r[-1], y_r[-1], path.psi_rad[-1], stage.v_ref_mps[-1]]])
+        qx[-1] = -np.einsum("kij,kj->ki", QN, rN)[0]
+        q[:NX] = 0.0
+        qu = q[L.nx_all:L.nx_all + L.nu_all].reshape(N, NU)
         qu[:, 0] = -self._w_sl * path.steering_ff_rad[:N]
+        qu[:, 1:] = 0.0
         if replan:
             qu -= self._w_replan * stage.inputs
         prior = self._prior_inputs()
@@ -990,34 +1286,38 @@ class MpcController:
             for i, (_dg, o1, o2) in enumerate((bands_s, self._pedal_bands, self._pedal_bands)):
                 qu[0, i] += o2[0] * prior[0, i] + o1[1] * prior[1, i]
                 qu[1, i] += o2[1] * prior[1, i]
-        q[L.nx_all:L.nx_all + L.nu_all] = qu.ravel()
-        qs = np.empty((N, NS))
-        qs[:, 0] = cfg.w_limit_violation * dt
+        qs = q[L.nx_all + L.nu_all:].reshape(N, NS)
+        qs[:, 0] = self._w_jerk_slack
         qs[:, 1] = stage.band.w_lo
         qs[:, 2] = stage.band.w_hi
-        q[L.nx_all + L.nu_all:] = qs.ravel()
         return Pdata, q
 
     def _steer_bands(self, v_nominal_mps: np.ndarray):
         """Steering's rate and rate-change bands (:func:`_difference_bands`): the rate weight
         is the effort plus the sharpness term at each stage's nominal speed."""
-        cfg, N = self.config, self.N
-        v = np.maximum(np.asarray(v_nominal_mps, dtype=float), cfg.steer_sharpness_speed_floor_mps)
-        return _difference_bands(self._w_sr + self._w_sharp / (v * v), np.full(N, self._w_src))
+        v = np.maximum(np.asarray(v_nominal_mps, dtype=float),
+                       self.config.steer_sharpness_speed_floor_mps)
+        return _difference_bands(self._w_sr + self._w_sharp / (v * v), self._w_src_all)
 
-    def _input_cost_values(self, bands_s, replan: bool) -> np.ndarray:
+    def _input_cost_values(self, bands_s, replan: bool,
+                           out: np.ndarray | None = None) -> np.ndarray:
         """P values of the inputs (diagonal, first and second off-diagonal, in the layout's
-        order) and of the slacks."""
-        ud = np.empty((self.N, NU))
-        uo = np.empty((self.N - 1, NU))
-        uo2 = np.empty((self.N - 2, NU))
-        for i, (dg, o1, o2) in enumerate((bands_s, self._pedal_bands, self._pedal_bands)):
-            ud[:, i] = dg[2:] + (self._w_sl if i == 0 else self._w_pl)
-            if replan:
-                ud[:, i] += self._w_replan[:, i]
-            uo[:, i] = o1[2:]
-            uo2[:, i] = o2[2:]
-        return np.concatenate([ud.ravel(), uo.ravel(), uo2.ravel(), self._P_slack])
+        order) and of the slacks, written into ``out`` when given. Only steering's change
+        per step (its rate weight follows the nominal speed); the pedals' and slacks'
+        values are constant (``_P_input_template``, with and without a plan to replan
+        from)."""
+        N = self.N
+        if out is None:
+            out = np.empty(len(self._P_input_template[replan]))
+        out[:] = self._P_input_template[replan]
+        dg, o1, o2 = bands_s
+        ud = dg[2:] + self._w_sl
+        if replan:
+            ud += self._w_replan[:, 0]
+        out[0:NU * N:NU] = ud
+        out[NU * N:NU * (2 * N - 1):NU] = o1[2:]
+        out[NU * (2 * N - 1):NU * (3 * N - 3):NU] = o2[2:]
+        return out
 
     def _prior_inputs(self) -> np.ndarray | None:
         """(2, NU): the two inputs before stage 0 as the rate terms see them, one stage
@@ -1028,21 +1328,21 @@ class MpcController:
         prev = self._last_cmd
         if prev is None:
             return None
-        u1 = np.array([prev.steering_wheel_angle_rad, prev.accel_pedal, prev.brake_pedal])
-        out = np.vstack([u1, u1])
+        u1 = (prev.steering_wheel_angle_rad, prev.accel_pedal, prev.brake_pedal)
+        out = np.array((u1, u1))
         plan = self._plan
         if plan is not None and self._last_t is not None:
-            tp = plan.t0_s + self.dt * np.arange(self.N)
-            k = int(np.clip(np.searchsorted(tp, self._last_t + self.dt), 1, self.N - 1))
-            out[0] = u1 - (plan.inputs[k] - plan.inputs[k - 1])
+            tp = plan.t0_s + self._t_stages[:self.N]
+            k = min(max(int(np.searchsorted(tp, self._last_t + self.dt)), 1), self.N - 1)
+            out[0] = out[1] - (plan.inputs[k] - plan.inputs[k - 1])
         return out
 
     def _qp_dynamics(self, Ad: np.ndarray, Bd: np.ndarray) -> np.ndarray:
         """A values (CSC order): the dynamics blocks written into the fixed pattern."""
         L = self.layout
         Av = L.A_vals
-        Av[L.a_dynA:L.a_dynB] = -np.array([Ad[:, i, j] for i, j in _APAT]).T.ravel()
-        Av[L.a_dynB:L.a_dyn_end] = -np.array([Bd[:, i, j] for i, j in _BPAT]).T.ravel()
+        Av[L.a_dynA:L.a_dynB] = -Ad.reshape(-1, NX * NX)[:, _APAT_FLAT].ravel()
+        Av[L.a_dynB:L.a_dyn_end] = -Bd.reshape(-1, NX * NU)[:, _BPAT_FLAT].ravel()
         return Av[L.A_perm]
 
     def _qp_bounds(self, stage: StageData, ck: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1102,7 +1402,7 @@ class MpcController:
         out = SolveOutcome(None, str(res.info.status), "osqp", solve_time_s=solve_s,
                            update_time_s=self._update_s, iterations=int(res.info.iter))
         ok = sv == 1 or (sv == 2 and cfg.accept_inaccurate)
-        if not ok or res.x is None or not np.all(np.isfinite(res.x)):
+        if not ok or res.x is None or not np.isfinite(res.x).all():
             return out
         out.inaccurate = sv != 1
         self._last_y = np.array(res.y)
@@ -1113,27 +1413,18 @@ class MpcController:
                             ) -> tuple[np.ndarray, np.ndarray | None]:
         """Primal and dual warm start: the previous solution shifted in time by the
         stages elapsed (linear interpolation per stage block, last stage repeated). The
-        dual is None when the previous solution has none."""
-        L, N = self.layout, self.N
+        dual is None when the previous solution has none. Every block moves by the same
+        shift, so slacks and all row blocks are shifted at once (:class:`_Shift`)."""
+        L = self.layout
         x_prev, y_prev = self._warm
         sh = self._shift_stages
-
-        def shifted(block: np.ndarray) -> np.ndarray:  # (n_stages, width) -> same, shifted
-            n = len(block)
-            pos = np.clip(np.arange(n) + sh, 0, n - 1)
-            k0 = np.floor(pos).astype(np.int64)
-            k1 = np.minimum(k0 + 1, n - 1)
-            f = (pos - k0)[:, None]
-            return block[k0] * (1 - f) + block[k1] * f
-        z = np.zeros(L.n)
+        z = np.empty(L.n)
         z[:L.nx_all] = Xb.ravel()
         z[L.nx_all:L.nx_all + L.nu_all] = Ub.ravel()
         if sh is None:  # cold guess: no previous plan to shift
+            z[L.nx_all + L.nu_all:] = 0.0
             return z, None
-        z[L.nx_all + L.nu_all:] = shifted(x_prev[L.nx_all + L.nu_all:].reshape(N, NS)).ravel()
+        z[L.nx_all + L.nu_all:] = L.slack_shift(x_prev[L.nx_all + L.nu_all:], sh)
         if y_prev is None or len(y_prev) != L.m:
             return z, None
-        y = np.empty(L.m)
-        for sl, width in L.row_blocks:
-            y[sl] = shifted(y_prev[sl].reshape(-1, width)).ravel()
-        return z, y
+        return z, L.dual_shift(y_prev, sh)

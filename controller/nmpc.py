@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from hmpc.models.params import Params
-from hmpc.models.plant import bicycle_rates, road_wheel_angle, zone_accel
+from hmpc.models.plant import HybridPlant, bicycle_rates, road_wheel_angle, zone_accel
 
 from hmpc.controller.horizon import SolveOutcome, StageData
 from hmpc.controller.limits import ActuatorLimits
@@ -55,6 +55,11 @@ class NmpcController(MpcController):
         self.ipopt_max_iter = int(ipopt_max_iter)
         self._opti = None
         super().__init__(params, cfg, limits, mode_config)
+        # the NLP is written on eq. 1, 7, 8 alone: the report's model, without the physics of
+        # ``extensions:`` the fast path adds (models.plant.plant_extensions), in the delay
+        # prediction too, so that both see one model
+        self.plant = HybridPlant(params)
+        self.lag_s = (0.0, 0.0)
 
     # ------------------------------------------------------------- the NLP
     def _build(self) -> None:

@@ -28,6 +28,13 @@ longitudinal zone assignment) and ``Params.zone_for`` all call the functions bel
   is its ``v_max``, or none with ``clamp``), and only then re-selected by speed, so noise
   on a boundary cannot make it chatter.
 
+**Opt-in extensions** (``HybridPlant(params, extensions=True)``, :class:`PlantExtensions`):
+the physics ``hmpc diagnose`` adds in a parameter file's ``extensions:`` that belongs to a
+prediction model (drag, rolling resistance, idle creep in eq. 8; the rack's cubic and the
+understeer gradient in eq. 7; the actuator lags' time constants for the controller), on the
+coefficients each was fitted with. The MPC predicts with them; a plant that stands in for
+the car does not (the simulator injects its effects itself).
+
 Above the last zone the plant uses the last zone's model and ``above_last_zone`` says so.
 At standstill a negative acceleration holds the car at rest: it never rolls backwards under
 the brake.
@@ -179,6 +186,15 @@ def derivative_batch(plant: "HybridPlant", X: np.ndarray, U: np.ndarray,
                                                          plant.wheelbase_m)
     out[:, IV] = zone_accel(plant.z_offset[zones], plant.z_scale[zones], plant.z_brake[zones],
                             U[:, IAP], U[:, IBP])
+    ext = plant.ext
+    if ext is not None:  # opt-in physics of ``extensions:`` (PlantExtensions)
+        if ext.steering:
+            delta = ext.road_wheel_angle(U[:, ISW], X[:, IV], plant.offset_rad, plant.scale,
+                                         plant.wheelbase_m)
+            out[:, IX], out[:, IY], out[:, IPSI] = bicycle_rates(X[:, IPSI], X[:, IV], delta,
+                                                                 plant.wheelbase_m)
+        if ext.longitudinal:
+            out[:, IV] += ext.accel(X[:, IV], U[:, IAP])
     return out
 
 
@@ -197,7 +213,201 @@ def jacobians_batch(plant: "HybridPlant", X: np.ndarray, U: np.ndarray, zones: n
     B[:, IX, ISW], B[:, IY, ISW], B[:, IPSI, ISW] = j.dx_du, j.dy_du, j.dpsi_du
     B[:, IV, IAP] = plant.z_scale[zones]
     B[:, IV, IBP] = -plant.z_brake[zones]
+    if plant.ext is not None:
+        _extension_jacobians(plant, X, U, A, B)
     return A, B
+
+
+def _extension_jacobians(plant: "HybridPlant", X: np.ndarray, U: np.ndarray, A: np.ndarray,
+                         B: np.ndarray) -> None:
+    """The Jacobian entries the opt-in extensions change, in place: the steering shape
+    (d delta / d sw and, with understeer, d delta / d v through eq. 1) and the speed
+    dependence of the resistances and the creep (the (v, v) entry)."""
+    ext = plant.ext
+    v = X[:, IV]
+    if ext.steering:
+        b = plant.wheelbase_m
+        delta = ext.road_wheel_angle(U[:, ISW], v, plant.offset_rad, plant.scale, b)
+        dd_du, dd_dv = ext.road_wheel_angle_partials(U[:, ISW], v, plant.offset_rad,
+                                                     plant.scale, b)
+        j = bicycle_jacobian(X[:, IPSI], v, delta, b, 1.0)  # d/d delta in the *_du slots
+        A[:, IX, IPSI], A[:, IY, IPSI] = j.dx_dpsi, j.dy_dpsi
+        A[:, IX, IV] = j.dx_dv + j.dx_du * dd_dv
+        A[:, IY, IV] = j.dy_dv + j.dy_du * dd_dv
+        A[:, IPSI, IV] = j.dpsi_dv + j.dpsi_du * dd_dv
+        B[:, IX, ISW], B[:, IY, ISW] = j.dx_du * dd_du, j.dy_du * dd_du
+        B[:, IPSI, ISW] = j.dpsi_du * dd_du
+    if ext.longitudinal:
+        A[:, IV, IV] = ext.accel_dv(v, U[:, IAP])
+
+
+# ------------------------------------------------------- opt-in physics of ``extensions:``
+G_MPS2 = 9.80665  #: standard gravity [m/s^2]
+#: accelerator pedal below which the idle creep acts (the catalogue: "throttle released"; the
+#: ground-truth simulator's IdleCreep uses the same 0.01)
+CREEP_PEDAL_MAX = 0.01
+#: the catalogue ids this plant can add (the others are sensor or dead-time physics, which
+#: the parameter file's keys or the controller's delay compensation carry)
+PLANT_EXTENSION_IDS = ("aero_drag", "rolling_resistance", "idle_creep", "actuator_lag",
+                       "steering_nonlinearity", "understeer")
+
+
+@dataclass(frozen=True)
+class PlantExtensions:
+    """Physics ``hmpc diagnose`` adds to the report's model (models/diagnose/catalogue.py), as
+    the plant predicts with it. All zero: none. See :func:`plant_extensions`.
+
+    Args:
+        drag_per_m: aero_drag c [1/m]: v' -= c v |v|.
+        rolling_per_s: rolling_resistance r [1/s]: v' -= r v.
+        creep_accel_mps2, creep_speed_mps: idle_creep a0 [m/s^2] and v_c [m/s]:
+            v' += a0 max(0, 1 - v / v_c) while the accelerator pedal is below
+            ``CREEP_PEDAL_MAX``.
+        grade_rad: a constant road grade [rad] (uphill positive): v' -= g sin(grade). A
+            parameter file's ``road_grade`` is the grade of the road it was recorded on, not of
+            the road ahead, so it never sets this; a caller that knows the road (a map, a
+            pitch estimate) may.
+        cubic_per_rad2: steering_nonlinearity k3 [1/rad^2]: delta = offset + scale (sw + k3 sw^3).
+        understeer_rad_per_mps2: understeer K [rad/(m/s^2)]: delta * b / (b + K v^2) acts.
+        lag_steer_s, lag_long_s: actuator_lag tau [s] of the steering-wheel angle and of the
+            pedals. The plant's state has no lag state: :meth:`HybridPlant.step` and the
+            derivatives take the *lagged* (effective) inputs, which the controller simulates
+            from the commands it issued (:func:`first_order_lag`).
+    """
+
+    drag_per_m: float = 0.0
+    rolling_per_s: float = 0.0
+    creep_accel_mps2: float = 0.0
+    creep_speed_mps: float = 1.0
+    grade_rad: float = 0.0
+    cubic_per_rad2: float = 0.0
+    understeer_rad_per_mps2: float = 0.0
+    lag_steer_s: float = 0.0
+    lag_long_s: float = 0.0
+
+    @property
+    def longitudinal(self) -> bool:
+        """Whether v' has an extra term."""
+        return bool(self.drag_per_m or self.rolling_per_s or self.creep_accel_mps2
+                    or self.grade_rad)
+
+    @property
+    def steering(self) -> bool:
+        """Whether eq. 7's road-wheel angle has another shape."""
+        return bool(self.cubic_per_rad2 or self.understeer_rad_per_mps2)
+
+    @property
+    def active(self) -> bool:
+        """Whether anything is added (a lag included)."""
+        return self.longitudinal or self.steering or bool(self.lag_steer_s or self.lag_long_s)
+
+    def accel(self, v_mps, accel_pedal):
+        """Extra acceleration [m/s^2] (arrays broadcast): resistances, creep, grade."""
+        v = np.asarray(v_mps, dtype=float)
+        a = -self.drag_per_m * v * np.abs(v) - self.rolling_per_s * v \
+            - G_MPS2 * math.sin(self.grade_rad)
+        if self.creep_accel_mps2:
+            creep = self.creep_accel_mps2 * np.maximum(0.0, 1.0 - v / self.creep_speed_mps)
+            a = a + np.where(np.asarray(accel_pedal) < CREEP_PEDAL_MAX, creep, 0.0)
+        return a
+
+    def accel_dv(self, v_mps, accel_pedal):
+        """d(:meth:`accel`)/dv [1/s] (the creep's pedal switch has no derivative)."""
+        v = np.asarray(v_mps, dtype=float)
+        d = -2.0 * self.drag_per_m * np.abs(v) - self.rolling_per_s
+        if self.creep_accel_mps2:
+            on = (np.asarray(accel_pedal) < CREEP_PEDAL_MAX) & (v < self.creep_speed_mps)
+            d = d - np.where(on, self.creep_accel_mps2 / self.creep_speed_mps, 0.0)
+        return d
+
+    def road_wheel_angle(self, sw_rad, v_mps, offset_rad, scale, wheelbase_m):
+        """Road-wheel angle [rad] with the steering extensions (eq. 7 when there are none)."""
+        delta = road_wheel_angle(sw_rad + self.cubic_per_rad2 * sw_rad ** 3, offset_rad, scale)
+        if self.understeer_rad_per_mps2:
+            delta = delta * wheelbase_m / (wheelbase_m + self.understeer_rad_per_mps2
+                                           * v_mps * v_mps)
+        return delta
+
+    def road_wheel_angle_partials(self, sw_rad, v_mps, offset_rad, scale, wheelbase_m):
+        """(d delta / d sw [1], d delta / d v [rad s/m]) of :meth:`road_wheel_angle`."""
+        k, b = self.understeer_rad_per_mps2, wheelbase_m
+        d_sw = scale * (1.0 + 3.0 * self.cubic_per_rad2 * sw_rad ** 2)
+        if not k:
+            return d_sw, 0.0 * v_mps
+        g = b / (b + k * v_mps * v_mps)
+        delta0 = road_wheel_angle(sw_rad + self.cubic_per_rad2 * sw_rad ** 3, offset_rad, scale)
+        return d_sw * g, -delta0 * g * g * 2.0 * k * v_mps / b
+
+
+def first_order_lag(y, u, h_s: float, tau_s: float):
+    """Exact first-order lag tau y' = u - y over ``h_s`` [s] with ``u`` held [same unit]."""
+    if tau_s <= 0:
+        return u
+    return u + (y - u) * math.exp(-h_s / tau_s)
+
+
+def _ext_value(params: Params, eid: str, sub: str, key: str) -> float:
+    return float(params.extensions.get(eid, {}).get(sub, {}).get(key, 0.0) or 0.0)
+
+
+def _extension_bases(params: Params, used: dict) -> tuple[dict | None, list | None]:
+    """The coefficients the used extensions were fitted jointly with (``base:``): steering
+    {offset_rad, scale} and longitudinal zones (only a pedal map: ``scale_mps2`` per zone,
+    and the zones' names as in the file). An entry fitted on top of another
+    (``on_top_of``) holds the joint fit, so it is preferred."""
+    st, lon = None, None
+    for sub in ("steering", "longitudinal"):
+        ents = [params.extensions[e][sub] for e in used[sub]
+                if "base" in params.extensions[e].get(sub, {})]
+        ents.sort(key=lambda e: "on_top_of" not in e)
+        if not ents:
+            continue
+        base = ents[0]["base"]
+        if sub == "steering":
+            st = base
+        elif [z.get("name") for z in base["zones"]] == [z.name for z in params.zones] \
+                and all("scale_mps2" in z for z in base["zones"]):
+            lon = base["zones"]
+    return st, lon
+
+
+def plant_extensions(params: Params) -> tuple[PlantExtensions | None, dict | None, list | None]:
+    """The physics of ``params.extensions`` a prediction model should add
+    (``PLANT_EXTENSION_IDS``), and the base coefficients to use with them.
+
+    Returns (extensions or None when there are none, steering base {offset_rad, scale} or
+    None, zone bases [{name, offset_mps2, scale_mps2[, brake_scale_mps2]}] or None). When a
+    longitudinal entry's base is not a pedal map (a model fitted on ``accel_cmd``), the
+    longitudinal terms (drag, rolling, creep) are left out: the file's zones then hold the
+    baseline's fit, which absorbs them, and adding them on top would count them twice. An
+    entry without a base is taken as a term on top of the file's own keys.
+    """
+    x = params.extensions or {}
+    used = {"steering": [e for e in PLANT_EXTENSION_IDS if "steering" in x.get(e, {})],
+            "longitudinal": [e for e in PLANT_EXTENSION_IDS if "longitudinal" in x.get(e, {})]}
+    st, lon = _extension_bases(params, used)
+    kw = {"cubic_per_rad2": _ext_value(params, "steering_nonlinearity", "steering",
+                                       "cubic_per_rad2"),
+          "understeer_rad_per_mps2": _ext_value(params, "understeer", "steering",
+                                                "gradient_rad_per_mps2"),
+          "lag_steer_s": _ext_value(params, "actuator_lag", "steering", "tau_s"),
+          "lag_long_s": _ext_value(params, "actuator_lag", "longitudinal", "tau_s")}
+    lon_ids = used["longitudinal"]
+    cmd_fit = any("base" in x[e]["longitudinal"] and not all(
+        "scale_mps2" in z for z in x[e]["longitudinal"]["base"]["zones"]) for e in lon_ids)
+    if not cmd_fit:
+        kw.update(drag_per_m=_ext_value(params, "aero_drag", "longitudinal", "coeff_per_m"),
+                  rolling_per_s=_ext_value(params, "rolling_resistance", "longitudinal",
+                                           "coeff_per_s"),
+                  creep_accel_mps2=_ext_value(params, "idle_creep", "longitudinal",
+                                              "accel_mps2"))
+        if kw["creep_accel_mps2"]:
+            kw["creep_speed_mps"] = _ext_value(params, "idle_creep", "longitudinal",
+                                               "creep_speed_mps")
+    ext = PlantExtensions(**kw)
+    if not ext.active:
+        return None, None, None
+    return ext, st, lon
 
 
 # ---------------------------------------------------------------------------- the plant
@@ -217,9 +427,21 @@ class HybridPlant:
     Args:
         params: a complete model (``Params.is_model``).
         hysteresis_mps: zone hysteresis h [m/s]; default ``params.hysteresis_mps`` or 0.25.
+        extensions: also predict with the physics of ``params.extensions`` that belongs to
+            a prediction model (:func:`plant_extensions`: drag, rolling resistance, idle
+            creep, the steering map's shape; the lag time constants as ``ext``'s for the
+            controller), with the steering map and zones they were fitted jointly with
+            (their ``base:``). Opt-in: a plant that stands in for the car (the closed loop's
+            truth, the simulator node) must not add them on top of the effects
+            ``models.sim.effects`` injects. ``ext`` is None when nothing applies, and the
+            plant is then the report's model exactly.
     """
 
-    def __init__(self, params: Params, hysteresis_mps: float | None = None):
+    #: the opt-in extensions (:class:`PlantExtensions`), None: the report's model
+    ext: PlantExtensions | None = None
+
+    def __init__(self, params: Params, hysteresis_mps: float | None = None, *,
+                 extensions: bool = False):
         if not params.is_model:
             raise ValueError("HybridPlant needs a parameter file with steering and zones")
         self.params = params
@@ -235,11 +457,30 @@ class HybridPlant:
         self.z_scale = np.array([q.scale_mps2 for q in z])
         self.z_brake = np.array([q.brake_scale_mps2 for q in z])
         self.n_zones = len(z)
+        if extensions:
+            self._use_extensions(params)
         self._v_min_list = self.v_min.tolist()
         self._v_max_list = self.v_max.tolist()
         # eq. 8 per zone as Python floats for the scalar step: (offset, scale, brake scale)
         self._eq8 = list(zip(self.z_offset.tolist(), self.z_scale.tolist(),
                              self.z_brake.tolist()))
+
+    def _use_extensions(self, params: Params) -> None:
+        """Set ``ext`` and take the base coefficients of :func:`plant_extensions`."""
+        ext, st, zones = plant_extensions(params)
+        self.ext = ext
+        if st is not None:
+            self.offset_rad = float(st.get("offset_rad", self.offset_rad))
+            self.scale = float(st.get("scale", self.scale))
+        if zones is not None:
+            self.z_offset = np.array([b["offset_mps2"] for b in zones], dtype=float)
+            self.z_scale = np.array([b["scale_mps2"] for b in zones], dtype=float)
+            # a recording without braking has no brake scale in its base: the file's; so
+            # too for a non-positive one (a brake that accelerates is no physics: hmpc
+            # diagnose wrote the base's brake gain with its sign flipped)
+            self.z_brake = np.array([b["brake_scale_mps2"] if b.get("brake_scale_mps2", 0.0)
+                                     > 0.0 else q.brake_scale_mps2
+                                     for b, q in zip(zones, params.zones)], dtype=float)
 
     # ----------------------------------------------------------------- zones
     def zone_by_speed(self, v_mps: float) -> int:
@@ -257,8 +498,12 @@ class HybridPlant:
                                      self.hysteresis_mps, start=start, clamp=True)
 
     # ------------------------------------------------------------- dynamics
-    def road_wheel_angle(self, steering_wheel_angle_rad):
-        """Eq. 7 [rad]."""
+    def road_wheel_angle(self, steering_wheel_angle_rad, v_mps=0.0):
+        """Eq. 7 [rad] (with the steering extensions, at speed ``v_mps`` [m/s], if any)."""
+        if self.ext is not None and self.ext.steering:
+            return self.ext.road_wheel_angle(np.asarray(steering_wheel_angle_rad, dtype=float),
+                                             v_mps, self.offset_rad, self.scale,
+                                             self.wheelbase_m)
         return road_wheel_angle(np.asarray(steering_wheel_angle_rad), self.offset_rad, self.scale)
 
     def accel(self, zone: int, accel_pedal: float, brake_pedal: float) -> float:
@@ -285,6 +530,9 @@ class HybridPlant:
         x0, y0, psi0, vs = np.asarray(s, dtype=float)[:4].tolist()
         z = self.select_zone(vs, zone)
         a = self.accel(z, float(u[IAP]), float(u[IBP])) + accel_extra_mps2
+        ext = self.ext
+        if ext is not None:
+            return self._step_extended(x0, y0, psi0, vs, u, dt_s, z, a)
         v0 = max(vs, 0.0)
         v1 = v0 + a * dt_s
         if v1 < 0.0:  # stops within the step and stays stopped: never rolls backwards
@@ -301,6 +549,28 @@ class HybridPlant:
         dx, dy = position_rates(psi_mid, dist, delta, ops=math)
         out = np.array([x0 + dx, y0 + dy, psi0 + dpsi, v1])
         return StepResult(out, z, a_eff, bool(vs > self.v_max[-1]))
+
+    def _step_extended(self, x0, y0, psi0, vs, u, dt_s, z, a) -> StepResult:
+        """:meth:`step` with ``ext``: the extra acceleration at the midpoint speed of the step
+        (one predictor pass: the resistances change little over a step), the steering shape
+        at that speed; the same standstill rule and midpoint position update."""
+        ext = self.ext
+        v0 = max(vs, 0.0)
+        ap = float(u[IAP])
+        if ext.longitudinal:
+            a_mid = a + float(ext.accel(v0, ap))
+            a = a + float(ext.accel(max(v0 + 0.5 * a_mid * dt_s, 0.0), ap))
+        v1 = v0 + a * dt_s
+        if v1 < 0.0:
+            t_move = v0 / -a if a < 0 else 0.0
+            v1, dist, a_eff = 0.0, 0.5 * v0 * t_move, -v0 / dt_s
+        else:
+            dist, a_eff = 0.5 * (v0 + v1) * dt_s, a
+        delta = float(self.road_wheel_angle(float(u[ISW]), 0.5 * (v0 + v1)))
+        dpsi = heading_rate(dist, delta, self.wheelbase_m, ops=math)
+        dx, dy = position_rates(psi0 + 0.5 * dpsi, dist, delta, ops=math)
+        return StepResult(np.array([x0 + dx, y0 + dy, psi0 + dpsi, v1]), z, a_eff,
+                          bool(vs > self.v_max[-1]))
 
     def jacobians(self, s: np.ndarray, u: np.ndarray, zone: int) -> tuple[np.ndarray, np.ndarray]:
         """Continuous-time Jacobians (A = df/ds, B = df/du) at (s, u) in ``zone``:

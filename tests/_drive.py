@@ -25,6 +25,20 @@ def params():
     return load_params(REPORT_PARAMS, require_model=True)
 
 
+#: the Toyota node's ACC powertrain lag [s] (controller/actuation/vehicle_node.py), which the
+#: report's model lacks
+TOYOTA_ACC_LAG_S = 0.25
+
+
+def controller_params(profile: str):
+    """The MPC's model for a drive: the report's, and for the Toyota profile with the node's
+    ACC lag as identify/diagnose reports it (an ``extensions: actuator_lag`` entry)."""
+    p = params()
+    if profile == "toyota":
+        p.extensions = {"actuator_lag": {"longitudinal": {"tau_s": TOYOTA_ACC_LAG_S}}}
+    return p
+
+
 def truncated(ref: Reference, t_end_s: float) -> Reference:
     """The first ``t_end_s`` seconds of a reference."""
     n = int(np.searchsorted(ref.time_s, ref.time_s[0] + t_end_s)) + 1
@@ -77,7 +91,7 @@ def _drive_once(profile, scenario, duration_s, tmp_path, faults, ref_s, attempt)
     kw = {"interface": "virtual", "channel": f"hmpc-test-{os.getpid()}-{next(_n)}"}
     node = VehicleNode(prof, p, kw, start_state=ref.initial_state(p))
     log = tmp_path / f"{profile}-{scenario}-{attempt}.log"
-    loop = DriveLoop(prof, p, MpcController(p, MpcConfig()), ref, kw, log,
+    loop = DriveLoop(prof, p, MpcController(controller_params(profile), MpcConfig()), ref, kw, log,
                      duration_s=duration_s, faults=[parse_fault(f) for f in faults], node=node)
     res = loop.run()
     audit = audit_candump(prof, p, log)

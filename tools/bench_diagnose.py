@@ -11,6 +11,7 @@ message.
 
     .venv/bin/python -m hmpc.tools.bench_diagnose [--seeds 1 2] [--json OUT]
     .venv/bin/python -m hmpc.tools.bench_diagnose --closed-loop --seeds 1   # closing the loop
+    .venv/bin/python -m hmpc.tools.bench_diagnose --closed-loop --lag-methods stage delay none
     .venv/bin/python -m hmpc.tools.bench_diagnose --speed-only              # 10-minute timing
 """
 from __future__ import annotations
@@ -205,15 +206,20 @@ CL_SCENARIO = {"steering": "figure8", "longitudinal": "ramps", "idle_creep": "id
 
 
 def _track(model, truth, effects, ref, plant_dt_s: float = 0.02, period_s: float = 0.1,
-           seed: int = 0) -> dict:
+           seed: int = 0, lag_method: str | None = None) -> dict:
     """The MPC built on ``model`` drives the ground-truth plant (``truth`` with the concealed
     ``effects``: ``run_closed_loop(effects=)``, models.sim.simulator.TruthPlant) along ``ref``,
     fed as a car is: simulated sensors through the EKF, at the default noise, the same seed for
-    every model (only the model differs between runs). Returns the tracking RMSEs."""
+    every model (only the model differs between runs). ``lag_method``: the MPC's handling of
+    an actuator lag (``MpcController.lag_method``; None: its default). Returns the tracking
+    RMSEs."""
     from hmpc.controller.closed_loop import run_closed_loop
     from hmpc.controller.mpc import MpcController
 
-    res = run_closed_loop(MpcController(model), ref, model, plant_params=truth,
+    mpc = MpcController(model)
+    if lag_method is not None:
+        mpc.use_lag_method(lag_method)
+    res = run_closed_loop(mpc, ref, model, plant_params=truth,
                           control_period_s=period_s, plant_dt_s=plant_dt_s, seed=seed,
                           effects=effects)
     m = res.metrics
@@ -222,29 +228,41 @@ def _track(model, truth, effects, ref, plant_dt_s: float = 0.02, period_s: float
 
 
 def controller_view(p) -> tuple[object, list[str]]:
-    """What of the extended model ``p`` the MPC can use today, and what it cannot.
+    """What of the extended model ``p`` the MPC uses, and what it does not.
 
     The MPC (controller/mpc.py) predicts through ``steering.dead_time_s`` and
-    ``longitudinal.dead_time_s`` and uses the steering map and zones: it reads the file's
-    conventions' keys and ignores ``extensions:`` (see ``diagnose._params_out`` for what the
-    keys hold then). Given a lag as a dead time of tau, the MPC tracked the steering-lag case
-    18 % worse (figure8, seed 1), so that is not done."""
+    ``longitudinal.dead_time_s`` and, through ``HybridPlant(params, extensions=True)``
+    (models.plant.plant_extensions), with the physics of ``extensions:`` that belongs to a
+    prediction model, on the steering map and zones each was fitted jointly with (``base:``):
+    drag, rolling resistance and idle creep in eq. 8 (and so in the QP's linearisation), the
+    rack's cubic and the understeer gradient in the road-wheel angle, and an actuator lag
+    simulated from its own commands in the prediction through the commands in flight, its
+    command the inverse of the lag applied to the plan (u + tau du/dt; lag as a dead time of
+    tau and a one-stage exact inverse tracked worse, see ``MpcController.lag_method``). A
+    road grade is of the road recorded, not the road ahead: the keys hold the zones fitted
+    with it taken out and the MPC has no grade preview."""
     notes = []
     for eid, subs in p.extensions.items():
         for sub in subs:
-            if eid in ("actuator_lag", "aero_drag", "rolling_resistance", "idle_creep",
-                       "steering_nonlinearity", "understeer"):
-                notes.append(f"{eid}/{sub}: not in the MPC's prediction model; the keys hold "
-                             "the baseline's fit")
+            if eid == "actuator_lag":
+                notes.append(f"{eid}/{sub}: lag simulated in the MPC's prediction, command "
+                             "u + tau du/dt of the plan")
+            elif eid in ("aero_drag", "rolling_resistance", "idle_creep"):
+                notes.append(f"{eid}/{sub}: in the MPC's eq. 8, with the zones it was fitted "
+                             "with (base)")
+            elif eid in ("steering_nonlinearity", "understeer"):
+                notes.append(f"{eid}/{sub}: in the MPC's road-wheel angle, with the steering "
+                             "map it was fitted with (base)")
             elif eid == "road_grade":
                 notes.append(f"{eid}/{sub}: zones fitted with the grade taken out; the MPC has "
                              "no grade preview")
     return p, notes
 
 
-def closed_loop(seed: int, cases=None) -> list[dict]:
+def closed_loop(seed: int, cases=None, lag_methods=()) -> list[dict]:
     """Per benchmark effect: the MPC on the ground-truth plant with the report's baseline
-    model and with the extended model, both from ``diagnose`` on that case's recording."""
+    model and with the extended model, both from ``diagnose`` on that case's recording; with
+    an actuator lag found, also with each of ``lag_methods`` (``MpcController.lag_method``)."""
     from hmpc.models.sim.scenarios import make_scenario
     rows = []
     for case, (effect, subsystem, make_effects, _, _) in CASES.items():
@@ -261,6 +279,10 @@ def closed_loop(seed: int, cases=None) -> list[dict]:
         for label, model in (("truth", truth), ("baseline", dg.baseline_out), ("extended", ext)):
             row[label] = _track(model, truth, make_effects(), ref)
         key = "lateral_rmse_m" if subsystem == "steering" else "speed_rmse_mps"
+        if "actuator_lag" in ext.extensions:
+            for m in lag_methods:
+                row[f"extended_lag_{m}"] = _track(ext, truth, make_effects(), ref, lag_method=m)
+                print(f"      lag as '{m}': {key} {row[f'extended_lag_{m}'][key]:.4f}")
         b, e = row["baseline"][key], row["extended"][key]
         row.update(metric=key, change=(e - b) / b if b > 0 else 0.0)
         rows.append(row)
@@ -279,6 +301,10 @@ def main(argv=None) -> int:
     ap.add_argument("--closed-loop", action="store_true",
                     help="only the closed-loop comparison: the MPC on each case's ground-truth "
                          "plant with the baseline and with the extended model")
+    ap.add_argument("--lag-methods", nargs="*", default=[],
+                    choices=["inverse", "stage", "delay", "none"],
+                    help="with --closed-loop: also track the actuator-lag case with each way "
+                         "the MPC can handle a lag")
     args = ap.parse_args(argv)
     print(f"seeds {args.seeds}")
     if args.speed_only:
@@ -291,7 +317,7 @@ def main(argv=None) -> int:
         return 0
     if args.closed_loop:
         print("=== closed loop: MPC tracking RMSE on the ground-truth plant (sensors -> EKF -> MPC)")
-        cl = closed_loop(args.seeds[0])
+        cl = closed_loop(args.seeds[0], lag_methods=args.lag_methods)
         if args.json:
             with open(args.json, "w") as fh:
                 json.dump({"closed_loop": cl}, fh, indent=1)
