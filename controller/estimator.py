@@ -14,11 +14,16 @@ car's own data make observable and that otherwise bias the plant state:
   minute's wheel mean reads 0.8 % below GNSS). GNSS speed and position observe it; it keeps
   speed honest through a GNSS outage.
 
-Process model: the report's eq. 1 + eq. 7 + eq. 8 from ``models.plant``, the one place they
+Process model: the report's eq. 1 + eq. 7 + eq. 8 of ``models.plant``, the one place they
 are written: ``HybridPlant.step`` for the mean (zone hysteresis, exact in speed, standstill
-clamp) and the scalar ``bicycle_jacobian`` (``ops=math``) for the covariance. The
-``delta_offset`` state enters by folding it into the steering input, ``sw + delta_offset /
-scale``; eq. 1's derivative with respect to the road-wheel angle is its column of ``F``.
+clamp) and ``bicycle_jacobian`` for the covariance. The prediction runs a few hundred times a
+second, so both are written out in :meth:`Estimator._propagate` on Python floats, operation
+for operation, with the plant's zone lists and eq. 8 coefficients
+(``tests/test_estimator_speed.py`` holds them to the plant: the mean to the bit, ``F`` to
+``HybridPlant.jacobians``); a plant with opt-in extensions is stepped by ``HybridPlant.step``
+itself. The ``delta_offset`` state enters by folding it into the steering input, ``sw +
+delta_offset / scale``; eq. 1's derivative with respect to the road-wheel angle is its
+column of ``F``.
 When the IMU supplies a longitudinal acceleration it replaces eq. 8 in the speed propagation
 (``use_imu_accel``). Propagation sub-steps are at most ``max_step_s``; the three extra states
 are random walks. The covariance is propagated with ``F = I + A dt`` and a diagonal process
@@ -41,7 +46,7 @@ Inputs, each at its own rate (call the ``update_*`` methods as messages arrive):
 
 Latency compensation (GNSS): every event the filter processes (predict ticks, CAN, IMU, GNSS)
 is kept in a time-ordered log with the state, covariance and held inputs after it
-(preallocated arrays, ``history_events`` deep; when full the oldest half is dropped). A fix
+(``history_events`` deep, allocated once; when full the oldest half is dropped). A fix
 measured in the past is inserted at its measurement time: the filter is rewound to the last
 event before it, the fix is applied at ``t_meas_s``, and every later event is re-applied (and
 its snapshot rewritten, so a later delayed fix sees this one). The result is the one the filter
@@ -61,9 +66,15 @@ trusts GNSS again (the fix, not the filter, was right: e.g. after a long outage 
 dead-reckoned state drifted): position and heading are reset to the fix with the initial
 uncertainty, counted as ``reinit``.
 
-Allocation: the filter, Jacobian, gain and log buffers are allocated once in ``__init__``; a
-step writes into them. What remains per step is the plant step's 4-vector result and at most
-a 4x4 inverse for a GNSS update.
+Allocation and cost: the filter, Jacobian, measurement and log buffers are allocated once in
+``__init__``; a step writes into them (flat ``memoryview`` s give their elements as Python
+floats). Per event: ``P = F P F'`` is two 7x7 products and the process noise one BLAS
+``daxpy`` on P's diagonal; a one-value update (CAN speed, yaw rate) is ``P h``, one ``ddot``,
+``daxpy`` for the state and ``dger`` for ``P -= PH' HP / s``, all in place (P symmetric to a
+few ulps; each GNSS update symmetrises it exactly); a GNSS update solves ``S^-1 [H P | y]``
+by Cholesky (LAPACK ``dposv``). What is still allocated per event: the log's tuples (the
+event, the held inputs after it) and the GNSS update's few small products. ``tools/bench_mpc.py`` prints the
+estimator's time per control period.
 
 Also here: :class:`SensorFeedback` (simulated sensors -> estimator, what a simulated closed
 loop gives its controller) and :func:`estimate_recording` (the estimator over a canonical
@@ -71,15 +82,17 @@ recording's raw channels, e.g. the real comma2k19 minute; ``tools/estimate_plot.
 """
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.blas import daxpy, ddot, dger
+from scipy.linalg.lapack import dposv
 from scipy.stats import chi2
 
 from hmpc.models.params import Params
-from hmpc.models.plant import (IAP, IBP, ISW, HybridPlant, bicycle_jacobian,
-                               road_wheel_angle)
+from hmpc.models.plant import IAP, IBP, ISW, HybridPlant, zone_with_hysteresis
 
 NXE = 7  #: estimator state size
 IX, IY, IPSI, IV, IDOFF, IBR, IKWS = range(NXE)
@@ -87,7 +100,6 @@ STATE_NAMES = ("x_m", "y_m", "psi_rad", "v_mps", "delta_offset_rad", "gyro_bias_
                "wheel_speed_scale")
 
 _TICK, _CAN, _IMU, _GNSS = 0, 1, 2, 3
-_NAUX = 8  # held inputs in a snapshot: t, u0, u1, u2, sw_meas, t_sw, a_imu, zone
 SENSORS = ("can_speed", "wheel_yaw_rate", "can_yaw_rate", "imu_yaw_rate", "gnss")
 
 
@@ -202,6 +214,16 @@ def _time(t_s) -> float:
     return t
 
 
+def _zone_bands(v_min_mps, v_max_mps, hysteresis_mps: float) -> list[tuple[float, float]]:
+    """Per zone, the speeds [m/s] for which ``models.plant.zone_with_hysteresis(v, zone, ...,
+    clamp=True)`` keeps ``zone`` (its band widened by the hysteresis; the first zone has no
+    lower edge, the last none above). A cache of that rule's first test: outside the band the
+    estimator calls the rule itself (``tests/test_estimator_speed.py`` checks they agree)."""
+    n = len(v_max_mps)
+    return [(-math.inf if z == 0 else v_min_mps[z] - hysteresis_mps,
+             v_max_mps[z] + hysteresis_mps if z < n - 1 else math.inf) for z in range(n)]
+
+
 class Estimator:
     """Extended Kalman filter over the plant state; see the module docstring.
 
@@ -218,7 +240,7 @@ class Estimator:
             raise ValueError("the estimator needs a parameter file with steering and zones")
         self.params = params
         self.cfg = cfg = config or EstimatorConfig()
-        self.plant = HybridPlant(params)
+        self.plant = plant = HybridPlant(params)
         veh = params.vehicle
         self._b = float(veh.wheelbase_m)
         self._track_r = float(veh.track_rear_m if veh.track_rear_m is not None
@@ -227,47 +249,75 @@ class Estimator:
         self._scale = float(params.steering.scale)
         self._lever = (float(cfg.gnss_offset_m[0]), float(cfg.gnss_offset_m[1]))
         self._gate = {m: float(chi2.ppf(cfg.gate_probability, m)) for m in range(1, 5)}
+        self._gate1 = self._gate[1]
+        # the plant's zones and eq. 8 as Python floats for the scalar prediction (plant.py's
+        # own lists); a plant with opt-in extensions is stepped by HybridPlant.step itself
+        self._zone_args = (plant._v_min_list, plant._v_max_list, plant.hysteresis_mps)
+        self._zone_keep = _zone_bands(*self._zone_args)
+        self._eq8 = plant._eq8
+        self._plant_step = getattr(plant, "ext", None) is not None
+        self._max_step = float(cfg.max_step_s)
+        self._sw_age = float(cfg.steer_input_max_age_s)
+        self._imu_age = float(cfg.imu_accel_max_age_s) if cfg.use_imu_accel else -math.inf
         # filter buffers
         self._x = np.zeros(NXE)
         self._P = np.zeros((NXE, NXE))
         self._F = np.eye(NXE)
+        self._FT = self._F.T  # a view: F' for P = F P F'
+        self._PT = self._P.T  # a view: P in Fortran order, for BLAS's in-place rank-one update
+        self._Pflat = self._P.reshape(-1)  # a view: its diagonal is every NXE + 1-th element
+        # flat float views of x, P, F: element access on Python floats, without numpy scalars
+        self._xm = memoryview(self._x)
+        self._Pm = memoryview(self._Pflat)
+        self._Fm = memoryview(self._F.reshape(-1))
+        self._geometry = (self._off, self._scale, self._b)  # eq. 7 offset, scale; wheelbase
         self._tmp = np.zeros((NXE, NXE))
         self._u4 = np.zeros(3)
+        self._prediction_buffers = (self._F, self._FT, self._Fm, self._P, self._tmp, self._Pflat)
         self._q = np.array([cfg.position_walk_m_rts, cfg.position_walk_m_rts,
                             cfg.heading_walk_rad_rts, cfg.speed_walk_mps_rts,
                             cfg.delta_offset_walk_rad_rts, cfg.gyro_bias_walk_radps_rts,
                             cfg.wheel_scale_walk_rts]) ** 2
         self._q_imu_v = cfg.speed_walk_imu_mps_rts ** 2
-        self._qdt = np.zeros(NXE)
+        self._q_imu = self._q.copy()  # the same with the IMU driving the speed
+        self._q_imu[IV] = self._q_imu_v
         self._diag = self._P.reshape(-1)[:: NXE + 1]  # a view on P's diagonal
         self._init_var = np.array([cfg.init_position_m, cfg.init_position_m, cfg.init_heading_rad,
                                    cfg.init_speed_mps, cfg.init_delta_offset_rad,
                                    cfg.init_gyro_bias_radps, cfg.init_wheel_scale]) ** 2
-        # update buffers per dimension m = 1..4
+        # update buffers per dimension m = 1..4 (GNSS)
         self._H = {m: np.zeros((m, NXE)) for m in range(1, 5)}
         self._PHt = {m: np.zeros((NXE, m)) for m in range(1, 5)}
         self._S = {m: np.zeros((m, m)) for m in range(1, 5)}
-        self._K = {m: np.zeros((NXE, m)) for m in range(1, 5)}
+        self._S_diag = {m: self._S[m].reshape(-1)[:: m + 1] for m in range(1, 5)}  # views
+        self._B = {m: np.zeros((m, NXE + 1)) for m in range(1, 5)}  # [H P | y]
+        self._half = np.full((), 0.5)  # a 0-d array: a Python float in a ufunc costs more
         self._y = {m: np.zeros(m) for m in range(1, 5)}
-        self._Ky = np.zeros(NXE)
-        self._h1 = self._H[1][0]  # a view: the one-value updates write H[1]
-        self._ph1 = np.zeros(NXE)
         self._R = {m: np.zeros(m) for m in range(1, 5)}
-        # event log: time-ordered; snapshot after each event
+        self._Hm = {m: memoryview(self._H[m].reshape(-1)) for m in range(1, 5)}
+        self._ym = {m: memoryview(self._y[m]) for m in range(1, 5)}
+        self._Rm = {m: memoryview(self._R[m]) for m in range(1, 5)}
+        # one-value updates: a row H per measurement (its zeros never change; its other
+        # elements written through a memoryview) and P H'
+        self._h_speed = np.zeros(NXE)                  # IV, IKWS, IDOFF
+        self._h_yaw = np.zeros(NXE)                    # IV, IDOFF; IBR = 1
+        self._h_yaw[IBR] = 1.0
+        self._h_wyaw = np.zeros(NXE)                   # IV, IDOFF, IKWS
+        self._hm_speed, self._hm_yaw, self._hm_wyaw = (memoryview(h) for h in (
+            self._h_speed, self._h_yaw, self._h_wyaw))
+        self._ph1 = np.zeros(NXE)
+        self._r_speed = cfg.can_speed_mps ** 2
+        # event log: time-ordered. Per event (kind, t, 4 payload values) and the held inputs
+        # after it as tuples in fixed-length lists; state and covariance after it in arrays.
         n = cfg.history_events
-        self._ev_n = 0
-        self._ev_kind = np.zeros(n, dtype=np.int8)
-        self._ev_t = np.zeros(n)
-        self._ev_pay = np.zeros((n, 4))
+        self._ev_n, self._ev_cap = 0, n
+        self._ev = [None] * n
+        self._ev_t = [0.0] * n
+        self._ev_aux = [None] * n
         self._ev_x = np.zeros((n, NXE))
         self._ev_P = np.zeros((n, NXE, NXE))
-        self._ev_aux = np.zeros((n, _NAUX))
-        self._sc_kind = np.zeros(n, dtype=np.int8)
-        self._sc_t = np.zeros(n)
-        self._sc_pay = np.zeros((n, 4))
-        self._sc_x = np.zeros((n, NXE))
-        self._sc_P = np.zeros((n, NXE, NXE))
-        self._sc_aux = np.zeros((n, _NAUX))
+        self._ev_xm = memoryview(self._ev_x.reshape(-1))
+        self._ev_Pm = memoryview(self._ev_P.reshape(-1))
         self.stats = {s: {"accepted": 0, "rejected": 0} for s in SENSORS}
         self.stats["gnss"].update(too_old=0, replays=0, reinit=0, latency_max_s=0.0)
         self._counting = True
@@ -365,8 +415,9 @@ class Estimator:
         t_s = _time(t_s)
         ws_mean = wheel_yaw = math.nan
         if wheel_speeds_mps is not None:
-            fl, fr, rl, rr = (_value(q) for q in wheel_speeds_mps)
-            ws_mean = 0.25 * (fl + fr + rl + rr)
+            fl, fr, rl, rr = wheel_speeds_mps
+            rl, rr = _value(rl), _value(rr)
+            ws_mean = 0.25 * (_value(fl) + _value(fr) + rl + rr)
             if self.cfg.use_wheel_yaw_rate:
                 wheel_yaw = (rr - rl) / self._track_r
         elif speed_mps is not None:
@@ -461,137 +512,192 @@ class Estimator:
             self.stats[sensor]["accepted" if ok else "rejected"] += 1
 
     def _steer(self, t: float) -> float:
-        if t - self._t_sw <= self.cfg.steer_input_max_age_s:
+        """Steering-wheel angle the wheels follow at ``t`` [rad]: the CAN angle while fresh."""
+        if t - self._t_sw <= self._sw_age:
             return self._sw_meas
         return self._u[0]
 
     def _propagate_to(self, t: float) -> None:
-        dt_total = t - self._t
+        """Predict from :attr:`time_s` to ``t`` [s] in equal sub-steps of at most
+        ``max_step_s``. The held inputs and their freshness (CAN steering angle, IMU
+        acceleration) are those at the start, for every sub-step."""
+        t0 = self._t
+        dt_total = t - t0
         if dt_total <= 0.0:
             return
-        n = max(int(math.ceil(dt_total / self.cfg.max_step_s - 1e-9)), 1)
+        n = max(int(math.ceil(dt_total / self._max_step - 1e-9)), 1)
         dt = dt_total / n
+        sw = self._sw_meas if t0 - self._t_sw <= self._sw_age else self._u[0]
+        imu = t0 - self._t_aimu <= self._imu_age
         for _ in range(n):
-            self._propagate(dt)
+            self._propagate(dt, sw, imu)
         self._t = t
 
-    def _propagate(self, dt: float) -> None:
-        x, P, F, plant = self._x, self._P, self._F, self.plant
-        u = self._u4
-        u[0] = self._steer(self._t) + x[IDOFF] / self._scale
-        u[1], u[2] = self._u[1], self._u[2]
-        imu = self.cfg.use_imu_accel and self._t - self._t_aimu <= self.cfg.imu_accel_max_age_s
-        zone = plant.select_zone(float(x[IV]), self._zone)
-        extra = self._a_imu - plant.accel(zone, u[1], u[2]) if imu else 0.0
-        # eq. 1's Jacobian at the start of the step, with respect to the road-wheel angle
-        # (scale 1), which is also the derivative with respect to delta_offset
-        delta = road_wheel_angle(u[0], self._off, self._scale)
-        j = bicycle_jacobian(float(x[IPSI]), float(x[IV]), delta, self._b, 1.0, ops=math)
-        res = plant.step(x[:4], u, dt, zone, extra)
-        x[:4] = res.state
-        self._zone = res.zone
-        # F = I + A dt; eq. 8's speed row has no state in it (zone aside)
-        F[IX, IPSI], F[IX, IV], F[IX, IDOFF] = j.dx_dpsi * dt, j.dx_dv * dt, j.dx_du * dt
-        F[IY, IPSI], F[IY, IV], F[IY, IDOFF] = j.dy_dpsi * dt, j.dy_dv * dt, j.dy_du * dt
-        F[IPSI, IV], F[IPSI, IDOFF] = j.dpsi_dv * dt, j.dpsi_du * dt
-        np.dot(F, P, out=self._tmp)
-        np.dot(self._tmp, F.T, out=P)
-        np.multiply(self._q, dt, out=self._qdt)
-        if imu:
-            self._qdt[IV] = self._q_imu_v * dt
-        self._diag += self._qdt
+    def _propagate(self, dt: float, sw: float, imu: bool) -> None:
+        """One prediction sub-step of ``dt`` [s] with the steering-wheel angle ``sw`` [rad]
+        held; ``imu``: the IMU's acceleration replaces eq. 8's.
+
+        The mean is ``HybridPlant.step`` (eq. 1, 7, 8; exact in speed, midpoint in heading and
+        position, standstill clamp) written out here on Python floats, operation for
+        operation (``tests/test_estimator_speed.py`` checks they agree to the bit); the
+        covariance is ``F P F' + Q dt`` with eq. 1's Jacobian at the start of the step written
+        into ``F`` (``bicycle_jacobian`` with respect to the road-wheel angle, which is also
+        the derivative with respect to ``delta_offset``)."""
+        xm = self._xm
+        px, py, psi, v, doff = xm[IX], xm[IY], xm[IPSI], xm[IV], xm[IDOFF]
+        ap, bp = self._u[1], self._u[2]
+        zone = self._zone
+        if zone is not None:
+            lo, hi = self._zone_keep[zone]
+            if not lo <= v <= hi:
+                zone = zone_with_hysteresis(v, zone, *self._zone_args, clamp=True)
+        else:
+            zone = zone_with_hysteresis(v, zone, *self._zone_args, clamp=True)
+        off_z, sc_z, br_z = self._eq8[zone]
+        acc = off_z + sc_z * ap - br_z * bp  # eq. 8 (models.plant.zone_accel)
+        extra = self._a_imu - acc if imu else 0.0
+        off, scale, b = self._geometry
+        u0 = sw + doff / scale
+        delta = off + scale * u0  # eq. 7
+        sd, cd = math.sin(delta), math.cos(delta)
+        if self._plant_step:  # a plant with extensions: its own step
+            u = self._u4
+            u[0], u[1], u[2] = u0, ap, bp
+            res = self.plant.step(self._x[:4], u, dt, zone, extra)
+            self._x[:4] = res.state
+            zone = res.zone
+        else:
+            a = acc + extra
+            v0 = max(v, 0.0)
+            v1 = v0 + a * dt
+            if v1 < 0.0:  # stops within the step and stays stopped
+                t_move = v0 / -a if a < 0 else 0.0
+                v1 = 0.0
+                dist = 0.5 * v0 * t_move
+            else:
+                dist = 0.5 * (v0 + v1) * dt
+            dpsi = dist * sd / b
+            ang = psi + 0.5 * dpsi + delta
+            xm[IX] = px + dist * math.cos(ang)
+            xm[IY] = py + dist * math.sin(ang)
+            xm[IPSI] = psi + dpsi
+            xm[IV] = v1
+        self._zone = zone
+        # F = I + A dt at the start of the step (flat index NXE * row + column); eq. 8's
+        # speed row has no state in it
+        c, s = math.cos(psi + delta), math.sin(psi + delta)
+        F, FT, Fm, P, tmp, Pflat = self._prediction_buffers
+        Fm[2] = Fm[4] = -v * s * dt           # x row: d/dpsi, d/ddelta_offset
+        Fm[3] = c * dt                        # x row: d/dv
+        Fm[9] = Fm[11] = v * c * dt           # y row: d/dpsi, d/ddelta_offset
+        Fm[10] = s * dt                       # y row: d/dv
+        Fm[17] = sd / b * dt                  # psi row: d/dv
+        Fm[18] = v * cd / b * dt              # psi row: d/ddelta_offset
+        F.dot(P, out=tmp)
+        tmp.dot(FT, out=P)
+        # P's diagonal += q dt, in place (every NXE + 1-th element of the flat P)
+        daxpy(self._q_imu if imu else self._q, Pflat, NXE, dt, 0, 1, 0, NXE + 1)
 
     def _update(self, m: int, sensor: str, angle_row: int = -1) -> bool:
-        """Gated update with ``self._H[m]``, ``self._y[m]`` (z - h), ``self._R[m]`` (variances)."""
-        if m == 1:
-            return self._update1(sensor)
-        H, y, S, PHt, K, P = self._H[m], self._y[m], self._S[m], self._PHt[m], self._K[m], self._P
+        """Gated update with ``self._H[m]``, ``self._y[m]`` (z - h), ``self._R[m]`` (variances).
+
+        ``S = H P H' + R`` is factorised once (Cholesky, LAPACK ``dposv``) and solved for
+        ``S^-1 [H P | y]``: the gain's transpose and ``S^-1 y`` without an inverse. A
+        non-positive-definite ``S`` (a broken covariance) is a rejected measurement."""
+        H, y, S, PHt, B, P = self._H[m], self._y[m], self._S[m], self._PHt[m], self._B[m], self._P
         if angle_row >= 0:
             y[angle_row] = math.remainder(y[angle_row], 2.0 * math.pi)
-        np.dot(P, H.T, out=PHt)
-        np.dot(H, PHt, out=S)
-        S.reshape(-1)[:: m + 1] += self._R[m]
-        Si = np.linalg.inv(S)
-        d2 = float(y @ Si @ y)
-        if d2 > self._gate[m]:
+        P.dot(H.T, out=PHt)
+        H.dot(PHt, out=S)
+        np.add(self._S_diag[m], self._R[m], out=self._S_diag[m])
+        B[:, :NXE] = PHt.T  # H P (P is symmetric)
+        B[:, NXE] = y
+        _, X, info = dposv(S, B)
+        if info != 0:
             self._count(sensor, False)
             return False
-        np.dot(PHt, Si, out=K)
-        np.dot(K, y, out=self._Ky)
-        self._x += self._Ky
-        np.dot(K, PHt.T, out=self._tmp)
-        P -= self._tmp
+        Si_y = X[:, NXE]
+        if float(y.dot(Si_y)) > self._gate[m]:
+            self._count(sensor, False)
+            return False
+        self._x += PHt.dot(Si_y)  # K y
+        P -= PHt.dot(X[:, :NXE])  # K H P
         np.add(P, P.T, out=self._tmp)
-        np.multiply(self._tmp, 0.5, out=P)
+        np.multiply(self._tmp, self._half, out=P)  # exactly symmetric again
         self._count(sensor, True)
         return True
 
-    def _update1(self, sensor: str) -> bool:
-        """:meth:`_update` for one value: no inverse, a rank-one covariance update that keeps
-        ``P`` exactly symmetric (``PHt PHt' / s``)."""
-        h, ph, P = self._h1, self._ph1, self._P
-        np.dot(P, h, out=ph)
-        s = float(np.dot(h, ph)) + float(self._R[1][0])
-        y = float(self._y[1][0])
-        if y * y / s > self._gate[1]:
-            self._count(sensor, False)
-            return False
-        np.multiply(ph, y / s, out=self._Ky)
-        self._x += self._Ky
-        np.outer(ph, ph, out=self._tmp)
-        self._tmp *= 1.0 / s
-        P -= self._tmp
-        self._count(sensor, True)
-        return True
-
-    def _delta(self, t: float) -> float:
-        return self._off + self._scale * self._steer(t) + self._x[IDOFF]
+    def _update1(self, h: np.ndarray, y: float, r: float, sensor: str) -> bool:
+        """Gated one-value update: measurement row ``h``, innovation ``y`` (z - h(x)), noise
+        variance ``r``. No inverse; the state and the rank-one covariance update ``P -= PH' HP
+        / s`` in place by BLAS (positional arguments: f2py parses keywords slowly)."""
+        ph = self._ph1
+        self._P.dot(h, out=ph)
+        s = ddot(h, ph) + r
+        ok = y * y / s <= self._gate1
+        if ok:
+            daxpy(ph, self._x, NXE, y / s)  # x += K y
+            dger(-1.0 / s, ph, ph, 1, 1, self._PT, 1, 1, 1)  # P -= PH' HP / s
+        if self._counting:
+            self.stats[sensor]["accepted" if ok else "rejected"] += 1
+        return ok
 
     def _yaw_update(self, z: float, sigma: float, sensor: str, biased: bool) -> None:
-        x = self._x
-        d = self._delta(self._t)
+        """A yaw-rate measurement ``z`` [rad/s] (1-sigma ``sigma``): eq. 1's ``v sin(delta)/b``,
+        plus the gyro bias (``biased``) or times the wheel-speed scale (the wheels' yaw rate)."""
+        xm = self._xm
+        v, doff = xm[IV], xm[IDOFF]
+        sw = self._sw_meas if self._t - self._t_sw <= self._sw_age else self._u[0]
+        d = self._off + self._scale * sw + doff
         sd, cd = math.sin(d), math.cos(d)
-        k = 1.0 if biased else x[IKWS]
-        H, y, R = self._H[1], self._y[1], self._R[1]
-        H[:] = 0.0
-        H[0, IV] = k * sd / self._b
-        H[0, IDOFF] = k * x[IV] * cd / self._b
+        b = self._b
         if biased:
-            H[0, IBR] = 1.0
-            y[0] = z - (x[IV] * sd / self._b + x[IBR])
+            h, hm = self._h_yaw, self._hm_yaw
+            hm[IV] = sd / b
+            hm[IDOFF] = v * cd / b
+            y = z - (v * sd / b + xm[IBR])
         else:
-            H[0, IKWS] = x[IV] * sd / self._b
-            y[0] = z - k * x[IV] * sd / self._b
-        R[0] = sigma * sigma
-        self._update(1, sensor)
+            kws = xm[IKWS]
+            h, hm = self._h_wyaw, self._hm_wyaw
+            hm[IV] = kws * sd / b
+            hm[IDOFF] = kws * v * cd / b
+            hm[IKWS] = v * sd / b
+            y = z - kws * v * sd / b
+        self._update1(h, y, sigma * sigma, sensor)
+
+    def _speed_update(self, t: float, z: float) -> None:
+        """The mean wheel speed ``z`` [m/s] = scale * v (1 + cos delta) / 2 (front ~v, rear
+        v cos delta)."""
+        xm = self._xm
+        v, doff, kws = xm[IV], xm[IDOFF], xm[IKWS]
+        sw = self._sw_meas if t - self._t_sw <= self._sw_age else self._u[0]
+        d = self._off + self._scale * sw + doff
+        c = 0.5 * (1.0 + math.cos(d))
+        hm = self._hm_speed
+        hm[IV] = kws * c
+        hm[IKWS] = v * c
+        hm[IDOFF] = -0.5 * kws * v * math.sin(d)
+        self._update1(self._h_speed, z - kws * v * c, self._r_speed, "can_speed")
 
     def _apply(self, kind: int, t: float, p0: float, p1: float, p2: float, p3: float):
         """Apply one event at time ``t`` (``t >= self._t``); the payload meaning by kind."""
-        self._propagate_to(t)
-        cfg, x = self.cfg, self._x
+        if t > self._t:
+            self._propagate_to(t)
         if kind == _TICK:
             self._u[0], self._u[1], self._u[2] = p0, p1, p2
             return True
+        cfg = self.cfg
         if kind == _CAN:
             if p1 == p1:
                 self._sw_meas, self._t_sw = p1, t
-            if p0 == p0:  # mean wheel speed = scale * v (1 + cos delta) / 2 (front ~v, rear v cos)
-                d = self._delta(t)
-                c = 0.5 * (1.0 + math.cos(d))
-                H, y, R = self._H[1], self._y[1], self._R[1]
-                H[:] = 0.0
-                H[0, IV] = x[IKWS] * c
-                H[0, IKWS] = x[IV] * c
-                H[0, IDOFF] = -0.5 * x[IKWS] * x[IV] * math.sin(d)
-                y[0] = p0 - x[IKWS] * x[IV] * c
-                R[0] = cfg.can_speed_mps ** 2
-                self._update(1, "can_speed")
+            if p0 == p0:
+                self._speed_update(t, p0)
             if p2 == p2:
                 self._yaw_update(p2, cfg.can_yaw_rate_radps, "can_yaw_rate", True)
             if p3 == p3:
                 self._yaw_update(p3, cfg.wheel_yaw_rate_radps, "wheel_yaw_rate", False)
-            if x[IV] < 0.0:
-                x[IV] = 0.0
+            if self._x[IV] < 0.0:
+                self._x[IV] = 0.0
             return True
         if kind == _IMU:
             if p0 == p0:
@@ -602,34 +708,38 @@ class Estimator:
         return self._gnss_update(p0, p1, p2, p3)
 
     def _gnss_update(self, gx: float, gy: float, gh: float, gv: float) -> bool:
-        cfg, x = self.cfg, self._x
+        """A fix's position [m] (at the lever arm), heading [rad] and speed [m/s] (NaN:
+        absent) as one gated update; after ``gnss_reinit_after`` rejected fixes in a row the
+        filter re-initialises on GNSS. Returns True when accepted."""
+        cfg = self.cfg
         m = (2 if gx == gx else 0) + (1 if gh == gh else 0) + (1 if gv == gv else 0)
         if m == 0:
             return False
-        H, y, R = self._H[m], self._y[m], self._R[m]
-        H[:] = 0.0
+        self._H[m].fill(0.0)
+        H, y, R = self._Hm[m], self._ym[m], self._Rm[m]  # flat views: H[NXE * row + column]
+        xm = self._xm
         i = 0
         angle_row = -1
         if gx == gx:
             lx, ly = self._lever
-            c, s = math.cos(x[IPSI]), math.sin(x[IPSI])
-            H[0, IX] = 1.0
-            H[1, IY] = 1.0
-            H[0, IPSI] = -lx * s - ly * c
-            H[1, IPSI] = lx * c - ly * s
-            y[0] = gx - (x[IX] + lx * c - ly * s)
-            y[1] = gy - (x[IY] + lx * s + ly * c)
+            c, s = math.cos(xm[IPSI]), math.sin(xm[IPSI])
+            H[IX] = 1.0
+            H[NXE + IY] = 1.0
+            H[IPSI] = -lx * s - ly * c
+            H[NXE + IPSI] = lx * c - ly * s
+            y[0] = gx - (xm[IX] + lx * c - ly * s)
+            y[1] = gy - (xm[IY] + lx * s + ly * c)
             R[0] = R[1] = cfg.gnss_position_m ** 2
             i = 2
         if gh == gh:
-            H[i, IPSI] = 1.0
-            y[i] = gh - x[IPSI]
+            H[NXE * i + IPSI] = 1.0
+            y[i] = gh - xm[IPSI]
             R[i] = cfg.gnss_heading_rad ** 2
             angle_row = i
             i += 1
         if gv == gv:
-            H[i, IV] = 1.0
-            y[i] = gv - x[IV]
+            H[NXE * i + IV] = 1.0
+            y[i] = gv - xm[IV]
             R[i] = cfg.gnss_speed_mps ** 2
         ok = self._update(m, "gnss", angle_row)
         if ok:
@@ -658,39 +768,42 @@ class Estimator:
 
     # ========================================================= event log, replay
     def _snapshot(self, i: int) -> None:
-        self._ev_x[i] = self._x
-        self._ev_P[i] = self._P
-        a = self._ev_aux[i]
-        a[0], a[1], a[2], a[3] = self._t, self._u[0], self._u[1], self._u[2]
-        a[4], a[5], a[6] = self._sw_meas, self._t_sw, self._a_imu
-        a[7] = -1.0 if self._zone is None else float(self._zone)
+        """Record the filter after event ``i``: state and covariance into the preallocated
+        arrays (flat memoryview copies), the held inputs as one tuple."""
+        k = i * NXE
+        self._ev_xm[k:k + NXE] = self._xm
+        k *= NXE
+        self._ev_Pm[k:k + NXE * NXE] = self._Pm
+        u = self._u
+        self._ev_aux[i] = (self._t, u[0], u[1], u[2], self._sw_meas, self._t_sw, self._a_imu,
+                           self._t_aimu, self._zone)
 
     def _restore(self, i: int) -> None:
+        """Rewind the filter to just after event ``i``."""
         self._x[:] = self._ev_x[i]
         self._P[:] = self._ev_P[i]
-        a = self._ev_aux[i]
-        self._t = float(a[0])
-        self._u[0], self._u[1], self._u[2] = float(a[1]), float(a[2]), float(a[3])
-        self._sw_meas, self._t_sw, self._a_imu = float(a[4]), float(a[5]), float(a[6])
-        self._zone = None if a[7] < 0 else int(a[7])
+        (self._t, u0, u1, u2, self._sw_meas, self._t_sw, self._a_imu, self._t_aimu,
+         self._zone) = self._ev_aux[i]
+        self._u[0], self._u[1], self._u[2] = u0, u1, u2
 
     def _make_room(self) -> None:
+        """When the log is full, drop its oldest half (the copies do not overlap)."""
         n, cap = self._ev_n, self.cfg.history_events
         if n < cap:
             return
-        h = cap // 2  # drop the oldest half (copies do not overlap: h >= n - h)
+        h = cap // 2
         m = n - h
-        for a in (self._ev_kind, self._ev_t, self._ev_pay, self._ev_x, self._ev_P, self._ev_aux):
+        for a in (self._ev, self._ev_t, self._ev_aux, self._ev_x, self._ev_P):
             a[:m] = a[h:n]
         self._ev_n = m
 
     def _log(self, kind: int, t: float, p0, p1, p2, p3) -> None:
-        self._make_room()
+        """Append the event just applied, with the filter after it."""
+        if self._ev_n >= self._ev_cap:
+            self._make_room()
         i = self._ev_n
-        self._ev_kind[i] = kind
+        self._ev[i] = (kind, t, p0, p1, p2, p3)
         self._ev_t[i] = t
-        pay = self._ev_pay[i]
-        pay[0], pay[1], pay[2], pay[3] = p0, p1, p2, p3
         self._snapshot(i)
         self._ev_n = i + 1
 
@@ -699,7 +812,7 @@ class Estimator:
         Returns the update's result, or None when the log does not reach back that far
         (the fix is older than its first event's time)."""
         n = self._ev_n
-        i = int(np.searchsorted(self._ev_t[:n], t_meas, side="right"))
+        i = bisect.bisect_right(self._ev_t, t_meas, 0, n)
         if i == 0:
             return None
         self._make_room()
@@ -708,36 +821,28 @@ class Estimator:
             n = self._ev_n
             if i <= 0:
                 return None
-        # shift events i..n-1 up by one through the scratch buffers (no overlapping copies)
-        m = n - i
-        pairs = ((self._ev_kind, self._sc_kind), (self._ev_t, self._sc_t),
-                 (self._ev_pay, self._sc_pay), (self._ev_x, self._sc_x),
-                 (self._ev_P, self._sc_P), (self._ev_aux, self._sc_aux))
-        for a, sc in pairs:
-            sc[:m] = a[i:n]
-            a[i + 1:n + 1] = sc[:m]
-        self._ev_n = n + 1
-        self._ev_kind[i] = _GNSS
+        # shift the events i..n-1 up by one (their snapshots are all rewritten below)
+        ev = self._ev
+        ev[i + 1:n + 1] = ev[i:n]
+        self._ev_t[i + 1:n + 1] = self._ev_t[i:n]
+        ev[i] = (_GNSS, t_meas, gx, gy, gh, gv)
         self._ev_t[i] = t_meas
-        pay = self._ev_pay[i]
-        pay[0], pay[1], pay[2], pay[3] = gx, gy, gh, gv
+        self._ev_n = n + 1
         self._restore(i - 1)
         ok = self._apply(_GNSS, t_meas, gx, gy, gh, gv)
         self._snapshot(i)
         after_rejects = self._gnss_rejects
         self._counting = False
+        apply, snapshot = self._apply, self._snapshot
         try:
             for k in range(i + 1, n + 1):
-                p = self._ev_pay[k]
-                self._apply(int(self._ev_kind[k]), float(self._ev_t[k]), float(p[0]),
-                            float(p[1]), float(p[2]), float(p[3]))
-                self._snapshot(k)
+                apply(*ev[k])
+                snapshot(k)
         finally:
             self._counting = True
         self._gnss_rejects = after_rejects
         self.stats["gnss"]["replays"] += 1
         return ok
-
 
 # ============================================================ closed-loop feedback
 class SensorFeedback:

@@ -220,7 +220,7 @@ def test_buffers_are_reused_not_reallocated():
         pass
     sens = LiveSensors(P, scfg, seed)
     est = Watch(P, EstimatorConfig.matching(scfg, history_events=64))
-    names = ("_x", "_P", "_F", "_ev_x", "_ev_P", "_ev_t", "_ev_aux")
+    names = ("_x", "_P", "_F", "_tmp", "_ph1", "_ev", "_ev_x", "_ev_P", "_ev_t", "_ev_aux")
     for i, t in enumerate(tr.t_s):
         for m in sens.observe(t, tr.states[i], tr.steering_wheel_angle_rad[i], tr.accel_mps2[i]):
             est.feed(m, t)
