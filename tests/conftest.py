@@ -28,3 +28,12 @@ def vcan_log() -> Path:
 def vcan_dbc() -> Path:
     """The 2019 RAV4 TSS2 DBC (opendbc), gzip."""
     return bundled("dbc/toyota_rav4_2019_tss2.dbc.gz")
+
+
+def pytest_configure(config):
+    """BLAS on one thread in every test process, as ``hmpc``'s CLI and drive loop run it:
+    with two xdist workers on two cores, OpenBLAS's own threads oversubscribe the cores and
+    a small LAPACK call (the MPC's 3x3 DARE) waits 30x longer for them."""
+    from threadpoolctl import threadpool_limits
+    import numpy  # noqa: F401  (load the BLAS the limit applies to)
+    config._hmpc_blas_limit = threadpool_limits(limits=1, user_api="blas")
