@@ -158,3 +158,13 @@ def test_extended_model_carries_the_findings(comma):
     # (unit gain, no offset) in the zone the minute was driven in (8-20 m/s); measured 0.999
     high = next(z for z in e["base"]["zones"] if z["name"] == "high")
     assert abs(high["accel_cmd_gain"] - 1.0) < 0.1 and abs(high["offset_mps2"]) < 0.1
+
+
+def test_the_split_verdict_says_what_the_likelihood_ratios_say():
+    """The joint dead-time + lag fit's wording (VerifiedCAN: dead time alone 9.6, lag alone
+    0.0 -> a lag; the comma minute: 0.7 and 0.1 -> cannot tell)."""
+    from hmpc.models.diagnose.diagnose import _split_verdict
+    assert "the response is a lag" in _split_verdict(9.6, 0.0)
+    assert "the response is a dead time" in _split_verdict(0.2, 12.0)
+    both = _split_verdict(0.7, 0.1)
+    assert "cannot tell a dead time from a lag" in both and "fixes the total delay" in both

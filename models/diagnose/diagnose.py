@@ -512,6 +512,19 @@ def _stack_dynamics_on_static(ld, cands, lon_scores, cfg, cl, res) -> None:
 _DYNAMICS = ("actuator_delay", "actuator_lag")
 
 
+
+def _split_verdict(lr_dead: float, lr_lag: float) -> str:
+    """What the likelihood ratios of the dead time alone and the lag alone against their joint
+    fit say when the joint fit does not need both (3.84: chi-square, 1 dof, 95 %)."""
+    if lr_dead <= 3.84 and lr_lag <= 3.84:
+        return (f"it cannot tell a dead time from a lag (either alone fits within likelihood "
+                f"ratio 3.84 of the joint fit: dead time {lr_dead:.1f}, lag {lr_lag:.1f}): it "
+                "fixes the total delay, not its split")
+    one, other, lr_one, lr_other = (("a lag", "a dead time", lr_lag, lr_dead) if lr_lag <= 3.84
+                                    else ("a dead time", "a lag", lr_dead, lr_lag))
+    return (f"{one} alone fits as well as the joint fit (likelihood ratio {lr_one:.1f}), "
+            f"{other} alone does not ({lr_other:.1f} > 3.84): the response is {one}")
+
 def _joint_response(w: _Work, ld: lon.LonData, lon_scores: dict, cfg: DiagnoseConfig,
                     cl: float) -> None:
     """The actuator's response as a dead time and a lag fitted together
@@ -547,10 +560,7 @@ def _joint_response(w: _Work, ld: lon.LonData, lon_scores: dict, cfg: DiagnoseCo
     split = ("no delay or lag beyond the model's" if iv["effective_delay_s"][0] == 0.0
              and r["gain"] < cfg.min_gain else
              "it separates a dead time from a lag" if r["separable"] else
-             "it cannot tell a dead time from a lag (the dead time alone fits within likelihood "
-             f"ratio {r['lr_dead_time_only']:.1f}, the lag alone within "
-             f"{r['lr_lag_only']:.1f} of the joint fit, both below 3.84): it fixes the total "
-             "delay, not its split")
+             _split_verdict(r["lr_dead_time_only"], r["lr_lag_only"]))
     r["verdict"] = (
         f"response of the acceleration to {r['input']}"
         + (f" on top of {below}" if below else "")
