@@ -27,7 +27,7 @@ Optional keys (all documented here, nowhere else):
 - ``limits``: actuator and comfort limits used by the controller (see ``VehicleLimits``).
 - ``provenance``: free text/number fields (input hashes, time span, hmpc version).
 - ``extensions``: physics ``hmpc diagnose`` added to the report's model, by catalogue id
-  (``models.diagnose.catalogue``, the diagnosis issue's contract) and subsystem:
+  (``models.catalogue``, the diagnosis issue's contract) and subsystem:
   ``extensions: {aero_drag: {longitudinal: {coeff_per_m: 1.5e-3, intervals: {coeff_per_m:
   [1.3e-3, 1.7e-3]}, equation: "..."}}}``. Each entry holds only its catalogue parameters
   (numbers), ``intervals`` ({parameter: [low, high]}), ``base`` (the coefficients it was
@@ -49,6 +49,7 @@ from typing import Any
 import yaml
 
 from hmpc.models.errors import ParamError
+from hmpc.models.catalogue import CATALOGUE, EXTENSION_TEXT_KEYS
 
 #: Unit suffixes a numeric key may carry.
 UNIT_SUFFIXES = ("_m", "_s", "_rad", "_mps", "_mps2", "_mps3", "_radps", "_pct", "_kg", "_hz")
@@ -361,8 +362,6 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
 
 def _parse_extensions(path: str, data: Any) -> dict:
     """Validate the ``extensions:`` section against the diagnosis catalogue (module doc)."""
-    from hmpc.models.diagnose.catalogue import CATALOGUE, EXTENSION_TEXT_KEYS  # no imports
-
     def unknown(what, key, known):
         close = difflib.get_close_matches(str(key).split(".")[-1], sorted(known), n=1)
         return ParamError(f"unknown {what}" + (f" (did you mean '{close[0]}'?)" if close else ""),

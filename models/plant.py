@@ -254,7 +254,7 @@ PLANT_EXTENSION_IDS = ("aero_drag", "rolling_resistance", "idle_creep", "actuato
 
 @dataclass(frozen=True)
 class PlantExtensions:
-    """Physics ``hmpc diagnose`` adds to the report's model (models/diagnose/catalogue.py), as
+    """Physics ``hmpc diagnose`` adds to the report's model (models/catalogue.py), as
     the plant predicts with it. All zero: none. See :func:`plant_extensions`.
 
     Args:

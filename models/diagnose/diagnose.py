@@ -5,7 +5,7 @@ the held-out fit with it added.
    and acceleration (equation error); heading (free-run windows), road-wheel angle and yaw
    rate; position (free-run windows of eq. 1); the CAN speed against the GNSS speed.
 2. **Locate**: windows above the noise floor, change points, and the residual by regime.
-3. **Name**: every hypothesis of ``models.diagnose.catalogue`` is refitted jointly with the
+3. **Name**: every hypothesis of ``models.catalogue`` is refitted jointly with the
    baseline (the report's eq. 7 / eq. 8 structure on this recording) and scored by blocked
    held-out free-run RMSE. A hypothesis is a finding when it lowers that RMSE by
    ``DiagnoseConfig.min_gain`` and by more than the channel's resolution, lowers the BIC (with
@@ -33,7 +33,7 @@ import numpy as np
 from hmpc.models.diagnose import longitudinal as lon
 from hmpc.models.diagnose import sensors as sen
 from hmpc.models.diagnose import steering as ste
-from hmpc.models.diagnose.catalogue import ALTERNATIVES, CATALOGUE
+from hmpc.models.catalogue import ALTERNATIVES, CATALOGUE
 from hmpc.models.diagnose.common import DiagnoseConfig, corr_length, rmse, windows
 from hmpc.models.diagnose.locate import (change_point, elevated_windows, improved_windows,
                                          noise_floor, regime_table, regime_variables,

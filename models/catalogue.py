@@ -1,4 +1,6 @@
-"""The catalogue of physically named hypotheses. Its ids are part of hmpc's contract
+"""The catalogue of physically named hypotheses: what ``hmpc diagnose`` tests, and what the
+``extensions:`` section of a parameter file may hold (``models.params`` validates that section
+against it, ``models.plant`` simulates it). Its ids are part of hmpc's contract
 (../shared/CONVENTIONS.md, the diagnosis issue); each entry names its physics, the equation
 it adds to the report's model, and its parameters with units and bounds.
 """
