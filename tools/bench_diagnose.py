@@ -259,6 +259,39 @@ def controller_view(p) -> tuple[object, list[str]]:
     return p, notes
 
 
+def ideal_model(truth, effects):
+    """The true model with the concealed effect as the MPC can represent it (its keys and
+    ``extensions:``): the best any diagnosis can hand the MPC, so the headroom a finding has.
+    None where the MPC has no such term (a road grade ahead, sensor effects: there the truth
+    without the effect is the ideal)."""
+    import copy
+    from hmpc.models.sim import effects as fx
+    from hmpc.models.sim import effects_extra as fx2
+    m = copy.deepcopy(truth)
+    m.extensions = dict(m.extensions or {})
+    for e in effects:
+        if isinstance(e, fx.SteeringDeadTime):
+            m.steering.dead_time_s = e.delay_s
+        elif isinstance(e, fx.PedalDeadTime):
+            m.longitudinal_dead_time_s = e.delay_s
+        elif isinstance(e, fx.SteeringLag):
+            m.extensions["actuator_lag"] = {"steering": {"tau_s": e.tau_s}}
+        elif isinstance(e, fx.SteeringCubic):
+            m.extensions["steering_nonlinearity"] = {"steering": {"cubic_per_rad2":
+                                                                  e.cubic_per_rad2}}
+        elif isinstance(e, fx.Understeer):
+            m.extensions["understeer"] = {"steering": {"gradient_rad_per_mps2":
+                                                       e.gradient_rad_per_mps2}}
+        elif isinstance(e, fx.AeroDrag):
+            m.extensions["aero_drag"] = {"longitudinal": {"coeff_per_m": e.coeff_per_m}}
+        elif isinstance(e, fx2.IdleCreep):
+            m.extensions["idle_creep"] = {"longitudinal": {
+                "accel_mps2": e.accel_mps2, "creep_speed_mps": e.creep_speed_mps}}
+        else:
+            return None
+    return m
+
+
 def closed_loop(seed: int, cases=None, lag_methods=()) -> list[dict]:
     """Per benchmark effect: the MPC on the ground-truth plant with the report's baseline
     model and with the extended model, both from ``diagnose`` on that case's recording; with
@@ -276,8 +309,11 @@ def closed_loop(seed: int, cases=None, lag_methods=()) -> list[dict]:
         ext, notes = controller_view(dg.params_out)
         row = {"case": case, "scenario": scn, "notes": notes,
                "found": [f"{f['effect']}/{f['subsystem']}" for f in dg.findings]}
-        for label, model in (("truth", truth), ("baseline", dg.baseline_out), ("extended", ext)):
-            row[label] = _track(model, truth, make_effects(), ref)
+        ideal = ideal_model(truth, make_effects())
+        for label, model in (("truth", truth), ("baseline", dg.baseline_out), ("extended", ext),
+                             ("ideal", ideal)):
+            if model is not None:
+                row[label] = _track(model, truth, make_effects(), ref)
         key = "lateral_rmse_m" if subsystem == "steering" else "speed_rmse_mps"
         if "actuator_lag" in ext.extensions:
             for m in lag_methods:
@@ -288,6 +324,8 @@ def closed_loop(seed: int, cases=None, lag_methods=()) -> list[dict]:
         rows.append(row)
         print(f"  {case:28s} {scn:9s} {key:15s} true model without the effect {row['truth'][key]:.4f}  "
               f"baseline {b:.4f}  extended {e:.4f}  ({100 * row['change']:+.1f} %)"
+              + (f"  ideal (true model with the effect) {row['ideal'][key]:.4f}"
+                 if "ideal" in row else "")
               + "".join(f"\n      {n}" for n in notes), flush=True)
     return rows
 

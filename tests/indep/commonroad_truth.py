@@ -66,13 +66,13 @@ GROUPS: dict[str, tuple[str, ...]] = {
     "speed": ("speed",),
     "yaw_rate": ("yaw_rate",),
     "position": ("x", "y", "heading"),
-    "ins": ("yaw_rate", "accel_x", "accel_y", "x", "y", "heading", "gps_speed"),
+    "ins": ("yaw_rate", "accel_x", "accel_y", "x", "y", "z", "heading", "pitch", "gps_speed"),
 }
 
 #: Column order of a canonical recording (../shared/CONVENTIONS.md), for the channels made here.
 COLUMNS = ("time", "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
            "wheel_speed_rr", "speed", "accel_pedal", "brake_pedal", "yaw_rate", "accel_x",
-           "accel_y", "x", "y", "heading", "gps_speed")
+           "accel_y", "x", "y", "z", "heading", "pitch", "gps_speed")
 
 #: [s] integration and driver step (100 Hz; the recording rates divide it).
 SIM_DT_S = 0.01
@@ -169,6 +169,96 @@ REF_POINTS = ("rear", "cog", "front")
 
 
 @dataclass(frozen=True)
+class Effects:
+    """Physics concealed from the report's family, each in this generator's own terms (all off
+    by default). Units in the names; each parameter is given as hmpc's catalogue defines it, so
+    a test can compare the recovered figure with it (the definitions are physics, not hmpc's
+    code: nothing here imports hmpc).
+
+    Actuators: ``pedal_delay_s`` / ``pedal_lag_s`` (the powertrain and brakes act on the pedals
+    late, or through a first-order lag; the recorded pedals are the driver's feet);
+    ``steer_lag_s`` (the road wheels follow the steering wheel through a first-order lag; the
+    dead time is :attr:`Scenario.steer_delay_s`).
+    Steering map: ``rack_cubic_per_rad2`` k3 (road-wheel angle = offset + scale (sw + k3 sw^3),
+    negative: the rack saturates); ``understeer_rad_per_mps2`` K (kinematic model: the road
+    wheels act as delta L / (L + K v^2), the steady state of a linear single-track car with
+    understeer gradient K). For the single-track model with tyres, understeer is not set
+    here but through its tyres (``st_C_Sf`` / ``st_C_Sr``): K = (1/C_Sf - 1/C_Sr) / (mu g)
+    (:func:`st_understeer_gradient`).
+    Resistances (on the zone law's speed): ``drag_per_m`` c (- c v^2), ``roll_per_s`` r (- r v).
+    Road: ``grade_amp_rad`` and ``grade_wavelength_m``: a road profile with grade
+    theta(s) = amp (0.6 sin(2 pi s / lambda) + 0.4 sin(2 pi s / (0.37 lambda) + 1)) along the
+    distance s travelled; gravity adds - g sin(theta) to the acceleration, the INS records the
+    altitude z(s) = int sin(theta) ds and the pitch (nose-up positive: uphill).
+    Idle: ``creep_accel_mps2`` a0 and ``creep_speed_mps`` v_c: a speed-regulating idle torque
+    a0 max(0, 1 - v / v_c) while the throttle the powertrain sees is released.
+    Sensors: ``wheel_scale`` k (CAN wheel speeds, and the speed from them, read k times the
+    truth: a rolling radius 1/k of the ECU's nominal); ``can_clock_offset_s`` c (CAN samples
+    are stamped c later than the INS stamps the same instant: speed_CAN(t) = truth(t - c)).
+    Outside the catalogue: ``gain_factor_second_half`` f (a heavier car: from half the
+    duration on every zone's throttle and brake gains are f times the truth's).
+    """
+
+    pedal_delay_s: float = 0.0
+    pedal_lag_s: float = 0.0
+    steer_lag_s: float = 0.0
+    rack_cubic_per_rad2: float = 0.0
+    understeer_rad_per_mps2: float = 0.0
+    st_C_Sf: float | None = None
+    st_C_Sr: float | None = None
+    drag_per_m: float = 0.0
+    roll_per_s: float = 0.0
+    grade_amp_rad: float = 0.0
+    grade_wavelength_m: float = 300.0
+    creep_accel_mps2: float = 0.0
+    creep_speed_mps: float = 2.0
+    wheel_scale: float = 1.0
+    can_clock_offset_s: float = 0.0
+    gain_factor_second_half: float = 1.0
+
+    def grade_rad(self, s_m):
+        """Road grade [rad] at distance travelled ``s_m``."""
+        w = 2 * np.pi / self.grade_wavelength_m
+        return self.grade_amp_rad * (0.6 * np.sin(w * s_m) + 0.4 * np.sin(w / 0.37 * s_m + 1.0))
+
+
+G_MPS2 = 9.81  # the library's gravity (vehicle_dynamics_st)
+
+
+def st_understeer_gradient(C_Sf: float, C_Sr: float, p=None) -> float:
+    """Understeer gradient K [rad/(m/s^2)] of the single-track model with tyres: axle cornering
+    stiffnesses C_f = mu C_Sf m g l_r / L, C_r = mu C_Sr m g l_f / L [N/rad] (static loads) in
+    K = m / L (l_r / C_f - l_f / C_r) = (1 / C_Sf - 1 / C_Sr) / (mu g)."""
+    p = p or vehicle_params()
+    return (1.0 / C_Sf - 1.0 / C_Sr) / (p.tire.p_dy1 * G_MPS2)
+
+
+def st_C_Sf_for(K: float, p=None) -> float:
+    """Front C_Sf [1/rad] giving understeer gradient K with the library's rear C_Sr."""
+    p = p or vehicle_params()
+    C_Sr = -p.tire.p_ky1 / p.tire.p_dy1
+    return 1.0 / (K * p.tire.p_dy1 * G_MPS2 + 1.0 / C_Sr)
+
+
+def _st_rhs(x, u, p, C_Sf, C_Sr):
+    """``vehicle_dynamics_st`` with separate front and rear cornering coefficients (the library
+    takes both from ``p.tire.p_ky1``); the same equations, including its kinematic switch
+    below 0.1 m/s, which is delegated to the library."""
+    if abs(x[3]) < 0.1:
+        return vehicle_dynamics_st(x, u, p)
+    g, mu = G_MPS2, p.tire.p_dy1
+    lf, lr, h, m, I = p.a, p.b, p.h_s, p.m, p.I_z
+    u1, u2 = u
+    Ff, Fr = C_Sf * (g * lr - u2 * h), C_Sr * (g * lf + u2 * h)
+    L = lr + lf
+    return [x[3] * math.cos(x[6] + x[4]), x[3] * math.sin(x[6] + x[4]), u1, u2, x[5],
+            -mu * m / (x[3] * I * L) * (lf ** 2 * Ff + lr ** 2 * Fr) * x[5]
+            + mu * m / (I * L) * (lr * Fr - lf * Ff) * x[6] + mu * m / (I * L) * lf * Ff * x[2],
+            (mu / (x[3] ** 2 * L) * (Fr * lr - Ff * lf) - 1) * x[5]
+            - mu / (x[3] * L) * (Fr + Ff) * x[6] + mu / (x[3] * L) * Ff * x[2]]
+
+
+@dataclass(frozen=True)
 class Scenario:
     """One recording: model family, reference point of the INS, duration, seed, sensors."""
 
@@ -192,6 +282,8 @@ class Scenario:
     #: [s] steering dead time: the road wheels follow the recorded steering-wheel angle this
     #: much later (a multiple of the 10 ms step; 0 = the report's family, no dead time).
     steer_delay_s: float = 0.0
+    #: concealed physics (:class:`Effects`; none by default)
+    effects: Effects = field(default_factory=Effects)
 
 
 def vehicle_params():
@@ -369,6 +461,9 @@ class Run:
     accel_truth: np.ndarray    # zone law's acceleration [m/s^2] applied over the step
     model: str
     accel_point: str = "front"
+    s: np.ndarray | None = None        # distance travelled [m] (rear axle / CoG)
+    ap_eff: np.ndarray | None = None   # pedals as the powertrain and brakes act on them
+    bp_eff: np.ndarray | None = None
 
 
 def _rk4(f, x, h):
@@ -379,6 +474,27 @@ def _rk4(f, x, h):
     return [xi + h / 6.0 * (a + 2 * b + 2 * c + d) for xi, a, b, c, d in zip(x, k1, k2, k3, k4)]
 
 
+def _lag(x: np.ndarray, tau_s: float, dt: float) -> np.ndarray:
+    """First-order lag 1 / (tau s + 1) of a signal held over each step (exact discretisation),
+    starting at rest on its first value."""
+    if tau_s <= 0:
+        return x
+    al = 1.0 - math.exp(-dt / tau_s)
+    out = np.empty_like(x)
+    y = x[0]
+    for i in range(len(x)):
+        out[i] = y          # the output during step i: what the lag has reached so far
+        y = y + al * (x[i] - y)
+    return out
+
+
+def _steps(name: str, value_s: float, dt: float) -> int:
+    k = int(round(value_s / dt))
+    if abs(k * dt - value_s) > 1e-9:
+        raise ValueError(f"{name} must be a multiple of {dt} s, got {value_s}")
+    return k
+
+
 def simulate(sc: Scenario) -> Run:
     """Integrate the CommonRoad model under the PI driver (seeded by ``sc.seed``)."""
     if sc.model not in ("ks", "st"):
@@ -387,30 +503,64 @@ def simulate(sc: Scenario) -> Run:
         raise ValueError(f"accel_point must be 'front' or 'rear', got {sc.accel_point!r}")
     rng = np.random.default_rng(sc.seed)
     p = vehicle_params()
+    fx = sc.effects
     dt = SIM_DT_S
+    L = p.a + p.b
     n = int(round(sc.duration_s / dt)) + 1
     v_ref, a_ref, sw, dither = _driver_profiles(sc, n, rng)
     tr = sc.truth
-    k_delay = int(round(sc.steer_delay_s / dt))
-    if k_delay < 0 or abs(k_delay * dt - sc.steer_delay_s) > 1e-9:
-        raise ValueError(f"steer_delay_s must be a non-negative multiple of {dt} s, "
-                         f"got {sc.steer_delay_s}")
+    k_delay = _steps("steer_delay_s", sc.steer_delay_s, dt)
+    if k_delay < 0:
+        raise ValueError(f"steer_delay_s must be non-negative, got {sc.steer_delay_s}")
     sw_wheels = np.concatenate([np.full(k_delay, sw[0]), sw[:n - k_delay]]) if k_delay else sw
-    delta = tr.steer_offset_rad + tr.steer_scale * sw_wheels
-    d_rate = np.append(np.diff(delta) / dt, 0.0)
-    if np.max(np.abs(d_rate)) > p.steering.v_max:
+    sw_wheels = _lag(sw_wheels, fx.steer_lag_s, dt)
+    sw_rack = sw_wheels + fx.rack_cubic_per_rad2 * sw_wheels ** 3
+    delta_map = tr.steer_offset_rad + tr.steer_scale * sw_rack
+    d_rate_map = np.append(np.diff(delta_map) / dt, 0.0)
+    if np.max(np.abs(d_rate_map)) > p.steering.v_max:
         raise ValueError("steering schedule faster than the model's steering-rate limit")
-    if np.max(np.abs(delta)) > p.steering.max:
+    if np.max(np.abs(delta_map)) > p.steering.max:
         raise ValueError("steering schedule beyond the model's steering-angle limit")
+    K_us = fx.understeer_rad_per_mps2 if sc.model == "ks" else 0.0
+    if sc.model == "ks" and (fx.st_C_Sf is not None or fx.st_C_Sr is not None):
+        raise ValueError("st_C_Sf / st_C_Sr are tyre parameters of the model 'st'")
+    if sc.model == "st" and fx.understeer_rad_per_mps2:
+        raise ValueError("the model 'st' understeers through its tyres (st_C_Sf, st_C_Sr)")
+    C_lib = -p.tire.p_ky1 / p.tire.p_dy1
+    C_Sf = C_lib if fx.st_C_Sf is None else fx.st_C_Sf
+    C_Sr = C_lib if fx.st_C_Sr is None else fx.st_C_Sr
+    k_ped = _steps("pedal_delay_s", fx.pedal_delay_s, dt)
+    al_ped = 1.0 - math.exp(-dt / fx.pedal_lag_s) if fx.pedal_lag_s > 0 else 1.0
+    t_change = 0.5 * sc.duration_s
     driver = PIDriver(dt)
     nx = 5 if sc.model == "ks" else 7
     X = np.zeros((n, nx))
     x = [0.0] * nx
-    x[2] = delta[0]
-    ap_a, bp_a, vF_a, acc_a = (np.zeros(n) for _ in range(4))
+    x[2] = delta_map[0]
+    ap_a, bp_a, vF_a, acc_a, s_a, delta, d_rate = (np.zeros(n) for _ in range(7))
+    ape_a, bpe_a = np.zeros(n), np.zeros(n)
+    pe = [0.0, 0.0]      # pedals as the powertrain and brakes see them (after delay, lag)
+    s_m = 0.0
+
+    def law(v, ap, bp, zi, gf, s_now):
+        """The applied acceleration [m/s^2] on the zone law's speed ``v``."""
+        a0 = tr.accel_mps2(v, 0.0, 0.0, zi)
+        a = a0 + gf * (tr.accel_mps2(v, ap, bp, zi) - a0)
+        a -= fx.drag_per_m * v * v + fx.roll_per_s * v
+        if fx.creep_accel_mps2 and ap < 0.01:
+            a += fx.creep_accel_mps2 * max(0.0, 1.0 - v / fx.creep_speed_mps)
+        if fx.grade_amp_rad:
+            a -= G_MPS2 * math.sin(float(fx.grade_rad(s_now)))
+        return a
+
+    def steer_eff(i, v_rear):
+        return delta_map[i] * L / (L + K_us * v_rear * v_rear) if K_us else delta_map[i]
+
     for i in range(n):
+        delta[i] = steer_eff(i, x[3])
         x[2] = float(delta[i])  # the steering state is the truth map exactly (piecewise linear)
         X[i] = x
+        s_a[i] = s_m
         if sc.model == "ks":
             vF = x[3] / math.cos(x[2])
         else:
@@ -418,35 +568,47 @@ def simulate(sc: Scenario) -> Run:
         v_law = vF if sc.model == "ks" and sc.accel_point == "front" else x[3]
         ap, bp = driver.step(v_ref[i], a_ref[i], v_law, dither[i])
         ap_a[i], bp_a[i], vF_a[i] = ap, bp, vF
+        j = i - k_ped
+        ap_d, bp_d = (ap_a[j], bp_a[j]) if j >= 0 else (0.0, 0.0)
+        pe[0] += al_ped * (ap_d - pe[0]) if fx.pedal_lag_s > 0 else ap_d - pe[0]
+        pe[1] += al_ped * (bp_d - pe[1]) if fx.pedal_lag_s > 0 else bp_d - pe[1]
+        ape, bpe = pe
+        ape_a[i], bpe_a[i] = ape, bpe
+        gf = fx.gain_factor_second_half if i * dt >= t_change else 1.0
         zi = tr.zone_index(v_law)  # the zone holds over the step (no blend inside RK4)
-        acc_a[i] = tr.accel_mps2(v_law, ap, bp, zi)
+        s_now = s_m
+        acc_a[i] = law(v_law, ape, bpe, zi, gf, s_now)
         if i == n - 1:
             break
-        u1 = float(d_rate[i])
+        u1 = float(steer_eff(i + 1, x[3]) - delta[i]) / dt
+        d_rate[i] = u1
         if sc.model == "ks" and sc.accel_point == "rear":
-            def f(xs, ap=ap, bp=bp, u1=u1, zi=zi):
-                u2 = tr.accel_mps2(xs[3], ap, bp, zi)
+            def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf):
+                u2 = law(xs[3], ape, bpe, zi, gf, s_now)
                 if xs[3] <= 0.0 and u2 < 0.0:
                     u2 = 0.0
                 return vehicle_dynamics_ks(xs, [u1, u2], p)
         elif sc.model == "ks":
-            def f(xs, ap=ap, bp=bp, u1=u1, zi=zi):
+            def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf):
                 vf = xs[3] / math.cos(xs[2])
-                a = tr.accel_mps2(vf, ap, bp, zi)
+                a = law(vf, ape, bpe, zi, gf, s_now)
                 u2 = a * math.cos(xs[2]) - vf * math.sin(xs[2]) * u1
                 if xs[3] <= 0.0 and u2 < 0.0:
                     u2 = 0.0
                 return vehicle_dynamics_ks(xs, [u1, u2], p)
         else:
-            def f(xs, ap=ap, bp=bp, u1=u1, zi=zi):
-                a = tr.accel_mps2(xs[3], ap, bp, zi)
-                return vehicle_dynamics_st(xs, [u1, a], p)
+            def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf):
+                a = law(xs[3], ape, bpe, zi, gf, s_now)
+                if xs[3] <= 0.0 and a < 0.0:
+                    a = 0.0
+                return _st_rhs(xs, [u1, a], p, C_Sf, C_Sr)
         nsub = 1
         if sc.model == "st" and 0.1 <= x[3] < 1.5:
             # the tyre terms' eigenvalues grow as ~ -215/v [1/s] (parameter set 2), and RK4 is
             # stable for h |lambda| < 2.78: substeps of at most 0.01 v [s] keep it well inside
             nsub = int(math.ceil(dt / (0.01 * x[3] + 1e-4)))
         h = dt / nsub
+        v0 = x[3]
         for _ in range(nsub):
             x = _rk4(f, x, h)
             if x[3] < 0.0:
@@ -454,13 +616,14 @@ def simulate(sc: Scenario) -> Run:
                 if sc.model == "st":
                     x[5] = 0.0
                     x[6] = 0.0
+        s_m += 0.5 * (v0 + x[3]) * dt
     # the library's acceleration limits must never bind, or the truth would not be the law
     lon = p.longitudinal
     pos_limit = lon.a_max * lon.v_switch / np.maximum(X[:, 3], lon.v_switch)
     if np.any(acc_a > 0.9 * pos_limit) or np.any(acc_a < -0.9 * lon.a_max):
         raise ValueError("the zone law reaches the model's acceleration limits")
     return Run(np.arange(n) * dt, X, delta, d_rate, sw, ap_a, bp_a, vF_a, acc_a, sc.model,
-               sc.accel_point)
+               sc.accel_point, s_a, ape_a, bpe_a)
 
 
 def _kinematics(run: Run, p, ref_xy):
@@ -538,16 +701,19 @@ def record(sc: Scenario, run: Run | None = None) -> dict[str, np.ndarray]:
     every = int(round(1.0 / (sen.rate_hz * SIM_DT_S)))
     idx = np.arange(0, len(run.t), every)
     rng = np.random.default_rng(sc.seed + 1_000_003)
+    fx = sc.effects
     ch: dict[str, np.ndarray] = {"time": run.t[idx]}
-    ch["steering_wheel_angle"] = _steer_can_rad(run.sw[idx], sen.sw_coarse_deg, sen.sw_fine_deg)
-    wsq = {k: _quantise(np.maximum(v[idx], 0.0), sen.wheel_speed_step_mps)
-           for k, v in kin["wheels"].items()}
+    # CAN samples stamped at t hold the car at t - c (c = CAN clock minus INS clock)
+    k_off = int(round(fx.can_clock_offset_s / SIM_DT_S))
+    ic = np.clip(idx - k_off, 0, len(run.t) - 1)
+    ch["steering_wheel_angle"] = _steer_can_rad(run.sw[ic], sen.sw_coarse_deg, sen.sw_fine_deg)
+    ws_true = {k: fx.wheel_scale * np.maximum(v[ic], 0.0) for k, v in kin["wheels"].items()}
+    wsq = {k: _quantise(v, sen.wheel_speed_step_mps) for k, v in ws_true.items()}
     for k in ("fl", "fr", "rl", "rr"):
         ch[f"wheel_speed_{k}"] = wsq[k]
-    ch["speed"] = _quantise(np.mean([np.maximum(v[idx], 0.0) for v in kin["wheels"].values()],
-                                    axis=0), sen.wheel_speed_step_mps)
-    ch["accel_pedal"] = _quantise(run.ap[idx], sen.pedal_step)
-    ch["brake_pedal"] = _quantise(run.bp[idx], sen.brake_step)
+    ch["speed"] = _quantise(np.mean(list(ws_true.values()), axis=0), sen.wheel_speed_step_mps)
+    ch["accel_pedal"] = _quantise(run.ap[ic], sen.pedal_step)
+    ch["brake_pedal"] = _quantise(run.bp[ic], sen.brake_step)
     m = len(idx)
     ch["yaw_rate"] = kin["yaw_rate"][idx] + sen.yaw_noise_radps * rng.standard_normal(m)
     ch["accel_x"] = kin["ax"][idx] + sen.accel_noise_mps2 * rng.standard_normal(m)
@@ -558,6 +724,13 @@ def record(sc: Scenario, run: Run | None = None) -> dict[str, np.ndarray]:
     ch["heading"] = np.angle(np.exp(1j * hd))  # wrapped to (-pi, pi]
     ch["gps_speed"] = np.hypot(kin["vx"][idx], kin["vy"][idx]) \
         + sen.gps_speed_noise_mps * rng.standard_normal(m)
+    if fx.grade_amp_rad and run.s is not None:
+        # the road profile: altitude z(s) = int sin(theta) ds, pitch = theta (nose up uphill)
+        th = fx.grade_rad(run.s)
+        z = np.concatenate([[0.0], np.cumsum(np.diff(run.s) * np.sin(0.5 * (th[1:] + th[:-1])))])
+        rz = np.random.default_rng(sc.seed + 2_000_003)
+        ch["z"] = z[idx] + sen.pos_noise_m * rz.standard_normal(m)
+        ch["pitch"] = th[idx] + sen.heading_noise_rad * rz.standard_normal(m)
     for g in sen.omit:
         for c in GROUPS[g]:
             ch.pop(c, None)
@@ -601,6 +774,7 @@ def scenario(truth: str = "A", *, seed: int | None = None, **kw) -> Scenario:
                     sensors=Sensors(**{**sens, "omit": frozenset(sens.get("omit", ()))}), **kw)
 
 
-__all__ = ["GROUPS", "TRUTHS", "Truth", "ZoneTruth", "Sensors", "Scenario", "REF_POINTS",
+__all__ = ["GROUPS", "TRUTHS", "Truth", "ZoneTruth", "Sensors", "Scenario", "REF_POINTS", "Effects",
+           "st_understeer_gradient", "st_C_Sf_for",
            "simulate", "record", "write_recording", "write_geometry", "geometry", "make",
            "scenario", "lever_arm_m", "vehicle_params", "SIM_DT_S"]
