@@ -58,3 +58,27 @@ def test_report_renders_in_headless_chromium(report_dir, tmp_path):
     srcs = re.findall(r'<img src="([^"]+)"', dom)
     assert len(srcs) >= 4, dom[:500]
     assert all((report_dir / s).exists() for s in srcs)
+
+
+def test_report_names_units_times_and_what_each_figure_compares(report_dir):
+    html = (report_dir / "index.html").read_text()
+    # the hypotheses table has a unit column, and each tested row's unit is its channel's
+    table = html.split("All hypotheses tested", 1)[1]
+    assert "<th>unit</th>" in table
+    rows = re.findall(r"<tr><td>([^<]+)</td><td>([^<]+)</td><td>([^<]+)</td><td>([^<]+)</td>",
+                      table)
+    units = {"speed": "m/s", "heading": "rad", "accel": "m/s^2", "position": "m",
+             "speed_vs_gnss": "m/s", "road_wheel_angle": "rad"}
+    tested = [r for r in rows if r[2] != "-"]
+    assert tested and all(r[3] == units[r[2]] for r in tested), rows
+    # the page says which clock its times are in
+    text = " ".join(re.sub(r"<[^>]+>", "", html).split())
+    assert "seconds since the start of the recording" in text and "epoch seconds" in text
+    # "before and after" only for channels a finding changes
+    titles = re.findall(r"<h3>([^<]*over time[^<]*)</h3>", html)
+    assert any("before and after" in t for t in titles)
+    for t in titles:
+        if t.startswith("speed free-run"):  # the aero_drag finding is on the speed channel
+            assert "before and after" in t
+        else:
+            assert "baseline only" in t, t

@@ -2,14 +2,23 @@
 
 - ``fig2_steering.png`` (Fig. 2): turn rate from the front wheel-speed difference (eq. 5),
   the front wheel speeds, the steering-wheel angle, and the model's road-wheel angle (eq. 7)
-  against the angle from the wheel speeds (eqs. 2-6) and from the yaw rate.
-- ``steering_replay.png``: measured track against the eq. 1 replay windows (the refinement).
+  against the angle from the wheel speeds (eqs. 2-6) and from the yaw rate. The measured
+  angles are not drawn below the fit's minimum speed (they divide by the speed), and the
+  angle panels are scaled to the samples the fit trusts: anything beyond is clipped, counted
+  in the panel title.
+- ``steering_replay.png``: measured track against the eq. 1 replay windows (the refinement),
+  and the position error of the replay against time (on a long, nearly straight road the path
+  panel cannot show errors of a few decimetres).
 - ``fig3_idle.png``, ``fig4_low.png``, ``fig5_high.png`` (Figs. 3-5; one per zone, named by
   zone order for the default zones, ``zone_<name>.png`` otherwise): upper panel accelerator
   pedal, brake and speed; lower panels measured against modelled acceleration (eq. 8) and the
-  speed reconstructed from the model.
+  speed reconstructed from the model. The time axis holds only the zone's samples: runs of
+  zone samples more than ``JOIN_GAP_S`` apart are joined, the cuts marked by dotted lines
+  labelled with the run's start time.
 
-Plotting only: every number comes from the identification result.
+Plotting only: every number comes from the identification result. ``steering_figure``,
+``replay_figure`` and ``zone_figure`` return the figure (tests inspect its axes); the
+``plot_*`` functions write it.
 """
 from __future__ import annotations
 
@@ -17,10 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
+from hmpc.models.identify.steering import SteeringIdConfig
 from hmpc.models.report.figure import new_figure, save_png
 
 
 _REPORT_FIG = {0: "fig3", 1: "fig4", 2: "fig5"}
+#: [s] zone samples closer than this stay on one stretch of the time axis; longer gaps are cut.
+JOIN_GAP_S = 2.0
 
 
 def _t(series) -> np.ndarray:
@@ -28,67 +40,171 @@ def _t(series) -> np.ndarray:
     return t - t[0]
 
 
-def plot_steering(result, path: str | Path) -> str:
-    """Fig. 2: the steering model against the two measured road-wheel angles."""
+def _legend_right(ax, **kw) -> None:
+    """Legend outside the axes, to their right: never over the data."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, borderaxespad=0.0, **kw)
+
+
+def _legend_above(ax, handles=None, ncol: int = 4) -> None:
+    """Legend in one row just above the axes: never over the data."""
+    kw = {} if handles is None else {"handles": handles}
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.01), ncol=ncol, fontsize=8,
+              frameon=False, borderaxespad=0.0, **kw)
+
+
+def _trusted_limits(arrays, trust, pad: float = 0.1) -> tuple[float, float] | None:
+    """(low, high) spanning ``arrays`` on the trusted samples, padded by ``pad`` of the span."""
+    vals = np.concatenate([np.asarray(a, float)[trust] for a in arrays if a is not None])
+    vals = vals[np.isfinite(vals)]
+    if vals.size == 0:
+        return None
+    lo, hi = float(vals.min()), float(vals.max())
+    span = max(hi - lo, 1e-3 * max(abs(lo), abs(hi)), 1e-6)
+    return lo - pad * span, hi + pad * span
+
+
+def steering_figure(result):
+    """Fig. 2 as a figure: the steering model against the two measured road-wheel angles."""
     s = result.steering.series
     t = _t(s)
     st = result.steering
-    fig, ax = new_figure(5, 1, figsize=(10, 11), sharex=True)
+    fig, ax = new_figure(5, 1, figsize=(12, 11.5), sharex=True)
     ax[0].plot(t, s["turn_rate_wheels_radps"], lw=0.7)
-    ax[0].set_ylabel("turn rate, eq. 5 [rad/s]")
-    ax[0].set_title("front wheel-speed difference / track width")
-    ax[1].plot(t, s["wheel_speed_fl"], lw=0.7, label="front left")
-    ax[1].plot(t, s["wheel_speed_fr"], lw=0.7, label="front right")
+    ax[0].set_ylabel("turn rate, eq. 5\n[rad/s]")
+    ax[0].set_title("front wheel-speed difference / track width", fontsize=10)
+    fl = np.asarray(s["wheel_speed_fl"], float)
+    fr = np.asarray(s["wheel_speed_fr"], float)
+    ax[1].plot(t, fl, lw=0.7, label="front left")
+    ax[1].plot(t, fr, lw=0.7, label="front right")
     ax[1].set_ylabel("wheel speed [m/s]")
-    ax[1].legend(loc="upper right", fontsize=8)
+    _legend_right(ax[1])
     ax[2].plot(t, np.degrees(s["steering_wheel_angle"]), lw=0.7)
-    ax[2].set_ylabel("steering-wheel angle [deg]")
+    ax[2].set_ylabel("steering-wheel\nangle [deg]")
     trust = np.asarray(s["trustworthy"], dtype=bool)
     model = np.degrees(s["delta_model_rad"])
-    ax[3].plot(t, np.degrees(s["delta_wheels_rad"]), lw=0.5, color="0.6",
-               label="from wheel speeds (eqs. 2-6)")
-    ax[3].plot(t, np.where(trust, model, np.nan), lw=1.0, color="C3", label="model (eq. 7)")
-    ax[3].set_ylabel("road-wheel angle [deg]")
-    ax[3].legend(loc="upper right", fontsize=8)
-    if s.get("delta_yaw_rad") is not None:
-        ax[4].plot(t, np.degrees(s["delta_yaw_rad"]), lw=0.5, color="0.6",
-                   label="from yaw rate, atan(L r / v)")
-    ax[4].plot(t, np.where(trust, model, np.nan), lw=1.0, color="C3", label="model (eq. 7)")
-    ax[4].set_ylabel("road-wheel angle [deg]")
+    # the measured angles divide by the speed: below the fit's minimum speed they are noise
+    v_min = SteeringIdConfig().v_min_mps
+    with np.errstate(invalid="ignore"):
+        v_front = 0.5 * (fl + fr)
+        slow = v_front < v_min
+    have_speed = bool(np.isfinite(v_front).any())
+    measured = [("from wheel speeds (eqs. 2-6)", s.get("delta_wheels_rad")),
+                ("from yaw rate, atan(L r / v)", s.get("delta_yaw_rad"))]
+    for a, (label, meas) in zip(ax[3:], measured):
+        m = None if meas is None else np.degrees(np.asarray(meas, float))
+        if m is not None and np.isfinite(m).any():
+            a.plot(t, np.where(slow, np.nan, m), lw=0.5, color="0.6", label=label)
+        a.plot(t, np.where(trust, model, np.nan), lw=1.0, color="C3", label="model (eq. 7)")
+        a.set_ylabel("road-wheel\nangle [deg]")
+        lim = _trusted_limits([model] + ([] if m is None else [m]), trust)
+        notes = [f"below {v_min:g} m/s not shown"] if have_speed else []
+        if lim is not None:
+            a.set_ylim(*lim)
+            if m is not None:
+                with np.errstate(invalid="ignore"):
+                    off = int(np.sum(~slow & ((m < lim[0]) | (m > lim[1]))))
+                if off:
+                    notes.append(f"{off} untrusted samples beyond the fitted range clipped")
+        a.set_title(f"road-wheel angle {label.split(',')[0]} vs model"
+                    + (f" ({'; '.join(notes)})" if notes else ""), fontsize=9)
+        _legend_right(a)
     ax[4].set_xlabel("time [s]")
-    ax[4].legend(loc="upper right", fontsize=8)
     for a in ax:
         a.grid(True, alpha=0.3)
     verdict = "identifiable" if st.identifiable else "NOT identifiable"
-    fig.suptitle(f"steering map: offset {st.offset_rad:+.4f} rad "
+    fig.suptitle(f"steering map (eq. 7): offset {st.offset_rad:+.4f} rad "
                  f"[{st.offset_ci95_rad[0]:+.4f}, {st.offset_ci95_rad[1]:+.4f}], scale "
-                 f"{st.scale:.4f} [{st.scale_ci95[0]:.4f}, {st.scale_ci95[1]:.4f}] "
-                 f"({st.method}, {verdict}); model shown on trustworthy samples", fontsize=9)
-    return _save(fig, path)
+                 f"{st.scale:.4f} [{st.scale_ci95[0]:.4f}, {st.scale_ci95[1]:.4f}]\n"
+                 f"method {st.method}, {verdict}; model shown on trustworthy samples",
+                 fontsize=10)
+    return fig
 
 
-def plot_replay(result, path: str | Path) -> str | None:
-    """Measured track and the eq. 1 replay windows of the refinement (None without positions)."""
+def plot_steering(result, path: str | Path) -> str:
+    """Write Fig. 2 (:func:`steering_figure`)."""
+    return _save(steering_figure(result), path)
+
+
+def replay_figure(result):
+    """Measured track and the eq. 1 replay windows, and the replay's position error against
+    time (None without positions)."""
     rp = result.steering.series.get("replay")
     if rp is None:
         return None
-    fig, ax = new_figure(figsize=(8, 8))
-    ax.plot(rp["x"], rp["y"], lw=0.8, color="0.5", label="measured (INS/GNSS)")
-    ax.plot(rp["x_pred"], rp["y_pred"], lw=1.0, color="C3", label="eq. 1 replay from each window start")
-    ax.set_xlabel("east x [m]")
-    ax.set_ylabel("north y [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    t = _t(result.steering.series)
+    x, y = np.asarray(rp["x"], float), np.asarray(rp["y"], float)
+    xp, yp = np.asarray(rp["x_pred"], float), np.asarray(rp["y_pred"], float)
+    err = np.hypot(xp - x, yp - y)
+    # each window starts on the measured position (error 0): no line joins it to the window before
+    err_line = np.where(np.isfinite(err) & (err < 1e-9), np.nan, err)
+    fig, ax = new_figure(1, 2, figsize=(14, 6), gridspec_kw={"width_ratios": [1, 1.4]})
+    ax[0].plot(x, y, lw=0.8, color="0.5", label="measured (INS/GNSS)")
+    ax[0].plot(xp, yp, lw=1.0, color="C3", label="eq. 1 replay from each window start")
+    ax[0].set_xlabel("east x [m]")
+    ax[0].set_ylabel("north y [m]")
+    ax[0].set_aspect("equal", adjustable="datalim")
+    ax[0].legend(loc="best", fontsize=8)
+    ax[1].plot(t, err_line, lw=1.0, color="C3")
+    ax[1].set_xlabel("time [s]")
+    ax[1].set_ylabel("position error of the replay [m]")
+    ax[1].set_title("distance between replayed and measured position "
+                    "(each window restarts at 0)", fontsize=10)
+    ax[1].set_ylim(bottom=0.0)
+    for a in ax:
+        a.grid(True, alpha=0.3)
     fit = result.steering.fits.get("position_replay")
     if fit is not None:
-        ax.set_title(f"position replay: rms position error {fit.rms_error:.3f} m over "
-                     f"{fit.extra['windows']} windows of {fit.extra['window_s']:g} s")
-    return _save(fig, path)
+        fig.suptitle(f"position replay: rms position error {fit.rms_error:.3f} m over "
+                     f"{fit.extra['windows']} windows of {fit.extra['window_s']:g} s", fontsize=11)
+    return fig
 
 
-def plot_zone(result, zone_index: int, path: str | Path) -> str | None:
-    """Figs. 3-5: one zone's inputs, measured vs modelled acceleration, reconstructed speed."""
+def plot_replay(result, path: str | Path) -> str | None:
+    """Write the replay figure (:func:`replay_figure`; None without positions)."""
+    fig = replay_figure(result)
+    return None if fig is None else _save(fig, path)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) index pairs of the runs of True in ``mask``."""
+    idx = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return list(zip(idx[::2].tolist(), idx[1::2].tolist()))
+
+
+def zone_axis(t: np.ndarray, used: np.ndarray, join_gap_s: float = JOIN_GAP_S):
+    """The time axis of a zone figure: (x per sample, NaN off the zone's stretches;
+    [(x where a stretch starts, its real start time [s])], empty for a single stretch).
+
+    Runs of zone samples less than ``join_gap_s`` apart form one stretch (drawn with the
+    samples between them); stretches are laid end to end with a small break between them."""
+    x = np.full(len(t), np.nan)
+    runs = _runs(used)
+    if not runs:
+        return x, []
+    stretches = [list(runs[0])]
+    for a, e in runs[1:]:
+        if t[a] - t[stretches[-1][1] - 1] < join_gap_s:
+            stretches[-1][1] = e
+        else:
+            stretches.append([a, e])
+    total = sum(t[e - 1] - t[a] for a, e in stretches)
+    brk = max(0.02 * total, float(np.median(np.diff(t))) * 2)
+    off, cuts = 0.0, []
+    for k, (a, e) in enumerate(stretches):
+        if k:
+            off += brk
+        cuts.append((off - 0.5 * brk if k else 0.0, float(t[a])))
+        x[a:e] = off + (t[a:e] - t[a])
+        off += t[e - 1] - t[a]
+    if len(stretches) == 1:  # one stretch: keep the real time
+        x[stretches[0][0]:stretches[0][1]] += t[stretches[0][0]]
+        cuts = []
+    return x, cuts
+
+
+def zone_figure(result, zone_index: int):
+    """Figs. 3-5 as a figure: one zone's inputs, measured vs modelled acceleration,
+    reconstructed speed (None when the zone has no model series)."""
     lo = result.longitudinal
     s = lo.series
     z = lo.zones[zone_index]
@@ -97,59 +213,94 @@ def plot_zone(result, zone_index: int, path: str | Path) -> str | None:
         return None
     t = _t(s)
     used = np.asarray(s["used"], dtype=bool) & (np.asarray(s["zone"]) == zone_index)
-    a_meas = np.where(used, s["a_meas_mps2"], np.nan)
-    a_mod = np.where(used, a_model_all, np.nan)
-    fig, ax = new_figure(3, 1, figsize=(10, 8), sharex=True)
-    ax[0].plot(t, s["accel_pedal"], lw=0.8, label="accelerator pedal [0..1]")
+    nm = "n/a" if z.nmse_pct is None else f"{z.nmse_pct:.1f}%"
+    sr = "n/a" if z.speed_rmse_mps is None else f"{z.speed_rmse_mps:.3f} m/s"
+    title = (f"zone {z.name} ({z.v_min_mps:g}, {z.v_max_mps:g}] m/s: a = "
+             f"{z.offset_mps2:+.3f} + {z.scale_mps2:.3f} accel - {z.brake_scale_mps2:.3f} "
+             f"brake [m/s^2]\nNMSE {nm}, speed RMSE {sr}"
+             f"{'' if z.identifiable else ' (NOT identifiable)'}")
+    dt = float(np.median(np.diff(s["time"])))
+    fig, ax = new_figure(3, 1, figsize=(11, 9), sharex=True)
+    if not used.any():
+        x, cuts = t, []
+        ax[2].set_xlabel("time [s]")
+        for a in ax[1:]:
+            a.text(0.5, 0.5, f"no samples in zone {z.name} ({z.v_min_mps:g}, "
+                   f"{z.v_max_mps:g}] m/s", transform=a.transAxes, ha="center", va="center")
+        title += "; NO SAMPLES in this zone"
+    else:
+        x, cuts = zone_axis(t, used)
+        n_s = used.sum() * dt
+        ax[2].set_xlabel(f"time [s] ({n_s:.1f} s of zone samples)" if not cuts else
+                         f"time within the zone's stretches [s] ({n_s:.1f} s of zone samples; "
+                         f"gaps cut at the dotted lines, labelled with the real start time)")
+    # upper panel: the inputs and the speed on the zone's stretches
+    h = ax[0].plot(x, s["accel_pedal"], lw=0.8, label="accelerator pedal [0..1]")
     if s.get("brake_pedal") is not None:
-        ax[0].plot(t, s["brake_pedal"], lw=0.8, label="brake pedal [0..1]")
+        h += ax[0].plot(x, s["brake_pedal"], lw=0.8, label="brake pedal [0..1]")
     ax0b = ax[0].twinx()
-    ax0b.plot(t, s["v_mps"], lw=0.8, color="k", label="speed")
-    ax0b.axhspan(z.v_min_mps, z.v_max_mps, color="C2", alpha=0.08)
+    h += ax0b.plot(x, s["v_mps"], lw=0.8, color="k", label="speed [m/s]")
+    h.append(ax0b.axhspan(z.v_min_mps, z.v_max_mps, color="C2", alpha=0.08,
+                          label="zone speed range"))
     ax0b.set_ylabel("speed [m/s]")
     ax[0].set_ylabel("pedal [0..1]")
-    ax[0].legend(loc="upper left", fontsize=8)
-    ax[1].plot(t, a_meas, lw=0.8, color="0.4", label="measured")
-    ax[1].plot(t, a_mod, lw=1.0, color="C3", label="model (eq. 8 + brake)")
+    _legend_above(ax[0], handles=h)
+    if used.any():
+        a_meas = np.where(used, s["a_meas_mps2"], np.nan)
+        a_mod = np.where(used, a_model_all, np.nan)
+        ax[1].plot(x, a_meas, lw=0.8, color="0.4", label="measured")
+        ax[1].plot(x, a_mod, lw=1.0, color="C3", label="model (eq. 8 + brake)")
+        _legend_above(ax[1])
+        tt, vv = _reconstructed_speed(lo, z, s, used, x, dt)
+        ax[2].plot(x, np.where(used, s["v_mps"], np.nan), lw=0.8, color="0.4", label="measured")
+        ax[2].plot(tt, vv, lw=1.0, color="C3",
+                   label="integrated from the model (restarted every run / 10 s)")
+        _legend_above(ax[2])
+        lo_x, hi_x = float(np.nanmin(x[used])), float(np.nanmax(x[used]))
+        pad = max(0.01 * (hi_x - lo_x), dt)
+        ax[2].set_xlim(lo_x - pad, hi_x + pad)
     ax[1].set_ylabel("acceleration [m/s^2]")
-    ax[1].legend(loc="upper right", fontsize=8)
-    # speed reconstructed over runs of zone samples (as speed_rmse_mps)
+    ax[2].set_ylabel("speed [m/s]")
+    for k, (xc, t_start) in enumerate(cuts[:12]):
+        if k:
+            for a in ax:
+                a.axvline(xc, color="0.3", ls=":", lw=0.8)
+        ax[2].annotate(f"{t_start:.1f} s", (xc, 0.0), xycoords=("data", "axes fraction"),
+                       xytext=(2, 2), textcoords="offset points", fontsize=7, color="0.3")
+    for a in ax:
+        a.grid(True, alpha=0.3)
+    fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def _reconstructed_speed(lo, z, s, used, x, dt):
+    """Speed integrated from the zone model over runs of zone samples, restarted from the
+    measured speed every run and every 10 s (as ``speed_rmse_mps``): (x, v) with NaN breaks."""
     v = np.asarray(s["v_mps"], dtype=float)
     ap = np.nan_to_num(np.asarray(s["accel_pedal"], dtype=float))
     bp = np.zeros_like(ap) if s.get("brake_pedal") is None else \
         np.nan_to_num(np.asarray(s["brake_pedal"], dtype=float))
-    dt = float(np.median(np.diff(s["time"])))
-    tau = lo.dead_time_s
-    shift = int(round(tau / dt))
+    shift = int(round(lo.dead_time_s / dt))
     if shift:
         ap = np.concatenate([np.zeros(shift), ap[:-shift]])
         bp = np.concatenate([np.zeros(shift), bp[:-shift]])
     a_raw = z.offset_mps2 + z.scale_mps2 * ap - z.brake_scale_mps2 * bp
     tt, vv = [], []
-    idx = np.flatnonzero(np.diff(np.concatenate([[0], used.astype(np.int8), [0]])))
     seg = max(int(round(10.0 / dt)), 2)
-    for a0, e0 in zip(idx[::2], idx[1::2]):
+    for a0, e0 in _runs(used):
         for a in range(a0, e0, seg):
             e = min(a + seg, e0)
             aa = a_raw[a:e]
             vv += list(np.maximum(v[a] + np.concatenate(
                 [[0.0], np.cumsum(0.5 * dt * (aa[1:] + aa[:-1]))]), 0.0)) + [np.nan]
-            tt += list(t[a:e]) + [np.nan]  # NaN: a new run starts from the measured speed
-    ax[2].plot(t, np.where(used, v, np.nan), lw=0.8, color="0.4", label="measured")
-    ax[2].plot(tt, vv, lw=1.0, color="C3",
-               label="integrated from the model (restarted every run / 10 s)")
-    ax[2].set_ylabel("speed [m/s]")
-    ax[2].set_xlabel("time [s]")
-    ax[2].legend(loc="upper right", fontsize=8)
-    for a in ax:
-        a.grid(True, alpha=0.3)
-    nm = "n/a" if z.nmse_pct is None else f"{z.nmse_pct:.1f}%"
-    sr = "n/a" if z.speed_rmse_mps is None else f"{z.speed_rmse_mps:.3f} m/s"
-    fig.suptitle(f"zone {z.name} ({z.v_min_mps:g}, {z.v_max_mps:g}] m/s: a = "
-                 f"{z.offset_mps2:+.3f} + {z.scale_mps2:.3f} accel - {z.brake_scale_mps2:.3f} "
-                 f"brake [m/s^2]; NMSE {nm}, speed RMSE {sr}"
-                 f"{'' if z.identifiable else ' (NOT identifiable)'}", fontsize=9)
-    return _save(fig, path)
+            tt += list(x[a:e]) + [np.nan]  # NaN: a new run starts from the measured speed
+    return tt, vv
+
+
+def plot_zone(result, zone_index: int, path: str | Path) -> str | None:
+    """Write Figs. 3-5 for one zone (:func:`zone_figure`; None without a zone model)."""
+    fig = zone_figure(result, zone_index)
+    return None if fig is None else _save(fig, path)
 
 
 def _save(fig, path: str | Path) -> str:

@@ -27,14 +27,15 @@ def plot_overview(rec: Recording, path: str, title: str = "") -> str:
         panels.append(("longitudinal accel [m/s^2]", [("accel_x", rec["accel_x"])]))
     has_track = "x" in rec and "y" in rec
     n = len(panels) + (1 if has_track else 0)
-    fig, axes = new_figure(n, 1, figsize=(10, 2.2 * n), squeeze=False)
+    fig, axes = new_figure(n, 1, figsize=(11.5, 2.2 * n), squeeze=False)
     axes = axes[:, 0]
     for ax, (label, series) in zip(axes, panels):
         for name, values in series:
             ax.plot(t, values, lw=0.8, label=name)
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize=7, ncol=3)
+        # outside the axes, to their right: never over the traces
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=7)
         ax.set_xlabel("time [s]")
     if has_track:
         ax = axes[-1]
@@ -43,7 +44,7 @@ def plot_overview(rec: Recording, path: str, title: str = "") -> str:
         ax.set_ylabel("north y [m]")
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(True, alpha=0.3)
-        ax.set_title("track in local ENU")
+        ax.set_title("track in local ENU (equal scales)")
     if title:
         fig.suptitle(title)
     save_png(fig, path, dpi=110)
