@@ -33,15 +33,19 @@ class InputError(HmpcError):
         super().__init__(self.one_line())
 
     def one_line(self) -> str:
-        where = self.path or ""
-        if self.line is not None:
-            where += f":{self.line}"
-        elif self.frame is not None:
-            where += f": frame {self.frame}"
+        head = self.path or ""
+        if head and self.line is not None:
+            head += f":{self.line}"
+        parts = [head] if head else []
+        if self.line is not None and not head:
+            parts.append(f"line {self.line}")
+        elif self.line is None and self.frame is not None:
+            parts.append(f"frame {self.frame}")
         if self.channel is not None:
-            where += f": channel '{self.channel}'"
+            parts.append(f"channel '{self.channel}'")
         if self.key is not None:
-            where += f": key '{self.key}'"
+            parts.append(f"key '{self.key}'")
+        where = ": ".join(parts)  # never a leading ': ' when there is no file
         text = f"{where}: {self.reason}" if where else self.reason
         return " ".join(text.split())  # exactly one line
 

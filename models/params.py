@@ -37,6 +37,11 @@ Optional keys (all documented here, nowhere else):
   the text keys ``catalogue.EXTENSION_TEXT_KEYS``; ``on_top_of`` names another id of the
   same section.
   Unknown ids, subsystems or parameters are rejected like unknown keys.
+- ``not_identified``: besides the conventions' parts (``steering``, ``longitudinal``), one zone
+  value the recording did not determine, ``longitudinal.zones.<zone>.<offset_mps2 |
+  scale_mps2 | brake_scale_mps2>``: "copied from zone 'high'", "the prior 8 m/s^2". The zone
+  is still written (the controller needs a model at every speed) and must be flagged
+  ``identifiable: false``, so a tool refuses it unless told to accept it.
 """
 from __future__ import annotations
 
@@ -279,6 +284,11 @@ def _scores(path, key, v) -> dict:
     return {str(k): _num(path, f"{key}.{k}", x) for k, x in v.items()}
 
 
+#: vehicle keys that are lengths, masses, ratios or ranges: positive when given
+_POSITIVE_VEHICLE = ("wheelbase_m", "track_front_m", "track_rear_m", "wheel_radius_m", "mass_kg",
+                     "steering_ratio", "steering_wheel_angle_max_rad",
+                     "steering_wheel_rate_max_radps")
+
 _LONG = {"zones": None, "dead_time_s": _num, "hysteresis_mps": _num, "accel_source": _text,
          "accel_source_chosen": _text, "accel_source_scores_mps2": _scores}
 
@@ -295,12 +305,18 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
     if "vehicle" not in data:
         raise ParamError("required section is missing", path, key="vehicle")
     vehicle = Vehicle(**_check_keys(path, "vehicle", data["vehicle"], Vehicle))
-    for k in ("wheelbase_m", "track_front_m"):
-        if getattr(vehicle, k) <= 0:
-            raise ParamError("must be positive", path, key=f"vehicle.{k}")
+    for k in _POSITIVE_VEHICLE:
+        v = getattr(vehicle, k)
+        if v is not None and v <= 0:
+            raise ParamError(f"must be positive, got {v:g}", path, key=f"vehicle.{k}")
     p = Params(vehicle=vehicle, path=path)
     if "steering" in data:
         p.steering = Steering(**_check_keys(path, "steering", data["steering"], Steering))
+        if not p.steering.scale > 0:
+            # CONVENTIONS: a left turn is a positive steering-wheel AND road-wheel angle
+            raise ParamError(f"must be positive (a left turn has positive steering-wheel and "
+                             f"road-wheel angles), got {p.steering.scale:g}", path,
+                             key="steering.scale")
     if "longitudinal" in data:
         lon = data["longitudinal"]
         if not isinstance(lon, dict):
@@ -314,6 +330,12 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
         for i, z in enumerate(zones):
             p.zones.append(Zone(**_check_keys(path, f"longitudinal.zones[{i}]", z, Zone)))
         for i, z in enumerate(p.zones):
+            for k in ("scale_mps2", "brake_scale_mps2"):
+                if getattr(z, k) < 0:
+                    raise ParamError(f"must be >= 0 (pressing the pedal never works against "
+                                     f"it; the brake term is subtracted), got "
+                                     f"{getattr(z, k):g}", path,
+                                     key=f"longitudinal.zones[{i}].{k}")
             if not z.v_max_mps > z.v_min_mps:
                 raise ParamError("v_max_mps must exceed v_min_mps", path,
                                  key=f"longitudinal.zones[{i}].v_max_mps")
@@ -341,6 +363,9 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
             raise ParamError("section 'not_identified' must map a part to its reason", path,
                              key="not_identified")
         for k, v in ni.items():
+            if str(k).startswith(_ZONE_VALUE):
+                _check_zone_value_named(path, p, str(k), v)
+                continue
             if k not in _PARTS:
                 raise ParamError(f"unknown part (one of {', '.join(_PARTS)})", path,
                                  key=f"not_identified.{k}")
@@ -358,6 +383,29 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
         raise ParamError("this command needs a complete model; section is missing"
                          + (f" (not identified: {why})" if why else ""), path, key=missing)
     return p
+
+
+#: ``not_identified:`` may also name one written zone value the recording did not determine
+#: (copied from another zone, or a prior): ``longitudinal.zones.<name>.<key>``
+_ZONE_VALUE = "longitudinal.zones."
+_ZONE_VALUE_KEYS = ("offset_mps2", "scale_mps2", "brake_scale_mps2")
+
+
+def _check_zone_value_named(path: str, p: Params, k: str, why: Any) -> None:
+    """A ``not_identified.longitudinal.zones.<name>.<key>`` entry: a reason, naming a value of
+    a zone of this file that is flagged ``identifiable: false`` (a value named as not
+    identified is never presented as identified)."""
+    key = f"not_identified.{k}"
+    if not isinstance(why, str) or not why.strip():
+        raise ParamError("expected the reason as text", path, key=key)
+    name, _, coef = k[len(_ZONE_VALUE):].rpartition(".")
+    zone = next((z for z in p.zones if z.name == name), None)
+    if zone is None or coef not in _ZONE_VALUE_KEYS:
+        raise ParamError(f"names no zone value of this file (longitudinal.zones.<zone name>."
+                         f"<{'|'.join(_ZONE_VALUE_KEYS)}>)", path, key=key)
+    if zone.identifiable is not False:
+        raise ParamError(f"zone '{name}' must be flagged 'identifiable: false' when a value of "
+                         "it is named as not identified", path, key=key)
 
 
 def _parse_extensions(path: str, data: Any) -> dict:

@@ -132,3 +132,76 @@ def test_verifiedcan_drive_reports_all_three_zones_with_nmse(vcan):
         assert fos["nmse_pct"] < 10.0, zr["name"]
         gain = fos["coefficients"][fos["terms"].index("accel_cmd")]
         assert 0.8 < gain < 1.4, (zr["name"], gain)
+
+
+COEFS = ("offset_mps2", "scale_mps2", "brake_scale_mps2")
+
+
+def _front_speed(rec):
+    return 0.5 * (rec["wheel_speed_fl"] + rec["wheel_speed_fr"])
+
+
+def test_comma_minute_zones_without_data_are_named_not_identified_with_their_source(comma):
+    """The minute never drops below 5 m/s (checked on the recording itself), so the idle and
+    low zones have no samples: every value written for them is named under not_identified,
+    in the JSON's top level and the longitudinal report, with the zone it was copied from (or
+    the prior when no zone identified it); the fitted high zone copies nothing."""
+    ing = ingest_files(bundled("rav4-comma2k19/can.log.gz"),
+                       bundled("dbc/toyota_rav4_2017.dbc.gz"),
+                       PARAMS_DIR / "toyota_rav4_2017.signals.yaml")
+    v = _front_speed(ing.recording)
+    assert float(v[v == v].min()) > 5.0  # independent of identify: nothing at or below 5 m/s
+    lon, top = comma.report["longitudinal"], comma.report["not_identified"]
+    reps = {zr["name"]: zr for zr in lon["zones"]}
+    assert reps["idle"]["samples"] == reps["low"]["samples"] == 0 and reps["high"]["samples"] > 0
+    written = {z.name: z for z in comma.params.zones}
+    for name in ("idle", "low"):
+        assert written[name].identifiable is False  # written, complete, and flagged
+        for key in COEFS:
+            why = top[f"longitudinal.zones.{name}.{key}"]
+            assert lon["not_identified"][f"zones.{name}.{key}"] == why
+            assert "no usable data" in why, why
+            assert "copied from zone 'high'" in why or "the prior" in why, why
+            if "copied from zone 'high'" in why:  # the value written is the high zone's
+                assert getattr(written[name], key) == getattr(written["high"], key)
+            else:
+                assert key == "brake_scale_mps2"  # no zone saw the brake pressed
+        assert "copied from zone 'high'" in top[f"longitudinal.zones.{name}.offset_mps2"]
+    assert not [k for k, why in top.items() if k.startswith("longitudinal.zones.high.")
+                and "copied from" in why]
+    # the file written names them too once models.params loads such keys
+    if any(k.startswith("longitudinal.zones.") for k in comma.params.not_identified):
+        assert comma.params.not_identified == {k: w for k, w in top.items()
+                                               if k in comma.params.not_identified}
+        assert set(comma.params.not_identified) == set(top)
+
+
+def test_comma_minute_source_tie_is_called_a_tie_with_the_rule_that_broke_it(comma):
+    """Two or more sources within fold-to-fold noise: the choice says it is a tie, names
+    every tied source with a signed score that tells them apart, and the rule (order of
+    preference) that broke it; the chosen source is the first of that order among them."""
+    from hmpc.models.identify.longitudinal import SOURCE_ORDER
+    sel = comma.report["longitudinal"]["selection"]
+    tied = sel["not_worse_than_best"]
+    assert len(tied) >= 2  # measured: wheel_speeds, gps_speed, accel_x all within noise
+    assert sorted(sel["tie"]) == sorted(tied) and "order of preference" in sel["tie_broken_by"]
+    assert sel["chosen"] == next(c for c in SOURCE_ORDER if c in tied)
+    assert "tie within fold-to-fold noise" in sel["because"]
+    signed = {c: sel["scores"][c]["score_signed_mps2"] for c in tied}
+    for c, x in signed.items():
+        assert f"{c} {x:+.4f}" in sel["because"]
+        assert sel["scores"][c]["score_mps2"] == pytest.approx(max(x, 0.0))
+    assert len({f"{x:+.4f}" for x in signed.values()}) == len(signed)  # printed apart
+
+
+def test_verifiedcan_copied_scales_are_named_not_identified(vcan):
+    """The accelerator is never pressed below 5 m/s: idle's and low's scale is the high
+    zone's, named under not_identified with that source; the high zone's scale, fitted, is
+    not named as copied."""
+    top = vcan.report["not_identified"]
+    zones = {z.name: z for z in vcan.params.zones}
+    for name in ("idle", "low"):
+        why = top[f"longitudinal.zones.{name}.scale_mps2"]
+        assert "accelerator pressed only" in why and "copied from zone 'high'" in why, why
+        assert zones[name].scale_mps2 == zones["high"].scale_mps2
+    assert "copied" not in top.get("longitudinal.zones.high.scale_mps2", "")

@@ -178,7 +178,10 @@ def test_coasting_without_a_brake_channel_does_not_claim_unobserved_braking(trut
     for z in res.zones:
         if z.note:
             assert "no channel observes" not in z.note, z.note
-    assert not any(k.endswith(".offset_mps2") for k in res.report["not_identified"])
+    # nothing listed as absorbing braking (a zone without data still lists its copied values)
+    ni = res.report["not_identified"]
+    assert not [k for k, why in ni.items() if "no channel observes" in why], ni
+    assert not [k for k, why in ni.items() if k.endswith(".offset_mps2") and "copied" not in why]
 
 
 def dilate_mask(mask, n):
@@ -214,3 +217,26 @@ def test_half_sample_kernels_bracket_the_matched_smoother():
     early, late = half_sample_kernels(d, 0.02)
     assert early.sum() == pytest.approx(1.0) and late.sum() == pytest.approx(1.0)
     assert np.allclose(0.5 * (early + late), g)
+
+
+def test_a_zone_without_data_names_every_copied_value_and_its_source_zone(truth):
+    """Samples of the low zone (2, 5] m/s removed from a simulated recording: the low zone is
+    not fitted, and each of its written values is listed under not_identified with the zone
+    it was copied from (the nearest fitted one: idle, the lower of two equally near); the
+    fitted idle and high zones list nothing copied."""
+    rec = concat_recordings([simulate_experiment(n, truth, seed=SEED) for n in LONG_EXPS])
+    v = np.mean([np.asarray(rec[f"wheel_speed_{w}"]) for w in ("fl", "fr")], axis=0)
+    gone = (v > 1.5) & (v <= 5.5)  # the low zone and a margin: no smoothing window reaches it
+    for k in list(rec.channels):
+        if k != "time" and rec.channels[k].dtype.kind == "f":
+            rec.channels[k] = np.where(gone, np.nan, rec.channels[k])
+    res = identify_longitudinal(rec, truth.vehicle)
+    reps = {zr["name"]: zr for zr in res.report["zones"]}
+    assert reps["low"]["samples"] == 0 and reps["idle"]["samples"] > 0 < reps["high"]["samples"]
+    ni = res.report["not_identified"]
+    for key in ("offset_mps2", "scale_mps2", "brake_scale_mps2"):
+        why = ni[f"zones.low.{key}"]
+        assert "no usable data" in why and "copied from zone 'idle'" in why, why
+        assert reps["low"]["not_identified"][key] == why
+    assert not [k for k, why in ni.items() if "copied" in why and not k.startswith("zones.low.")]
+    assert {z.name: z.identifiable for z in res.zones}["low"] is False

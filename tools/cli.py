@@ -8,8 +8,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import sys
 import traceback
+from pathlib import Path
 
 from threadpoolctl import threadpool_limits
 
@@ -55,16 +57,20 @@ def build_parser() -> argparse.ArgumentParser:
                 f"subcommand {name!r}: its module {modname} is missing") from exc
         p = sub.add_parser(name, help=helptext, description=helptext)
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run, _outputs=getattr(mod, "OUTPUTS", {}))
     return parser
 
 
 def write_json(path: str | None, payload: dict) -> None:
-    """Write a ``--json`` result (stable keys, SI units)."""
+    """Write a ``--json`` result (stable keys, SI units); InputError naming the file when it
+    cannot be written (exit 2, never a traceback)."""
     if path:
-        with open(path, "w", encoding="utf-8") as fh:
-            json.dump(payload, fh, indent=2, sort_keys=False, default=_jsonable)
-            fh.write("\n")
+        text = json.dumps(payload, indent=2, sort_keys=False, default=_jsonable) + "\n"
+        try:
+            with open(path, "w", encoding="utf-8") as fh:
+                fh.write(text)
+        except OSError as exc:
+            raise InputError(f"cannot write JSON ({exc.strerror or exc})", path) from None
 
 
 def _jsonable(obj):
@@ -74,6 +80,65 @@ def _jsonable(obj):
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     return str(obj)
+
+
+#: argparse destinations that name a file a subcommand writes, and a folder it fills, with
+#: what they hold: checked before the work starts, so a typo in an output path costs nothing
+#: and leaves no other output half-done (e.g. --out written, then --json refused). A
+#: subcommand module may name its outputs more precisely in ``OUTPUTS`` ({dest: noun}).
+OUTPUT_FILES = {"out": "the output", "json": "JSON", "candump": "the candump log",
+                "params_out": "the parameter file", "write_script": "the script"}
+OUTPUT_DIRS = {"plots": "the plots", "report": "the report"}
+
+
+def _option(dest: str) -> str:
+    return "--" + dest.replace("_", "-")
+
+
+def check_output_file(path: str, option: str, what: str = "the output") -> None:
+    """InputError naming ``path`` when the file cannot be created or overwritten."""
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"cannot write {what} ({option}: is a folder, expected a file)", path)
+    parent = p.parent
+    if not parent.is_dir():
+        raise InputError(f"cannot write {what} ({option}: folder '{parent}' does not exist)",
+                         path)
+    if p.exists():
+        if not os.access(p, os.W_OK):
+            raise InputError(f"cannot write {what} ({option}: permission denied)", path)
+        return
+    try:  # create and remove: the only test that also holds for root and /proc
+        fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except OSError as exc:
+        raise InputError(f"cannot write {what} ({option}: {exc.strerror or exc})",
+                         path) from None
+    os.close(fd)
+    os.unlink(p)
+
+
+def check_output_dir(path: str, option: str, what: str = "the output") -> None:
+    """InputError naming ``path`` when it is a file, or its nearest existing ancestor is not
+    a writable folder."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"cannot write {what} ({option}: exists and is not a folder)", path)
+    anc = p
+    while not anc.exists() and anc != anc.parent:
+        anc = anc.parent
+    if not anc.is_dir() or not os.access(anc, os.W_OK):
+        raise InputError(f"cannot write {what} ({option}: '{anc}' is not a writable folder)",
+                         path)
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """Every output path of ``args`` checked before the subcommand runs (InputError)."""
+    names = getattr(args, "_outputs", {})
+    for table, check in ((OUTPUT_FILES, check_output_file), (OUTPUT_DIRS, check_output_dir)):
+        for dest, what in table.items():
+            value = getattr(args, dest, None)
+            if isinstance(value, str) and value:
+                check(value, _option(dest), names.get(dest, what))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -89,6 +154,7 @@ def main(argv: list[str] | None = None) -> int:
         # one BLAS thread: hmpc's matrices are small (states <= 7, fits of ~10 columns, the
         # QPs in OSQP's own C), where OpenBLAS's threads only add latency (a 3x3 DARE: 33 ms
         # median with two threads on a loaded 2-core machine, 1.1 ms on one)
+        check_outputs(args)
         with threadpool_limits(limits=1, user_api="blas"):
             return int(args._run(args) or 0)
     except InputError as exc:

@@ -44,6 +44,10 @@ def _nonneg(text: str) -> float:
     return v
 
 
+#: what the outputs hold, for the CLI's check of output paths (tools/cli.py)
+OUTPUTS = {"out": "the parameter file", "plots": "figures"}
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from hmpc.tools.cmd_ingest import add_ingest_options
 
@@ -75,7 +79,9 @@ def _progress(msg: str) -> None:
 
 def summary_lines(res) -> list[str]:
     """Human-readable summary for stdout."""
-    out = [f"not identified: {part}: {why}" for part, why in res.params.not_identified.items()]
+    # the report's list: every part, and every zone value copied or taken from a prior
+    ni = res.report.get("not_identified") or res.params.not_identified
+    out = [f"not identified: {part}: {why}" for part, why in ni.items()]
     if res.steering is not None:
         out += _steering_lines(res)
     if res.longitudinal is not None:
@@ -152,11 +158,16 @@ def _source_lines(sel: dict | None) -> list[str]:
     """The acceleration source chosen by held-out evidence, every score, and disagreements."""
     if not sel:
         return []
-    scores = ", ".join(f"{k} {v['score_mps2']:.4f}" + (f" (dead time {v['dead_time_s']:.2f} s)"
-                                                      if v["dead_time_s"] else "")
-                       for k, v in sel["scores"].items())
+    def score(v: dict) -> str:
+        signed = v.get("score_signed_mps2")
+        return (f"{v['score_mps2']:.4f}"
+                + ("" if signed is None or signed >= 0 else f" (signed {signed:+.4f})")
+                + (f" (dead time {v['dead_time_s']:.2f} s)" if v["dead_time_s"] else ""))
+
+    scores = ", ".join(f"{k} {score(v)}" for k, v in sel["scores"].items())
     out = [f"  acceleration source: {sel['chosen']} ({sel['because']})",
-           f"  held-out scores [m/s^2, lower is better]: {scores}"]
+           f"  held-out scores [m/s^2, lower is better; a negative excess is clipped to 0, "
+           f"signed shown]: {scores}"]
     out += [f"  skipped {k}: {why}" for k, why in sel.get("skipped", {}).items()]
     out += [f"  DISAGREEMENT {st}" for st in sel.get("disagreements", {}).get("statements", [])]
     return out

@@ -7,10 +7,11 @@ same figures (stable keys, SI units).
 """
 from __future__ import annotations
 
+import math
 import sys
 
 from hmpc.models.logs.canlog import FORMATS
-from hmpc.models.errors import Problems
+from hmpc.models.errors import InputError, Problems
 from hmpc.models.logs.info import format_info, log_info
 
 
@@ -28,6 +29,8 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from hmpc.tools.cli import write_json
 
+    if not (math.isfinite(args.jump_s) and args.jump_s > 0):
+        raise InputError(f"--jump-s must be a finite number of seconds > 0, got {args.jump_s:g}")
     problems = Problems()
     info = log_info(args.log, problems, dbc_path=args.dbc, fmt=args.fmt, jump_s=args.jump_s)
     print(format_info(info))

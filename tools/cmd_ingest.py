@@ -68,6 +68,10 @@ def add_ingest_options(p: argparse.ArgumentParser, *, log_required: bool = True)
                         "instead of refusing the DBC; strict by default")
 
 
+#: what ``--out`` holds, for the CLI's check of output paths (tools/cli.py)
+OUTPUTS = {"out": "the recording"}
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", metavar="LOG", help="CAN log (candump -L, .asc, .blf, .trc, python-can "
                                               ".csv, libpanda CSV; optionally .gz)")

@@ -77,7 +77,8 @@ def run(args) -> int:
     from hmpc.tools.cmd_simulate import load_model_params, make_controller
 
     if not Path(args.recording).is_file():
-        raise InputError("no such file", args.recording)
+        raise InputError("not a file (a folder)" if Path(args.recording).is_dir()
+                         else "no such file", args.recording)
     if args.mode == "log" and not args.actuation:
         raise InputError("--mode log needs --actuation A.yaml (the profile whose messages the "
                          "drive loop sends and reads)")

@@ -328,6 +328,14 @@ def _command(role: str, entry: Any, db, err) -> CommandSpec:
             raise err("signal is already written by the builder", *base, "constants", s)
         if not _number(v):
             raise err("expected a number", *base, "constants", s)
+        sig = _signal(msg, s, err, *base, "constants", s)
+        lo, hi = (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed \
+            else (0, (1 << sig.length) - 1)
+        if v != int(v) or not lo <= v <= hi:
+            # a constant is a raw value: it must fit the signal's bits as written
+            raise err(f"expected a whole raw value in {lo}..{hi} (a {sig.length}-bit "
+                      f"{'signed' if sig.is_signed else 'unsigned'} signal), got {v!r}",
+                      *base, "constants", s)
     return CommandSpec(role, msg, float(rate), {q: vals[q] for q in need}, tuple(enable),
                        counter, modulo, checksum, scheme, {str(k): v for k, v in consts.items()})
 

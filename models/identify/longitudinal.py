@@ -68,9 +68,11 @@ it, or (brake only) set to ``brake_scale_prior_mps2``, and the zone is marked
 ``identifiable: false`` with a note. A zone with less than ``min_zone_s`` of usable samples is copied
 from the nearest fitted zone and marked the same way. Without brake data (no channel, or the
 pedal never pressed), a zone whose released-accelerator samples still decelerate beyond
-coasting (:func:`braking_evidence`) says that the offset and scale absorb unobserved braking;
-the keys not identified are listed with their reason in ``report['not_identified']``
-(``zones.<name>.<key>``).
+coasting (:func:`braking_evidence`) says that the offset and scale absorb unobserved braking.
+Every written value that the zone's own data did not determine (copied from another zone, the
+prior, or absorbing unobserved braking) is listed with its reason, naming the zone it was copied
+from, in ``report['not_identified']`` (``zones.<name>.<key>``), whether the zone was fitted or
+not; ``models.identify.pipeline`` names them under the top-level ``not_identified``.
 """
 from __future__ import annotations
 
@@ -639,7 +641,13 @@ def choose_accel_source(sig: LongitudinalSignals, ok: np.ndarray, zid: np.ndarra
         # excess held-out MSE over each other channel's own fit [(m/s^2)^2 per fold]
         ex = {names[i]: (E[c][:, i] - floor[names[i]]) / cnt for i in range(len(names))}
         per_fold.append(np.mean([ex[names[i]] for i in others], axis=0))
-        scores[c] = {"score_mps2": float(np.sqrt(max(per_fold[-1].mean(), 0.0))),
+        mean_ex = float(per_fold[-1].mean())
+        # the score clips a negative excess (this source's model predicts the others better
+        # than their own fits do) to 0; the signed figure, sign(excess) * sqrt(|excess|),
+        # still orders two sources that both clip
+        scores[c] = {"score_mps2": float(np.sqrt(max(mean_ex, 0.0))),
+                     "score_signed_mps2": float(math.copysign(math.sqrt(abs(mean_ex)), mean_ex))
+                     if math.isfinite(mean_ex) else None,
                      "excess_rms_mps2": {o: float(np.sqrt(max(e.mean(), 0.0)))
                                          for o, e in ex.items()},
                      "dead_time_s": deads[c].tau_s, "dead_time_note": deads[c].note}
@@ -661,20 +669,52 @@ def choose_accel_source(sig: LongitudinalSignals, ok: np.ndarray, zid: np.ndarra
         return sel
     pf = np.array(per_fold)
     keep = np.all(np.isfinite(pf), axis=0)
-    jb, within, _ = not_worse_than_best(pf[:, keep]) if keep.sum() >= 2 else (
-        int(np.argmin([scores[c]["score_mps2"] for c in names])), None, 0.0)
+    judged = keep.sum() >= 2
+    jb, within, _ = not_worse_than_best(pf[:, keep]) if judged else (
+        int(np.argmin([_key_signed(scores, c) for c in names])), None, 0.0)
     if within is None:
         within = np.arange(len(names)) == jb
     chosen = next(c for c in SOURCE_ORDER if c in names and within[names.index(c)])
     best = names[jb]
-    because = (f"lowest held-out score ({scores[best]['score_mps2']:.3f} m/s^2)"
-               if chosen == best else
-               f"first in the order of preference ({', '.join(SOURCE_ORDER)}) whose score "
-               f"({scores[chosen]['score_mps2']:.3f} m/s^2) is within fold-to-fold noise of "
-               f"the best, {best} ({scores[best]['score_mps2']:.3f} m/s^2)")
-    sel.update(chosen=chosen, because=because,
-               not_worse_than_best=[c for i, c in enumerate(names) if within[i]])
+    tied = [c for c in SOURCE_ORDER if c in names and within[names.index(c)]]
+    sel.update(chosen=chosen, because=_choice_because(chosen, best, tied, scores, judged),
+               not_worse_than_best=[c for i, c in enumerate(names) if within[i]],
+               tie=tied if len(tied) > 1 else [],
+               tie_broken_by=("the order of preference (" + ", ".join(SOURCE_ORDER) + ")"
+                              if len(tied) > 1 else None))
     return sel
+
+
+def _key_signed(scores: dict, c: str) -> float:
+    """Sort key: a source's signed held-out score (inf when there is none)."""
+    x = scores[c].get("score_signed_mps2")
+    return math.inf if x is None else x
+
+
+def _signed(scores: dict, c: str) -> str:
+    """A source's signed held-out score, with enough digits to tell two apart [m/s^2]."""
+    x = scores[c].get("score_signed_mps2")
+    return "n/a" if x is None else f"{x:+.4f}"
+
+
+def _choice_because(chosen: str, best: str, tied: list[str], scores: dict,
+                    judged: bool = True) -> str:
+    """Why ``chosen`` was chosen: alone ahead of the rest beyond fold-to-fold noise, or a tie
+    within noise broken by :data:`SOURCE_ORDER` (then every tied source and its signed score
+    is named, so equal printed scores never pass for a decision)."""
+    if len(tied) <= 1:
+        others = sorted((c for c in scores if c != chosen), key=lambda c: _key_signed(scores, c))
+        nxt = "" if not others else (
+            f"; next {others[0]} {_signed(scores, others[0])} m/s^2, "
+            + ("worse beyond fold-to-fold noise" if judged else
+               "too few folds to judge fold-to-fold noise"))
+        return f"lowest held-out score (signed {_signed(scores, chosen)} m/s^2{nxt})"
+    listed = ", ".join(f"{c} {_signed(scores, c)}" for c in tied)
+    lowest = ("it also has the lowest mean" if chosen == best else
+              f"the lowest mean is {best}'s")
+    return (f"tie within fold-to-fold noise between {listed} m/s^2 (signed held-out scores; "
+            f"negative: predicts the other sources better than their own fits); broken by the "
+            f"order of preference ({', '.join(SOURCE_ORDER)}): {chosen} is first, {lowest}")
 
 
 def fos_candidates(rec: Recording, sig: LongitudinalSignals,
@@ -734,8 +774,9 @@ def fit_zone(zi: int, zone, sig: LongitudinalSignals, masks: ZoneMasks, ped: Ped
                  "seconds_in_zone": float(in_zone.sum() * dt),
                  "samples_excluded": int(in_zone.sum() - nz)}
     if nz < cfg.min_samples(dt):
-        rep["note"] = (f"only {nz} usable samples ({nz * dt:.1f} s; need {cfg.min_zone_s:g} s): "
-                       "not identified")
+        rep["not_fitted_because"] = (f"no usable data ({nz} samples, {nz * dt:.1f} s; "
+                                     f"{cfg.min_zone_s:g} s needed)")
+        rep["note"] = f"{rep['not_fitted_because']}: not identified"
         return ZoneFit(None, False, rep)
     pressed_a = float(np.sum(m & (ped.ap > cfg.pressed)) * dt)
     pressed_b = float(np.sum(m & (ped.bp > cfg.pressed)) * dt)
@@ -809,11 +850,16 @@ def zone_from_fit(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig,
     fitted = [k for k, g in enumerate(fits) if g.fitted]
     notes = []
     ident = f.fitted
+    # every written value that the zone's own data did not determine (copied from another
+    # zone, or the prior) is named here with its reason, fitted zone or not (CONVENTIONS:
+    # ``not_identified:``; ``identify_longitudinal`` collects them)
+    rep.setdefault("not_identified", {})
     if not f.fitted:
         j = _nearest(i, fitted)
         off = fits[j].report["offset_mps2"]
-        notes.append(f"no usable data ({rep['samples']} samples): offset copied from zone "
-                     f"'{zones[j][0]}'")
+        why = f"{rep['not_fitted_because']}: copied from zone '{zones[j][0]}'"
+        rep["not_identified"]["offset_mps2"] = why
+        notes.append(f"{rep['not_fitted_because']}: offset copied from zone '{zones[j][0]}'")
         rep_off_ci = None
     else:
         off = rep["offset_mps2"]
@@ -952,11 +998,11 @@ def _zone_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig, p
                              f"(need {cfg.min_pressed_s} s): cannot identify eq. 8",
                              path, channel="accel_pedal")
         sc = fits[j].report["scale_mps2"]
-        if f.fitted:
-            notes.append(f"accelerator pressed only {rep['accel_pedal_pressed_s']:.1f} s: "
-                         f"scale copied from zone '{zones[j][0]}'")
-        else:
-            notes.append(f"scale copied from zone '{zones[j][0]}'")
+        why = (f"accelerator pressed only {rep['accel_pedal_pressed_s']:.1f} s "
+               f"({cfg.min_pressed_s:g} s needed)" if f.fitted else rep["not_fitted_because"])
+        rep["not_identified"]["scale_mps2"] = f"{why}: copied from zone '{zones[j][0]}'"
+        notes.append(f"{why}: scale copied from zone '{zones[j][0]}'" if f.fitted else
+                     f"scale copied from zone '{zones[j][0]}'")
         return sc, sc_ci, False
     if _rel_half_width(sc, sc_ci) > cfg.max_rel_ci:
         notes.append(f"scale known only to +-{100 * _rel_half_width(sc, sc_ci):.0f}%"
@@ -977,8 +1023,9 @@ def _zone_brake_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdCon
     if br is None:
         j = _nearest_fitted(i, fits, "brake_scale_mps2")
         why = ("no brake_pedal channel" if not has_brake else
-               f"brake pressed only {rep.get('brake_pedal_pressed_s', 0.0):.1f} s")
-        ni = rep.setdefault("not_identified", {}) if f.fitted else {}
+               f"brake pressed only {rep['brake_pedal_pressed_s']:.1f} s" if f.fitted else
+               rep["not_fitted_because"])
+        ni = rep["not_identified"]
         ev = rep.get("braking") or {}
         if ev.get("decel_beyond_coasting_s", 0.0) >= cfg.min_pressed_s:
             absorbed = (f"the car decelerated {ev['decel_beyond_coasting_s']:.1f} s more than "
@@ -987,14 +1034,18 @@ def _zone_brake_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdCon
                         "offset and scale absorb")
             ni["offset_mps2"] = ni["scale_mps2"] = f"{why}: {absorbed}"
             why = f"{why}, yet {absorbed}"
-        ni["brake_scale_mps2"] = why
         if j is not None:
             br = fits[j].report["brake_scale_mps2"]
-            notes.append(f"{why}: brake scale copied from zone '{zones[j][0]}'")
+            ni["brake_scale_mps2"] = f"{why}: copied from zone '{zones[j][0]}'"
+            notes.append(f"{why + ': ' if f.fitted else ''}brake scale copied from zone "
+                         f"'{zones[j][0]}'")
         else:
             br = cfg.brake_scale_prior_mps2
-            notes.append(f"{why} (in every zone): brake scale is the prior "
-                         f"{cfg.brake_scale_prior_mps2:g} m/s^2, not identified")
+            ni["brake_scale_mps2"] = (f"{why}; no zone identified it: the prior "
+                                      f"{cfg.brake_scale_prior_mps2:g} m/s^2")
+            notes.append(f"{why + ' (in every zone): ' if f.fitted else ''}brake scale is the "
+                         f"prior {cfg.brake_scale_prior_mps2:g} m/s^2, not identified"
+                         + ("" if f.fitted else " in any zone"))
         return br, br_ci, False
     if _rel_half_width(br, br_ci) > cfg.max_rel_ci:
         notes.append(f"brake scale known only to +-{100 * _rel_half_width(br, br_ci):.0f}%"

@@ -150,6 +150,12 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
     lo = part("longitudinal", identify_longitudinal, recording, vehicle, lcfg)
     if st is None and lo is None:
         raise errors[0]
+    # every zone value the recording did not determine (copied from another zone, the prior,
+    # or absorbing unobserved braking), named with its reason whether or not the zone was
+    # fitted: ``longitudinal.zones.<name>.<key>`` (the zone itself is written, complete and
+    # flagged ``identifiable: false``, so the controller keeps a model for every speed)
+    zone_ni = {} if lo is None else {f"longitudinal.{k}": why
+                                     for k, why in lo.report["not_identified"].items()}
 
     steering = None if st is None else Steering(
         offset_rad=float(st.offset_rad), scale=float(st.scale), dead_time_s=float(st.dead_time_s),
@@ -179,14 +185,14 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
                         k: float(v["score_mps2"])
                         for k, v in lo.report["selection"]["scores"].items()
                         if math.isfinite(v["score_mps2"])}),
-                    not_identified=not_identified)
+                    not_identified={**not_identified, **zone_ni})
     report = {
         "hmpc_version": __version__,
         "provenance": prov,
         "vehicle": {"wheelbase_m": vehicle.wheelbase_m, "track_front_m": vehicle.track_front_m},
         "steering": None if st is None else st.report,
         "longitudinal": None if lo is None else lo.report,
-        "not_identified": not_identified,
+        "not_identified": {**not_identified, **zone_ni},
     }
     return IdentifyResult(params, _finite_json(report), st, lo)
 

@@ -319,8 +319,18 @@ def _can_channel(ch: str, cm, dm, map_path, log_s: str, problems: Problems) -> S
     if not sel.any():
         bus = "" if cm.bus is None else f" on bus {cm.bus}"
         if cm.required:
-            raise InputError(f"required channel has no sample: message {cm.message}{bus} "
-                             "is not in the log", log_s, channel=ch)
+            if dm is not None and len(dm) == 0:  # its frames were all refused by decoding
+                dropped = [p for p in problems if p.detail.startswith(f"{cm.message} (")]
+                first = dropped[0] if dropped else None
+                why = (f"every frame of message {cm.message} was dropped"
+                       + (f" ({first.count} x {first.kind}, first at {first.first[0]})"
+                          if first and first.first else " as undecodable"))
+            elif dm is not None and len(dm):
+                why = (f"message {cm.message} is not on bus {cm.bus} (it is on bus "
+                       f"{', '.join(str(int(b)) for b in np.unique(dm.bus))})")
+            else:
+                why = f"message {cm.message}{bus} is not in the log"
+            raise InputError(f"required channel has no sample: {why}", log_s, channel=ch)
         return None
     vals = cm.evaluate({s: dm.signals[s][sel] for s in cm.expr.signals})
     t = dm.t_s[sel]
@@ -442,6 +452,10 @@ def choose_sources(can: CanStage, navc: dict[str, Series], imuc: dict[str, Serie
     return raw, origin
 
 
+#: the most rows a recording's grid may have (10 h at 1 kHz; ~2 GB per 25 channels)
+MAX_GRID_ROWS = 36_000_000
+
+
 def grid_for(can: CanStage, rate_hz: float, log_s: str) -> np.ndarray:
     """Step 6b: the uniform grid [s] over the time every required CAN channel covers (all CAN
     channels if none is required), so its first and last rows hold every required channel;
@@ -452,6 +466,14 @@ def grid_for(can: CanStage, rate_hz: float, log_s: str) -> np.ndarray:
     t_end = min(float(t[-1]) for t, _ in core)
     if t_end <= t_start:
         raise InputError("the required channels do not overlap in time", log_s)
+    rows = (t_end - t_start) * float(rate_hz) + 1
+    if rows > MAX_GRID_ROWS:
+        raise InputError(f"--rate {rate_hz:g} Hz over {t_end - t_start:.1f} s would make "
+                         f"{rows:.3g} rows (at most {MAX_GRID_ROWS:,}); choose a lower rate",
+                         log_s)
+    if rows < 2:
+        raise InputError(f"--rate {rate_hz:g} Hz over {t_end - t_start:.2f} s gives fewer than "
+                         "2 rows; choose a higher rate", log_s)
     return make_grid(t_start, t_end, float(rate_hz))
 
 

@@ -146,7 +146,10 @@ def load_columns(path: str | Path) -> tuple[NavColumns, ImuColumns]:
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ParamError(f"not valid YAML ({exc.__class__.__name__})", str(path)) from None
+        mark = getattr(exc, "problem_mark", None)
+        why = getattr(exc, "problem", None) or exc.__class__.__name__
+        raise ParamError(f"not valid YAML ({why})", str(path),
+                         line=None if mark is None else mark.line + 1) from None
     if data is None:
         data = {}
     if not isinstance(data, dict):

@@ -15,12 +15,21 @@ import csv
 import gzip
 import io
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS
+from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS, VALID_GEARS
+
+#: channels that are fractions 0..1 (CONVENTIONS), and how far past the ends a reading may be
+#: (sensor noise) before the file is refused as being in other units (e.g. percent)
+FRACTION_CHANNELS = ("accel_pedal", "brake_pedal", "accel_pedal_cmd", "brake_pedal_cmd")
+FRACTION_SLACK = 0.05
+#: how far one time step may differ from the grid's median step (factor) before the file is
+#: refused as not on a uniform grid: rounding and logger jitter pass, a clock jump does not
+GRID_TOLERANCE = 1.5
 from hmpc.models.errors import InputError
 
 
@@ -99,20 +108,30 @@ def write_csv(channels: dict[str, np.ndarray], path: str | Path) -> None:
     names = [c for c in CHANNELS if c in channels]
     names += [c for c in channels if c not in CHANNELS]
     path = Path(path)
+    cols = []
+    for n in names:
+        v = channels[n]
+        if n in STRING_CHANNELS:
+            cols.append([str(s) for s in v])
+        elif n == "time":
+            cols.append([f"{x:.6f}" for x in v])
+        else:
+            cols.append([("" if math.isnan(x) else repr(float(x))) for x in v.astype(float)])
+    # written beside the target and renamed over it: a failed write (full disk, interrupt)
+    # never leaves a half-written recording under the name the user gave
+    regular = path.is_file() or not path.exists()
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp") if regular else path
     opener = gzip.open if path.suffix == ".gz" else open
-    with opener(path, "wt", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(names)
-        cols = []
-        for n in names:
-            v = channels[n]
-            if n in STRING_CHANNELS:
-                cols.append([str(s) for s in v])
-            elif n == "time":
-                cols.append([f"{x:.6f}" for x in v])
-            else:
-                cols.append([("" if math.isnan(x) else repr(float(x))) for x in v.astype(float)])
-        w.writerows(zip(*cols))
+    try:
+        with opener(tmp, "wt", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(names)
+            w.writerows(zip(*cols))
+        if tmp != path:
+            os.replace(tmp, path)
+    finally:
+        if tmp != path and tmp.exists():
+            tmp.unlink()
 
 
 def write_parquet(channels: dict[str, np.ndarray], path: str | Path) -> None:
@@ -131,7 +150,8 @@ def read_channels(path: str | Path, *, allow_extra: bool = False) -> dict[str, n
     """The channels of a canonical recording file (CSV, CSV.gz or Parquet), validated.
 
     Raises InputError for a missing or empty file, unknown columns (unless
-    ``allow_extra``), non-numeric values, or a time column that is not strictly increasing.
+    ``allow_extra``), a column named twice, non-numeric or infinite values, pedals outside
+    0..1, unknown gears, or a time column that is not strictly increasing on one uniform grid.
     """
     path = Path(path)
     if not path.exists():
@@ -142,11 +162,16 @@ def read_channels(path: str | Path, *, allow_extra: bool = False) -> dict[str, n
         header, text_cols, first_line = _read_csv_text(path)
     if "time" not in header:
         raise InputError("no 'time' column: not a canonical recording", str(path), channel="time")
+    twice = [h for i, h in enumerate(header) if h in header[:i]]
+    if twice:
+        raise InputError("column appears twice in the header", str(path),
+                         line=None if first_line is None else first_line - 1, channel=twice[0])
     unknown = [h for h in header if h not in CHANNELS]
     if unknown and not allow_extra:
         raise InputError("unknown column (not a canonical channel)", str(path), channel=unknown[0])
     channels = {n: _parse_column(n, text_cols[n], path, first_line) for n in header}
     _check_time(channels["time"], path)
+    _check_values(channels, path, first_line)
     return channels
 
 
@@ -197,7 +222,8 @@ def _parse_column(name: str, vals: list[str], path: Path, first_line: int | None
 
 
 def _check_time(t: np.ndarray, path: Path) -> None:
-    """The time column must have rows, be finite and strictly increase."""
+    """The time column must have rows, be finite, strictly increase and be one uniform grid
+    (each step within GRID_TOLERANCE of the median step)."""
     if len(t) == 0:
         raise InputError("no rows", str(path))
     if not np.all(np.isfinite(t)):
@@ -208,6 +234,43 @@ def _check_time(t: np.ndarray, path: Path) -> None:
         bad = int(np.flatnonzero(d <= 0)[0]) + 1
         raise InputError("time is not strictly increasing", str(path), line=bad + 2,
                          channel="time")
+    if len(d):
+        # CONVENTIONS: one uniform grid; a gap is rows with empty cells, never a step in time
+        step = float(np.median(d))
+        off = (d > GRID_TOLERANCE * step) | (d < step / GRID_TOLERANCE)
+        if off.any():
+            bad = int(np.flatnonzero(off)[0]) + 1
+            raise InputError(f"time steps {d[bad - 1]:.6g} s where the grid step is {step:.6g} s "
+                             "(a clock jump?); a recording is on one uniform grid, a gap is "
+                             "rows with empty cells", str(path), line=bad + 2, channel="time")
+
+
+def _check_values(channels: dict[str, np.ndarray], path: Path, first_line: int | None) -> None:
+    """No infinite number, pedals as fractions 0..1, gears from CONVENTIONS: otherwise
+    InputError naming the line and channel of the first bad value (a missing sample, empty
+    or NaN, is a gap and allowed)."""
+    def fail(name: str, i: int, why: str):
+        raise InputError(why, str(path), line=None if first_line is None else i + first_line,
+                         channel=name)
+
+    for name, v in channels.items():
+        if name in STRING_CHANNELS:
+            if name == "gear":
+                bad = [i for i, g in enumerate(v) if g != "" and str(g) not in VALID_GEARS]
+                if bad:
+                    fail(name, bad[0], f"gear {v[bad[0]]!r} is not one of "
+                                       f"{', '.join(sorted(VALID_GEARS))} (or empty)")
+            continue
+        inf = np.isinf(v)
+        if inf.any():
+            i = int(np.flatnonzero(inf)[0])
+            fail(name, i, f"value {v[i]} is not finite (leave the cell empty for a gap)")
+        if name in FRACTION_CHANNELS:
+            out = (v < -FRACTION_SLACK) | (v > 1 + FRACTION_SLACK)
+            if out.any():
+                i = int(np.flatnonzero(out)[0])
+                fail(name, i, f"value {v[i]:g} is outside 0..1 (pedals are fractions, not "
+                              "percent)")
 
 
 def _is_float(v: str) -> bool:
