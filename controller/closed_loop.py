@@ -359,9 +359,13 @@ def steering_reversals(angle_deg, threshold_deg: float) -> int:
 
 
 def rate_rms(time_s, signal) -> float:
-    """RMS of a signal's rate [unit/s] over its samples: finite differences over the
-    recording's sample period. A command held for a control period T and sampled every dt
-    reads sqrt(T / dt) times its per-period rate (the issue 9 figures use this, at 50 Hz)."""
+    """RMS rate of a command [unit/s]: the change at each control update divided by the
+    time since the previous update (the control period), over the run's updates.
+
+    ``time_s`` and ``signal`` are the update instants and the values set there, one sample
+    per control update (simulate, replay and drive alike): a command held for a period T
+    and resampled every dt < T would read sqrt(T / dt) times its rate (its whole change in
+    one dt, then zeros)."""
     t = np.asarray(time_s, dtype=float)
     x = np.asarray(signal, dtype=float)
     if len(t) < 2:
@@ -369,12 +373,16 @@ def rate_rms(time_s, signal) -> float:
     return float(np.sqrt(np.mean((np.diff(x) / np.diff(t)) ** 2)))
 
 
-def smoothness_of(time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd) -> dict:
+def smoothness_of(time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd, *,
+                  duration_s: float | None = None) -> dict:
     """The issue 9 smoothness figures of a run's COMMANDS (stable keys): steering-wheel
     reversals per minute of at least 1 and 5 deg, the steering-wheel rate RMS [rad/s] and
-    the pedal rates RMS [full travel / s] (see :func:`rate_rms`)."""
+    the pedal rates RMS [full travel / s] (see :func:`rate_rms`: one sample per control
+    update). ``duration_s``: the run's length the reversals are counted over [s] (default:
+    last minus first update)."""
     t = np.asarray(time_s, dtype=float)
-    minutes = max((t[-1] - t[0]) / 60.0, 1e-9) if len(t) else 1e-9
+    span = duration_s if duration_s is not None else (t[-1] - t[0] if len(t) else 0.0)
+    minutes = max(float(span) / 60.0, 1e-9)
     sw_deg = np.degrees(np.asarray(steering_cmd_rad, dtype=float))
     return {
         "steering_reversals_per_min": {f"{g}deg": steering_reversals(sw_deg, float(g)) / minutes
@@ -383,6 +391,17 @@ def smoothness_of(time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd) ->
         "accel_pedal_rate_rms_ps": rate_rms(t, accel_pedal_cmd),
         "brake_pedal_rate_rms_ps": rate_rms(t, brake_pedal_cmd),
     }
+
+
+def control_updates(res: ClosedLoopResult) -> np.ndarray:
+    """Indices of the recording's samples at the control updates (the commands are held
+    between them); every sample when the run has no control times."""
+    t = res.recording.channels["time"]
+    if len(res.control_time_s) == 0 or len(t) < 2:
+        return np.arange(len(t))
+    tol = 1e-6 * float(t[1] - t[0])
+    idx = np.searchsorted(t, np.asarray(res.control_time_s, dtype=float) - tol)
+    return idx[idx < len(t)]
 
 
 def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
@@ -402,6 +421,7 @@ def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
         return float(np.percentile(a, q)) if len(a) else 0.0
     ap, bp = rec.channels["accel_pedal_cmd"], rec.channels["brake_pedal_cmd"]
     nz = int(np.count_nonzero(np.diff(res.zone)))
+    upd = control_updates(res)
     return {
         "speed_error_rms_mps": float(np.sqrt(np.mean(ev ** 2))),
         "lateral_error_rms_m": float(np.sqrt(np.mean(res.lateral_error_m ** 2))),
@@ -412,7 +432,9 @@ def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
         "steps": int(len(res.statuses)),
         "failures": int(sum(1 for s in res.statuses if not Status(s).ok)),
         "internal_errors": int(sum(1 for s in res.statuses if s == Status.INTERNAL_ERROR)),
-        **smoothness_of(t, rec.channels["steering_cmd"], ap, bp),
+        # the commands at the control updates (held in between): rates per update
+        **smoothness_of(t[upd], rec.channels["steering_cmd"][upd], ap[upd], bp[upd],
+                        duration_s=float(t[-1] - t[0])),
         # extras (not in the issue's list, kept stable too)
         "step_time_ms": {"p50": pct(step_ms, 50), "p99": pct(step_ms, 99),
                          "max": float(step_ms.max()) if len(step_ms) else 0.0},

@@ -88,10 +88,12 @@ def test_nmpc_idle_hold_through_the_estimator_is_smooth(params, which):
     through the EKF, seed 0, on report_2008 and on ``random_params(913)`` (a set no other
     test tunes against). Measured with the fast path's issue 9 input cost (MpcConfig
     defaults of this commit), report_2008 / random_913: reversals >= 1 deg 10.0 / 7.5 per
-    min, >= 5 deg 0 / 0; steering rate RMS 0.054 / 0.024 rad/s; brake rate RMS 0.023 /
-    0.023 /s; speed RMS 0.010 / 0.011 m/s; lateral RMS 0.008 / 0.003 m; no pedal switch.
-    The HEAD NMPC measured 97.5 / 97.5 per min, 27.5 / 27.5, 0.37 / 0.38 rad/s, 0.098 /
-    0.096 /s. Bounds: the issue's limits for reversals >= 1 deg (12/min, 1.2x the larger
+    min, >= 5 deg 0 / 0; steering rate RMS 0.024 / 0.011 rad/s; brake rate RMS 0.010 /
+    0.010 /s (rates: change per control update / period); speed RMS 0.010 / 0.011 m/s;
+    lateral RMS 0.008 / 0.003 m; no pedal switch. The HEAD NMPC measured 97.5 / 97.5 per min,
+    27.5 / 27.5, 0.37 / 0.38 rad/s, 0.098 / 0.096 /s (rates then finite differences of the
+    held command every 0.02 s: sqrt(5) = 2.24x the per-update rate; 0.17 rad/s, 0.044 /s on
+    the per-update definition). Bounds: the issue's limits for reversals >= 1 deg (12/min, 1.2x the larger
     figure), speed RMS and pedal switches; one reversal >= 5 deg in the run (2.5/min);
     about 2x the larger figure for the steering and brake rates and the lateral RMS."""
     if which == "random_913":
@@ -103,8 +105,8 @@ def test_nmpc_idle_hold_through_the_estimator_is_smooth(params, which):
     assert m["failures"] == 0 and m["internal_errors"] == 0
     assert m["steering_reversals_per_min"]["1deg"] <= 12.0
     assert m["steering_reversals_per_min"]["5deg"] <= 2.5
-    assert m["steering_rate_rms_radps"] <= 0.1
-    assert m["brake_pedal_rate_rms_ps"] <= 0.05
+    assert m["steering_rate_rms_radps"] <= 0.05
+    assert m["brake_pedal_rate_rms_ps"] <= 0.022
     assert m["speed_error_rms_mps"] <= 0.05
     assert m["lateral_error_rms_m"] <= 0.02
     assert m["pedal_switches_per_min"] <= 6.0

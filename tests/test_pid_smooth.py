@@ -6,7 +6,9 @@ feeds the controller from simulated sensors), seed 0, on params/report_2008.yaml
 ``random_params(913)``, a parameter set no other test tunes against. Each bound states
 the figure measured with this PidConfig and the margin; the HEAD PID (before issue 9)
 measured, on report_2008 idle_hold, 132 reversals >= 1 deg/min, steering rate RMS
-0.31 rad/s, brake rate RMS 0.30 /s, so these bounds fail on it.
+0.31 rad/s, brake rate RMS 0.30 /s, so these bounds fail on it. Those two rates, like the
+issue's, were differences of the 0.1 s commands at the 0.02 s recording rate, sqrt(5) times
+the rate per control update the figures are now: 0.139 rad/s and 0.134 /s on this one.
 """
 from __future__ import annotations
 
@@ -48,9 +50,10 @@ def _figures(m):
 def test_idle_hold_through_the_estimator_is_smooth(params):
     """Measured (report_2008 / random_913): reversals >= 1 deg 18.3 / 18.3 per min (the
     issue's MPC target, 12, is missed by the baseline), >= 5 deg 0 / 0; steering rate RMS
-    0.045 / 0.053 rad/s; brake rate RMS 0.092 / 0.091 /s; speed RMS 0.042 / 0.038 m/s;
-    pedal switches 3.1 / 3.1 per min. Bounds: about 1.4x the larger figure, or the issue's
-    limit where that is tighter (speed RMS 0.05 m/s, pedal switches 6/min)."""
+    0.020 / 0.024 rad/s; brake rate RMS 0.041 / 0.041 /s (per control update; 0.045 / 0.053
+    and 0.092 / 0.091 on the old 50 Hz differences); speed RMS 0.042 / 0.038 m/s; pedal
+    switches 3.1 / 3.1 per min. Bounds: about 1.4x the larger figure, or the issue's limit
+    where that is tighter (speed RMS 0.05 m/s, pedal switches 6/min)."""
     ref = make_scenario("idle_hold", params)
     res = run_closed_loop(PidController(params), ref, params, seed=SEED)
     m = res.metrics
@@ -58,8 +61,8 @@ def test_idle_hold_through_the_estimator_is_smooth(params):
     assert m["failures"] == 0 and m["internal_errors"] == 0
     assert m["steering_reversals_per_min"]["1deg"] <= 25.0
     assert m["steering_reversals_per_min"]["5deg"] <= 2.0
-    assert m["steering_rate_rms_radps"] <= 0.075
-    assert m["brake_pedal_rate_rms_ps"] <= 0.13
+    assert m["steering_rate_rms_radps"] <= 0.034
+    assert m["brake_pedal_rate_rms_ps"] <= 0.058
     assert m["speed_error_rms_mps"] <= 0.05
     assert m["lateral_error_rms_m"] <= 0.01
     assert m["pedal_switches_per_min"] <= 6.0

@@ -21,12 +21,17 @@ Two uses:
 """
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
 from hmpc.models.errors import InputError
 
 CONTROLLERS = ("mpc", "nmpc", "pid")
+
+
+#: what ``--out`` holds, for the CLI's check of output paths (tools/cli.py)
+OUTPUTS = {"out": "the recording"}
 
 
 def add_arguments(p) -> None:
@@ -85,9 +90,26 @@ def add_arguments(p) -> None:
                    help="--experiment: recording rate [Hz] (default 50)")
 
 
+def _check_positive(option: str, value: float) -> None:
+    """InputError naming ``option`` unless ``value`` is a finite number > 0."""
+    if not (math.isfinite(value) and value > 0):
+        raise InputError(f"{option} must be a finite number > 0, got {value:g}")
+
+
+def _save(rec, path: str) -> None:
+    """Write ``rec`` to ``--out`` (InputError naming the file when it cannot be written)."""
+    try:
+        rec.save(path)
+    except OSError as exc:
+        raise InputError(f"cannot write the recording ({exc.strerror or exc})", path) from None
+
+
 def run(args) -> int:
     from hmpc.tools.cli import write_json
 
+    _check_positive("--rate", args.rate)
+    _check_positive("--control-period", args.control_period)
+    _check_positive("--horizon", args.horizon)
     params = load_model_params(args.params, args, "simulate")
     if args.experiment is not None:
         return _run_experiment(args, params, write_json)
@@ -107,7 +129,7 @@ def _run_experiment(args, params, write_json) -> int:
                          "(--scenario/--reference)")
     rec = sim.simulate_experiment(args.experiment, params, seed=args.seed, rate_hz=args.rate,
                                   noise=args.noise)
-    rec.save(args.out)
+    _save(rec, args.out)
     t = rec.channels["time"]
     summary = {"experiment": args.experiment, "seed": args.seed, "noise": args.noise,
                "rate_hz": args.rate, "rows": int(len(t)),
@@ -191,7 +213,7 @@ def _run_closed_loop(args, params, write_json) -> int:
               f"first at t = {t_err:.2f} s (controlled stop each time):\n{tb}",
               file=sys.stderr)
     if args.out:
-        res.recording.save(args.out)
+        _save(res.recording, args.out)
     payload = {k: m[k] for k in ("speed_error_rms_mps", "lateral_error_rms_m",
                                  "pedal_switches_per_min", "zone_transitions_per_min",
                                  "solve_time_ms", "steps", "failures", "internal_errors",
@@ -203,8 +225,12 @@ def _run_closed_loop(args, params, write_json) -> int:
                     "effects": [e.describe() for e in effects],
                     "details": {k: v for k, v in m.items() if k not in payload}})
     if args.plots:
-        payload["plots"] = _plots(res, ref, args.plots, args.controller,
-                                  plant_params or params)
+        try:
+            payload["plots"] = _plots(res, ref, args.plots, args.controller,
+                                      plant_params or params)
+        except OSError as exc:
+            raise InputError(f"cannot write the plots ({exc.strerror or exc})",
+                             args.plots) from None
     _print_summary(payload)
     write_json(args.json, payload)
     return 0
@@ -224,7 +250,7 @@ def _print_summary(p: dict) -> None:
     print(f"  smoothness: steering reversals >= 1/5 deg {rv['1deg']:.1f}/{rv['5deg']:.1f} per "
           f"min, steering-wheel rate RMS {p['steering_rate_rms_radps']:.3f} rad/s, pedal rate "
           f"RMS accel {p['accel_pedal_rate_rms_ps']:.3f} brake "
-          f"{p['brake_pedal_rate_rms_ps']:.3f} /s")
+          f"{p['brake_pedal_rate_rms_ps']:.3f} /s (rates: change per control update / period)")
 
 
 def _sensor_config(args):
@@ -266,20 +292,27 @@ def _sensor_echo(cfg) -> dict:
             "can_rate_hz": cfg.can_rate_hz, "imu_rate_hz": cfg.imu_rate_hz}
 
 
-def _smoothness_panel(ax, t, ch, m) -> None:
+def _smoothness_panel(ax, t, ch, m, upd) -> None:
     """The commands' rates (steering wheel [rad/s] left, pedals [1/s] right) with the
-    issue 9 smoothness figures written on the panel."""
+    issue 9 smoothness figures written on the panel. A rate is a command's change at a
+    control update (recording samples ``upd``) over the time since the previous one: the
+    commands are held in between, and differences at the recording's rate would show each
+    change as a spike period/dt times the rate."""
     import numpy as np
 
-    dt = np.diff(t)
-    tm = t[1:]
-    ax.plot(tm, np.diff(ch["steering_cmd"]) / dt, color="C0", lw=0.8,
+    tu = t[upd]
+    dt = np.diff(tu)
+
+    def rate(name):
+        return np.diff(ch[name][upd]) / dt
+    # each rate held over the period that ends at its update
+    ax.step(tu[1:], rate("steering_cmd"), where="pre", color="C0", lw=0.8,
             label="steering-wheel cmd rate")
     ax.set_ylabel("steering-wheel rate [rad/s]")
     ax2 = ax.twinx()
-    ax2.plot(tm, np.diff(ch["accel_pedal_cmd"]) / dt, color="C2", lw=0.8,
+    ax2.step(tu[1:], rate("accel_pedal_cmd"), where="pre", color="C2", lw=0.8,
              label="accel pedal cmd rate")
-    ax2.plot(tm, np.diff(ch["brake_pedal_cmd"]) / dt, color="C3", lw=0.8,
+    ax2.step(tu[1:], rate("brake_pedal_cmd"), where="pre", color="C3", lw=0.8,
              label="brake pedal cmd rate")
     ax2.set_ylabel("pedal rate [1/s]")
     rv = m["steering_reversals_per_min"]
@@ -298,6 +331,8 @@ def _plots(res, ref, out_dir: str, controller: str, params) -> list[str]:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from hmpc.controller.closed_loop import control_updates
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -320,7 +355,7 @@ def _plots(res, ref, out_dir: str, controller: str, params) -> list[str]:
     ax[3].set_ylabel("steering-wheel angle [rad]")
     ax[3].legend(loc="best")
     m = res.metrics
-    _smoothness_panel(ax[4], t, ch, m)
+    _smoothness_panel(ax[4], t, ch, m, control_updates(res))
     ax[5].step(t, res.zone, where="post")
     ax[5].set_yticks(range(len(params.zones)), [f"{z.name} ({z.v_min_mps:g}-{z.v_max_mps:g} m/s)"
                                          for z in params.zones])

@@ -290,7 +290,7 @@ class _Run:
     wd: Watchdog
     act: _Actuation
     bus: can.BusABC
-    writer: can.CanutilsLogWriter
+    writer: _OrderedCandump
     counters: dict
     sent: dict
     trace: dict
@@ -325,6 +325,47 @@ class _Run:
     k: int = 0
     # messages decoded by the last look before encoding (step 6), counted as seen next tick
     late_seen: list = field(default_factory=list)
+
+
+class _OrderedCandump:
+    """The run's candump, written in time order without work between reading and sending.
+
+    A sent frame is stamped when it is sent, a received one when it reached the bus; a frame
+    that arrives while the loop encodes and sends (after its last look at the bus) is read
+    on the next tick, after frames stamped later were logged. The loop's calls only keep the
+    frame (``on_message_received``); after the tick's frames are sent, ``flush`` writes, in
+    time order, those older than the previous tick's first read (every frame that old was
+    on the bus then, and has been read: one tick of margin for a sender stamped before it
+    queued its frame). ``stop`` writes the rest, sorted, and closes the file."""
+
+    def __init__(self, path: Path):
+        self._writer = can.CanutilsLogWriter(str(path), channel="can0")
+        self._held: list = []
+        self._mark = -math.inf   # the previous tick's first read [s, the frames' clock]
+        self._read_at = -math.inf
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self._held.append(msg)
+
+    def reading(self, t_s: float) -> None:
+        """The tick's first read of the bus starts at ``t_s`` [s, the frames' clock]."""
+        self._mark, self._read_at = self._read_at, t_s
+
+    def flush(self) -> None:
+        held = self._held
+        if not held:
+            return
+        held.sort(key=lambda m: m.timestamp)  # stable: a tie keeps its logging order
+        n = 0
+        while n < len(held) and held[n].timestamp < self._mark:
+            self._writer.on_message_received(held[n])
+            n += 1
+        del held[:n]
+
+    def stop(self) -> None:
+        self._mark = math.inf
+        self.flush()
+        self._writer.stop()
 
 
 class SystemClock:
@@ -443,6 +484,7 @@ class DriveLoop:
                 self._send_frames(r, tk)
                 if self._run_over(r, tk):
                     break
+                r.writer.flush()  # the candump, once this tick's frames are out
                 r.k += 1
         finally:
             r.writer.stop()
@@ -476,7 +518,7 @@ class DriveLoop:
         self.controller.reset()
         bus = can.Bus(**self.bus_kwargs)
         self.candump.parent.mkdir(parents=True, exist_ok=True)
-        writer = can.CanutilsLogWriter(str(self.candump), channel="can0")
+        writer = _OrderedCandump(self.candump)  # time-ordered, written after the sends
         ekf = None
         if cfg.estimator == "ekf":
             from hmpc.controller.estimator import Estimator, EstimatorConfig
@@ -550,6 +592,7 @@ class DriveLoop:
     def _receive(self, r: _Run, tk: _Tick) -> None:
         """Step 2: drain the bus, log and decode what arrived, read the measured speed and angle."""
         fb = r.fb
+        r.writer.reading(r.epoch0 + tk.t_mono)  # the tick began before this read
         tk.seen = fb.update(self._drain(r, tk), tk.t) + r.late_seen
         r.late_seen = []
         # eq. 1's speed is the front-axle centre's: the front wheels' mean (the
@@ -898,7 +941,9 @@ class DriveLoop:
                    "lateral_error_rms_m": float(np.sqrt(np.mean(np.asarray(lat) ** 2))),
                    "pedal_switches_per_min": pedal_switches(ap, bp) / minutes,
                    "zone_transitions_per_min": int(np.count_nonzero(np.diff(z))) / minutes,
-                   # issue 9's smoothness of the commands the controller gave, as simulate's
+                   # issue 9's smoothness of the commands the controller gave, as simulate's:
+                   # the engaged rows are the control updates, so a rate is each update's
+                   # change over the control period (closed_loop.rate_rms)
                    **smoothness_of(tr["t_s"][eng], tr["sw_cmd"][eng], ap, bp)}
         sm = np.asarray(solve_ms)
         node = self.node.stats.to_dict() if self.node is not None else None
