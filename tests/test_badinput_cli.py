@@ -304,6 +304,15 @@ def test_actuation_constant_that_does_not_fit_its_signal(value, tmp_path, capsys
     assert not (tmp_path / "run.log").exists()
 
 
+def test_a_bus_that_cannot_be_opened(tmp_path, capsys):
+    """Was: an OSError traceback (errno 97 on a host without SocketCAN, 19 without the
+    interface) from ``can.Bus`` in the drive loop."""
+    rc, line = cli_run(["drive", "--params", REPORT_PARAMS, "--actuation", ACTUATION,
+                        "--bus", "socketcan:nope0", "--scenario", "idle_hold", "--controller",
+                        "pid", "--duration", "1", "--candump", tmp_path / "run.log"], capsys)
+    assert rc == 2 and "bus socketcan:nope0: cannot open it" in line
+
+
 # ----------------------------------------------------------------------------- console script
 def test_console_script_one_line_no_traceback(tmp_path, short_log):
     """The installed `hmpc` script itself, as a user runs it."""

@@ -88,3 +88,17 @@ def test_cli_no_car_on_the_bus_is_exit_2(tmp_path, capsys):
     assert "never engaged" in capsys.readouterr().err
     j = json.loads((tmp_path / "x.json").read_text())
     assert j["steps"] == 0 and j["stop"]["reason"] == "no_feedback" and j["limit_violations"] == 0
+
+
+def test_cli_warns_when_the_run_stops_the_car_by_itself(tmp_path, capsys):
+    """A stop nobody asked for (here an injected feedback loss) is said on stderr, with the
+    time it happened and the run time asked for: the figures printed cover a shorter run."""
+    rc = main(["drive", "--params", str(PARAMS_DIR / "report_2008.yaml"),
+               "--actuation", str(PARAMS_DIR / "bywire.actuation.yaml"), "--vehicle-sim",
+               "--scenario", "figure8", "--duration", "4", "--fault", "feedback_loss@1.5",
+               "--candump", str(tmp_path / "x.log"), "--json", str(tmp_path / "x.json")])
+    assert rc == 0
+    err = capsys.readouterr().err
+    assert "warning: the run stopped the car by itself (feedback_loss at" in err
+    assert "of 4.0 s asked" in err
+    assert json.loads((tmp_path / "x.json").read_text())["stop"]["reason"] == "feedback_loss"

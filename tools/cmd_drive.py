@@ -44,14 +44,36 @@ def add_arguments(p) -> None:
     what.add_argument("--reference", metavar="REF.csv", help="a reference CSV")
     p.add_argument("--controller", choices=CONTROLLERS, default="mpc")
     p.add_argument("--duration", type=float, metavar="S",
-                   help="run time after engagement before the run's own controlled stop "
-                        "(default: the reference's length); Ctrl-C stops the car earlier")
+                   help="run time after engagement before the run's own controlled stop; "
+                        "without it the run lasts until Ctrl-C or the end of the reference "
+                        "(there is nothing left to follow), whichever comes first")
     p.add_argument("--fault", action="append", default=[], metavar="NAME@T_S",
                    help="inject a fault at T_S seconds of run time: feedback_loss, clock_freeze, "
                         "solver_failure, bus_error, driver_override, vehicle_rejects")
     p.add_argument("--candump", required=True, metavar="RUN.log",
                    help="write every frame sent and received here (candump -L)")
     p.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
+
+
+#: what an unrequested stop means, for the warning line
+STOP_WHY = {
+    "feedback_loss": "the car's wheel speeds went stale for more than 3 of their periods; "
+                     "on a loaded host a stall of the process does this",
+    "driver_override": "the driver steered, braked or pressed the accelerator",
+    "vehicle_rejects": "the car stopped accepting hmpc's frames",
+    "solver_failure": "the controller failed to solve",
+    "bus_error": "sending on the bus failed",
+    "clock_freeze": "the loop's monotonic clock stopped advancing",
+    "clock_jump": "the loop's monotonic clock jumped",
+    "deadline_misses": "the loop missed its period several times in a row (a loaded host)",
+}
+
+
+def stop_times(st: dict) -> str:
+    """'detected 30.30 s, started 30.30 s, standstill 32.68 s' (run time; '-' when absent)."""
+    f = lambda v: "-" if v is None else f"{v:.2f} s"   # noqa: E731
+    return (f"detected {f(st['detected_t_s'])}, started {f(st['t_s'])}, "
+            f"standstill {f(st['standstill_t_s'])}")
 
 
 def bus_kwargs(text: str) -> dict:
@@ -109,10 +131,16 @@ def run(args) -> int:
           f"{lp['max']:.1f} ms, deadline misses {out['deadline_misses']}, frames sent "
           f"{out['frames_sent']}, rejected by vehicle {out['frames_rejected_by_vehicle']}, "
           f"limit violations {out['limit_violations']}, stop {st['reason']} "
-          f"(detected {st['detected_t_s']}, started {st['t_s']}, standstill {st['standstill_t_s']})")
+          f"({stop_times(st)})")
     if out["speed_error_rms_mps"] is not None:
         print(f"speed error RMS {out['speed_error_rms_mps']:.3f} m/s, lateral error RMS "
               f"{out['lateral_error_rms_m']:.3f} m")
+    if st["reason"] not in ("duration", "interrupted", "no_feedback", "car_not_accepting"):
+        # the run stopped the car by itself: the figures above cover a shorter run
+        print(f"hmpc drive: warning: the run stopped the car by itself ({st['reason']}"
+              f"{' at ' + format(st['detected_t_s'], '.2f') + ' s' if st['detected_t_s'] is not None else ''}"
+              f" of {duration:.1f} s asked; {STOP_WHY.get(st['reason'], 'see stop in the JSON')})",
+              file=sys.stderr)
     write_json(args.json, out)
     if st["reason"] in ("no_feedback", "car_not_accepting"):
         raise InputError(f"bus {args.bus}: never engaged: "

@@ -32,7 +32,7 @@ import sys
 import numpy as np
 
 from hmpc.models.errors import InputError
-from hmpc.tools.cmd_drive import CONTROLLERS, add_bus_arguments, bus_kwargs
+from hmpc.tools.cmd_drive import CONTROLLERS, stop_times, add_bus_arguments, bus_kwargs
 
 
 def add_arguments(p) -> None:
@@ -93,7 +93,8 @@ def run(args) -> int:
         addr = L.parse_address(args.listen)
         rx = L.LinkReceiver(key, addr)
     except (ValueError, OSError) as exc:
-        raise InputError(f"--listen {args.listen}: {exc}") from None
+        raise InputError(f"--listen {args.listen}: cannot listen there (expected HOST:PORT of "
+                         f"this machine, e.g. 127.0.0.1:47700; {exc})") from None
     try:
         kw = bus_kwargs(args.bus)
         node = VehicleNode(profile, truth, kw, start_state=ref.initial_state(truth)) \
@@ -120,8 +121,8 @@ def run(args) -> int:
     out = finish_summary(res.summary, src, audit_candump(profile, params, args.candump))
     write_json(args.json, out)
     st, lk = out["stop"], out["link"]
-    print(f"hmpc teleop: engaged {out['engaged_s']:.1f} s, stop {st['reason']} (detected "
-          f"{st['detected_t_s']}, started {st['t_s']}, standstill {st['standstill_t_s']}); link "
+    print(f"hmpc teleop: engaged {out['engaged_s']:.1f} s, stop {st['reason']} "
+          f"({stop_times(st)}); link "
           f"accepted {lk['accepted']}, rejected {lk['rejected_total']}, latency p50/p99 "
           f"{lk['latency_ms']['p50']}/{lk['latency_ms']['p99']} ms; frames sent "
           f"{out['frames_sent']}, limit violations {out['limit_violations']}", file=sys.stderr)

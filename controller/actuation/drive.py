@@ -516,7 +516,11 @@ class DriveLoop:
         x0 = ref.initial_state(self.params)
         self.controller.step(x0, ref, float(ref.time_s[0]))
         self.controller.reset()
-        bus = can.Bus(**self.bus_kwargs)
+        try:
+            bus = can.Bus(**self.bus_kwargs)
+        except (OSError, can.CanError, ValueError) as exc:   # no such interface, no driver
+            where = ":".join(str(self.bus_kwargs.get(k)) for k in ("interface", "channel"))
+            raise InputError(f"bus {where}: cannot open it ({exc})") from None
         self.candump.parent.mkdir(parents=True, exist_ok=True)
         writer = _OrderedCandump(self.candump)  # time-ordered, written after the sends
         ekf = None
