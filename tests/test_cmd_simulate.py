@@ -101,6 +101,23 @@ def test_experiment_writes_a_canonical_recording(tmp_path):
     assert np.nanmin(rec["speed"]) > -0.02 and 7.5 < np.nanmax(rec["speed"]) < 9.0
 
 
+def test_a_canonical_recording_is_a_reference(tmp_path):
+    """CONVENTIONS: any tool that takes a recording accepts one directly. A recording given as
+    --reference is followed along its driven path and speed (as ``hmpc replay`` does): the
+    MPC on the same model that made the recording tracks it closely."""
+    rec = tmp_path / "arcs.csv"
+    assert main(["simulate", "--experiment", "arcs", "--params", PARAMS, "--out", str(rec),
+                 "--seed", "1"]) == 0
+    js = tmp_path / "run.json"
+    assert main(["simulate", "--params", PARAMS, "--reference", str(rec), "--json", str(js)]) == 0
+    d = json.loads(js.read_text())
+    r = Recording.load(rec)
+    assert d["reference"] == "arcs"
+    assert d["steps"] * 0.1 == pytest.approx(r.time[-1] - r.time[0], abs=0.2)   # 0.1 s steps
+    assert d["failures"] == 0
+    assert d["speed_error_rms_mps"] < 0.3 and d["lateral_error_rms_m"] < 0.3
+
+
 @pytest.mark.parametrize("body, line, what", [
     ("time,x,y,speed\n0,0,0,1\n0.1,0.1,0,1\n0.2,zz,0,1\n", 4, "not a number"),
     ("time,x,y,speed\n0,0,0,1\n0,0.1,0,1\n", 3, "strictly increasing"),

@@ -41,7 +41,8 @@ def add_arguments(p) -> None:
     add_bus_arguments(p)
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--scenario", metavar="NAME", help="a named reference (figure8, ramp_sequence, ...)")
-    what.add_argument("--reference", metavar="REF.csv", help="a reference CSV")
+    what.add_argument("--reference", metavar="REF.csv", help="a reference CSV (time, x, y, speed[, heading]) or a canonical "
+                      "recording, whose driven path and speed are followed")
     p.add_argument("--controller", choices=CONTROLLERS, default="mpc")
     p.add_argument("--duration", type=float, metavar="S",
                    help="run time after engagement before the run's own controlled stop; "
@@ -90,9 +91,9 @@ def run(args) -> int:
     from hmpc.controller.actuation.drive import DriveLoop, audit_candump, parse_fault
     from hmpc.controller.actuation.profiles import load_profile
     from hmpc.controller.actuation.vehicle_node import VehicleNode
-    from hmpc.models.sim.scenarios import load_reference_csv, make_scenario
+    from hmpc.models.sim.scenarios import make_scenario
     from hmpc.tools.cli import write_json
-    from hmpc.tools.cmd_simulate import load_model_params, make_controller
+    from hmpc.tools.cmd_simulate import load_model_params, load_reference, make_controller
 
     params = load_model_params(args.params, args, "drive")
     profile = load_profile(args.actuation)
@@ -103,7 +104,7 @@ def run(args) -> int:
         raise InputError("--duration must be > 0")
     truth = load_model_params(args.plant_params, args, "drive") if args.plant_params else params
     ref = make_scenario(args.scenario, params) if args.scenario is not None \
-        else load_reference_csv(args.reference)
+        else load_reference(args.reference, params)
     kw = bus_kwargs(args.bus)
     node = None
     if args.vehicle_sim:

@@ -42,7 +42,8 @@ def add_arguments(p) -> None:
                       help="closed loop on a named scenario: arcs, circles, figure8, ramps, "
                            "ramp_sequence, idle_hold")
     what.add_argument("--reference", metavar="REF.csv",
-                      help="closed loop on a reference CSV: time, x, y, speed[, heading]")
+                      help="closed loop on a reference CSV (time, x, y, speed[, heading]) or along "
+                           "a canonical recording's driven path and speed")
     what.add_argument("--experiment", metavar="NAME",
                       help="simulate one of the report's experiments (open loop driver) into a "
                            "canonical recording: arcs, circles, figure8, ramps, ramp_sequence, "
@@ -181,10 +182,30 @@ def make_controller(name: str, params, *, dt_s: float = 0.2, horizon_s: float = 
     return MpcController(params, cfg)
 
 
+def load_reference(path, params):
+    """``--reference FILE``: a reference CSV (time, x, y, speed[, heading]), or a canonical
+    recording (../shared/CONVENTIONS.md: any tool that takes a recording accepts one), whose
+    driven path and speed become the reference as ``hmpc replay`` makes it
+    (``controller.replay.recording_reference``: GNSS/INS path when it has one, else dead
+    reckoning from the wheel speeds and the steering-wheel angle through eq. 7)."""
+    from hmpc.models.logs.channels import CHANNELS
+    from hmpc.models.sim.scenarios import load_reference_csv
+    try:
+        with open(path, encoding="utf-8", newline="") as fh:
+            header = [h.strip() for h in fh.readline().split(",")]
+    except (OSError, UnicodeDecodeError):
+        header = []                       # load_reference_csv says what is wrong, in one line
+    if set(header) - {"time", "x", "y", "speed", "heading"} and set(header) <= set(CHANNELS):
+        from hmpc.controller.replay import recording_reference
+        from hmpc.models.logs.recording import Recording
+        return recording_reference(Recording.load(path), params, name=Path(path).stem)
+    return load_reference_csv(path)
+
+
 def _run_closed_loop(args, params, write_json) -> int:
     from hmpc.controller.closed_loop import run_closed_loop
     from hmpc.models.sim.effects import parse_effect
-    from hmpc.models.sim.scenarios import load_reference_csv, make_scenario
+    from hmpc.models.sim.scenarios import make_scenario
 
     if args.horizon <= 0 or abs(args.horizon / args.dt - round(args.horizon / args.dt)) > 1e-6:
         raise InputError(f"--horizon {args.horizon} must be a positive multiple of --dt {args.dt}")
@@ -193,7 +214,7 @@ def _run_closed_loop(args, params, write_json) -> int:
     plant_params = load_model_params(args.plant_params, args, "simulate") if args.plant_params \
         else None
     ref = make_scenario(args.scenario, params) if args.scenario is not None \
-        else load_reference_csv(args.reference)
+        else load_reference(args.reference, params)
     ctl = make_controller(args.controller, params, dt_s=args.dt, horizon_s=args.horizon,
                           transition_penalty=not args.no_transition_penalty,
                           accept_unidentifiable=args.accept_unidentifiable)

@@ -49,7 +49,7 @@ def add_arguments(p) -> None:
     what = p.add_mutually_exclusive_group()
     what.add_argument("--scenario", metavar="NAME",
                       help="the reference a handover follows (figure8, ramp_sequence, ...)")
-    what.add_argument("--reference", metavar="REF.csv", help="a reference CSV for handovers")
+    what.add_argument("--reference", metavar="REF.csv", help="a reference CSV or a canonical recording, for handovers")
     p.add_argument("--duration", type=float, metavar="S",
                    help="end the run after S seconds of run time (default: until interrupted)")
     p.add_argument("--candump", required=True, metavar="RUN.log",
@@ -71,9 +71,9 @@ def run(args) -> int:
     from hmpc.controller.actuation.vehicle_node import VehicleNode
     from hmpc.controller.teleop import link as L
     from hmpc.controller.teleop.vehicle import TeleopController, handover_config
-    from hmpc.models.sim.scenarios import load_reference_csv, make_scenario
+    from hmpc.models.sim.scenarios import make_scenario
     from hmpc.tools.cli import write_json
-    from hmpc.tools.cmd_simulate import load_model_params, make_controller
+    from hmpc.tools.cmd_simulate import load_model_params, load_reference, make_controller
 
     key = L.load_key(args.key)  # first: a refused key stops everything
     params = load_model_params(args.params, args, "teleop")
@@ -86,7 +86,7 @@ def run(args) -> int:
     if args.scenario is not None:
         ref = make_scenario(args.scenario, params)
     elif args.reference is not None:
-        ref = load_reference_csv(args.reference)
+        ref = load_reference(args.reference, params)
     else:
         ref = standstill_reference()
     try:
