@@ -178,6 +178,8 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
         cols["accel_x"][i] = accel = r.accel_mps2
         zones[i] = r.zone
         s, zone = r.state, r.zone
+    if progress is not None and last_report != 10:   # the last control step came before the end
+        progress(1.0, float(cols["time"][-1]) - t0)
     cols["heading"] = (cols["heading"] + np.pi) % (2 * np.pi) - np.pi
     rec = Recording(cols, {}, {"source": "hmpc closed loop", "controller": getattr(controller, "name", "?"),
                                "reference": reference.name, "seed": seed,

@@ -245,7 +245,9 @@ class Params:
     def to_dict(self) -> dict:
         def clean(obj):
             d = asdict(obj)
-            return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items() if v is not None}
+            return {k: (list(v) if isinstance(v, tuple) else
+                        int(v) if k == "samples" and float(v).is_integer() else v)   # a count
+                    for k, v in d.items() if v is not None}
         out: dict[str, Any] = {"vehicle": clean(self.vehicle)}
         if self.steering is not None:
             out["steering"] = clean(self.steering)

@@ -42,7 +42,10 @@ def build_parser() -> argparse.ArgumentParser:
     Raises:
         MissingSubcommandError: a subcommand's module is not installed.
     """
-    parser = argparse.ArgumentParser(prog="hmpc", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="hmpc", description="Recover a car's steering and accelerator models from its own "
+        "CAN and GNSS/INS data (UC Berkeley EECS-2008-92) and drive it with a hybrid-mode MPC. "
+        "'hmpc COMMAND --help' describes each command.")
     parser.add_argument("--version", action="version", version=f"hmpc {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (modname, helptext) in SUBCOMMANDS.items():

@@ -43,7 +43,9 @@ def add_arguments(p) -> None:
     what.add_argument("--scenario", metavar="NAME", help="a named reference (figure8, ramp_sequence, ...)")
     what.add_argument("--reference", metavar="REF.csv", help="a reference CSV (time, x, y, speed[, heading]) or a canonical "
                       "recording, whose driven path and speed are followed")
-    p.add_argument("--controller", choices=CONTROLLERS, default="mpc")
+    p.add_argument("--controller", choices=CONTROLLERS, default="mpc",
+                   help="the controller (default mpc: the hybrid MPC, OSQP; nmpc: CasADi/IPOPT; "
+                        "pid: the baseline)")
     p.add_argument("--duration", type=float, metavar="S",
                    help="run time after engagement before the run's own controlled stop; "
                         "without it the run lasts until Ctrl-C or the end of the reference "

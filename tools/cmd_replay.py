@@ -40,7 +40,9 @@ def add_arguments(p) -> None:
                    help="reference: the controller drives the identified plant along the "
                         "recorded drive; log: the log's frames through the drive loop "
                         "(default reference)")
-    p.add_argument("--controller", choices=CONTROLLERS, default="mpc")
+    p.add_argument("--controller", choices=CONTROLLERS, default="mpc",
+                   help="the controller (default mpc: the hybrid MPC, OSQP; nmpc: CasADi/IPOPT; "
+                        "pid: the baseline)")
     add_accept_unidentifiable(p)
     p.add_argument("--actuation", metavar="A.yaml",
                    help="log mode: the actuation profile (params/*.actuation.yaml)")
