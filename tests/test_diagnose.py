@@ -183,3 +183,16 @@ def test_two_longitudinal_effects_stack_delay_then_drag():
     assert abs(got["aero_drag"]["parameters"]["coeff_per_m"] - 1.5e-3) <= 0.3e-3
     assert got["aero_drag"]["on_top_of"] == {"actuator_delay": {
         "delay_s": got["actuator_delay"]["parameters"]["delay_s"]}}
+
+
+def test_noise_floor_of_a_held_quantised_channel_is_its_step_not_zero():
+    """A CAN value held on a faster grid (each repeated 4 times) differs from its neighbour
+    in a quarter of the samples only: the floor is read from the changes, never 0 (measured
+    0.021 for white noise of 0.01 rounded to 0.01: the changes that remain are the larger
+    ones, so it errs high, within 2x, which only raises the bar for a window to count)."""
+    from hmpc.models.diagnose.locate import noise_floor
+    rng = np.random.default_rng(3)
+    x = np.round(rng.normal(0.0, 0.01, 500) / 0.01) * 0.01
+    held = np.repeat(x, 4)
+    assert noise_floor(x) == pytest.approx(0.01, rel=0.35)
+    assert 0.005 < noise_floor(held) < 0.025

@@ -1,21 +1,31 @@
 """`hmpc diagnose` on recordings from a simulator it was not built on: CommonRoad's kinematic
-single-track model under a PI driver, with RAV4-like CAN quantisation and INS noise
-(``tests/indep/commonroad_truth.py``), 10 minutes at 50 Hz.
+single-track model (and its single-track model with tyres) under a PI driver, with RAV4-like
+CAN quantisation and INS noise (``tests/indep/commonroad_truth.py``), 10 minutes at 50 Hz.
 
-- clean (the report's family, nothing concealed): no finding improves the held-out error by
-  more than 10 %, nothing unexplained;
-- a concealed aerodynamic drag, added here to the generator's zone law (a ``Truth`` whose
-  acceleration loses ``c v^2``; the generator integrates whatever law its truth gives): named
-  as the top longitudinal finding with c within 20 %;
-- a concealed steering dead time (the generator's ``steer_delay_s``): named as the top
-  steering finding within 20 %.
+One case per catalogue effect, concealed in the generator's own terms
+(``commonroad_truth.Effects``; the cases are ``tests/indep/diagnose_matrix.py``'s ``CASES``),
+each on one of the truth sets A / B (alternating, so both are covered), asserting the issue's
+acceptance:
 
-Measured (seed of truth set A): clean no finding; drag c 1.46e-3 for 1.5e-3 (held-out gain
-71 %); steering dead time 0.200 s for 0.2 s (gain 91 %).
+- a concealed effect is the TOP finding, on its subsystem, its parameter within 20 % of the
+  truth and inside its own interval, with a held-out gain (after < before, gain >= 5 %), and
+  nothing is reported unexplained;
+- a clean recording (kinematic and tyre model) gives no finding improving the held-out error by
+  more than 10 % and nothing unexplained;
+- a heavier car in the second half (throttle and brake gains x 0.7: outside the catalogue) is
+  reported unexplained in its second half, carrying most of the error, and is not named.
+
+Measured (tests/indep/diagnose_matrix.py, truth sets A, B, C with their seeds and A, B with
+seed 5: 80 recordings): every effect named top in all 65 effect recordings; parameter errors
+within 10 % except rolling resistance, -12.6 to -22.7 % (the v term is identified only from
+the slope inside each zone, the zone offsets holding the constant part: its 95 % intervals
+span +-20-50 % and hold the truth in every case, and clean recordings show an apparent
+-0.0014 1/s); clean max gain 0.000 (10 of 10); the heavier half unexplained from 301.8-303.9 s
+of 600 s, share 0.999-1.0 (5 of 5). Cases here: one per effect, truth sets alternating, plus
+truth set C for the two fixes it exposed (a clean false alarm: idle creep 11 %; road grade:
+an unexplained last 150 s), and rolling resistance on A seed 5 as a strict xfail (-22.7 %).
 """
 from __future__ import annotations
-
-import dataclasses
 
 import pytest
 
@@ -23,59 +33,79 @@ from hmpc.models.diagnose.diagnose import diagnose
 from hmpc.models.logs.recording import Recording
 from hmpc.models.params import parse_params
 from indep import commonroad_truth as ct
+from indep import diagnose_matrix as dm
 
-DURATION_S = 600.0
-DRAG_PER_M = 1.5e-3   # rho Cd A / (2 m): 1.2 * 0.3 * 2.2 / (2 * 1300) = 3e-4; x5 so it shows
-STEER_DELAY_S = 0.2
-
-
-@dataclasses.dataclass(frozen=True)
-class DragTruth(ct.Truth):
-    """The report's zone law minus an aerodynamic drag ``drag_per_m * v^2`` [m/s^2]."""
-
-    drag_per_m: float = 0.0
-
-    def accel_mps2(self, v_mps, accel_pedal, brake_pedal, zone=None):
-        return super().accel_mps2(v_mps, accel_pedal, brake_pedal, zone) \
-            - self.drag_per_m * v_mps * v_mps
+#: case -> truth set (A and B alternate; road grade on C: the low-speed grade fix)
+EFFECT_CASES = {
+    "pedal_delay": "A", "pedal_lag": "B", "steer_delay": "A", "steer_lag": "B",
+    "rack_cubic": "B", "understeer_ks": "A", "understeer_st": "B", "aero_drag": "A",
+    "rolling_resistance": "B", "road_grade": "C", "idle_creep": "B",
+    "wheel_radius_error": "A", "sensor_time_offset": "B",
+}
 
 
-def _diagnose(sc: ct.Scenario, name: str):
-    rec = Recording(ct.record(sc), meta={"path": name})
+def _diagnose(case: str, truth: str, seed: int | None = None):
+    sc = dm.scenario(case, truth, seed)
+    rec = Recording(ct.record(sc), meta={"path": f"commonroad {case} {truth}"})
     return diagnose(rec, parse_params(ct.geometry()).vehicle)
 
 
-def _top(dg, subsystem):
-    return next((f for f in dg.findings if f["subsystem"] == subsystem), None)
+def _summary(dg):
+    return [(f["effect"], f["subsystem"], round(f["gain"], 3), f["parameters"])
+            for f in dg.findings]
 
 
-def test_clean_independent_recording_has_no_false_alarm():
-    dg = _diagnose(ct.scenario("A", duration_s=DURATION_S), "commonroad clean A")
-    assert all(f["gain"] <= 0.10 for f in dg.findings), \
-        [(f["effect"], f["subsystem"], round(f["gain"], 3)) for f in dg.findings]
+def test_every_catalogue_effect_has_a_case():
+    from hmpc.models.catalogue import CATALOGUE
+    named = {dm.CASES[c][0] for c in EFFECT_CASES}
+    assert named == set(CATALOGUE)
+    # both subsystems where the catalogue has both
+    assert {(dm.CASES[c][0], dm.CASES[c][1]) for c in EFFECT_CASES} >= {
+        ("actuator_delay", "steering"), ("actuator_delay", "longitudinal"),
+        ("actuator_lag", "steering"), ("actuator_lag", "longitudinal")}
+
+
+ROLLING_A5 = pytest.param(
+    "rolling_resistance", "A", 5, id="rolling_resistance-A-seed5",
+    marks=pytest.mark.xfail(strict=True, reason=(
+        "rolling resistance 0.00464 for 0.006 1/s (-22.7 %, interval [0.0024, 0.0068] holds the "
+        "truth): the v term is seen only in the within-zone slopes, and clean recordings of "
+        "this generator carry an apparent -0.0014 1/s, half of it from braking samples")))
+
+
+@pytest.mark.parametrize("case,truth,seed",
+                         [(c, t, None) for c, t in EFFECT_CASES.items()] + [ROLLING_A5])
+def test_concealed_effect_is_the_top_finding(case, truth, seed):
+    expect, subsystem, pname, pval, _, _ = dm.CASES[case]
+    dg = _diagnose(case, truth, seed)
+    assert dg.findings, f"{case}: nothing found"
+    top = dg.findings[0]
+    assert (top["effect"], top["subsystem"]) == (expect, subsystem), _summary(dg)
+    est = top["parameters"][pname]
+    assert abs(est - pval) <= 0.2 * abs(pval), (case, est, pval)
+    lo, hi = top["intervals"][pname]
+    assert lo <= est <= hi, (est, lo, hi)
+    assert top["heldout_rmse_after"] < top["heldout_rmse_before"]
+    assert top["gain"] >= 0.05
     assert not dg.unexplained, dg.unexplained
 
 
-def test_concealed_drag_in_the_independent_simulator_is_named():
-    t = ct.TRUTHS["A"]
-    truth = DragTruth(t.name, t.steer_offset_rad, t.steer_scale, t.zones, DRAG_PER_M)
-    sc = dataclasses.replace(ct.scenario("A", duration_s=DURATION_S), truth=truth)
-    dg = _diagnose(sc, "commonroad drag A")
-    f = _top(dg, "longitudinal")
-    assert f is not None and f["effect"] == "aero_drag", dg.findings
-    c = f["parameters"]["coeff_per_m"]
-    assert abs(c - DRAG_PER_M) <= 0.2 * DRAG_PER_M, c
-    lo, hi = f["intervals"]["coeff_per_m"]
-    assert lo <= c <= hi
-    assert f["heldout_rmse_after"] < f["heldout_rmse_before"]
+@pytest.mark.parametrize("case,truth", [("clean", "A"), ("clean_st", "B"), ("clean", "C")])
+def test_clean_independent_recording_has_no_false_alarm(case, truth):
+    dg = _diagnose(case, truth)
+    assert all(f["gain"] <= 0.10 for f in dg.findings), _summary(dg)
+    assert not dg.unexplained, dg.unexplained
 
 
-@pytest.mark.skipif("steer_delay_s" not in ct.Scenario.__dataclass_fields__,
-                    reason="this commonroad_truth has no steering dead time")
-def test_concealed_steering_dead_time_in_the_independent_simulator_is_named():
-    dg = _diagnose(ct.scenario("A", duration_s=DURATION_S, steer_delay_s=STEER_DELAY_S),
-                   "commonroad steering delay A")
-    f = _top(dg, "steering")
-    assert f is not None and f["effect"] == "actuator_delay", dg.findings
-    assert abs(f["parameters"]["delay_s"] - STEER_DELAY_S) <= 0.2 * STEER_DELAY_S
-    assert f["heldout_rmse_after"] < f["heldout_rmse_before"]
+def test_heavier_second_half_is_unexplained_not_named():
+    dg = _diagnose("mass_change", "A")
+    t_change = 0.5 * dm.DURATION_S
+    assert dg.unexplained, _summary(dg)
+    u = max(dg.unexplained, key=lambda u: u["share_of_error"])
+    assert u["share_of_error"] > 0.5
+    starts = [w[0] for w in u["windows"]]
+    assert starts and min(starts) >= t_change - 15.0, u["windows"]
+    assert max(w[1] for w in u["windows"]) > t_change + 60.0, u["windows"]
+    # a gain change is not a catalogue effect: nothing longitudinal may claim it strongly
+    assert all(f["gain"] <= 0.10 for f in dg.findings if f["subsystem"] == "longitudinal"), \
+        _summary(dg)

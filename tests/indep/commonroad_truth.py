@@ -35,6 +35,19 @@ rear-axle speed is ``v_R = v_F cos(delta)``, so the model is driven with
 backwards). For the single-track model with tyres there is no no-slip point F: the zone law
 acts on its own speed ``v`` (centre of gravity), a documented difference of that family.
 
+**Concealed physics** (``Scenario.effects``, :class:`Effects`; none by default) puts each effect
+of hmpc's diagnosis catalogue into this generator's own terms, never through hmpc: pedal and
+steering dead times and lags (the powertrain, brakes or road wheels act on the recorded
+pedals / steering-wheel angle late), a cubic rack, understeer (kinematic model: the road wheels
+act as delta L / (L + K v^2); single-track model with tyres: through its front and rear
+cornering coefficients, K = (1/C_Sf - 1/C_Sr) / (mu g), with a right-hand side equal to the
+library's but with the two coefficients separate), aerodynamic drag and rolling resistance, a
+road profile (gravity along the road, the INS altitude ``z`` and ``pitch`` recorded), a
+speed-regulating idle torque with the throttle released, CAN wheel speeds scaled, a clock offset
+of the CAN channels against the INS channels, and, outside the catalogue, throttle and brake
+gains scaled in the second half (a heavier car). tests/indep/diagnose_matrix.py diagnoses one
+recording per effect.
+
 **Wheel speeds** are physical for the model: each wheel's speed is the component, along the
 wheel's heading, of the body velocity at that wheel's contact point (velocity of the
 reference point plus yaw rate x lever); the front wheels point at their Ackermann angles
