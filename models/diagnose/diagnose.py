@@ -116,8 +116,7 @@ def _fos_selects(d: lon.LonData, name: str, base: dict | None = None,
     # zone's law, and its error, larger than a resistance's within-zone slope, decides FOS's
     # hold-out instead of the term (independent recording A seed 5: a 0.006 1/s rolling
     # resistance, held-out gain 30 %, was refused by FOS on all samples)
-    use = d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) \
-        & np.isfinite(X).all(axis=1) & ~lon._near_zone_change(zone, d.dt) & ~lon._at_zone_edge(d)
+    use = lon.fit_samples(d, X, zone)
     Xs = X[use]
     keep = np.abs(Xs).max(axis=0) > 1e-12
     Xs = Xs[:, keep]

@@ -201,8 +201,9 @@ def _grade_over_distance_run(z: np.ndarray, v: np.ndarray, dt: float, span_m: fl
     w = x / np.sum(x * x)                        # slope of a straight line over the span
     slope = np.convolve(np.pad(zb, k, mode="edge"), w[::-1], mode="valid")
     g = np.arcsin(np.clip(slope, -0.3, 0.3))
-    g[:min(k, nb)] = np.nan if nb > 2 * k else g[:min(k, nb)]   # ends: no full span
-    g[max(nb - k, 0):] = np.nan if nb > 2 * k else g[max(nb - k, 0):]
+    if nb > 2 * k:                               # ends: no full span (unless that is all)
+        g[:k] = np.nan
+        g[nb - k:] = np.nan
     return g[b]
 
 
@@ -333,13 +334,19 @@ def _at_zone_edge(d: LonData) -> np.ndarray:
     return (np.abs(d.vs[:, None] - edges[None, :]) < ZONE_EDGE_BAND_MPS).any(axis=1)
 
 
+def fit_samples(d: LonData, X: np.ndarray, zone: np.ndarray) -> np.ndarray:
+    """The samples a zone fit may use: moving, measured, with a finite design row, and not
+    where the zone is ambiguous (near a zone change, or at a zone boundary)."""
+    return d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) \
+        & np.isfinite(X).all(axis=1) & ~_near_zone_change(zone, d.dt) & ~_at_zone_edge(d)
+
+
 def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None) -> LonModel:
     """Equation-error fit of the baseline and the extension jointly on ``mask`` (leaving out
     the samples whose zone is ambiguous: near a zone change, or at a zone boundary)."""
     U = fit_inputs(d, spec) if U is None else U
     X, zone = _design(d, U, spec)
-    use = mask & d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) \
-        & np.isfinite(X).all(axis=1) & ~_near_zone_change(zone, d.dt) & ~_at_zone_edge(d)
+    use = mask & fit_samples(d, X, zone)
     nz, m = len(d.zones), U.shape[1]
     cols, fitted = [], []
     for z in range(nz):
