@@ -17,6 +17,10 @@ covers the truth 4% of the time). hmpc's default, :func:`ols_hac` with ``method=
   and the same bandwidth, normal critical values (:func:`hac_cov`).
 - :func:`cluster_cov`: the cluster-robust sandwich for nonlinear least squares whose
   residuals come in independent groups (replay windows), from the Jacobian.
+- :func:`quantisation_step` and :func:`quantisation_cov`: a CAN channel rounded to its DBC
+  step reads the same wrong value for as long as the true value stays put (a steady arc's yaw
+  rate), an error no residual shows (the fit absorbs it), so it is added to the covariance
+  as a uniform error of variance q^2/12 shared by each run of samples on one level.
 - :func:`block_bootstrap_ci`: a seeded moving-block bootstrap (Kuensch 1989) for statistics
   without a sandwich formula.
 - :func:`heldout_sse` and :func:`not_worse_than_best`: blocked cross-validation of a linear
@@ -255,6 +259,60 @@ def cluster_cov(J: np.ndarray, resid: np.ndarray, groups: np.ndarray) -> np.ndar
     bread = np.linalg.pinv(J.T @ J)
     adj = G / (G - 1.0) if G > 1 else 1.0
     return bread @ meat @ bread * adj
+
+
+def quantisation_step(x: np.ndarray, tol: float = 0.05) -> float | None:
+    """The rounding step of a quantised channel on the sample grid, or None when it does not
+    look quantised.
+
+    The levels a rounded channel rests on are the values it repeats from one grid sample to
+    the next (a CAN value held, or interpolated between two equal readings); neighbouring
+    levels are whole steps apart. ``q`` is the smallest gap between neighbouring levels, kept
+    when at least 90 % of the gaps are whole multiples of it to within ``tol`` steps and the
+    channel repeats itself on at least a third of its samples. A float channel (an INS yaw
+    rate) fails the test: its few repeats sit at arbitrary values."""
+    x = np.asarray(x, float)
+    same = np.isfinite(x[1:]) & (np.diff(x) == 0.0)
+    if np.count_nonzero(same) < max(10, len(x) // 3):
+        return None
+    levels = np.unique(x[1:][same])
+    gaps = np.diff(levels)
+    gaps = gaps[gaps > 1e-9 * max(1.0, float(np.max(np.abs(levels))))]
+    if len(gaps) < 3:
+        return None
+    q = float(np.min(gaps))
+    frac = gaps / q
+    return q if np.mean(np.abs(frac - np.round(frac)) <= tol) >= 0.9 else None
+
+
+def quantisation_cov(J: np.ndarray, reading: np.ndarray, index: np.ndarray,
+                     q: float) -> np.ndarray:
+    """Covariance [p, p] of nonlinear least-squares parameters from the rounding error of a
+    reading that rests on one level.
+
+    While the true value stays put (a steady arc's yaw rate) the channel reads one level for
+    the whole run, with an error uniform in [-q/2, q/2] (variance q^2/12) that the fit absorbs
+    and no residual shows. Each run of consecutive samples on one level carries one such error,
+    independent between runs: ``(J'J)^-1 (sum_R g_R g_R') (J'J)^-1 q^2/12``, ``g_R`` the
+    Jacobian summed over run R. A dithered channel (noise of a step or more) flickers between
+    levels in short runs, whose errors are already in the residuals, and adds little.
+
+    Args:
+        J: Jacobian of the residuals [n, p] on the fitted samples.
+        reading: the quantised channel on the same samples [n].
+        index: their sample numbers on the grid [n] (a gap starts a new run).
+        q: the step (:func:`quantisation_step`).
+    """
+    J = np.asarray(J, dtype=float)
+    x = np.asarray(reading, float)
+    idx = np.asarray(index)
+    new = np.ones(len(x), dtype=bool)
+    new[1:] = (np.diff(idx) != 1) | (np.diff(x) != 0.0)
+    runs = np.cumsum(new) - 1
+    g = np.zeros((runs[-1] + 1 if len(runs) else 0, J.shape[1]))
+    np.add.at(g, runs, J)
+    bread = np.linalg.pinv(J.T @ J)
+    return bread @ (g.T @ g) @ bread * (q * q / 12.0)
 
 
 def block_bootstrap_ci(stat, n: int, *, block_len: int, reps: int = 200, seed: int = 0,

@@ -22,7 +22,11 @@ road-wheel angle delta of the virtual middle tyre follow:
     to pin the bias: a quantised channel at rest reads its step nearest 0 (Toyota's YAW_RATE,
     0.244 deg/s steps, reads -0.072 deg/s throughout the 2019 RAV4's 24 s at rest in
     tools/data), which bounds the bias only to +-0.0021 rad/s, i.e. the offset to +-b/v times
-    that (+-12% of a 0.017 rad offset at 2.5 m/s). Without wheel speeds the speed
+    that (+-12% of a 0.017 rad offset at 2.5 m/s). The same rounding, on a steady arc that
+    reads one level throughout, is an error the bias and offset absorb and no residual shows:
+    a channel that rests on whole steps (:func:`~hmpc.models.identify.stats.quantisation_step`)
+    adds it to the intervals (:func:`~hmpc.models.identify.stats.quantisation_cov`; without it
+    the interval covered the true offset on 19 of 60 seeded rounded arcs). Without wheel speeds the speed
     is ``gps_speed`` with the geometry's ``nav_lever_arm_m`` (then ``v_R`` follows exactly,
     :func:`rear_axle_speed`), else ``speed`` or ``gps_speed`` at an unknown point on the centre
     line, at |x_s| from the rear axle, which moves at ``v_R sqrt(1 + (x_s/b)^2 tan^2(delta))``:
@@ -91,7 +95,8 @@ from hmpc.models.errors import InputError
 from hmpc.models.params import Vehicle
 from hmpc.models.plant import heading_rate, position_rates, road_wheel_angle
 from hmpc.models.logs.recording import Recording
-from hmpc.models.identify.stats import Z95, block_cov, cluster_cov, dilate, ols_hac, savgol_derivative
+from hmpc.models.identify.stats import (Z95, block_cov, cluster_cov, dilate, ols_hac,
+                                       quantisation_cov, quantisation_step, savgol_derivative)
 
 
 @dataclass(frozen=True)
@@ -444,8 +449,14 @@ def _fit_yaw(yaw, v, sw_d, steady, b, x0, k_max: float | None = None) -> MapFit:
     m = np.zeros(len(yaw), dtype=bool)
     m[i] = True
     cov, _, G = block_cov(J, full, m)
-    se = np.sqrt(np.clip(np.diag(cov), 0, None))
     crit = float(student_t.ppf(0.975, max(G - 1, 1)))
+    q = quantisation_step(yaw)
+    if q is not None:
+        # a steady arc reads one rounded level throughout; its error goes into the bias and
+        # offset and never shows in the residuals. Known in law (uniform), so it enters at the
+        # normal quantile: its covariance is scaled so that crit * se carries Z95 * its se.
+        cov = cov + quantisation_cov(sol.jac, r, i, q) * (Z95 / crit) ** 2
+    se = np.sqrt(np.clip(np.diag(cov), 0, None))
     d = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
     corr = np.divide(cov, d, out=np.zeros_like(cov), where=d > 0)
     extra = {"yaw_rate_bias_radps": float(th[2]),
@@ -463,7 +474,9 @@ def _fit_yaw(yaw, v, sw_d, steady, b, x0, k_max: float | None = None) -> MapFit:
                   (float(th[0] - crit * se[0]), float(th[0] + crit * se[0])),
                   (float(th[1] - crit * se[1]), float(th[1] + crit * se[1])), float(corr[0, 1]),
                   len(i), float(np.sqrt(np.mean(sol.fun ** 2))), "radps",
-                  f"time-block cluster-robust sandwich (Jacobian), t({G - 1})", extra)
+                  f"time-block cluster-robust sandwich (Jacobian), t({G - 1})"
+                  + (f" + rounding of the yaw rate ({q:.2g} rad/s steps)" if q is not None else ""),
+                  extra)
 
 
 def _fit_replay(rec, v_front, sw_d, usable, dt, b, cfg, x0, lever=None):
