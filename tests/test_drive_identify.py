@@ -60,9 +60,10 @@ def _yaw_rate_offset_tied_to_the_gyro_bias(yaw: dict, st: dict, truth) -> None:
     spread of the speeds separates them, and these arcs run at 2.3-2.8 m/s (|corr(offset,
     bias)| ~ 0.998; with the bias fixed at its true 0 the same samples give the offset within
     0.3 %). The node's yaw rate does not dither: each arc reads one 0.244 deg/s level, whose
-    rounding error the offset absorbs, so the interval carries it (about +-30 %; without it the
-    interval was +-6.5 % and one CI run in twenty-odd missed the truth: 0.01699 < 0.017). The report's pair at 5.2 m/s helps but not enough: 34.8 s of the arcs
-    from 18 s (2.4 and 5.2 m/s) give +-2.3 %, |corr| 0.993. Nor can the standstill pin the bias
+    rounding error the offset absorbs, so the interval carries it (about +-30 %; without it
+    the interval was +-6.5 %, and one CI run missed the truth: 0.01699 < 0.017). The report's
+    pair at 5.2 m/s helps but not enough: 34.8 s of the arcs from 18 s (2.4 and 5.2 m/s) gave
+    +-2.3 % before the rounding term, |corr| 0.993. Nor can the standstill pin the bias
     on this channel: YAW_RATE's step is 0.244 deg/s and a car at rest reads the step nearest 0
     (-0.072 deg/s, on the node as throughout the real 2019 RAV4's 24 s at rest in tools/data),
     which bounds the bias to +-0.0021 rad/s only: +-12 % of the offset at these speeds
