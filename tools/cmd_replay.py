@@ -131,7 +131,8 @@ def _run_reference(args, params, ctl, cfg):
     if ingest_summary is not None:
         out["ingest"] = {"duration_s": ingest_summary.get("duration_s"),
                          "channels": sorted(ingest_summary.get("channels", {}))}
-    return out, lambda d: _reference_plots(rr, d, args.controller)
+    zones = [(z.name, z.v_min_mps, z.v_max_mps) for z in params.zones]
+    return out, lambda d: _reference_plots(rr, d, args.controller, zones)
 
 
 def _run_log(args, params, ctl, cfg):
@@ -211,9 +212,10 @@ def _figure(rows: int):
     return plt, *plt.subplots(rows, 1, figsize=(10, 2.6 * rows), sharex=True)
 
 
-def _reference_plots(rr, out_dir: str, controller: str) -> list[str]:
+def _reference_plots(rr, out_dir: str, controller: str, zones=()) -> list[str]:
     """Controller on the plant against the car: speed, distance from the driven path,
-    steering-wheel angle, pedals, zones (labelled PNGs, units on every axis)."""
+    steering-wheel angle, pedals, zones (labelled PNGs, units on every axis; ``zones``:
+    (name, v_min, v_max) per zone index, the zone axis's tick labels)."""
     import numpy as np
 
     out = Path(out_dir)
@@ -238,7 +240,10 @@ def _reference_plots(rr, out_dir: str, controller: str) -> list[str]:
     ax[3].set_ylabel("pedal [0..1]")
     ax[4].step(t, car["zone"], "k--", where="post", label="car")
     ax[4].step(t, rr.run.zone, where="post", label=controller)
-    ax[4].set_ylabel("zone index")
+    ax[4].set_ylabel("speed zone")
+    if zones:
+        ax[4].set_yticks(range(len(zones)),
+                         [f"{n} ({lo:g}-{hi:g} m/s)" for n, lo, hi in zones], fontsize=8)
     ax[4].set_xlabel("time from the recording's start [s]")
     for a in ax:
         a.legend(loc="best", fontsize=8)
