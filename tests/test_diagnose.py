@@ -196,3 +196,39 @@ def test_noise_floor_of_a_held_quantised_channel_is_its_step_not_zero():
     held = np.repeat(x, 4)
     assert noise_floor(x) == pytest.approx(0.01, rel=0.35)
     assert 0.005 < noise_floor(held) < 0.025
+
+
+def _dyn_cands(after_delay: float, after_lag: float) -> list:
+    return [{"effect": e, "subsystem": "longitudinal", "channel": "speed", "_ok": True,
+             "why": "accepted", "parameters": {k: 0.3}, "heldout_rmse_before": 0.273,
+             "heldout_rmse_after": a, "delta_bic": -10.0}
+            for e, k, a in (("actuator_delay", "delay_s", after_delay),
+                            ("actuator_lag", "tau_s", after_lag))]
+
+
+def _response(lr_dead: float, lr_lag: float) -> dict:
+    return {"lr_dead_time_only": lr_dead, "lr_lag_only": lr_lag,
+            "verdict": "response ...; the joint fit's split verdict"}
+
+
+@pytest.mark.parametrize("lr_dead,lr_lag,after_lag,named", [
+    (0.7, 0.1, 0.2517, "actuator_delay"),   # either alone fits (the comma minute): dead time
+    (8.4, 0.0, 0.2517, "actuator_lag"),     # the joint fit says lag (VerifiedCAN)
+    (0.0, 9.0, 0.2517, "actuator_delay"),   # the joint fit says dead time
+    (9.0, 9.0, 0.2517, "actuator_lag"),     # the joint fit needs both: the replay decides
+    (0.7, 0.1, 0.2400, "actuator_lag"),     # the lag replays better beyond the resolution
+])
+def test_dead_time_or_lag_within_the_resolution_is_decided_by_the_joint_fit(
+        lr_dead, lr_lag, after_lag, named):
+    """Of a dead time and a lag whose replays differ by less than the speed resolution
+    (0.005 m/s), the joint fit names the one that alone fits as well as both; when either does,
+    the dead time (the more phase lag for the same effective delay); beyond the resolution
+    the replay decides."""
+    from hmpc.models.diagnose.diagnose import _drop_alternatives
+
+    cands = _dyn_cands(0.2544, after_lag)
+    _drop_alternatives(cands, response=_response(lr_dead, lr_lag))
+    kept = [c["effect"] for c in cands if c["_ok"]]
+    assert kept == [named]
+    other = next(c for c in cands if not c["_ok"])
+    assert other["why"].startswith(f"alternative to {named}")

@@ -203,7 +203,7 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
     _stack_dynamics_on_static(ld, w.cands, lon_scores, cfg, cl, res)
     _joint_response(w, ld, lon_scores, cfg, cl)
 
-    _drop_alternatives(w.cands, res)
+    _drop_alternatives(w.cands, res, w.channels.get("speed", {}).get("response"))
     findings = _rank_findings(w, regimes)
     _locate_channels(w, regimes, cfg)
     t = w.series["t"]
@@ -348,7 +348,8 @@ def _longitudinal_step(w: _Work, ld: lon.LonData, cfg: DiagnoseConfig,
     return lon_scores, cl
 
 
-def _drop_alternatives(cands: list, res: Resolution = Resolution()) -> None:
+def _drop_alternatives(cands: list, res: Resolution = Resolution(),
+                       response: dict | None = None) -> None:
     """Of two alternative descriptions of one subsystem only the better stays a finding.
 
     Better is the lower held-out free-run RMSE, unless the two differ by less than the
@@ -360,7 +361,16 @@ def _drop_alternatives(cands: list, res: Resolution = Resolution()) -> None:
     Only for linear terms (one coefficient each, the same zone structure): a dead time and a
     lag are fitted against a smoothed derivative that itself looks like a lag, so their
     equation-error likelihoods are no fair judge between them (the comma minute: held-out
-    0.251 against 0.253 m/s, the BIC prefers the lag; the replay keeps the dead time)."""
+    0.251 against 0.253 m/s, the BIC prefers the lag; the replay keeps the dead time).
+
+    A dead time and a lag within the resolution are judged by their joint fit (``response``,
+    :func:`_joint_response`): the one that alone fits as well as the joint fit, where the other
+    does not. When either alone does (the recording fixes the total delay, not its split),
+    the dead time is named: of two responses with the same effective delay it costs the
+    more phase (omega d against atan(omega tau), unbounded against at most 90 deg), so a
+    controller designed on it keeps its margin on the other; a lag would promise a margin
+    the car may not have (the comma minute: dead time 0.27 s and lag 0.33 s, 0.003 m/s
+    apart, the joint fit's likelihood ratios 0.7 and 0.1)."""
     tol = {"speed": res.speed_mps, "heading": res.heading_rad,
            "speed_vs_gnss": res.speed_vs_gnss_mps}
     for group in ALTERNATIVES:
@@ -376,6 +386,19 @@ def _drop_alternatives(cands: list, res: Resolution = Resolution()) -> None:
                         < tol.get(a["channel"], 0.0)
                         and b["delta_bic"] < a["delta_bic"]):
                     g[0], g[1] = b, a
+                elif ({a["effect"], b["effect"]} == set(_DYNAMICS) and response is not None
+                      and a["heldout_rmse_before"] == b["heldout_rmse_before"]
+                      and b["heldout_rmse_after"] - a["heldout_rmse_after"]
+                      < tol.get(a["channel"], 0.0)):
+                    pick = _dynamics_by_joint_fit(response)
+                    if pick is not None and pick != a["effect"]:
+                        g[0], g[1] = b, a
+                        b["why_over_alternative"] = (
+                            f"{a['effect']} replays within the speed resolution "
+                            f"({b['heldout_rmse_after'] - a['heldout_rmse_after']:.4f} m/s "
+                            f"better); {response['verdict'].split('; ')[-1]}"
+                            + ("" if response["lr_dead_time_only"] > 3.84 else
+                               ": the dead time is named (the more phase for the same delay)"))
                 for c in g[1:]:
                     c["_ok"] = False
                     c["why"] = f"alternative to {g[0]['effect']}, which explains more"
@@ -550,6 +573,18 @@ def _stack_dynamics_on_static(ld, cands, lon_scores, cfg, cl, res) -> None:
 
 
 _DYNAMICS = ("actuator_delay", "actuator_lag")
+
+
+def _dynamics_by_joint_fit(response: dict) -> str | None:
+    """The dead time or the lag as the joint fit judges them (:func:`_drop_alternatives`):
+    the one that alone fits within likelihood ratio 3.84 of the joint fit where the other does
+    not; the dead time when both do; None when neither does (the joint fit needs both)."""
+    lr_d, lr_l = response.get("lr_dead_time_only"), response.get("lr_lag_only")
+    if lr_d is None or lr_l is None:
+        return None
+    if lr_d <= 3.84:
+        return "actuator_delay"
+    return "actuator_lag" if lr_l <= 3.84 else None
 
 
 
