@@ -208,7 +208,7 @@ def _dyn_cands(after_delay: float, after_lag: float) -> list:
 
 def _response(lr_dead: float, lr_lag: float) -> dict:
     return {"lr_dead_time_only": lr_dead, "lr_lag_only": lr_lag,
-            "verdict": "response ...; the joint fit's split verdict"}
+            "split": "the joint fit's split verdict"}
 
 
 @pytest.mark.parametrize("lr_dead,lr_lag,after_lag,named", [
@@ -232,3 +232,7 @@ def test_dead_time_or_lag_within_the_resolution_is_decided_by_the_joint_fit(
     assert kept == [named]
     other = next(c for c in cands if not c["_ok"])
     assert other["why"].startswith(f"alternative to {named}")
+    kept = next(c for c in cands if c["_ok"])
+    # a choice against the replay's order says why; the replay's own order needs no reason
+    against_replay = kept["heldout_rmse_after"] > other["heldout_rmse_after"]
+    assert ("chosen_because" in kept) == against_replay

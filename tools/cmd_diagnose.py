@@ -53,6 +53,10 @@ def summary_lines(dg) -> list[str]:
         out.append(f"{i}. {f['effect']} ({f['subsystem']}){below}: {ps}")
         out.append(f"   held-out {f['channel']} RMSE {f['heldout_rmse_before']:.4g} -> "
                    f"{f['heldout_rmse_after']:.4g} ({100 * f['gain']:.0f} % better)")
+        if f.get("chosen_because"):
+            alt = ", ".join(f"{a['effect']} ({_values(a['parameters'])})"
+                            for a in f.get("alternatives", []))
+            out.append(f"   named over {alt}: {f['chosen_because']}")
     for u in dg.unexplained:
         out.append(f"unexplained ({u['channel']}): windows {u['windows']}, "
                    f"{100 * u['share_of_error']:.0f} % of the error")
@@ -61,6 +65,11 @@ def summary_lines(dg) -> list[str]:
     for n in dg.notes:
         out.append(f"note: {n}")
     return out
+
+
+def _values(parameters: dict) -> str:
+    """A finding's numeric parameters, ``name value`` joined by commas."""
+    return ", ".join(f"{k} {v:.3g}" for k, v in parameters.items() if isinstance(v, float))
 
 
 def run(args) -> int:

@@ -393,15 +393,20 @@ def _drop_alternatives(cands: list, res: Resolution = Resolution(),
                     pick = _dynamics_by_joint_fit(response)
                     if pick is not None and pick != a["effect"]:
                         g[0], g[1] = b, a
-                        b["why_over_alternative"] = (
-                            f"{a['effect']} replays within the speed resolution "
-                            f"({b['heldout_rmse_after'] - a['heldout_rmse_after']:.4f} m/s "
-                            f"better); {response['verdict'].split('; ')[-1]}"
-                            + ("" if response["lr_dead_time_only"] > 3.84 else
-                               ": the dead time is named (the more phase for the same delay)"))
+                        b["chosen_because"] = (
+                            f"{a['effect']} replays only "
+                            f"{b['heldout_rmse_after'] - a['heldout_rmse_after']:.4f} m/s better "
+                            f"(within the speed resolution); the joint dead-time + lag fit: "
+                            f"{response['split']}"
+                            + ("; so the dead time is named: for the same delay it costs the "
+                               "more phase"
+                               if response["lr_lag_only"] <= 3.84 else ""))
                 for c in g[1:]:
                     c["_ok"] = False
-                    c["why"] = f"alternative to {g[0]['effect']}, which explains more"
+                    c["why"] = f"alternative to {g[0]['effect']}, " + (
+                        "which explains more" if g[0]["heldout_rmse_after"]
+                        <= c["heldout_rmse_after"] else "the better description within the "
+                        "channel's resolution")
                 g[0]["alternatives"] = [{"effect": c["effect"], "parameters": c["parameters"],
                                          "heldout_rmse_after": c["heldout_rmse_after"]}
                                         for c in g[1:]]
@@ -606,8 +611,9 @@ def _joint_response(w: _Work, ld: lon.LonData, lon_scores: dict, cfg: DiagnoseCo
     (:func:`longitudinal.joint_response`), on top of the model the single delay and lag were
     scored against: its total effective delay d + tau with intervals, its held-out speed
     RMSE, and whether the recording can tell a dead time from a lag. Recorded in
-    ``channels["speed"]["response"]`` and as a note; it names no finding (the catalogue's
-    delay and lag stay the descriptions that are ranked)."""
+    ``channels["speed"]["response"]`` and as a note. It names no finding of its own (the
+    catalogue's delay and lag are the descriptions that are ranked); it decides between the
+    two when their replays are within the speed resolution (:func:`_drop_alternatives`)."""
     lon_speed = [c for c in w.cands if c["subsystem"] == "longitudinal"
                  and c["channel"] == "speed"]
     dyn = [c for c in lon_speed if c["effect"] in _DYNAMICS and (
@@ -636,6 +642,7 @@ def _joint_response(w: _Work, ld: lon.LonData, lon_scores: dict, cfg: DiagnoseCo
              and r["gain"] < cfg.min_gain else
              "it separates a dead time from a lag" if r["separable"] else
              _split_verdict(r["lr_dead_time_only"], r["lr_lag_only"]))
+    r["split"] = split
     r["verdict"] = (
         f"response of the acceleration to {r['input']}"
         + (f" on top of {below}" if below else "")
