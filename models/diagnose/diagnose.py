@@ -11,7 +11,9 @@ the held-out fit with it added.
    ``DiagnoseConfig.min_gain`` and by more than the channel's resolution, lowers the BIC (with
    the effective sample size of autocorrelated residuals) and, for a linear term, is selected
    by FOS (Korenberg) among the baseline's terms. Of two alternative descriptions (delay or
-   lag, v^2 or v resistance) only the better is a finding. Findings stack: a static term is
+   lag, v^2 or v resistance) only the better is a finding (the other under its
+   ``alternatives``; within the channel's resolution the BIC or, for a delay and a lag, their
+   joint fit decides, the reason in ``chosen_because``). Findings stack: a static term is
    refitted on top of an accepted delay or lag, and a delay or lag on top of the best static
    term when it was not a finding alone (each scored against the model below it). A
    physically impossible baseline (a pedal map that is not monotone, a negative drag when
