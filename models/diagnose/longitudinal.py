@@ -156,10 +156,10 @@ ALIGN_STEPS = np.arange(-1.0, 0.01, 0.25)
 
 def shift_inputs(d: LonData, U: np.ndarray, shift_s: float) -> np.ndarray:
     """``U`` delayed by ``shift_s`` [s] (negative: advanced), linearly interpolated, per segment
-    (held at the segment's ends)."""
+    (held at the segment's ends; NaN outside the segments)."""
     if shift_s == 0.0:
         return U
-    out = U.copy()
+    out = np.full_like(U, np.nan)
     for a, b in d.segs:
         tt = d.t[a:b]
         for j in range(U.shape[1]):
@@ -301,12 +301,7 @@ def inputs(d: LonData, spec: LonSpec) -> np.ndarray:
     when set; per segment)."""
     U = d.U
     if spec.delay_s > 0:
-        out = np.full_like(U, np.nan)
-        for a, b in d.segs:
-            tt = d.t[a:b]
-            for j in range(U.shape[1]):
-                out[a:b, j] = np.interp(tt - spec.delay_s, tt, U[a:b, j])  # held before the start
-        U = out
+        U = shift_inputs(d, U, spec.delay_s)
     if spec.tau_s > 0:
         al = 1.0 - np.exp(-d.dt / spec.tau_s)
         out = np.full_like(U, np.nan)
