@@ -26,10 +26,11 @@ road-wheel angle delta of the virtual middle tyre follow:
     reads one level throughout, is an error the bias and offset absorb and no residual shows:
     a channel that rests on whole steps (:func:`~hmpc.models.identify.stats.quantisation_step`)
     adds it to the intervals (:func:`~hmpc.models.identify.stats.quantisation_cov`; without it
-    the interval covered the true offset on 19 of 60 seeded rounded arcs). Without wheel speeds the speed
-    is ``gps_speed`` with the geometry's ``nav_lever_arm_m`` (then ``v_R`` follows exactly,
-    :func:`rear_axle_speed`), else ``speed`` or ``gps_speed`` at an unknown point on the centre
-    line, at |x_s| from the rear axle, which moves at ``v_R sqrt(1 + (x_s/b)^2 tan^2(delta))``:
+    the interval covered the true offset on 19 of 60 seeded rounded arcs). Without wheel
+    speeds the speed is ``gps_speed`` with the geometry's ``nav_lever_arm_m`` (then ``v_R``
+    follows exactly, :func:`rear_axle_speed`), else ``speed`` or ``gps_speed`` at an unknown
+    point on the centre line, at |x_s| from the rear axle, which moves at
+    ``v_R sqrt(1 + (x_s/b)^2 tan^2(delta))``:
     ``k = (x_s/b)^2`` is estimated with the map (it acts on the cubic term only; 4% of the
     angle at 0.3 rad), and the axle speeds for the replay follow from it and the yaw rate.
 
