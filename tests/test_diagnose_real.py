@@ -13,15 +13,16 @@ trade along a ridge: the minute fixes the total effective delay d + tau, 0.35 s 
 (9 %), not its split (each alone is within likelihood ratio 0.7 of the joint fit), and
 which single description wins depends on the speed source (wheel speeds: the dead time;
 GNSS or the rear wheels: the lag; d + tau 0.30-0.35 s from all of them). So the response is
-about a third of a second: half a second is inside the joint interval, not the estimate."""
+about a third of a second: half a second is inside the joint interval, not the estimate. The
+method is not what holds it there: on an independent generator of this very setting (request in
+closed loop on the wheel speeds, the ECU's own loop against the grade, one minute long) a true
+half second reads as half a second (tests/test_diagnose_acc_indep.py)."""
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from hmpc.models.diagnose.diagnose import diagnose
 from hmpc.models.logs.ingest import ingest_files
-from hmpc.models.logs.recording import Recording
 from hmpc.models.params import load_params
 from _data import PARAMS_DIR, bundled
 
@@ -107,22 +108,19 @@ def test_grade_is_compensated_by_the_acc_over_seconds(comma):
 
 
 def test_response_does_not_depend_on_which_speed_sensor_measures_it(comma):
-    """The same diagnosis with the GNSS ground speed as the speed channel (no wheel speeds):
-    the response time falls inside the wheel-speed finding's interval."""
-    rec, vehicle, dg = comma
-    f = next(f for f in dg.findings if f["effect"] in RESPONSE)
-    ch = {k: v for k, v in rec.channels.items() if not k.startswith("wheel_speed")}
-    ch["speed"] = np.asarray(ch.pop("gps_speed"), float)
-    dg2 = diagnose(Recording(ch, meta={"path": "comma-gnss-speed"}), vehicle)
-    g = next((g for g in dg2.findings if g["effect"] == f["effect"]), None)
-    if g is None:  # not a finding there: its hypothesis record still carries the fit
-        g = next(h for h in dg2.hypotheses if h["effect"] == f["effect"]
-                 and h["subsystem"] == "longitudinal")
-        g = g.get("stacked") or g
-    key = RESPONSE[f["effect"]]
-    lo, hi = f["intervals"][key]
-    print(f"GNSS speed: {f['effect']} {g['parameters'][key]:.3f} s")
-    assert lo <= g["parameters"][key] <= hi
+    """The joint response measured on the GNSS ground speed (an independent sensor), which the
+    diagnosis reports beside the wheel-speed one: each total delay lies inside the other's
+    interval, and the note says so. Measured: wheels d + tau 0.30 s [0.12, 0.58], GNSS 0.35 s
+    [0.12, 0.58]."""
+    _, _, dg = comma
+    r = dg.channels["speed"]["response"]
+    g = r["gnss_speed"]
+    lo, hi = r["intervals"]["effective_delay_s"]
+    glo, ghi = g["intervals"]["effective_delay_s"]
+    print(f"GNSS speed: d + tau {g['effective_delay_s']:.3f} s [{glo:.2f}, {ghi:.2f}]")
+    assert lo <= g["effective_delay_s"] <= hi and glo <= r["effective_delay_s"] <= ghi
+    assert abs(g["effective_delay_s"] - r["effective_delay_s"]) <= 0.1
+    assert any("measured on the GNSS speed instead" in n for n in dg.notes)
 
 
 def test_wheel_radius_and_separability_verdict(comma, tmp_path):

@@ -654,8 +654,31 @@ def _joint_response(w: _Work, ld: lon.LonData, lon_scores: dict, cfg: DiagnoseCo
         f"{r['effective_delay_s']:.2f} s [{iv['effective_delay_s'][0]:.2f}, "
         f"{iv['effective_delay_s'][1]:.2f}] (63 % of a step), held-out speed RMSE "
         f"{before:.3f} -> {after:.3f} m/s ({100 * r['gain']:.0f} %); {split}")
+    other = _response_on_gnss_speed(w.ch, ld, base, cfg)
+    if other is not None:
+        r["gnss_speed"] = other
+        oi = other["intervals"]["effective_delay_s"]
+        r["verdict"] += (f"; measured on the GNSS speed instead (an independent sensor): d + tau "
+                         f"{other['effective_delay_s']:.2f} s [{oi[0]:.2f}, {oi[1]:.2f}]")
     w.channels.setdefault("speed", {})["response"] = r
     w.notes.append(r["verdict"])
+
+
+def _response_on_gnss_speed(ch: dict, ld: lon.LonData, base: dict, cfg: DiagnoseConfig
+                            ) -> dict | None:
+    """The joint dead time + lag of the same inputs with the GNSS ground speed as the speed: a
+    cross-check of the response on a sensor independent of the wheel speeds (their own
+    filtering or timing would show as a different delay). None without a usable GNSS speed."""
+    g = ch.get("gps_speed")
+    if g is None or np.isfinite(np.asarray(g, float)).mean() < 0.8:
+        return None
+    lg = lon.prepare({**ch, "speed": np.asarray(g, float)}, ld.zones, cfg)
+    if (lg.ok & (lg.vs > cfg.v_stop_mps)).sum() < int(20.0 / lg.dt):
+        return None
+    cl = corr_length(lon.residual(lg, lon.fit(lg, lon.LonSpec(), lg.ok)))
+    r = lon.joint_response(lg, base, cfg, cl)
+    return {k: r[k] for k in ("dead_time_s", "tau_s", "effective_delay_s", "intervals",
+                              "heldout_rmse_mps")}
 
 
 def _fit_windows(cfg: DiagnoseConfig, ch: dict) -> DiagnoseConfig:
