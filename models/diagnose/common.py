@@ -44,8 +44,13 @@ class DiagnoseConfig:
     #: lag time-constant search range [s]
     tau_max_s: float = 1.0
     #: change-point search for unexplained mismatch: relative equation-error reduction of a
-    #: split fit that counts as a change in the car (mass, trailer, tyres) [fraction]
+    #: split fit that counts as a change in the car (mass, trailer, tyres) [fraction], an
+    #: effect size required on top of ``change_alpha`` (10-minute clean recordings: 0.2-4 %,
+    #: significant for a model that is not exactly right everywhere; a 0.7 x pedal gain: 94-99 %)
     change_min_reduction: float = 0.15
+    #: ... and the split's F test (effective samples, the parameters it adds) must reach this
+    #: family-wise false-alarm probability, Bonferroni over the split points scanned
+    change_alpha: float = 0.05
 
 
 def segments(valid: np.ndarray, min_len: int) -> list[tuple[int, int]]:
