@@ -60,13 +60,13 @@ with fixed-step RK4 at 200 Hz (:data:`SIM_DT_S`) with the delayed request held o
 """
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from indep import commonroad_truth as ct
 from indep.commonroad_truth import _quantise
 
 #: Column order of the recordings made here (CONVENTIONS names).
@@ -431,17 +431,8 @@ def record(sc: Scenario, run: Run | None = None) -> dict[str, np.ndarray]:
 
 
 def write_recording(channels: dict[str, np.ndarray], path: str | Path) -> Path:
-    """Write a canonical recording CSV (the columns of :data:`COLUMNS` present, in that order;
-    commonroad_truth's writer does not know ``accel_cmd``)."""
-    path = Path(path)
-    names = [c for c in COLUMNS if c in channels]
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(names)
-        cols = [[f"{v:.6f}" for v in channels["time"]]] + \
-               [[repr(float(v)) for v in channels[c]] for c in names[1:]]
-        w.writerows(zip(*cols))
-    return path
+    """Write a canonical recording CSV (the columns of :data:`COLUMNS` present, in that order)."""
+    return ct.write_recording(channels, path, COLUMNS)
 
 
 def geometry() -> dict:

@@ -750,10 +750,12 @@ def record(sc: Scenario, run: Run | None = None) -> dict[str, np.ndarray]:
     return ch
 
 
-def write_recording(channels: dict[str, np.ndarray], path: str | Path) -> Path:
-    """Write a canonical recording CSV (CONVENTIONS column names and order; absent = no column)."""
+def write_recording(channels: dict[str, np.ndarray], path: str | Path,
+                    columns: tuple[str, ...] = COLUMNS) -> Path:
+    """Write a canonical recording CSV (CONVENTIONS column names in the order of ``columns``;
+    absent = no column)."""
     path = Path(path)
-    names = [c for c in COLUMNS if c in channels]
+    names = [c for c in columns if c in channels]
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(names)
