@@ -142,6 +142,13 @@ def test_wheel_radius_and_separability_verdict(comma, tmp_path):
     html = open(write_report(dg, tmp_path), encoding="utf-8").read()
     assert "understeer and the steering ratio are separable on this recording" in html
     assert "cannot tell a dead time from a lag" in html
+    # the response's finding card carries what qualifies it, not only the notes at the end
+    card = html.split("<code>actuator_delay</code> (longitudinal)", 1)[1].split("</div>", 1)[0]
+    text = " ".join(card.split())
+    assert "Fitted on top of <code>road_grade</code>" in text
+    assert "Named over <code>actuator_lag</code>" in text
+    assert "Dead time and lag fitted together" in text and "on the GNSS speed instead" in text
+    assert "Where (s since start): ." not in html
 
 
 def test_extended_model_carries_the_findings(comma):
