@@ -55,21 +55,6 @@ def _r(x, nd=3):
     return x
 
 
-def _joint_fits(dg) -> dict:
-    """Every joint dead time + lag fit the result reports: any per-channel record holding
-    ``dead_time_s`` (directly or under a key), found generically."""
-    out = {}
-    for ch, rec in (dg.channels or {}).items():
-        if not isinstance(rec, dict):
-            continue
-        for key, val in rec.items():
-            if isinstance(val, dict) and "dead_time_s" in val:
-                out[f"{ch}.{key}"] = val
-        if "dead_time_s" in rec:
-            out[ch] = rec
-    return out
-
-
 def run_case(case: str, duration_s: float, seed: int, gain: float = 1.0) -> dict:
     """Generate and diagnose one recording; the matrix row (plain data, picklable)."""
     from hmpc.models.diagnose.diagnose import diagnose
@@ -90,7 +75,6 @@ def run_case(case: str, duration_s: float, seed: int, gain: float = 1.0) -> dict
         row["crash"] = traceback.format_exc()
         return row
     row["t_diag_s"] = round(time.perf_counter() - t0, 1)
-    row["result_attrs"] = list(vars(dg).keys())
     row["input"] = getattr(dg, "longitudinal_input", None)
     row["findings"] = [
         {"effect": f["effect"], "gain": _r(f["gain"]),
@@ -105,12 +89,12 @@ def run_case(case: str, duration_s: float, seed: int, gain: float = 1.0) -> dict
          "why": h.get("why")}
         for h in dg.hypotheses if h.get("subsystem") == "longitudinal"
         and h.get("effect") in RESPONSE and not h.get("finding")]
-    row["joint"] = {k: {kk: _r(vv, 4) for kk, vv in v.items()
-                        if kk in ("input", "dead_time_s", "tau_s", "effective_delay_s",
-                                  "intervals", "lr_dead_time_only", "lr_lag_only",
-                                  "separable", "on_top_of", "gain", "grid_step_s",
-                                  "heldout_rmse_before", "heldout_rmse_mps")}
-                    for k, v in _joint_fits(dg).items()}
+    # the joint dead time + lag fit (present when a delay or lag was found or hinted at)
+    resp = dg.channels.get("speed", {}).get("response") or {}
+    row["joint"] = {k: _r(v, 4) for k, v in resp.items()
+                    if k in ("dead_time_s", "tau_s", "effective_delay_s", "intervals",
+                             "lr_dead_time_only", "lr_lag_only", "on_top_of", "grid_step_s",
+                             "gnss_speed")}
     row["notes"] = [n for n in dg.notes if "dead time" in n or "delay" in n]
     row["unexplained"] = [(u.get("channel"), u.get("windows"), _r(u.get("share_of_error")))
                           for u in dg.unexplained]
@@ -124,7 +108,7 @@ def run_case(case: str, duration_s: float, seed: int, gain: float = 1.0) -> dict
         ref = d + tau   # a single dead time or lag stands for the whole response
         row["named"] = {"effect": named["effect"], "key": key, "est": est, "lo": lo, "hi": hi,
                         "ref": ref, "err": est - ref, "covers": bool(lo <= ref <= hi)}
-    j = row["joint"].get("speed.response") or next(iter(row["joint"].values()), None)
+    j = row["joint"]
     if j:
         lo, hi = j["intervals"]["effective_delay_s"]
         eff = j["effective_delay_s"]
@@ -149,10 +133,13 @@ def _print_row(r: dict) -> None:
     for h in r["other_hyp"]:
         print(f"  not-a-finding {h['effect']:12s} gain={h['gain']} params={h['parameters']} "
               f"intervals={h['intervals']} ({h['why']})")
-    for k, j in r["joint"].items():
-        print(f"  joint[{k}]: d={j['dead_time_s']} tau={j['tau_s']} d+tau={j['effective_delay_s']} "
+    j = r["joint"]
+    if j:
+        print(f"  joint: d={j['dead_time_s']} tau={j['tau_s']} d+tau={j['effective_delay_s']} "
               f"intervals={j['intervals']} lr_d_only={j['lr_dead_time_only']} "
-              f"lr_lag_only={j['lr_lag_only']} on_top_of={j['on_top_of']} grid={j['grid_step_s']}")
+              f"lr_lag_only={j['lr_lag_only']} on_top_of={j['on_top_of']} grid={j['grid_step_s']}"
+              + (f" on GNSS speed d+tau={j['gnss_speed']['effective_delay_s']}"
+                 if "gnss_speed" in j else ""))
     for n in r["notes"]:
         print(f"  note: {n}")
     if r["unexplained"]:
@@ -216,9 +203,6 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.jobs) as ex:
         rows = list(ex.map(run_case, *zip(*jobs)))
-    first = next((r for r in rows if "result_attrs" in r), None)
-    if first:
-        print(f"diagnose() result attributes: {first['result_attrs']}")
     if not a.quiet:
         for r in rows:
             _print_row(r)

@@ -109,10 +109,6 @@ class Car:
     true_res_mps2: float = 0.12
     true_res_per_m: float = 4.5e-4
 
-    @property
-    def effective_delay_s(self) -> float:
-        return self.dead_time_s + self.lag_s
-
 
 @dataclass(frozen=True)
 class Controller:
