@@ -25,13 +25,60 @@ import numpy as np
 from hmpc.models.params import Params
 from hmpc.models.plant import DelayLine, HybridPlant, heading_rate
 from hmpc.models.logs.recording import Recording
-from hmpc.models.sim.live_sensors import SensorConfig
+from hmpc.models.sim.live_sensors import LiveSensors, SensorConfig
 from hmpc.models.sim.simulator import TruthPlant
-from hmpc.models.sim.scenarios import Reference
+from hmpc.models.reference import Reference
 
 from hmpc.controller.base import Controller, Status
-from hmpc.controller.estimator import EstimatorConfig, SensorFeedback
+from hmpc.controller.estimator import Estimator, EstimatorConfig
 from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
+from hmpc.controller.metrics import pedal_switches, smoothness_of
+
+
+class SensorFeedback:
+    """What a simulated closed loop gives its controller: the car's sensors
+    (``models.sim.live_sensors``) feeding an :class:`Estimator`, never the plant state.
+
+    Per plant step call :meth:`observe` with the truth; per control step :meth:`estimate`
+    (the state at ``t_s`` with its covariance, propagated with the input held so far), then
+    :meth:`command` with the input applied from ``t_s`` on.
+
+    Args:
+        params: the controller's model (the estimator's; the sensors use it for eq. 7).
+        sensors: rates, latency, noise (default ``SensorConfig()``: today's noise).
+        config: the estimator's noise model (default matched to ``sensors``).
+        seed: the sensors' seed. t0_s: time of the first truth sample [s].
+        initial_state: start the estimator from this plant state at ``t0_s`` with the
+            config's initial uncertainty (default: from the first GNSS fix, as a car does;
+            until then :meth:`estimate` returns None).
+    """
+
+    def __init__(self, params: Params, sensors=None, config: EstimatorConfig | None = None, *,
+                 seed: int = 0, t0_s: float = 0.0, initial_state=None):
+        self.sensors = LiveSensors(params, sensors, seed, t0_s)
+        self.estimator = Estimator(params, config or EstimatorConfig.matching(self.sensors.cfg))
+        if initial_state is not None:
+            self.estimator.reset(t0_s, initial_state)
+
+    def observe(self, t_s: float, state, steering_wheel_angle_rad: float,
+                accel_mps2: float = 0.0, delta_rad: float | None = None) -> int:
+        """Feed the truth at ``t_s`` to the sensors and what arrives to the estimator; returns
+        the number of messages that arrived."""
+        msgs = self.sensors.observe(t_s, state, steering_wheel_angle_rad, accel_mps2, delta_rad)
+        for m in msgs:
+            self.estimator.feed(m, t_s)
+        return len(msgs)
+
+    def estimate(self, t_s: float):
+        """``(state, covariance)`` (4, 4x4) at ``t_s``, or None before the first fix."""
+        self.estimator.predict(t_s)
+        if not self.estimator.initialized:
+            return None
+        return self.estimator.state(), self.estimator.covariance()
+
+    def command(self, t_s: float, u) -> None:
+        """The plant input applied from ``t_s`` on (steering-wheel angle, pedals)."""
+        self.estimator.predict(t_s, u)
 
 
 @dataclass
@@ -93,7 +140,7 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
     The controller never sees the plant state: the truth goes, every plant step, to the
     simulated car sensors (``models.sim.live_sensors``: CAN wheel speeds and steering angle,
     IMU, GNSS with its rate and latency), whose messages feed the EKF
-    (``controller.estimator.SensorFeedback``); each control step the controller gets the
+    (:class:`SensorFeedback`); each control step the controller gets the
     estimator's state at that instant. The estimator starts from the plant's start pose (a
     car parked where its last fix put it) with its initial uncertainty, and is told every
     change of the plant input (the applied, delayed command).
@@ -308,93 +355,6 @@ def _estimator_figures(res: "ClosedLoopResult", fb: SensorFeedback) -> dict:
             "messages": dict(fb.sensors.counts)}
 
 
-def pedal_switches(accel_pedal: np.ndarray, brake_pedal: np.ndarray, deadband: float = 1e-3) -> int:
-    """Throttle-to-brake and brake-to-throttle changes of the pressed pedal (a pedal
-    released with the other not yet pressed continues the last one)."""
-    last = None
-    count = 0
-    for ap, bp in zip(accel_pedal, brake_pedal):
-        cur = "T" if ap > deadband else "B" if bp > deadband else None
-        if cur is None:
-            continue
-        if last is not None and cur != last:
-            count += 1
-        last = cur
-    return count
-
-
-def steering_reversals(angle_deg, threshold_deg: float) -> int:
-    """Steering reversals of at least ``threshold_deg`` in a steering-wheel angle [deg].
-
-    The reversal-rate count of driver studies (a gap size on the steering-wheel angle):
-    the signal's last extremum is tracked; a reversal is counted when the angle has come
-    back from it by ``threshold_deg`` or more, and that point starts the next swing. The
-    first swing of at least the threshold sets the direction and is not a reversal (a sine
-    of amplitude A >= threshold over n periods from a zero crossing gives 2n).
-    """
-    a = np.asarray(angle_deg, dtype=float)
-    if not threshold_deg > 0:
-        raise ValueError(f"threshold_deg must be positive, got {threshold_deg!r}")
-    if len(a) == 0:
-        return 0
-    count, direction = 0, 0
-    lo = hi = ext = float(a[0])
-    for v in a:
-        v = float(v)
-        if direction == 0:
-            lo, hi = min(lo, v), max(hi, v)
-            if v - lo >= threshold_deg:
-                direction, ext = 1, v
-            elif hi - v >= threshold_deg:
-                direction, ext = -1, v
-        elif direction > 0:
-            if v > ext:
-                ext = v
-            elif ext - v >= threshold_deg:
-                count, direction, ext = count + 1, -1, v
-        else:
-            if v < ext:
-                ext = v
-            elif v - ext >= threshold_deg:
-                count, direction, ext = count + 1, 1, v
-    return count
-
-
-def rate_rms(time_s, signal) -> float:
-    """RMS rate of a command [unit/s]: the change at each control update divided by the
-    time since the previous update (the control period), over the run's updates.
-
-    ``time_s`` and ``signal`` are the update instants and the values set there, one sample
-    per control update (simulate, replay and drive alike): a command held for a period T
-    and resampled every dt < T would read sqrt(T / dt) times its rate (its whole change in
-    one dt, then zeros)."""
-    t = np.asarray(time_s, dtype=float)
-    x = np.asarray(signal, dtype=float)
-    if len(t) < 2:
-        return 0.0
-    return float(np.sqrt(np.mean((np.diff(x) / np.diff(t)) ** 2)))
-
-
-def smoothness_of(time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd, *,
-                  duration_s: float | None = None) -> dict:
-    """The issue 9 smoothness figures of a run's COMMANDS (stable keys): steering-wheel
-    reversals per minute of at least 1 and 5 deg, the steering-wheel rate RMS [rad/s] and
-    the pedal rates RMS [full travel / s] (see :func:`rate_rms`: one sample per control
-    update). ``duration_s``: the run's length the reversals are counted over [s] (default:
-    last minus first update)."""
-    t = np.asarray(time_s, dtype=float)
-    span = duration_s if duration_s is not None else (t[-1] - t[0] if len(t) else 0.0)
-    minutes = max(float(span) / 60.0, 1e-9)
-    sw_deg = np.degrees(np.asarray(steering_cmd_rad, dtype=float))
-    return {
-        "steering_reversals_per_min": {f"{g}deg": steering_reversals(sw_deg, float(g)) / minutes
-                                       for g in (1, 5)},
-        "steering_rate_rms_radps": rate_rms(t, steering_cmd_rad),
-        "accel_pedal_rate_rms_ps": rate_rms(t, accel_pedal_cmd),
-        "brake_pedal_rate_rms_ps": rate_rms(t, brake_pedal_cmd),
-    }
-
-
 def control_updates(res: ClosedLoopResult) -> np.ndarray:
     """Indices of the recording's samples at the control updates (the commands are held
     between them); every sample when the run has no control times."""
@@ -407,7 +367,7 @@ def control_updates(res: ClosedLoopResult) -> np.ndarray:
 
 
 def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
-    """The issue 4 figures (stable keys, SI units), the internal errors, the issue 9
+    """The tracking figures (stable keys, SI units), the internal errors, the
     smoothness figures (:func:`smoothness_of`) and the whole step with the estimator."""
     rec = res.recording
     t = rec.channels["time"]

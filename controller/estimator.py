@@ -76,8 +76,7 @@ by Cholesky (LAPACK ``dposv``). What is still allocated per event: the log's tup
 event, the held inputs after it) and the GNSS update's few small products. ``tools/bench_mpc.py`` prints the
 estimator's time per control period.
 
-Also here: :class:`SensorFeedback` (simulated sensors -> estimator, what a simulated closed
-loop gives its controller) and :func:`estimate_recording` (the estimator over a canonical
+Also here: :func:`estimate_recording` (the estimator over a canonical
 recording's raw channels, e.g. the real comma2k19 minute; ``tools/estimate_plot.py`` plots it).
 """
 from __future__ import annotations
@@ -92,7 +91,8 @@ from scipy.linalg.lapack import dposv
 from scipy.stats import chi2
 
 from hmpc.models.params import Params
-from hmpc.models.plant import IAP, IBP, ISW, HybridPlant, zone_with_hysteresis
+from hmpc.models.plant import IAP, IBP, ISW, HybridPlant
+from hmpc.models.zones import zone_with_hysteresis
 
 NXE = 7  #: estimator state size
 IX, IY, IPSI, IV, IDOFF, IBR, IKWS = range(NXE)
@@ -215,7 +215,7 @@ def _time(t_s) -> float:
 
 
 def _zone_bands(v_min_mps, v_max_mps, hysteresis_mps: float) -> list[tuple[float, float]]:
-    """Per zone, the speeds [m/s] for which ``models.plant.zone_with_hysteresis(v, zone, ...,
+    """Per zone, the speeds [m/s] for which ``models.zones.zone_with_hysteresis(v, zone, ...,
     clamp=True)`` keeps ``zone`` (its band widened by the hysteresis; the first zone has no
     lower edge, the last none above). A cache of that rule's first test: outside the band the
     estimator calls the rule itself (``tests/test_estimator_speed.py`` checks they agree)."""
@@ -843,54 +843,6 @@ class Estimator:
         self._gnss_rejects = after_rejects
         self.stats["gnss"]["replays"] += 1
         return ok
-
-# ============================================================ closed-loop feedback
-class SensorFeedback:
-    """What a simulated closed loop gives its controller: the car's sensors
-    (``models.sim.live_sensors``) feeding an :class:`Estimator`, never the plant state.
-
-    Per plant step call :meth:`observe` with the truth; per control step :meth:`estimate`
-    (the state at ``t_s`` with its covariance, propagated with the input held so far), then
-    :meth:`command` with the input applied from ``t_s`` on.
-
-    Args:
-        params: the controller's model (the estimator's; the sensors use it for eq. 7).
-        sensors: rates, latency, noise (default ``SensorConfig()``: today's noise).
-        config: the estimator's noise model (default matched to ``sensors``).
-        seed: the sensors' seed. t0_s: time of the first truth sample [s].
-        initial_state: start the estimator from this plant state at ``t0_s`` with the
-            config's initial uncertainty (default: from the first GNSS fix, as a car does;
-            until then :meth:`estimate` returns None).
-    """
-
-    def __init__(self, params: Params, sensors=None, config: EstimatorConfig | None = None, *,
-                 seed: int = 0, t0_s: float = 0.0, initial_state=None):
-        from hmpc.models.sim.live_sensors import LiveSensors
-        self.sensors = LiveSensors(params, sensors, seed, t0_s)
-        self.estimator = Estimator(params, config or EstimatorConfig.matching(self.sensors.cfg))
-        if initial_state is not None:
-            self.estimator.reset(t0_s, initial_state)
-
-    def observe(self, t_s: float, state, steering_wheel_angle_rad: float,
-                accel_mps2: float = 0.0, delta_rad: float | None = None) -> int:
-        """Feed the truth at ``t_s`` to the sensors and what arrives to the estimator; returns
-        the number of messages that arrived."""
-        msgs = self.sensors.observe(t_s, state, steering_wheel_angle_rad, accel_mps2, delta_rad)
-        for m in msgs:
-            self.estimator.feed(m, t_s)
-        return len(msgs)
-
-    def estimate(self, t_s: float):
-        """``(state, covariance)`` (4, 4x4) at ``t_s``, or None before the first fix."""
-        self.estimator.predict(t_s)
-        if not self.estimator.initialized:
-            return None
-        return self.estimator.state(), self.estimator.covariance()
-
-    def command(self, t_s: float, u) -> None:
-        """The plant input applied from ``t_s`` on (steering-wheel angle, pedals)."""
-        self.estimator.predict(t_s, u)
-
 
 # ============================================================ offline: a recording
 @dataclass

@@ -65,7 +65,7 @@ from hmpc.models.params import Params
 from hmpc.models.plant import HybridPlant, bicycle_jacobian, derivative_batch, jacobians_batch, \
     steering_wheel_angle_for
 from hmpc.models.plant import first_order_lag
-from hmpc.models.sim.scenarios import Reference
+from hmpc.models.reference import Reference
 
 from hmpc.controller.base import ControlResult, Status, internal_error
 from hmpc.controller.horizon import InFlight, PathReference, Plan, SolveOutcome, SpeedBand, \
@@ -580,7 +580,7 @@ class MpcController:
         whole step no slower than before the estimator)."""
         N, dt, lim, c = self.N, self.dt, self.limits, self.config
         self._pedal_bounds = self._pedal_bound_table()
-        pl = self.plant  # each zone's hysteresis band [m/s] (models.plant.zone_with_hysteresis)
+        pl = self.plant  # each zone's hysteresis band [m/s] (models.zones.zone_with_hysteresis)
         self._zone_bands = [(-math.inf if z == 0 else pl.v_min[z] - pl.hysteresis_mps,
                              pl.v_max[z] + pl.hysteresis_mps if z < pl.n_zones - 1 else math.inf)
                             for z in range(pl.n_zones)]

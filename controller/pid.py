@@ -26,7 +26,7 @@ import numpy as np
 
 from hmpc.models.params import Params
 from hmpc.models.plant import steering_wheel_angle_for
-from hmpc.models.sim.scenarios import Reference
+from hmpc.models.reference import Reference
 
 from hmpc.controller.base import ControlResult, Status, internal_error
 from hmpc.controller.limits import ActuatorLimits, Command, apply_limits

@@ -22,7 +22,6 @@ that the controller "corrects" and that the car never saw.
 """
 from __future__ import annotations
 
-import math
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -34,10 +33,11 @@ from hmpc.models.errors import InputError
 from hmpc.models.logs.frames import FrameTable
 from hmpc.models.logs.recording import Recording
 from hmpc.models.params import Params
-from hmpc.models.plant import HybridPlant, heading_rate
-from hmpc.models.sim.scenarios import Reference
+from hmpc.models.plant import HybridPlant
+from hmpc.models.reference import Reference, front_speed, recording_reference
 
-from hmpc.controller.closed_loop import pedal_switches, run_closed_loop
+from hmpc.controller.closed_loop import run_closed_loop
+from hmpc.controller.metrics import pedal_switches
 
 
 @dataclass(frozen=True)
@@ -55,85 +55,6 @@ class ReplayConfig:
     # Pedal positions above this count as pressed when counting switches [0..1] (the
     # limits' deadband).
     pedal_deadband: float = 1e-3
-
-
-# ------------------------------------------------------------------ references
-def _finite_fill(t: np.ndarray, y: np.ndarray, name: str, path: str) -> np.ndarray:
-    """``y`` with its non-finite samples interpolated in time; InputError naming the channel
-    when fewer than 2 samples are finite."""
-    ok = np.isfinite(y)
-    if ok.sum() < 2:
-        raise InputError("too few finite samples for a reference", path, channel=name)
-    return y if ok.all() else np.interp(t, t[ok], y[ok])
-
-
-def _front_speed(rec: Recording) -> np.ndarray:
-    """Front-axle-centre speed [m/s]: the front wheels' mean (eq. 1's point), else ``speed``."""
-    ch = rec.channels
-    if "wheel_speed_fl" in ch and "wheel_speed_fr" in ch:
-        v = 0.5 * (ch["wheel_speed_fl"] + ch["wheel_speed_fr"])
-        if np.isfinite(v).sum() >= 2:
-            return v
-    if "speed" not in ch:
-        raise InputError("a replay needs the speed (or front wheel speeds)",
-                         rec.meta.get("path", "recording"), channel="speed")
-    return ch["speed"]
-
-
-def recording_reference(rec: Recording, params: Params, *, source: str = "auto",
-                        name: str = "recording") -> Reference:
-    """The recorded drive as a :class:`Reference` (time from 0 [s], front-wheel point).
-
-    Args:
-        rec: a canonical recording.
-        params: the model (eq. 7 turns the steering-wheel angle into the road-wheel angle).
-        source: ``nav`` (x, y, heading from GNSS/INS), ``can`` (dead reckoning from the front
-            wheel speeds and the steering-wheel angle, as the drive loop's estimator does),
-            or ``auto`` (nav when the recording has it).
-        name: the reference's name.
-    """
-    ch = rec.channels
-    path = str(rec.meta.get("path", name))
-    t = np.asarray(ch["time"], dtype=float)
-    v = np.maximum(_finite_fill(t, _front_speed(rec), "speed", path), 0.0)
-    plant = HybridPlant(params)
-    if "steering_wheel_angle" not in ch:
-        raise InputError("a replay needs the steering-wheel angle", path,
-                         channel="steering_wheel_angle")
-    sw = _finite_fill(t, np.asarray(ch["steering_wheel_angle"], float), "steering_wheel_angle", path)
-    delta = np.asarray(plant.road_wheel_angle(sw), dtype=float)
-    has_nav = all(k in ch and np.isfinite(ch[k]).sum() >= 2 for k in ("x", "y", "heading"))
-    if source == "nav" and not has_nav:
-        raise InputError("--reference-source nav needs x, y and heading (ingest with --nav)",
-                         path, channel="x")
-    if source in ("nav", "auto") and has_nav:
-        x = _finite_fill(t, np.asarray(ch["x"], float), "x", path)
-        y = _finite_fill(t, np.asarray(ch["y"], float), "y", path)
-        psi = np.unwrap(_finite_fill(t, np.asarray(ch["heading"], float), "heading", path))
-        # the path tangent is the front wheel's direction of motion: yaw + road-wheel angle
-        return Reference(t - t[0], x, y, psi + delta, v, name=name)
-    x0 = float(ch["x"][np.isfinite(ch["x"])][0]) if "x" in ch and np.isfinite(ch["x"]).any() else 0.0
-    y0 = float(ch["y"][np.isfinite(ch["y"])][0]) if "y" in ch and np.isfinite(ch["y"]).any() else 0.0
-    hd = ch.get("heading")
-    psi0 = float(hd[np.isfinite(hd)][0]) if hd is not None and np.isfinite(hd).any() else 0.0
-    x, y, psi = dead_reckon(t, v, delta, params.vehicle.wheelbase_m, (x0, y0, psi0))
-    return Reference(t - t[0], x, y, psi + delta, v, name=name)
-
-
-def dead_reckon(t_s, v_mps, delta_rad, wheelbase_m: float, start=(0.0, 0.0, 0.0)):
-    """Eq. 1 integrated along samples (midpoint heading), the drive loop's estimator:
-    returns x, y [m] of the front-wheel point and the yaw psi [rad]."""
-    n = len(t_s)
-    x, y, psi = np.zeros(n), np.zeros(n), np.zeros(n)
-    x[0], y[0], psi[0] = start
-    for i in range(1, n):
-        h = t_s[i] - t_s[i - 1]
-        v, d = float(v_mps[i]), float(delta_rad[i])
-        dpsi = heading_rate(v, d, wheelbase_m, math) * h
-        x[i] = x[i - 1] + v * math.cos(psi[i - 1] + 0.5 * dpsi + d) * h
-        y[i] = y[i - 1] + v * math.sin(psi[i - 1] + 0.5 * dpsi + d) * h
-        psi[i] = psi[i - 1] + dpsi
-    return x, y, psi
 
 
 # ------------------------------------------------------------------ comparisons
@@ -212,7 +133,7 @@ def _car_on_grid(rec: Recording, t_run: np.ndarray, plant: HybridPlant) -> dict:
         y = np.asarray(ch[name], float)
         ok = np.isfinite(y)
         return np.interp(t_run, t[ok], y[ok])
-    v = np.interp(t_run, t, np.nan_to_num(_front_speed(rec)))
+    v = np.interp(t_run, t, np.nan_to_num(front_speed(rec)))
     return {"speed_mps": v, "steering_wheel_angle_rad": on("steering_wheel_angle"),
             "accel_pedal": on("accel_pedal", 0.0), "brake_pedal": on("brake_pedal", 0.0),
             "zone": plant.zone_schedule(v, None)}
@@ -475,10 +396,10 @@ def _first_accepting(frames: FrameTable, profile) -> float:
 
 
 class _ProgressClock:
-    """The replay's simulated clock (``replay_bus.SimClock``) reporting progress every tenth."""
+    """The replay's simulated clock (``controller.simclock.SimClock``) reporting progress every tenth."""
 
     def __init__(self, t0_s: float, span_s: float, progress):
-        from hmpc.controller.actuation.replay_bus import SimClock
+        from hmpc.controller.simclock import SimClock
         self._c = SimClock(t0_s)
         self._t0, self._span, self._progress, self._last = t0_s, max(span_s, 1e-9), progress, -1
 

@@ -55,6 +55,7 @@ import yaml
 
 from hmpc.models.errors import ParamError
 from hmpc.models.catalogue import CATALOGUE, EXTENSION_TEXT_KEYS
+from hmpc.models.zones import zone_of_speed
 
 #: Unit suffixes a numeric key may carry.
 UNIT_SUFFIXES = ("_m", "_s", "_rad", "_mps", "_mps2", "_mps3", "_radps", "_pct", "_kg", "_hz")
@@ -238,8 +239,7 @@ class Params:
 
     def zone_for(self, v_mps: float) -> int:
         """Index of the zone whose (v_min, v_max] holds v; 0 for v <= first v_max; -1 above
-        all and for NaN (the zone rule of ``models.plant.zone_of_speed``)."""
-        from hmpc.models.plant import zone_of_speed  # plant imports this module
+        all and for NaN (the zone rule of ``models.zones.zone_of_speed``)."""
         return zone_of_speed(v_mps, [z.v_max_mps for z in self.zones])
 
     def to_dict(self) -> dict:

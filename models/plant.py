@@ -18,15 +18,8 @@ longitudinal zone assignment) and ``Params.zone_for`` all call the functions bel
   the ``cos``/``sin`` of a namespace argument ``ops`` (``numpy`` by default; ``math`` or
   ``casadi`` work too), so the same function serves a scalar, a numpy batch (arrays
   broadcast element-wise) and a CasADi symbol.
-- **The zone rule** (:func:`zone_of_speed`, :func:`zones_of_speed`,
-  :func:`zone_with_hysteresis`, :func:`zones_with_hysteresis`): zone i holds the speeds in
-  ``(v_min_i, v_max_i]``; zones are contiguous, so the first zone takes every speed up to
-  its ``v_max`` (0 included). Above the last zone and for NaN there is no zone (-1); with
-  ``clamp=True`` (the plant, the MPC) the last zone's model is used there instead. With
-  hysteresis h the current zone is kept while the speed is within
-  ``[v_min - h, v_max + h]`` (the first zone has no lower edge; the last zone's upper edge
-  is its ``v_max``, or none with ``clamp``), and only then re-selected by speed, so noise
-  on a boundary cannot make it chatter.
+- **The zone rule** lives in ``models.zones`` (the parameter file needs it too); the plant
+  selects zones with it.
 
 **Opt-in extensions** (``HybridPlant(params, extensions=True)``, :class:`PlantExtensions`):
 the physics ``hmpc diagnose`` adds in a parameter file's ``extensions:`` that belongs to a
@@ -43,76 +36,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
 from hmpc.models.params import Params
+from hmpc.models.zones import zone_of_speed, zone_with_hysteresis, zones_with_hysteresis
 
 NX = 4  #: state size: x, y, psi, v
 NU = 3  #: input size: steering-wheel angle, accel pedal, brake pedal
 IX, IY, IPSI, IV = range(NX)
 ISW, IAP, IBP = range(NU)
-
-
-# ------------------------------------------------------------------------- the zone rule
-def zone_of_speed(v_mps: float, v_max_mps: Sequence[float], *, clamp: bool = False) -> int:
-    """Index of the zone whose ``(v_min, v_max]`` holds ``v_mps`` (see the module doc).
-
-    Args:
-        v_mps: speed [m/s].
-        v_max_mps: upper bound of each zone, ascending [m/s] (zones are contiguous).
-        clamp: above the last zone (and for NaN) return the last zone instead of -1.
-    """
-    for i, hi in enumerate(v_max_mps):
-        if v_mps <= hi:
-            return i
-    return len(v_max_mps) - 1 if clamp else -1
-
-
-def zones_of_speed(v_mps: np.ndarray, v_max_mps: Sequence[float], *,
-                   clamp: bool = False) -> np.ndarray:
-    """:func:`zone_of_speed` for an array of speeds (vectorised), as int64."""
-    v = np.asarray(v_mps, dtype=float)
-    vmax = np.asarray(v_max_mps, dtype=float)
-    z = np.searchsorted(vmax, v, side="left")  # first i with v <= v_max[i]; NaN sorts last
-    return np.where(z < len(vmax), z, len(vmax) - 1 if clamp else -1).astype(np.int64)
-
-
-def zone_with_hysteresis(v_mps: float, current: int | None, v_min_mps: Sequence[float],
-                         v_max_mps: Sequence[float], hysteresis_mps: float, *,
-                         clamp: bool = False) -> int:
-    """Zone with hysteresis: ``current`` while ``v_mps`` is within its band widened by
-    ``hysteresis_mps`` [m/s], otherwise :func:`zone_of_speed`. ``current`` None or -1: no
-    zone yet (by speed). A NaN speed leaves every band."""
-    n = len(v_max_mps)
-    if current is not None and 0 <= current < n:
-        lo = -math.inf if current == 0 else v_min_mps[current] - hysteresis_mps
-        if current < n - 1:
-            hi = v_max_mps[current] + hysteresis_mps
-        else:  # above the last zone there is no zone to hand over to
-            hi = math.inf if clamp else v_max_mps[current]
-        if lo <= v_mps <= hi:
-            return current
-    return zone_of_speed(v_mps, v_max_mps, clamp=clamp)
-
-
-def zones_with_hysteresis(v_mps: np.ndarray, v_min_mps: Sequence[float],
-                          v_max_mps: Sequence[float], hysteresis_mps: float, *,
-                          start: int | None = None, clamp: bool = False) -> np.ndarray:
-    """:func:`zone_with_hysteresis` along a speed sequence, each sample starting from the
-    previous one's zone (the first from ``start``); int64 array. A loop by nature (each
-    sample depends on the last), on Python floats: a 50-stage MPC horizon takes ~20 us."""
-    vmin = [float(x) for x in v_min_mps]
-    vmax = [float(x) for x in v_max_mps]
-    h = float(hysteresis_mps)
-    vs = np.asarray(v_mps, dtype=float).reshape(-1).tolist()
-    out = np.empty(len(vs), dtype=np.int64)
-    cur = start
-    for i, v in enumerate(vs):
-        cur = zone_with_hysteresis(v, cur, vmin, vmax, h, clamp=clamp)
-        out[i] = cur
-    return out
 
 
 # ------------------------------------------------------------------ eq. 7, eq. 1, eq. 8

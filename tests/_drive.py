@@ -14,7 +14,8 @@ from hmpc.controller.actuation.vehicle_node import BYWIRE_RATES_HZ, TOYOTA_RATES
 from hmpc.controller.closed_loop import run_closed_loop
 from hmpc.controller.mpc import MpcConfig, MpcController
 from hmpc.models.params import load_params
-from hmpc.models.sim.scenarios import Reference, make_scenario
+from hmpc.models.reference import Reference
+from hmpc.models.sim.scenarios import make_scenario
 
 PROFILES = {"toyota": PARAMS_DIR / "toyota_rav4_2017.actuation.yaml",
             "bywire": PARAMS_DIR / "bywire.actuation.yaml"}

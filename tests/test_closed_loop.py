@@ -13,14 +13,15 @@ from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
 
 from hmpc.controller.base import Status
-from hmpc.controller.closed_loop import pedal_switches
+from hmpc.controller.metrics import pedal_switches
 from hmpc.controller.closed_loop import run_closed_loop as _run_closed_loop
 from hmpc.controller.limits import ActuatorLimits
 from hmpc.controller.mpc import MpcConfig, MpcController
 from hmpc.controller.pid import PidController
 from hmpc.models.params import load_params
 from hmpc.models.logs.recording import Recording
-from hmpc.models.sim.scenarios import Reference, make_scenario
+from hmpc.models.reference import Reference
+from hmpc.models.sim.scenarios import make_scenario
 
 SEED = 7
 NOISE = dict(speed_noise_mps=0.05, position_noise_m=0.02, seed=SEED)

@@ -10,7 +10,8 @@ import yaml
 from _data import REPORT_PARAMS
 from hmpc.models.errors import InputError
 from hmpc.models.logs.recording import Recording
-from hmpc.models.sim.scenarios import load_reference_csv, make_scenario, save_reference_csv
+from hmpc.models.reference import load_reference_csv, save_reference_csv
+from hmpc.models.sim.scenarios import make_scenario
 from hmpc.tools.cli import main
 
 PARAMS = str(REPORT_PARAMS)

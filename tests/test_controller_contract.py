@@ -17,7 +17,7 @@ from hmpc.controller.mpc import MpcConfig, MpcController
 from hmpc.controller.nmpc import NmpcController
 from hmpc.controller.pid import PidController
 from hmpc.models.params import load_params
-from hmpc.models.sim.scenarios import Reference
+from hmpc.models.reference import Reference
 
 CONTROLLERS = (MpcController, NmpcController, PidController)
 

@@ -448,7 +448,7 @@ def test_rewind_equals_the_fix_received_on_time():
 def test_sensor_feedback_drives_a_closed_loop_like_loop():
     """SensorFeedback as a closed loop would use it: truth every 20 ms plant step, estimate and
     command every 100 ms; the estimate follows the truth from the first fix on."""
-    from hmpc.controller.estimator import SensorFeedback
+    from hmpc.controller.closed_loop import SensorFeedback
     seed = 111
     tr = random_drive(P, 10.0, seed, dt_s=0.02)
     fb = SensorFeedback(P, SensorConfig(gnss_rate_hz=10.0, gnss_latency_s=0.1), seed=seed)

@@ -14,7 +14,8 @@ import pytest
 from _data import REPORT_PARAMS
 from hmpc.controller.estimator import NXE, Estimator, EstimatorConfig, _zone_bands
 from hmpc.models.params import load_params
-from hmpc.models.plant import HybridPlant, zone_with_hysteresis
+from hmpc.models.plant import HybridPlant
+from hmpc.models.zones import zone_with_hysteresis
 
 P = load_params(REPORT_PARAMS)
 

@@ -14,7 +14,7 @@ from hmpc.controller.modes import ModeConfig, PedalMode, PedalModeLogic, transit
 from hmpc.controller.mpc import MpcConfig, MpcController, jacobians_batch, preferred_zone
 from hmpc.models.params import load_params
 from hmpc.models.plant import HybridPlant
-from hmpc.models.sim.scenarios import Reference
+from hmpc.models.reference import Reference
 
 SEED = 11
 

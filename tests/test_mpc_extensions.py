@@ -24,7 +24,8 @@ from hmpc.models.plant import (IAP, IBP, ISW, IV, HybridPlant, derivative_batch,
                                first_order_lag, jacobians_batch, plant_extensions)
 from hmpc.models.sim import effects as fx
 from hmpc.models.sim import effects_extra as fx2
-from hmpc.models.sim.scenarios import Reference, make_scenario
+from hmpc.models.reference import Reference
+from hmpc.models.sim.scenarios import make_scenario
 
 SEED = 20261123
 

@@ -8,7 +8,8 @@ from hmpc.controller.closed_loop import run_closed_loop
 from hmpc.controller.mpc import MpcController
 from hmpc.controller.nmpc import NmpcController
 from hmpc.models.params import load_params
-from hmpc.models.sim.scenarios import Reference, make_scenario
+from hmpc.models.reference import Reference
+from hmpc.models.sim.scenarios import make_scenario
 from hmpc.models.sim.simulator import random_params
 
 

@@ -11,7 +11,7 @@ from _data import PARAMS_DIR, REPORT_PARAMS
 from hmpc.models.errors import ParamError
 from hmpc.models.params import check_identifiable, load_params
 from hmpc.tools.cli import main
-from hmpc.tools.cmd_simulate import make_controller
+from hmpc.controller.build import make_controller
 
 FLAG = "--accept-unidentifiable"
 

@@ -14,8 +14,9 @@ from _data import REPORT_PARAMS
 from hmpc.models.params import load_params
 from hmpc.models.plant import (IV, HybridPlant, bicycle_jacobian, bicycle_rates,
                                derivative_batch, jacobians_batch, road_wheel_angle,
-                               steering_wheel_angle_for, zone_accel, zone_of_speed,
-                               zone_with_hysteresis, zones_of_speed, zones_with_hysteresis)
+                               steering_wheel_angle_for, zone_accel)
+from hmpc.models.zones import (zone_of_speed, zone_with_hysteresis, zones_of_speed,
+                               zones_with_hysteresis)
 
 SEED = 20251123
 V_MIN = [0.0, 2.0, 5.0]

@@ -18,7 +18,8 @@ import pytest
 from hmpc.controller.closed_loop import run_closed_loop
 from hmpc.controller.pid import PidConfig, PidController
 from hmpc.models.params import load_params
-from hmpc.models.sim.scenarios import Reference, make_scenario
+from hmpc.models.reference import Reference
+from hmpc.models.sim.scenarios import make_scenario
 from hmpc.models.sim.simulator import random_params
 
 SEED = 0

@@ -20,13 +20,14 @@ import numpy as np
 import pytest
 
 from hmpc.controller.actuation.profiles import load_profile
-from hmpc.controller.replay import log_replay, recording_reference
+from hmpc.controller.replay import log_replay
+from hmpc.models.reference import recording_reference
 from hmpc.models.errors import Problems
 from hmpc.models.logs.canlog import read_log
 from hmpc.models.logs.recording import Recording
 from hmpc.models.params import load_params
 from hmpc.tools.cli import main
-from hmpc.tools.cmd_simulate import make_controller
+from hmpc.controller.build import make_controller
 
 from _data import PARAMS_DIR, bundled
 
@@ -142,7 +143,8 @@ def test_replay_bus_serves_the_log_on_the_simulated_clock():
     timeout, and send records with the simulated time."""
     import can
 
-    from hmpc.controller.actuation.replay_bus import ReplaySource, SimClock
+    from hmpc.controller.actuation.replay_bus import ReplaySource
+    from hmpc.controller.simclock import SimClock
 
     frames = read_log(CAN, Problems())
     frames = frames.take(np.flatnonzero(frames.t_s < frames.t_s[0] + 0.2))

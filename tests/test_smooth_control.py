@@ -15,13 +15,14 @@ import numpy as np
 import pytest
 
 from hmpc.controller.base import ControlResult, Status
-from hmpc.controller.closed_loop import (rate_rms, run_closed_loop, smoothness_of,
-                                         steering_reversals)
+from hmpc.controller.closed_loop import run_closed_loop
+from hmpc.controller.metrics import rate_rms, smoothness_of, steering_reversals
 from hmpc.controller.limits import Command
 from hmpc.controller.mpc import MpcController
 from hmpc.models.params import load_params
 from hmpc.models.sim.live_sensors import SensorConfig
-from hmpc.models.sim.scenarios import Reference, make_scenario
+from hmpc.models.reference import Reference
+from hmpc.models.sim.scenarios import make_scenario
 from hmpc.models.sim.simulator import random_params
 
 ROOT = Path(__file__).resolve().parents[1]

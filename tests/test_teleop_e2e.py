@@ -14,9 +14,10 @@ import pytest
 
 from hmpc.controller.limits import ActuatorLimits
 from hmpc.controller.teleop.link import LinkReceiver, OperatorLink
-from hmpc.controller.teleop.operator import (END_PACKETS, experiment_script, load_script,
+from hmpc.tools.cmd_operator import experiment_script
+from hmpc.controller.teleop.operator import (END_PACKETS, load_script,
                                              run_operator)
-from hmpc.controller.teleop.selftest import SimClock
+from hmpc.controller.simclock import SimClock
 from hmpc.controller.teleop.sink import PlantSink, lockstep_vehicle
 from hmpc.models.params import load_params
 from hmpc.models.sim.simulator import run_experiment
@@ -26,7 +27,7 @@ KEY = random.Random(1011).randbytes(32)
 
 
 def _drive(script, params):
-    clk = SimClock()
+    clk = SimClock(1000.0)
     rx = LinkReceiver(KEY, ("127.0.0.1", 0), clock=clk)
     op = OperatorLink(KEY, rx.address, clock=clk)
     sink = PlantSink(params)
@@ -144,7 +145,7 @@ def test_cut_link_or_released_dead_man_stops_the_car(params, how):
     within the controlled-stop deceleration."""
     from hmpc.controller.teleop.link import TeleopCommand
     script = experiment_script("arcs", params, seed=0)
-    clk = SimClock()
+    clk = SimClock(1000.0)
     rx = LinkReceiver(KEY, ("127.0.0.1", 0), clock=clk)
     op = OperatorLink(KEY, rx.address, clock=clk)
     sink = PlantSink(params)

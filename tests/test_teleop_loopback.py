@@ -22,7 +22,8 @@ from _teleop import (DISENGAGE, ENGAGE, HANDOVER, KEY, TAKE_OVER, command_frames
 from hmpc.controller.actuation.drive import DriveConfig
 from hmpc.controller.actuation.watchdog import WatchdogConfig
 from hmpc.controller.teleop.link import LinkConfig, Mode, _CMD, _mac, _us
-from hmpc.controller.teleop.operator import ENGAGE_LEAD_S, experiment_script
+from hmpc.controller.teleop.operator import ENGAGE_LEAD_S
+from hmpc.tools.cmd_operator import experiment_script
 from hmpc.tools.cli import main
 
 pytestmark = pytest.mark.realtime

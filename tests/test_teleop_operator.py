@@ -12,6 +12,8 @@ import threading
 
 import numpy as np
 import pytest
+
+from hmpc.tools.cmd_operator import experiment_script
 from rich.console import Console
 
 from hmpc.controller.teleop import link as L
@@ -57,7 +59,7 @@ def test_script_holds_rows_and_ends(tmp_path):
 
 
 def test_script_round_trip(tmp_path, params):
-    s = op.experiment_script("ramp_sequence", params, seed=3)
+    s = experiment_script("ramp_sequence", params, seed=3)
     op.write_script(s, tmp_path / "rs.csv")
     back = op.load_script(tmp_path / "rs.csv")
     assert np.array_equal(back.times_s, s.times_s)
@@ -88,7 +90,7 @@ def test_bad_script_one_line_error_naming_file_and_line(tmp_path, text, match):
 
 def test_experiment_scripts_are_the_simulators_driver_inputs(params):
     """Built-in scripts come from the simulator's plan and driver, not a second copy."""
-    s = op.experiment_script("arcs", params, seed=0)
+    s = experiment_script("arcs", params, seed=0)
     run = run_experiment("arcs", params, seed=0, rate_hz=50.0, noise="none")
     pedals = [c for c in s.commands if c.mode == L.Mode.PEDALS]
     assert len(pedals) == len(run.recording.channels["time"])
@@ -97,7 +99,7 @@ def test_experiment_scripts_are_the_simulators_driver_inputs(params):
     assert s.commands[0].mode == L.Mode.ENGAGE and s.commands[-1].mode == L.Mode.DISENGAGE
     # arcs steer both ways; ramps barely steer but use both pedals
     assert sw.min() < -4.0 and sw.max() > 4.0
-    r = op.experiment_script("ramps", params, seed=0)
+    r = experiment_script("ramps", params, seed=0)
     ap = np.array([c.values[1] for c in r.commands if c.mode == L.Mode.PEDALS])
     bp = np.array([c.values[2] for c in r.commands if c.mode == L.Mode.PEDALS])
     assert ap.max() > 0.2 and bp.max() > 0.2 and not np.any((ap > 0) & (bp > 0))
@@ -105,7 +107,7 @@ def test_experiment_scripts_are_the_simulators_driver_inputs(params):
 
 def test_unknown_experiment(params):
     with pytest.raises(InputError, match="unknown experiment 'loops'"):
-        op.experiment_script("loops", params)
+        experiment_script("loops", params)
 
 
 # ------------------------------------------------------------------------------- keyboard

@@ -17,7 +17,7 @@ from hmpc.controller.base import Controller, Status
 from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
 from hmpc.controller.mpc import MpcConfig, MpcController
 from hmpc.controller.teleop.link import LinkReceiver, Mode, OperatorLink, TeleopCommand
-from hmpc.controller.teleop.selftest import SimClock
+from hmpc.controller.simclock import SimClock
 from hmpc.controller.teleop.vehicle import (HOLD_BRAKE, TeleopController, anchored_reference,
                                             arc_reference)
 from hmpc.models.params import load_params

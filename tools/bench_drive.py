@@ -28,8 +28,8 @@ from hmpc.controller.actuation.vehicle_node import VehicleNode
 from hmpc.controller.base import ControlResult, Status
 from hmpc.controller.limits import Command
 from hmpc.models.params import load_params
-from hmpc.models.sim.scenarios import Reference
-from hmpc.tools.cmd_simulate import make_controller
+from hmpc.models.reference import Reference
+from hmpc.controller.build import make_controller
 from hmpc.tools.datafiles import PARAMS_DIR
 
 PROFILES = {"toyota": "toyota_rav4_2017.actuation.yaml", "bywire": "bywire.actuation.yaml"}

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import os
 import sys
 import traceback
@@ -62,27 +61,6 @@ def build_parser() -> argparse.ArgumentParser:
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run, _outputs=getattr(mod, "OUTPUTS", {}))
     return parser
-
-
-def write_json(path: str | None, payload: dict) -> None:
-    """Write a ``--json`` result (stable keys, SI units); InputError naming the file when it
-    cannot be written (exit 2, never a traceback)."""
-    if path:
-        text = json.dumps(payload, indent=2, sort_keys=False, default=_jsonable) + "\n"
-        try:
-            with open(path, "w", encoding="utf-8") as fh:
-                fh.write(text)
-        except OSError as exc:
-            raise InputError(f"cannot write JSON ({exc.strerror or exc})", path) from None
-
-
-def _jsonable(obj):
-    import numpy as np
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    return str(obj)
 
 
 #: argparse destinations that name a file a subcommand writes, and a folder it fills, with

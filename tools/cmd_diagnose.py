@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from hmpc.models.errors import InputError
-from hmpc.tools.cmd_ingest import recording_or_log
+from hmpc.tools.common import add_ingest_options, progress_printer, recording_or_log, write_json
 from hmpc.models.params import dump_params, load_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from hmpc.tools.cmd_ingest import add_ingest_options
 
     p.add_argument("recording", metavar="REC",
                    help="canonical recording (.csv, .csv.gz, .parquet), or a raw CAN log when "
@@ -31,8 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_ingest_options(g, log_required=False)
 
 
-def _progress(msg: str) -> None:
-    print(f"hmpc diagnose: {msg}", file=sys.stderr, flush=True)
+_progress = progress_printer("diagnose")
 
 
 def summary_lines(dg) -> list[str]:
@@ -74,7 +71,6 @@ def _values(parameters: dict) -> str:
 
 def run(args) -> int:
     from hmpc.models.diagnose.diagnose import diagnose
-    from hmpc.tools.cli import write_json
 
     vehicle = load_params(args.vehicle).vehicle
     params = load_params(args.params, require_model=True) if args.params else None

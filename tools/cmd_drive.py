@@ -13,25 +13,14 @@ KPIs (``speed_error_rms_mps``, ``lateral_error_rms_m``, ``pedal_switches_per_min
 """
 from __future__ import annotations
 
-import os
 import sys
 
 from hmpc.models.errors import InputError
-from hmpc.tools.cmd_simulate import add_accept_unidentifiable
+from hmpc.controller.build import make_controller
+from hmpc.models.reference import load_reference
+from hmpc.tools.common import (CONTROLLERS, STOP_WHY, add_bus_arguments, bus_kwargs,
+                               load_model_params, stop_times, write_json)
 
-CONTROLLERS = ("mpc", "nmpc", "pid")
-
-
-def add_bus_arguments(p) -> None:
-    """The options every loop on a CAN bus shares (``drive``, ``teleop``): the bus, the
-    simulated car on its other end, and the model refusal flag."""
-    p.add_argument("--bus", default="virtual", metavar="virtual|socketcan:CHANNEL",
-                   help="the CAN bus (default virtual: python-can's in-process virtual bus)")
-    p.add_argument("--vehicle-sim", action="store_true",
-                   help="run the vehicle simulator node on the other end of the bus")
-    add_accept_unidentifiable(p)
-    p.add_argument("--plant-params", metavar="P2.yaml",
-                   help="the simulated car's parameters (default: --params)")
 
 
 def add_arguments(p) -> None:
@@ -58,44 +47,11 @@ def add_arguments(p) -> None:
     p.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
 
 
-#: what an unrequested stop means, for the warning line
-STOP_WHY = {
-    "feedback_loss": "the car's wheel speeds went stale for more than 3 of their periods; "
-                     "on a loaded host a stall of the process does this",
-    "driver_override": "the driver steered, braked or pressed the accelerator",
-    "vehicle_rejects": "the car stopped accepting hmpc's frames",
-    "solver_failure": "the controller failed to solve",
-    "bus_error": "sending on the bus failed",
-    "clock_freeze": "the loop's monotonic clock stopped advancing",
-    "clock_jump": "the loop's monotonic clock jumped",
-    "deadline_misses": "the loop missed its period several times in a row (a loaded host)",
-}
-
-
-def stop_times(st: dict) -> str:
-    """'detected 30.30 s, started 30.30 s, standstill 32.68 s' (run time; '-' when absent)."""
-    f = lambda v: "-" if v is None else f"{v:.2f} s"   # noqa: E731
-    return (f"detected {f(st['detected_t_s'])}, started {f(st['t_s'])}, "
-            f"standstill {f(st['standstill_t_s'])}")
-
-
-def bus_kwargs(text: str) -> dict:
-    """``virtual`` -> a private virtual channel; ``socketcan:vcan0`` -> socketcan on vcan0."""
-    if text == "virtual":
-        return {"interface": "virtual", "channel": f"hmpc-drive-{os.getpid()}"}
-    iface, sep, chan = text.partition(":")
-    if not sep or not iface or not chan:
-        raise InputError(f"--bus '{text}': expected virtual or INTERFACE:CHANNEL")
-    return {"interface": iface, "channel": chan}
-
-
 def run(args) -> int:
     from hmpc.controller.actuation.drive import DriveLoop, audit_candump, parse_fault
     from hmpc.controller.actuation.profiles import load_profile
     from hmpc.controller.actuation.vehicle_node import VehicleNode
     from hmpc.models.sim.scenarios import make_scenario
-    from hmpc.tools.cli import write_json
-    from hmpc.tools.cmd_simulate import load_model_params, load_reference, make_controller
 
     params = load_model_params(args.params, args, "drive")
     profile = load_profile(args.actuation)

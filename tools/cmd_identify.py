@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from dataclasses import replace
 
 from hmpc.models.errors import InputError
-from hmpc.tools.cmd_ingest import recording_or_log
+from hmpc.tools.common import add_ingest_options, progress_printer, recording_or_log, write_json
 from hmpc.models.identify.pipeline import identify
 from hmpc.models.identify.longitudinal import ACCEL_SOURCES, LongitudinalIdConfig
 from hmpc.models.params import dump_params, load_params
@@ -49,7 +48,6 @@ OUTPUTS = {"out": "the parameter file", "plots": "figures"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from hmpc.tools.cmd_ingest import add_ingest_options
 
     p.add_argument("recording", metavar="REC",
                    help="canonical recording (.csv, .csv.gz, .parquet), or a raw CAN log when "
@@ -73,8 +71,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_ingest_options(g, log_required=False)
 
 
-def _progress(msg: str) -> None:
-    print(f"hmpc identify: {msg}", file=sys.stderr, flush=True)
+_progress = progress_printer("identify")
 
 
 def summary_lines(res) -> list[str]:
@@ -175,7 +172,6 @@ def _source_lines(sel: dict | None) -> list[str]:
 
 def run(args) -> int:
     from hmpc.models.report.identification import write_plots
-    from hmpc.tools.cli import write_json
 
     vehicle = load_params(args.vehicle).vehicle
     rec, sources, ingest_summary = recording_or_log(args, _progress)

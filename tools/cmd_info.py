@@ -12,6 +12,7 @@ import sys
 
 from hmpc.models.logs.canlog import FORMATS
 from hmpc.models.errors import InputError, Problems
+from hmpc.tools.common import write_json
 from hmpc.models.logs.info import format_info, log_info
 
 
@@ -27,7 +28,6 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from hmpc.tools.cli import write_json
 
     if not (math.isfinite(args.jump_s) and args.jump_s > 0):
         raise InputError(f"--jump-s must be a finite number of seconds > 0, got {args.jump_s:g}")

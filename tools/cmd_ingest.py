@@ -2,70 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 
 from hmpc.models.errors import InputError
-from hmpc.models.logs.ingest import DEFAULT_PREFERENCE, ingest_files
-from hmpc.models.logs.nav import load_columns
-
-
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
-
-
-def _finite(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return v
-
-
-def _prefer(text: str) -> tuple[str, str]:
-    ch, sep, src = text.partition("=")
-    if not sep or ch not in DEFAULT_PREFERENCE or src not in DEFAULT_PREFERENCE[ch]:
-        choices = "; ".join(f"{c}={'|'.join(s)}" for c, s in DEFAULT_PREFERENCE.items())
-        raise argparse.ArgumentTypeError(f"expected CHANNEL=SOURCE ({choices}), got {text!r}")
-    return ch, src
-
-
-def add_ingest_options(p: argparse.ArgumentParser, *, log_required: bool = True) -> None:
-    """The options of `hmpc ingest` (also used by commands that take a raw log)."""
-    p.add_argument("--dbc", required=log_required, help="the car's DBC file (optionally .gz)")
-    p.add_argument("--signals", required=log_required, metavar="MAP.yaml",
-                   help="signal map (params/<vehicle>.signals.yaml)")
-    p.add_argument("--nav", metavar="NAV.csv", help="GPS/INS CSV (lat/lon or x/y, velocities, attitude)")
-    p.add_argument("--imu", metavar="IMU.csv", help="IMU CSV (gyro + accelerometer)")
-    p.add_argument("--columns", metavar="COLS.yaml",
-                   help="column names of the nav/IMU CSVs (sections nav:, imu:); "
-                        "default: the comma2k19 layout")
-    p.add_argument("--rate", type=_positive, default=50.0, metavar="HZ",
-                   help="grid rate of the recording [Hz] (default 50)")
-    p.add_argument("--clock-offset", type=_finite, metavar="S",
-                   help="nav clock offset [s] added to nav times to reach the CAN clock "
-                        "(default: estimated from CAN speed vs GNSS speed)")
-    p.add_argument("--imu-offset", type=_finite, metavar="S",
-                   help="IMU clock offset [s] (default: the nav offset, same device; "
-                        "without nav: estimated from yaw rate)")
-    p.add_argument("--gap", type=_positive, metavar="S",
-                   help="gap threshold [s] for every channel (default: max(0.5 s, 5 median "
-                        "sample periods) per channel)")
-    p.add_argument("--no-mount-correction", action="store_true",
-                   help="keep the device heading (do not remove the estimated mount offset)")
-    p.add_argument("--prefer", type=_prefer, action="append", default=[], metavar="CH=SRC",
-                   help="source for a channel several sources give, e.g. yaw_rate=can")
-    p.add_argument("--dbc-lenient", action="store_true",
-                   help="skip DBC lines cantools cannot parse (each reported with its line) "
-                        "instead of refusing the DBC; strict by default")
+from hmpc.tools.common import add_ingest_options, ingest_from_args, progress_printer, write_json
 
 
 #: what ``--out`` holds, for the CLI's check of output paths (tools/cli.py)
@@ -81,22 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="FILE", help="write the summary (stable keys, SI units)")
 
 
-def ingest_from_args(args, progress=None):
-    """Run models.ingest.ingest_files with the options of :func:`add_ingest_options`."""
-    nav_cols = imu_cols = None
-    if args.columns:
-        nav_cols, imu_cols = load_columns(args.columns)
-    return ingest_files(args.log, args.dbc, args.signals, nav_path=args.nav, imu_path=args.imu,
-                        rate_hz=args.rate, clock_offset_s=args.clock_offset,
-                        imu_offset_s=args.imu_offset, nav_columns=nav_cols,
-                        imu_columns=imu_cols, gap_s=args.gap,
-                        mount_correction=not args.no_mount_correction,
-                        prefer=dict(args.prefer), dbc_lenient=getattr(args, "dbc_lenient", False),
-                        progress=progress)
-
-
-def _progress(msg: str) -> None:
-    print(f"hmpc ingest: {msg}", file=sys.stderr, flush=True)
+_progress = progress_printer("ingest")
 
 
 def summary_lines(summary: dict) -> list[str]:
@@ -137,7 +62,6 @@ def summary_lines(summary: dict) -> list[str]:
 
 
 def run(args) -> int:
-    from hmpc.tools.cli import write_json
 
     res = ingest_from_args(args, progress=_progress)
     try:
@@ -159,30 +83,3 @@ def run(args) -> int:
     return 0
 
 
-def recording_or_log(args, progress):
-    """(recording, sources, ingest summary or None) for a subcommand that takes a canonical
-    recording or a raw log with the ``hmpc ingest`` options (``args.recording``, ``--dbc``,
-    ``--signals``, ``--nav``, ``--imu``, ...); ``progress(msg)`` reports on stderr."""
-    from hmpc.models.logs.recording import Recording
-
-    if args.dbc or args.signals:
-        if not (args.dbc and args.signals):
-            raise InputError("a raw log needs both --dbc and --signals", args.recording)
-        progress("ingesting the raw log")
-        res = ingest_from_args(argparse.Namespace(**{**vars(args), "log": args.recording}),
-                               progress=progress)
-        for line in res.problems.lines():
-            progress(line)
-        sources = {"log": args.recording, "dbc": args.dbc, "signals": args.signals,
-                   "nav": args.nav, "imu": args.imu}
-        return res.recording, sources, res.summary
-    if args.nav or args.imu:
-        raise InputError("--nav/--imu need a raw log with --dbc and --signals", args.recording)
-    try:
-        rec = Recording.load(args.recording)
-    except InputError as exc:
-        if "not a canonical recording" in exc.reason:
-            raise InputError("not a canonical recording (no 'time' column); for a raw CAN log "
-                             "give --dbc and --signals", args.recording) from None
-        raise
-    return rec, {"recording": args.recording}, None

@@ -20,6 +20,7 @@ import socket
 import sys
 
 from hmpc.models.errors import InputError
+from hmpc.tools.common import write_json
 
 
 def add_arguments(p) -> None:
@@ -52,7 +53,6 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from hmpc.controller.teleop import link as L
     from hmpc.controller.teleop import operator as op
-    from hmpc.tools.cli import write_json
 
     if args.make_key:
         try:
@@ -112,7 +112,7 @@ def _source(args, op):
         from hmpc.models.params import load_params
         from hmpc.tools.datafiles import PARAMS_DIR
         params = load_params(args.params or PARAMS_DIR / "report_2008.yaml", require_model=True)
-        return (op.experiment_script(args.experiment, params, seed=args.seed),
+        return (experiment_script(args.experiment, params, seed=args.seed),
                 f"experiment {args.experiment}")
     if args.keyboard:
         return op.KeyboardOperator(), "keyboard"
@@ -170,3 +170,37 @@ def _run(args, op, source, label, link):
             keys.__exit__(None, None, None)
         if dev_fd is not None:
             os.close(dev_fd)
+
+
+def experiment_script(name: str, params, *, seed: int = 0, rate_hz: float | None = None):
+    """One of the report's experiments (section III) as a pedals-and-steering script.
+
+    The experiment is not written again here: ``models.sim.simulator.run_experiment`` drives its
+    plan (steering steps, circles, figure eights, speed ramps) with the simulator's human-like
+    driver on the model ``params``, and the script is that driver's steering-wheel angle and
+    pedals (the truth inputs, no sensor noise), sampled at ``rate_hz`` (default: the
+    operator's command rate).
+
+    The pedals are open loop: on a car whose model differs from ``params`` the speeds drift
+    from the plan's (the steering pattern, the pedal patterns and the zone coverage are what
+    identification needs, not the exact speeds); the vehicle side's limits cap them.
+
+    Args:
+        name: an experiment of ``models.sim.simulator.EXPERIMENTS``.
+        params: the model the driver is simulated on (a complete ``Params``).
+        seed: the simulator's seed (plan randomness: figure-eight radii, driver dither).
+        rate_hz: command rate [Hz] (a divisor of the simulator's 100 Hz is exact).
+    """
+    from hmpc.controller.teleop.operator import RATE_HZ, inputs_script
+    from hmpc.models.sim.simulator import EXPERIMENTS, run_experiment
+
+    rate_hz = RATE_HZ if rate_hz is None else rate_hz
+    if name not in EXPERIMENTS:
+        raise InputError(f"--experiment: unknown experiment '{name}' (known: "
+                         f"{', '.join(EXPERIMENTS)})")
+    run = run_experiment(name, params, seed=seed, rate_hz=rate_hz, noise="none")
+    return inputs_script(run.recording.channels["time"], run.truth_on_grid("sw_rad"),
+                         run.truth_on_grid("accel_pedal"), run.truth_on_grid("brake_pedal"),
+                         name=f"experiment:{name}", rate_hz=rate_hz,
+                         meta={"experiment": name, "seed": int(seed), "rate_hz": float(rate_hz),
+                               "params": getattr(params, "path", None)})

@@ -19,17 +19,18 @@ JSON keys: ``mode``, ``controller``, ``input``, ``kpis`` (reference mode: ``cont
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from hmpc.models.errors import InputError
-from hmpc.tools.cmd_simulate import add_accept_unidentifiable
+from hmpc.controller.build import make_controller
+from hmpc.models.report.closed_loop import plot_log_replay, plot_reference_replay
+from hmpc.tools.common import (CONTROLLERS, add_accept_unidentifiable, add_ingest_options,
+                               load_model_params, progress_printer, recording_or_log,
+                               write_json)
 
-CONTROLLERS = ("mpc", "nmpc", "pid")
 
 
 def add_arguments(p) -> None:
-    from hmpc.tools.cmd_ingest import add_ingest_options
 
     p.add_argument("recording", metavar="REC|LOG",
                    help="canonical recording (reference mode), or a raw CAN log with the ingest "
@@ -67,16 +68,13 @@ def add_arguments(p) -> None:
     add_ingest_options(g, log_required=False)
 
 
-def _progress(msg: str) -> None:
-    print(f"hmpc replay: {msg}", file=sys.stderr, flush=True)
+_progress = progress_printer("replay")
 
 
 def run(args) -> int:
     from dataclasses import replace
 
     from hmpc.controller.replay import ReplayConfig
-    from hmpc.tools.cli import write_json
-    from hmpc.tools.cmd_simulate import load_model_params, make_controller
 
     if not Path(args.recording).is_file():
         raise InputError("not a file (a folder)" if Path(args.recording).is_dir()
@@ -113,7 +111,6 @@ def run(args) -> int:
 
 def _run_reference(args, params, ctl, cfg):
     from hmpc.controller.replay import reference_replay
-    from hmpc.tools.cmd_ingest import recording_or_log
 
     rec, sources, ingest_summary = recording_or_log(args, _progress)
     rec.meta.setdefault("path", str(args.recording))
@@ -132,15 +129,15 @@ def _run_reference(args, params, ctl, cfg):
         out["ingest"] = {"duration_s": ingest_summary.get("duration_s"),
                          "channels": sorted(ingest_summary.get("channels", {}))}
     zones = [(z.name, z.v_min_mps, z.v_max_mps) for z in params.zones]
-    return out, lambda d: _reference_plots(rr, d, args.controller, zones)
+    return out, lambda d: plot_reference_replay(rr, d, args.controller, zones)
 
 
 def _run_log(args, params, ctl, cfg):
     from hmpc.controller.actuation.profiles import load_profile
-    from hmpc.controller.replay import check_log, log_replay, recording_reference
+    from hmpc.controller.replay import check_log, log_replay
+    from hmpc.models.reference import recording_reference
     from hmpc.models.errors import Problems
     from hmpc.models.logs.canlog import read_log
-    from hmpc.tools.cmd_ingest import recording_or_log
 
     profile = load_profile(args.actuation)
     if not (args.dbc or args.signals):   # the profile's own DBC and signal map
@@ -169,7 +166,7 @@ def _run_log(args, params, ctl, cfg):
     out.pop("mode", None)
     out["input"] = {**sources, "actuation": args.actuation,
                     "reference_source": args.reference_source or "can"}
-    return out, lambda d: _log_plots(lr, d, args.controller)
+    return out, lambda d: plot_log_replay(lr, d, args.controller)
 
 
 def _print_summary(out: dict) -> None:
@@ -196,109 +193,3 @@ def _print_summary(out: dict) -> None:
             w = ws[0]
             print(f"  {name}: largest difference {w['t0_s']:.1f}-{w['t1_s']:.1f} s "
                   f"(RMS {w['rms']:.4g})")
-
-
-def _shade(ax, windows, color="C3") -> None:
-    """Shade the windows where the two differ most (the JSON's ``windows``)."""
-    for i, w in enumerate(windows):
-        ax.axvspan(w["t0_s"], w["t1_s"], color=color, alpha=0.12,
-                   label="largest differences" if i == 0 else None)
-
-
-def _figure(rows: int):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt, *plt.subplots(rows, 1, figsize=(10, 2.6 * rows), sharex=True)
-
-
-def _reference_plots(rr, out_dir: str, controller: str, zones=()) -> list[str]:
-    """Controller on the plant against the car: speed, distance from the driven path,
-    steering-wheel angle, pedals, zones (labelled PNGs, units on every axis; ``zones``:
-    (name, v_min, v_max) per zone index, the zone axis's tick labels)."""
-    import numpy as np
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    ch, car, win = rr.run.recording.channels, rr.car, rr.summary["windows"]
-    t = ch["time"]
-    plt, fig, ax = _figure(5)
-    ax[0].plot(t, car["speed_mps"], "k--", label="car (recorded)")
-    ax[0].plot(t, ch["speed"], label=f"{controller} on the identified plant")
-    _shade(ax[0], win["speed_mps"])
-    ax[0].set_ylabel("speed [m/s]")
-    ax[1].plot(t, rr.run.lateral_error_m, color="C1")
-    _shade(ax[1], win["lateral_m"])
-    ax[1].set_ylabel("distance from the\ndriven path [m]")
-    ax[2].plot(t, np.degrees(car["steering_wheel_angle_rad"]), "k--", label="car (recorded)")
-    ax[2].plot(t, np.degrees(ch["steering_wheel_angle"]), label=controller)
-    _shade(ax[2], win["steering_wheel_angle_rad"])
-    ax[2].set_ylabel("steering-wheel angle [deg]")
-    ax[3].plot(t, car["accel_pedal"], "k--", label="car accelerator")
-    ax[3].plot(t, ch["accel_pedal_cmd"], label=f"{controller} accelerator")
-    ax[3].plot(t, ch["brake_pedal_cmd"], label=f"{controller} brake")
-    ax[3].set_ylabel("pedal [0..1]")
-    ax[4].step(t, car["zone"], "k--", where="post", label="car")
-    ax[4].step(t, rr.run.zone, where="post", label=controller)
-    ax[4].set_ylabel("speed zone")
-    if zones:
-        ax[4].set_yticks(range(len(zones)),
-                         [f"{n} ({lo:g}-{hi:g} m/s)" for n, lo, hi in zones], fontsize=8)
-    ax[4].set_xlabel("time from the recording's start [s]")
-    for a in ax:
-        a.legend(loc="best", fontsize=8)
-    k = rr.summary["kpis"]["controller"]
-    fig.suptitle(f"reference replay, {controller}: speed error RMS {k['speed_error_rms_mps']:.3f} "
-                 f"m/s, lateral RMS {k['lateral_error_rms_m']:.3f} m")
-    fig.tight_layout()
-    files = [str(out / "replay_reference.png")]
-    fig.savefig(files[0], dpi=90)
-    plt.close(fig)
-    fig, a = plt.subplots(figsize=(7, 7))
-    a.plot(rr.reference.x_m, rr.reference.y_m, "k--", label="car (recorded path)")
-    a.plot(ch["x"], ch["y"], label=controller)
-    a.set_xlabel("x (east) [m]")
-    a.set_ylabel("y (north) [m]")
-    a.set_aspect("equal", adjustable="datalim")
-    a.legend(loc="best")
-    a.set_title(f"reference replay, {controller}: path")
-    files.append(str(out / "replay_path.png"))
-    fig.savefig(files[1], dpi=90)
-    plt.close(fig)
-    return files
-
-
-def _log_plots(lr, out_dir: str, controller: str) -> list[str]:
-    """hmpc's commands against the log's, one panel per signal, engaged spans marked."""
-    import numpy as np
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    sig = lr.signals
-    plt, fig, ax = _figure(len(sig) + 1)
-    ax = np.atleast_1d(ax)
-    for a, (name, s) in zip(ax, sig.items()):
-        a.plot(s["t_s"], s["log"], "k", lw=0.8, label="log (recorded sender)")
-        a.plot(s["t_s"], s["hmpc"], "C0", lw=0.8, label=f"hmpc ({controller})")
-        both = s["engaged_log"] & s["engaged_hmpc"]
-        a.fill_between(s["t_s"], 0, 1, where=~both, color="0.5", alpha=0.15,
-                       transform=a.get_xaxis_transform(), label="not both engaged")
-        _shade(a, lr.summary["windows"].get(name, []))
-        a.set_ylabel(f"{name}\n[{s['unit']}]", fontsize=8)
-        a.legend(loc="best", fontsize=7)
-    tr = lr.drive.trace
-    eng = np.asarray(tr["engaged"]) > 0.5
-    t = np.asarray(tr["t_s"])
-    ax[-1].plot(t[eng], np.degrees(np.asarray(tr["sw"])[eng]), "k", lw=0.8,
-                label="measured (what the log's controller steered)")
-    ax[-1].plot(t[eng], np.degrees(np.asarray(tr["sw_cmd"])[eng]), "C0", lw=0.8,
-                label="hmpc's angle command")
-    ax[-1].set_ylabel("steering-wheel\nangle [deg]")
-    ax[-1].set_xlabel("time from the log's first frame [s]")
-    ax[-1].legend(loc="best", fontsize=7)
-    fig.suptitle(f"log replay, {controller}: sha256 {lr.summary['hash']['sha256'][:16]}...")
-    fig.tight_layout()
-    f = str(out / "replay_log.png")
-    fig.savefig(f, dpi=90)
-    plt.close(fig)
-    return [f]

@@ -11,7 +11,7 @@ Two uses:
   JSON holds ``speed_error_rms_mps``, ``lateral_error_rms_m``, ``pedal_switches_per_min``,
   ``zone_transitions_per_min``, ``solve_time_ms`` {p50, p99, max}, ``steps``, ``failures``,
   ``internal_errors`` (controller bugs; the first traceback goes to stderr), the smoothness
-  figures of issue 9 (``steering_reversals_per_min`` {1deg, 5deg}, ``steering_rate_rms_radps``,
+  figures (``steering_reversals_per_min`` {1deg, 5deg}, ``steering_rate_rms_radps``,
   ``accel_pedal_rate_rms_ps``, ``brake_pedal_rate_rms_ps``), the ``sensors`` used and, under
   ``details``, more (``details.estimator``: the estimate's error against the truth).
 
@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import math
 import sys
-from pathlib import Path
 
 from hmpc.models.errors import InputError
+from hmpc.models.reference import load_reference
 
-CONTROLLERS = ("mpc", "nmpc", "pid")
-
+from hmpc.controller.build import make_controller
+from hmpc.tools.common import (CONTROLLERS, add_accept_unidentifiable, load_model_params,
+                               write_json)
 
 #: what ``--out`` holds, for the CLI's check of output paths (tools/cli.py)
 OUTPUTS = {"out": "the recording"}
@@ -106,7 +107,6 @@ def _save(rec, path: str) -> None:
 
 
 def run(args) -> int:
-    from hmpc.tools.cli import write_json
 
     _check_positive("--rate", args.rate)
     _check_positive("--control-period", args.control_period)
@@ -142,68 +142,9 @@ def _run_experiment(args, params, write_json) -> int:
     return 0
 
 
-def add_accept_unidentifiable(p) -> None:
-    """The option that accepts values flagged ``identifiable: false`` (simulate and drive)."""
-    from hmpc.models.params import ACCEPT_UNIDENTIFIABLE_FLAG
-    p.add_argument(ACCEPT_UNIDENTIFIABLE_FLAG, action="store_true",
-                   help="use steering or zone values that identification flagged "
-                        "'identifiable: false' (refused without it; a warning line each)")
-
-
-def load_model_params(path, args, command: str):
-    """A complete model from ``path`` for a controller or plant: refuses a file lacking a part
-    and, unless ``--accept-unidentifiable``, values flagged ``identifiable: false`` (one line
-    naming the key and the flag); with the flag prints one warning line naming them."""
-    from hmpc.models.params import check_identifiable, load_params
-    params = load_params(path, require_model=True)
-    for line in check_identifiable(params, accept=getattr(args, "accept_unidentifiable", False)):
-        print(f"hmpc {command}: warning: {line}", file=sys.stderr)
-    return params
-
-
-def make_controller(name: str, params, *, dt_s: float = 0.2, horizon_s: float = 10.0,
-                    transition_penalty: bool = True, accept_unidentifiable: bool = False):
-    """The controller ``name`` (mpc, nmpc, pid) for ``params``; refuses values flagged
-    ``identifiable: false`` unless ``accept_unidentifiable`` (ParamError naming key and flag)."""
-    from hmpc.models.params import check_identifiable
-    check_identifiable(params, accept=accept_unidentifiable)
-    from hmpc.controller.mpc import MpcConfig, MpcController
-
-    if name == "pid":
-        from hmpc.controller.pid import PidController
-        return PidController(params)
-    kw = {"dt_s": dt_s, "horizon_s": horizon_s}
-    if not transition_penalty:
-        kw["w_transition"] = 0.0
-    cfg = MpcConfig(**kw)
-    if name == "nmpc":
-        from hmpc.controller.nmpc import NmpcController
-        return NmpcController(params, cfg)
-    return MpcController(params, cfg)
-
-
-def load_reference(path, params):
-    """``--reference FILE``: a reference CSV (time, x, y, speed[, heading]), or a canonical
-    recording (../shared/CONVENTIONS.md: any tool that takes a recording accepts one), whose
-    driven path and speed become the reference as ``hmpc replay`` makes it
-    (``controller.replay.recording_reference``: GNSS/INS path when it has one, else dead
-    reckoning from the wheel speeds and the steering-wheel angle through eq. 7)."""
-    from hmpc.models.logs.channels import CHANNELS
-    from hmpc.models.sim.scenarios import load_reference_csv
-    try:
-        with open(path, encoding="utf-8", newline="") as fh:
-            header = [h.strip() for h in fh.readline().split(",")]
-    except (OSError, UnicodeDecodeError):
-        header = []                       # load_reference_csv says what is wrong, in one line
-    if set(header) - {"time", "x", "y", "speed", "heading"} and set(header) <= set(CHANNELS):
-        from hmpc.controller.replay import recording_reference
-        from hmpc.models.logs.recording import Recording
-        return recording_reference(Recording.load(path), params, name=Path(path).stem)
-    return load_reference_csv(path)
-
-
 def _run_closed_loop(args, params, write_json) -> int:
-    from hmpc.controller.closed_loop import run_closed_loop
+    from hmpc.controller.closed_loop import control_updates, run_closed_loop
+    from hmpc.models.report.closed_loop import plot_closed_loop
     from hmpc.models.sim.effects import parse_effect
     from hmpc.models.sim.scenarios import make_scenario
 
@@ -247,8 +188,10 @@ def _run_closed_loop(args, params, write_json) -> int:
                     "details": {k: v for k, v in m.items() if k not in payload}})
     if args.plots:
         try:
-            payload["plots"] = _plots(res, ref, args.plots, args.controller,
-                                      plant_params or params)
+            zp = plant_params or params
+            payload["plots"] = plot_closed_loop(
+                res, ref, args.plots, args.controller,
+                [(z.name, z.v_min_mps, z.v_max_mps) for z in zp.zones], control_updates(res))
         except OSError as exc:
             raise InputError(f"cannot write the plots ({exc.strerror or exc})",
                              args.plots) from None
@@ -311,95 +254,3 @@ def _sensor_echo(cfg) -> dict:
             "gnss_latency_s": cfg.gnss_latency_s,
             "gnss_outages_s": [list(w) for w in cfg.gnss_outages],
             "can_rate_hz": cfg.can_rate_hz, "imu_rate_hz": cfg.imu_rate_hz}
-
-
-def _smoothness_panel(ax, t, ch, m, upd) -> None:
-    """The commands' rates (steering wheel [rad/s] left, pedals [1/s] right) with the
-    issue 9 smoothness figures written on the panel. A rate is a command's change at a
-    control update (recording samples ``upd``) over the time since the previous one: the
-    commands are held in between, and differences at the recording's rate would show each
-    change as a spike period/dt times the rate."""
-    import numpy as np
-
-    tu = t[upd]
-    dt = np.diff(tu)
-
-    def rate(name):
-        return np.diff(ch[name][upd]) / dt
-    # each rate held over the period that ends at its update
-    ax.step(tu[1:], rate("steering_cmd"), where="pre", color="C0", lw=0.8,
-            label="steering-wheel cmd rate")
-    ax.set_ylabel("steering-wheel rate [rad/s]")
-    ax2 = ax.twinx()
-    ax2.step(tu[1:], rate("accel_pedal_cmd"), where="pre", color="C2", lw=0.8,
-             label="accel pedal cmd rate")
-    ax2.step(tu[1:], rate("brake_pedal_cmd"), where="pre", color="C3", lw=0.8,
-             label="brake pedal cmd rate")
-    ax2.set_ylabel("pedal rate [1/s]")
-    rv = m["steering_reversals_per_min"]
-    ax.text(0.01, 0.95, f"steering reversals >= 1 deg: {rv['1deg']:.1f}/min, >= 5 deg: "
-            f"{rv['5deg']:.1f}/min; steering rate RMS {m['steering_rate_rms_radps']:.3f} rad/s; "
-            f"pedal rate RMS accel {m['accel_pedal_rate_rms_ps']:.3f} /s, brake "
-            f"{m['brake_pedal_rate_rms_ps']:.3f} /s", transform=ax.transAxes, va="top",
-            fontsize=8, bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
-    h1, l1 = ax.get_legend_handles_labels()
-    h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, loc="lower right", fontsize=8)
-
-
-def _plots(res, ref, out_dir: str, controller: str, params) -> list[str]:
-    """Labelled PNGs (units on every axis); returns the file names."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from hmpc.controller.closed_loop import control_updates
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    ch = res.recording.channels
-    t = ch["time"]
-    files = []
-    fig, ax = plt.subplots(6, 1, figsize=(10, 14), sharex=True)
-    ax[0].plot(t, res.speed_ref_mps, "k--", label="reference")
-    ax[0].plot(t, ch["speed"], label="speed")
-    ax[0].set_ylabel("speed [m/s]")
-    ax[0].legend(loc="best")
-    ax[1].plot(t, res.lateral_error_m)
-    ax[1].set_ylabel("lateral error [m]")
-    ax[2].plot(t, ch["accel_pedal_cmd"], label="accelerator (cmd)")
-    ax[2].plot(t, ch["brake_pedal_cmd"], label="brake (cmd)")
-    ax[2].set_ylabel("pedal [0..1]")
-    ax[2].legend(loc="best")
-    ax[3].plot(t, ch["steering_cmd"], label="command")
-    ax[3].plot(t, ch["steering_wheel_angle"], label="applied")
-    ax[3].set_ylabel("steering-wheel angle [rad]")
-    ax[3].legend(loc="best")
-    m = res.metrics
-    _smoothness_panel(ax[4], t, ch, m, control_updates(res))
-    ax[5].step(t, res.zone, where="post")
-    ax[5].set_yticks(range(len(params.zones)), [f"{z.name} ({z.v_min_mps:g}-{z.v_max_mps:g} m/s)"
-                                         for z in params.zones])
-    ax[5].set_ylabel("plant zone")
-    ax[5].set_xlabel("time [s]")
-    fig.suptitle(f"{controller} on {ref.name}: speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
-                 f"lateral RMS {m['lateral_error_rms_m']:.3f} m, "
-                 f"{m['pedal_switches_per_min']:.1f} pedal switches/min")
-    fig.tight_layout()
-    f = out / "closed_loop.png"
-    fig.savefig(f, dpi=90)
-    plt.close(fig)
-    files.append(str(f))
-    fig, ax = plt.subplots(figsize=(7, 7))
-    ax.plot(ref.x_m, ref.y_m, "k--", label="reference path")
-    ax.plot(ch["x"], ch["y"], label="driven")
-    ax.set_xlabel("x (east) [m]")
-    ax.set_ylabel("y (north) [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.legend(loc="best")
-    ax.set_title(f"{controller} on {ref.name}: path")
-    f = out / "path.png"
-    fig.savefig(f, dpi=90)
-    plt.close(fig)
-    files.append(str(f))
-    return files

@@ -32,7 +32,10 @@ import sys
 import numpy as np
 
 from hmpc.models.errors import InputError
-from hmpc.tools.cmd_drive import CONTROLLERS, stop_times, add_bus_arguments, bus_kwargs
+from hmpc.controller.build import make_controller
+from hmpc.models.reference import load_reference
+from hmpc.tools.common import (CONTROLLERS, add_bus_arguments, bus_kwargs, load_model_params,
+                               stop_times, write_json)
 
 
 def add_arguments(p) -> None:
@@ -59,7 +62,7 @@ def add_arguments(p) -> None:
 
 def standstill_reference():
     """The default handover reference: stand still where the car is."""
-    from hmpc.models.sim.scenarios import Reference
+    from hmpc.models.reference import Reference
     t = np.array([0.0, 10.0])
     z = np.zeros(2)
     return Reference(t, z, z, z, z, name="standstill")
@@ -72,8 +75,6 @@ def run(args) -> int:
     from hmpc.controller.teleop import link as L
     from hmpc.controller.teleop.vehicle import TeleopController, handover_config
     from hmpc.models.sim.scenarios import make_scenario
-    from hmpc.tools.cli import write_json
-    from hmpc.tools.cmd_simulate import load_model_params, load_reference, make_controller
 
     key = L.load_key(args.key)  # first: a refused key stops everything
     params = load_model_params(args.params, args, "teleop")

@@ -60,10 +60,10 @@ from hmpc.models.logs.decode import decode_frames
 from hmpc.models.logs.frames import FrameTable
 from hmpc.models.params import Params
 from hmpc.models.plant import HybridPlant, heading_rate
-from hmpc.models.sim.scenarios import Reference
+from hmpc.models.reference import Reference
 
 from hmpc.controller.base import Status
-from hmpc.controller.closed_loop import pedal_switches, smoothness_of
+from hmpc.controller.metrics import pedal_switches, smoothness_of
 from hmpc.controller.actuation import builders
 from hmpc.controller.actuation.profiles import ActuationProfile
 from hmpc.controller.actuation.safety import (AngleCheck, AngleLimiter, AngleLimits, ToyotaLimits,
@@ -947,7 +947,7 @@ class DriveLoop:
                    "zone_transitions_per_min": int(np.count_nonzero(np.diff(z))) / minutes,
                    # issue 9's smoothness of the commands the controller gave, as simulate's:
                    # the engaged rows are the control updates, so a rate is each update's
-                   # change over the control period (closed_loop.rate_rms)
+                   # change over the control period (metrics.rate_rms)
                    **smoothness_of(tr["t_s"][eng], tr["sw_cmd"][eng], ap, bp)}
         sm = np.asarray(solve_ms)
         node = self.node.stats.to_dict() if self.node is not None else None

@@ -24,26 +24,7 @@ import numpy as np
 
 from hmpc.models.logs.frames import FrameTable
 
-
-class SimClock:
-    """A simulated clock with the drive loop's clock interface, on the log's time axis.
-
-    ``monotonic()`` and ``time()`` both return the simulated time [s] (the log's own timestamps,
-    seconds since the epoch for candump logs); ``sleep(s)`` advances it by ``s`` [s], instantly.
-    """
-
-    def __init__(self, t0_s: float):
-        self.t_s = float(t0_s)
-
-    def monotonic(self) -> float:
-        return self.t_s
-
-    def time(self) -> float:
-        return self.t_s
-
-    def sleep(self, seconds: float) -> None:
-        if seconds > 0:
-            self.t_s += float(seconds)
+from hmpc.controller.simclock import SimClock
 
 
 class ReplaySource:

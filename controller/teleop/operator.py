@@ -4,7 +4,8 @@ A source answers ``command_at(t_s)`` (t_s: run time since the start [s]) with th
 ``TeleopCommand`` to send in that period, or None when it has finished. Sources:
 
 - :class:`Script`: a scripted operator, loaded from CSV (:func:`load_script`) or built from
-  one of the report's experiments (:func:`experiment_script`);
+  sampled driver inputs (:func:`inputs_script`; ``hmpc operator --experiment`` feeds it the
+  simulator's driver on one of the report's experiments);
 - :class:`KeyboardOperator`: keys from the terminal (``tui.TerminalKeys``);
 - :class:`GamepadOperator`: a Linux joystick device (``/dev/input/js*``).
 
@@ -187,44 +188,26 @@ def write_script(script: Script, path: str | Path) -> None:
             w.writerow([row.get(col, "") for col in COLUMNS])
 
 
-def experiment_script(name: str, params, *, seed: int = 0, rate_hz: float = RATE_HZ) -> Script:
-    """One of the report's experiments (section III) as a pedals-and-steering script.
-
-    The experiment is not written again here: ``models.sim.simulator.run_experiment`` drives its
-    plan (steering steps, circles, figure eights, speed ramps) with the simulator's human-like
-    driver on the model ``params``, and the script is that driver's steering-wheel angle and
-    pedals (the truth inputs, no sensor noise), sampled at ``rate_hz``, after
-    ``ENGAGE_LEAD_S`` of ``engage`` and ending with ``disengage``.
-
-    The pedals are open loop: on a car whose model differs from ``params`` the speeds drift
-    from the plan's (the steering pattern, the pedal patterns and the zone coverage are what
-    identification needs, not the exact speeds); the vehicle side's limits cap them.
+def inputs_script(time_s, steering_wheel_angle_rad, accel_pedal, brake_pedal, *, name: str,
+                  meta: dict | None = None, rate_hz: float = RATE_HZ) -> Script:
+    """A pedals-and-steering script from sampled driver inputs, after ``ENGAGE_LEAD_S`` of
+    ``engage`` and ending with ``disengage``.
 
     Args:
-        name: an experiment of ``models.sim.simulator.EXPERIMENTS``.
-        params: the model the driver is simulated on (a complete ``Params``).
-        seed: the simulator's seed (plan randomness: figure-eight radii, driver dither).
-        rate_hz: command rate [Hz] (a divisor of the simulator's 100 Hz is exact).
+        time_s: sample times [s], uniform at ``rate_hz`` [Hz].
+        steering_wheel_angle_rad, accel_pedal, brake_pedal: the inputs at those times.
+        name: the script's name. meta: what the script holds (echoed in its ``meta``, with
+            its ``duration_s`` added).
     """
-    from hmpc.models.sim.simulator import EXPERIMENTS, run_experiment
-
-    if name not in EXPERIMENTS:
-        raise InputError(f"--experiment: unknown experiment '{name}' (known: "
-                         f"{', '.join(EXPERIMENTS)})")
-    run = run_experiment(name, params, seed=seed, rate_hz=rate_hz, noise="none")
-    t = np.asarray(run.recording.channels["time"], dtype=float)
-    sw = run.truth_on_grid("sw_rad")
-    ap = run.truth_on_grid("accel_pedal")
-    bp = run.truth_on_grid("brake_pedal")
+    t = np.asarray(time_s, dtype=float)
     cmds = [TeleopCommand(Mode.ENGAGE)]
-    cmds += [TeleopCommand.pedals(a, b, c) for a, b, c in zip(sw, ap, bp)]
+    cmds += [TeleopCommand.pedals(a, b, c)
+             for a, b, c in zip(steering_wheel_angle_rad, accel_pedal, brake_pedal)]
     cmds.append(TeleopCommand(Mode.DISENGAGE))
     dt = 1.0 / rate_hz
     times = np.concatenate([[0.0], ENGAGE_LEAD_S + (t - t[0]), [ENGAGE_LEAD_S + t[-1] - t[0] + dt]])
-    return Script(times, cmds, name=f"experiment:{name}",
-                  meta={"experiment": name, "seed": int(seed), "rate_hz": float(rate_hz),
-                        "params": getattr(params, "path", None),
-                        "duration_s": float(times[-1] + LAST_ROW_HOLD_S)})
+    return Script(times, cmds, name=name,
+                  meta={**(meta or {}), "duration_s": float(times[-1] + LAST_ROW_HOLD_S)})
 
 
 # ----------------------------------------------------------------------------- keyboard

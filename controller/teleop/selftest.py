@@ -15,23 +15,10 @@ import select
 import socket
 import struct
 
+from hmpc.controller.simclock import SimClock
 from hmpc.controller.teleop.link import (COMMAND_SIZE, FLAG_DEAD_MAN, KIND_COMMAND,
                                          PROTOCOL_VERSION, LinkConfig, LinkReceiver, Mode,
                                          OperatorLink, TeleopCommand, _CMD, _mac, _us)
-
-
-class SimClock:
-    """A settable clock [s] for receivers and operators under test."""
-
-    def __init__(self, t_s: float = 1000.0):
-        self.t_s = float(t_s)
-
-    def __call__(self) -> float:
-        return self.t_s
-
-    def advance(self, dt_s: float) -> float:
-        self.t_s += dt_s
-        return self.t_s
 
 
 class LoopbackPair:
@@ -39,7 +26,7 @@ class LoopbackPair:
 
     def __init__(self, key: bytes, config: LinkConfig | None = None, clock: SimClock | None = None):
         self.key = key
-        self.clock = clock or SimClock()
+        self.clock = clock or SimClock(1000.0)
         self.rx = LinkReceiver(key, ("127.0.0.1", 0), config, clock=self.clock)
         self.op = OperatorLink(key, self.rx.address, clock=self.clock, seq_start=1000)
         self.commands: list[TeleopCommand] = []

@@ -51,7 +51,7 @@ from hmpc.controller.modes import PedalMode
 from hmpc.controller.teleop.link import LinkReceiver, Mode, TeleopCommand, VehicleStatus
 from hmpc.models.params import Params
 from hmpc.models.plant import HybridPlant
-from hmpc.models.sim.scenarios import Reference
+from hmpc.models.reference import Reference
 
 #: brake pedal held when engaged before the operator's first driving command: the report's
 #: brake scales (about 4-6 m/s^2 per unit) make 0.3 hold the car at a standstill

@@ -84,7 +84,7 @@ import numpy as np
 from hmpc.models.errors import InputError
 from hmpc.models.identify.fos import fos
 from hmpc.models.params import Vehicle, Zone
-from hmpc.models.plant import zones_of_speed, zones_with_hysteresis
+from hmpc.models.zones import zones_of_speed, zones_with_hysteresis
 from hmpc.models.logs.recording import Recording
 from hmpc.models.identify.stats import (apply_kernel, dilate, fold_ids, half_sample_kernels,
                                         heldout_sse, matched_kernels, not_worse_than_best,

@@ -1,0 +1,215 @@
+"""What the subcommand modules share: option groups, progress lines, JSON output, model loading.
+
+Each ``cmd_*`` module imports from here, never from another ``cmd_*`` module. The helpers
+only parse options and print; the work they start lives in ``hmpc.models`` and
+``hmpc.controller``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from typing import Callable
+
+import numpy as np
+
+from hmpc.models.errors import InputError
+from hmpc.models.logs.ingest import DEFAULT_PREFERENCE, ingest_files
+from hmpc.models.logs.nav import load_columns
+from hmpc.models.params import ACCEPT_UNIDENTIFIABLE_FLAG, Params
+
+from hmpc.controller.build import CONTROLLERS, load_model
+
+__all__ = ["CONTROLLERS", "STOP_WHY", "add_accept_unidentifiable", "add_bus_arguments",
+           "add_ingest_options", "bus_kwargs", "ingest_from_args", "load_model_params",
+           "positive_float", "progress_printer", "recording_or_log", "stop_times", "write_json"]
+
+
+def progress_printer(command: str) -> Callable[[str], None]:
+    """A progress callback that prints ``hmpc COMMAND: MSG`` on stderr, at once."""
+    def progress(msg: str) -> None:
+        print(f"hmpc {command}: {msg}", file=sys.stderr, flush=True)
+    return progress
+
+
+def write_json(path: str | None, payload: dict) -> None:
+    """Write a ``--json`` result (stable keys, SI units); InputError naming the file when it
+    cannot be written (exit 2, never a traceback)."""
+    if path:
+        text = json.dumps(payload, indent=2, sort_keys=False, default=_jsonable) + "\n"
+        try:
+            with open(path, "w", encoding="utf-8") as fh:
+                fh.write(text)
+        except OSError as exc:
+            raise InputError(f"cannot write JSON ({exc.strerror or exc})", path) from None
+
+
+def _jsonable(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return str(obj)
+
+
+def positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v
+
+
+def _finite(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
+def _prefer(text: str) -> tuple[str, str]:
+    ch, sep, src = text.partition("=")
+    if not sep or ch not in DEFAULT_PREFERENCE or src not in DEFAULT_PREFERENCE[ch]:
+        choices = "; ".join(f"{c}={'|'.join(s)}" for c, s in DEFAULT_PREFERENCE.items())
+        raise argparse.ArgumentTypeError(f"expected CHANNEL=SOURCE ({choices}), got {text!r}")
+    return ch, src
+
+
+def add_ingest_options(p: argparse.ArgumentParser, *, log_required: bool = True) -> None:
+    """The options of `hmpc ingest` (also used by commands that take a raw log)."""
+    p.add_argument("--dbc", required=log_required, help="the car's DBC file (optionally .gz)")
+    p.add_argument("--signals", required=log_required, metavar="MAP.yaml",
+                   help="signal map (params/<vehicle>.signals.yaml)")
+    p.add_argument("--nav", metavar="NAV.csv", help="GPS/INS CSV (lat/lon or x/y, velocities, attitude)")
+    p.add_argument("--imu", metavar="IMU.csv", help="IMU CSV (gyro + accelerometer)")
+    p.add_argument("--columns", metavar="COLS.yaml",
+                   help="column names of the nav/IMU CSVs (sections nav:, imu:); "
+                        "default: the comma2k19 layout")
+    p.add_argument("--rate", type=positive_float, default=50.0, metavar="HZ",
+                   help="grid rate of the recording [Hz] (default 50)")
+    p.add_argument("--clock-offset", type=_finite, metavar="S",
+                   help="nav clock offset [s] added to nav times to reach the CAN clock "
+                        "(default: estimated from CAN speed vs GNSS speed)")
+    p.add_argument("--imu-offset", type=_finite, metavar="S",
+                   help="IMU clock offset [s] (default: the nav offset, same device; "
+                        "without nav: estimated from yaw rate)")
+    p.add_argument("--gap", type=positive_float, metavar="S",
+                   help="gap threshold [s] for every channel (default: max(0.5 s, 5 median "
+                        "sample periods) per channel)")
+    p.add_argument("--no-mount-correction", action="store_true",
+                   help="keep the device heading (do not remove the estimated mount offset)")
+    p.add_argument("--prefer", type=_prefer, action="append", default=[], metavar="CH=SRC",
+                   help="source for a channel several sources give, e.g. yaw_rate=can")
+    p.add_argument("--dbc-lenient", action="store_true",
+                   help="skip DBC lines cantools cannot parse (each reported with its line) "
+                        "instead of refusing the DBC; strict by default")
+
+
+def ingest_from_args(args, progress=None):
+    """Run models.ingest.ingest_files with the options of :func:`add_ingest_options`."""
+    nav_cols = imu_cols = None
+    if args.columns:
+        nav_cols, imu_cols = load_columns(args.columns)
+    return ingest_files(args.log, args.dbc, args.signals, nav_path=args.nav, imu_path=args.imu,
+                        rate_hz=args.rate, clock_offset_s=args.clock_offset,
+                        imu_offset_s=args.imu_offset, nav_columns=nav_cols,
+                        imu_columns=imu_cols, gap_s=args.gap,
+                        mount_correction=not args.no_mount_correction,
+                        prefer=dict(args.prefer), dbc_lenient=getattr(args, "dbc_lenient", False),
+                        progress=progress)
+
+
+def recording_or_log(args, progress):
+    """(recording, sources, ingest summary or None) for a subcommand that takes a canonical
+    recording or a raw log with the ``hmpc ingest`` options (``args.recording``, ``--dbc``,
+    ``--signals``, ``--nav``, ``--imu``, ...); ``progress(msg)`` reports on stderr."""
+    from hmpc.models.logs.recording import Recording
+
+    if args.dbc or args.signals:
+        if not (args.dbc and args.signals):
+            raise InputError("a raw log needs both --dbc and --signals", args.recording)
+        progress("ingesting the raw log")
+        res = ingest_from_args(argparse.Namespace(**{**vars(args), "log": args.recording}),
+                               progress=progress)
+        for line in res.problems.lines():
+            progress(line)
+        sources = {"log": args.recording, "dbc": args.dbc, "signals": args.signals,
+                   "nav": args.nav, "imu": args.imu}
+        return res.recording, sources, res.summary
+    if args.nav or args.imu:
+        raise InputError("--nav/--imu need a raw log with --dbc and --signals", args.recording)
+    try:
+        rec = Recording.load(args.recording)
+    except InputError as exc:
+        if "not a canonical recording" in exc.reason:
+            raise InputError("not a canonical recording (no 'time' column); for a raw CAN log "
+                             "give --dbc and --signals", args.recording) from None
+        raise
+    return rec, {"recording": args.recording}, None
+
+
+def add_accept_unidentifiable(p) -> None:
+    """The option that accepts values flagged ``identifiable: false`` (simulate and drive)."""
+    p.add_argument(ACCEPT_UNIDENTIFIABLE_FLAG, action="store_true",
+                   help="use steering or zone values that identification flagged "
+                        "'identifiable: false' (refused without it; a warning line each)")
+
+
+def load_model_params(path, args, command: str) -> Params:
+    """:func:`hmpc.controller.build.load_model` with ``--accept-unidentifiable`` from ``args``;
+    prints its warning lines on stderr, prefixed ``hmpc COMMAND: warning:``."""
+    params, warnings = load_model(path, accept_unidentifiable=getattr(args, "accept_unidentifiable",
+                                                                     False))
+    for line in warnings:
+        print(f"hmpc {command}: warning: {line}", file=sys.stderr)
+    return params
+
+
+def add_bus_arguments(p) -> None:
+    """The options every loop on a CAN bus shares (``drive``, ``teleop``): the bus, the
+    simulated car on its other end, and the model refusal flag."""
+    p.add_argument("--bus", default="virtual", metavar="virtual|socketcan:CHANNEL",
+                   help="the CAN bus (default virtual: python-can's in-process virtual bus)")
+    p.add_argument("--vehicle-sim", action="store_true",
+                   help="run the vehicle simulator node on the other end of the bus")
+    add_accept_unidentifiable(p)
+    p.add_argument("--plant-params", metavar="P2.yaml",
+                   help="the simulated car's parameters (default: --params)")
+
+
+#: what an unrequested stop means, for the warning line
+STOP_WHY = {
+    "feedback_loss": "the car's wheel speeds went stale for more than 3 of their periods; "
+                     "on a loaded host a stall of the process does this",
+    "driver_override": "the driver steered, braked or pressed the accelerator",
+    "vehicle_rejects": "the car stopped accepting hmpc's frames",
+    "solver_failure": "the controller failed to solve",
+    "bus_error": "sending on the bus failed",
+    "clock_freeze": "the loop's monotonic clock stopped advancing",
+    "clock_jump": "the loop's monotonic clock jumped",
+    "deadline_misses": "the loop missed its period several times in a row (a loaded host)",
+}
+
+
+def stop_times(st: dict) -> str:
+    """'detected 30.30 s, started 30.30 s, standstill 32.68 s' (run time; '-' when absent)."""
+    f = lambda v: "-" if v is None else f"{v:.2f} s"   # noqa: E731
+    return (f"detected {f(st['detected_t_s'])}, started {f(st['t_s'])}, "
+            f"standstill {f(st['standstill_t_s'])}")
+
+
+def bus_kwargs(text: str) -> dict:
+    """``virtual`` -> a private virtual channel; ``socketcan:vcan0`` -> socketcan on vcan0."""
+    if text == "virtual":
+        return {"interface": "virtual", "channel": f"hmpc-drive-{os.getpid()}"}
+    iface, sep, chan = text.partition(":")
+    if not sep or not iface or not chan:
+        raise InputError(f"--bus '{text}': expected virtual or INTERFACE:CHANNEL")
+    return {"interface": iface, "channel": chan}
