@@ -321,7 +321,7 @@ def test_rounded_yaw_rate_interval_covers_the_offset_the_blocks_alone_miss():
     rounding term on 55 (95 % nominal; at least 54 asserted), and not by being absurd. (At
     2.3-3.0 m/s the offset and the gyro bias are nearly one parameter: the intervals are wide,
     as wide as the errors.)"""
-    from hmpc.models.identify import steering as st
+    from hmpc.models.identify.steering import fits as st
 
     q = np.deg2rad(0.244)
     hit, hit_blocks, width, err = 0, 0, [], []

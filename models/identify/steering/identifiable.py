@@ -1,0 +1,118 @@
+"""Whether a fit of eq. 7 separates offset from scale (:func:`identifiability`).
+
+The estimate is called identifiable only when enough trustworthy samples exist, the
+steering-wheel range is wide enough, offset and scale are not too correlated, their intervals
+are narrow, and some steering happened at speeds where the kinematic (no side-slip) assumption
+holds. Otherwise ``identifiable`` is False and the note says plainly what the recording cannot
+separate.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hmpc.models.identify.steering.config import SteeringIdConfig
+from hmpc.models.identify.steering.fits import MapFit
+
+
+def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt_s: float,
+                    cfg: SteeringIdConfig, steering_ratio: float | None = None) -> dict:
+    """Checks that decide whether a recording separates offset from scale (module doc).
+
+    Returns ``{"identifiable", "offset_identifiable", "scale_identifiable", "checks": [...],
+    "note"}``; each check has name, value, threshold, passed.
+    """
+    checks = []
+
+    def add(name, value, threshold, passed, text):
+        checks.append({"name": name, "value": float(value), "threshold": float(threshold),
+                       "passed": bool(passed), "text": text})
+
+    n = len(sw_steady)
+    need = int(math.ceil(cfg.min_trustworthy_s / dt_s - 1e-9))
+    add("samples", n, need, n >= need,
+        f"{n} trustworthy samples ({n * dt_s:.1f} s; need {cfg.min_trustworthy_s:g} s)")
+    rng = float(np.subtract(*np.percentile(sw_steady, [97.5, 2.5]))) if n else 0.0
+    add("steering_range_rad", rng, cfg.min_sw_range_rad, rng >= cfg.min_sw_range_rad,
+        f"steering-wheel range {np.degrees(rng):.1f} deg (2.5-97.5%; need "
+        f"{np.degrees(cfg.min_sw_range_rad):.0f} deg)")
+    add("offset_scale_correlation", abs(fit.corr), cfg.max_param_corr,
+        abs(fit.corr) <= cfg.max_param_corr, f"|corr(offset, scale)| = {abs(fit.corr):.3f}")
+    half_s = 0.5 * (fit.scale_ci95[1] - fit.scale_ci95[0])
+    rel = half_s / abs(fit.scale) if fit.scale != 0 else float("inf")
+    add("scale_rel_ci95", rel, cfg.max_scale_rel_ci, rel <= cfg.max_scale_rel_ci,
+        f"scale 95% interval +-{100 * rel:.1f}% (need <= {100 * cfg.max_scale_rel_ci:.0f}%)")
+    half_o = 0.5 * (fit.offset_ci95_rad[1] - fit.offset_ci95_rad[0])
+    add("offset_ci95_rad", half_o, cfg.max_offset_ci_rad, half_o <= cfg.max_offset_ci_rad,
+        f"offset 95% interval +-{half_o:.4f} rad (need <= {cfg.max_offset_ci_rad} rad)")
+    slow_s = float(np.sum(v_steady <= cfg.kinematic_speed_mps) * dt_s)
+    add("kinematic_speed_s", slow_s, cfg.min_kinematic_s, slow_s >= cfg.min_kinematic_s,
+        f"{slow_s:.1f} s of trustworthy steering at or below {cfg.kinematic_speed_mps:g} m/s "
+        f"(need {cfg.min_kinematic_s:g} s)")
+    # the gyro-bias check applies only to a fit that estimates a yaw-rate bias (the yaw-rate
+    # fit); for the others it is not run, and not counted, by name below
+    bias_corr = fit.extra.get("offset_bias_correlation")
+    bias_applies = bias_corr is not None
+    if bias_applies:
+        add("offset_gyro_bias_correlation", abs(bias_corr), cfg.max_param_corr,
+            abs(bias_corr) <= cfg.max_param_corr,
+            f"|corr(offset, yaw-rate bias)| = {abs(bias_corr):.3f}")
+    # every check that applies is looked up by name: one that was not run raises KeyError,
+    # it never counts as passed
+    ok = {c["name"]: c["passed"] for c in checks}
+    bias_ok = ok["offset_gyro_bias_correlation"] if bias_applies else True
+    base = ok["samples"] and ok["steering_range_rad"] and ok["offset_scale_correlation"]
+    scale_ok = base and ok["scale_rel_ci95"] and ok["kinematic_speed_s"]
+    offset_ok = base and ok["offset_ci95_rad"] and bias_ok
+    notes = []
+    if not ok["samples"]:
+        notes.append("too few trustworthy samples")
+    if not ok["steering_range_rad"]:
+        notes.append(f"the steering-wheel range ({np.degrees(rng):.1f} deg) is too small to "
+                     "separate the offset from sensor biases (tyre radius mismatch, gyro bias, "
+                     "angle-sensor zero) or the scale from noise")
+    if not ok["offset_scale_correlation"]:
+        notes.append("offset and scale estimates are strongly correlated (steering mostly to one "
+                     "side)")
+    if not ok["scale_rel_ci95"]:
+        notes.append(f"the scale is known only to +-{100 * rel:.0f}%")
+    if not ok["offset_ci95_rad"]:
+        notes.append(f"the offset is known only to +-{half_o:.4f} rad")
+    if not bias_ok:
+        # the offset's yaw rate is v tan(offset)/b, the bias a constant: only the spread of
+        # the speeds tells them apart; say which speeds there were and what that left
+        vs = np.asarray(v_steady, dtype=float)
+        vs = vs[np.isfinite(vs)]
+        span = (f"{np.percentile(vs, 2.5):.1f}-{np.percentile(vs, 97.5):.1f} m/s, "
+                if vs.size else "")
+        notes.append("the speed range is too narrow to separate the offset from the yaw-rate "
+                     f"sensor's bias ({span}|corr(offset, bias)| = {abs(bias_corr):.3f}: "
+                     f"offset +-{half_o:.4f} rad; arcs at other speeds separate them)")
+    if not ok["kinematic_speed_s"]:
+        notes.append(_kinematic_note(v_steady, slow_s, cfg))
+    if notes:
+        note = "NOT identifiable: " + "; ".join(notes) + "."
+        if steering_ratio:
+            note += (f" For comparison, the maker's nominal 1/steering_ratio = "
+                     f"{1.0 / steering_ratio:.4f}.")
+    else:
+        note = "offset and scale identifiable from this recording"
+    return {"identifiable": bool(scale_ok and offset_ok), "offset_identifiable": bool(offset_ok),
+            "scale_identifiable": bool(scale_ok), "checks": checks, "note": note}
+
+
+def _kinematic_note(v_steady: np.ndarray, slow_s: float, cfg) -> str:
+    """Why the kinematic-speed check failed, from the speeds it saw: all steering above the
+    kinematic speed (understeer folded into the gain), or simply too little of it."""
+    v = np.asarray(v_steady, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size and slow_s == 0.0:
+        return (f"all trustworthy steering happened above {cfg.kinematic_speed_mps:g} m/s "
+                f"({np.min(v):.1f}-{np.max(v):.1f} m/s), where tyre side slip (understeer) is "
+                "folded into the kinematic gain")
+    span = f" (speeds {np.min(v):.1f}-{np.max(v):.1f} m/s)" if v.size else ""
+    fast = (f"; above {cfg.kinematic_speed_mps:g} m/s tyre side slip (understeer) is folded "
+            "into the kinematic gain") if v.size and np.max(v) > cfg.kinematic_speed_mps else ""
+    return (f"only {slow_s:.1f} s of trustworthy steering at or below "
+            f"{cfg.kinematic_speed_mps:g} m/s{span}, {cfg.min_kinematic_s:g} s are needed{fast}")

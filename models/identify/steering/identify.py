@@ -1,0 +1,178 @@
+"""Steering identification end to end (:func:`identify_steering`): signals, trustworthy samples,
+dead time, the fits, identifiability, the choice, and the report and plot series.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hmpc.models.errors import InputError
+from hmpc.models.params import Vehicle
+from hmpc.models.logs.recording import Recording
+from hmpc.models.identify.steering.config import SteeringIdConfig
+from hmpc.models.identify.steering.deadtime import delayed, estimate_dead_time
+from hmpc.models.identify.steering.fits import MapFit, direct_fits
+from hmpc.models.identify.steering.identifiable import identifiability
+from hmpc.models.identify.steering.replay import _fit_replay
+from hmpc.models.identify.steering.selection import (agreement_a_b, choose_fit, cross_validate,
+                                                     disagreement)
+from hmpc.models.identify.steering.signals import (SteeringSignals, steering_signals,
+                                                   trustworthy_samples)
+
+
+@dataclass
+class SteeringResult:
+    """Outcome of :func:`identify_steering`.
+
+    ``offset_rad``/``scale`` are the final estimate: the trusted fit with the best held-out
+    score (:func:`choose_fit`; identifiable fits first), flagged NOT identifiable when the fits
+    disagree beyond their intervals. ``fits`` holds all fits by name, ``report`` the
+    JSON-ready figures, ``series`` time series for plots (road-wheel angle estimates etc.).
+    """
+
+    offset_rad: float
+    scale: float
+    offset_ci95_rad: tuple[float, float]
+    scale_ci95: tuple[float, float]
+    dead_time_s: float
+    identifiable: bool
+    note: str
+    method: str
+    rms_error_rad: float
+    fits: dict[str, MapFit]
+    report: dict
+    series: dict = field(default_factory=dict, repr=False)
+
+
+def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig | None = None,
+                      progress=None) -> SteeringResult:
+    """Identify eq. 7 from a canonical recording (see the package doc).
+
+    Needs ``steering_wheel_angle`` and the channels of at least one method: the four wheel
+    speeds (wheel-speed difference), ``yaw_rate`` and a speed (yaw rate), ``x``/``y``/
+    ``heading`` and a speed (replay); uses every method the channels support, chooses among
+    them by held-out evidence, and names each skipped method and why
+    (``report['selection']['skipped']``). Uses ``gear`` to drop reverse.
+
+    Raises:
+        InputError: no method has its channels, or no trustworthy samples remain.
+    """
+    cfg = config or SteeringIdConfig()
+    say = progress or (lambda msg: None)
+    sig = steering_signals(rec, vehicle)
+    for m, why in sig.skipped.items():
+        say(f"steering: {m} skipped: {why}")
+    masks = trustworthy_samples(rec, sig, cfg)
+    say(f"steering: {int(masks.steady.sum())} trustworthy samples of {len(sig.sw)}")
+    dead = estimate_dead_time(sig, masks.usable, cfg)
+    sw_d = delayed(sig.sw, dead.tau_s, sig.dt_s)
+    steady = masks.steady & np.isfinite(sw_d)
+    usable = masks.usable & np.isfinite(sw_d)
+    say(f"steering: dead time {dead.tau_s:.3f} s (" + (
+        f"held-out interval {dead.interval_s[0]:.3f}-{dead.interval_s[1]:.3f} s" if dead.used
+        else "not determined") + f", from {dead.source})")
+    fits = direct_fits(sig, sw_d, steady, cfg)
+    lever = getattr(vehicle, "nav_lever_arm_m", None)
+    replay = None
+    if "position_replay" not in sig.skipped:
+        start = fits.get("yaw_rate") or fits.get("wheel_speed_difference")
+        x0 = ((start.offset_rad, start.scale) if start is not None else
+              (0.0, 1.0 / vehicle.steering_ratio if vehicle.steering_ratio
+               else cfg.replay_start_scale))
+        say("steering: refining by eq. 1 position replay")
+        out, _ = _fit_replay(rec, sig.v_front, sw_d, usable, sig.dt_s, sig.b, cfg, x0, lever)
+        if out is not None:
+            fits["position_replay"], replay, _ = out
+        else:
+            sig.skipped["position_replay"] = (f"fewer than 3 replay windows of {cfg.window_s} s "
+                                              "with finite x, y, heading")
+    if not fits:
+        raise InputError("no steering fit converged (" + "; ".join(
+            f"{m}: {w}" for m, w in sig.skipped.items()) + ")", rec.meta.get("path"),
+            channel="steering_wheel_angle")
+    idents = {k: identifiability(f, sw_d[steady], sig.v_front[steady], sig.dt_s, cfg,
+                                 vehicle.steering_ratio) for k, f in fits.items()}
+    rp_fit = fits.get("position_replay")
+    if rp_fit is not None and not rp_fit.extra.get("trusted", True):
+        idents["position_replay"] = dict(idents["position_replay"], identifiable=False,
+                                         note="NOT trusted: " + rp_fit.extra["untrusted_because"])
+    say("steering: choosing by blocked cross-validation")
+    cv = cross_validate(rec, sig, fits, sw_d, steady, usable, cfg, lever)
+    chosen, why = choose_fit(fits, idents, cv)
+    final = fits[chosen]
+    pairs, disagree_note = disagreement(fits, cfg)
+    ident = dict(idents[chosen])
+    if disagree_note:
+        ident["identifiable"] = False
+        ident["note"] = ("NOT identifiable: " + disagree_note + ". " +
+                         ident["note"].removeprefix("NOT identifiable: "))
+    if sig.skipped:  # the parameter file's note names the methods the recording did not allow
+        ident["note"] += " Not run: " + "; ".join(f"{m} ({w})" for m, w in sig.skipped.items()) \
+            + "."
+    selection = {"chosen": chosen, "because": why, **cv, "disagreements": pairs,
+                 "untrusted": {k: f.extra["untrusted_because"] for k, f in fits.items()
+                               if not f.extra.get("trusted", True)},
+                 "skipped": dict(sig.skipped), "speeds": sig.speed_note}
+    agreement, delta_b = agreement_a_b(sig, fits, steady)
+    delta_model = final.offset_rad + final.scale * sw_d
+    ref = delta_b if delta_b is not None else sig.delta_a
+    rms_rad = (float(np.sqrt(np.mean((ref - delta_model)[steady] ** 2))) if ref is not None
+               else float("nan"))
+    report = _report(sig, cfg, final, why, selection, dead, fits, agreement, rms_rad, ident,
+                     idents, masks, steady, usable, sw_d)
+    series = _series(rec, sig, delta_b, delta_model, steady, replay, final)
+    return SteeringResult(
+        offset_rad=final.offset_rad, scale=final.scale, offset_ci95_rad=final.offset_ci95_rad,
+        scale_ci95=final.scale_ci95, dead_time_s=dead.tau_s, identifiable=ident["identifiable"],
+        note=ident["note"], method=final.method, rms_error_rad=rms_rad, fits=fits,
+        report=report, series=series)
+
+
+def _report(sig, cfg, final, why, selection, dead, fits, agreement, rms_rad, ident, idents,
+            masks, steady, usable, sw_d) -> dict:
+    """The JSON-ready figures of :func:`identify_steering` (stable keys)."""
+    return {
+        "offset_rad": final.offset_rad, "scale": final.scale,
+        "offset_ci95_rad": list(final.offset_ci95_rad), "scale_ci95": list(final.scale_ci95),
+        "method": final.method,
+        "method_selected_because": why,
+        "selection": selection,
+        "dead_time_s": dead.tau_s,
+        "dead_time": dead.to_dict(cfg.smooth_s),
+        "fits": {k: f.to_dict() for k, f in fits.items()},
+        "agreement_a_b": agreement,
+        "rms_error_rad": rms_rad,
+        "identifiability": ident,
+        "identifiability_by_fit": {k: {"identifiable": v["identifiable"],
+                                       "offset_identifiable": v["offset_identifiable"],
+                                       "scale_identifiable": v["scale_identifiable"],
+                                       "note": v["note"]}
+                                   for k, v in idents.items()},
+        "samples": {"total": int(len(sig.sw)), "usable": int(usable.sum()),
+                    "trustworthy": int(steady.sum()), "excluded": masks.excluded},
+        "speed_source": sig.speed_source,
+        "speed_range_mps": [float(np.percentile(sig.v_front[steady], 2.5)),
+                            float(np.percentile(sig.v_front[steady], 97.5))],
+        "steering_wheel_range_rad": [float(np.percentile(sw_d[steady], 2.5)),
+                                     float(np.percentile(sw_d[steady], 97.5))],
+        "thresholds": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
+    }
+
+
+def _series(rec: Recording, sig: SteeringSignals, delta_b, delta_model, steady, replay,
+            final: MapFit) -> dict:
+    """Time series for the plots (``models.report``)."""
+    nan = np.full(len(sig.sw), np.nan)  # channels the recording lacks plot as gaps
+    fl, fr = (nan if w is None else w for w in (sig.fl, sig.fr))
+    series = {"time": rec.time, "steering_wheel_angle": sig.sw, "wheel_speed_fl": fl,
+              "wheel_speed_fr": fr, "turn_rate_wheels_radps": (fr - fl) / sig.T,
+              "delta_wheels_rad": nan if sig.delta_a is None else sig.delta_a,
+              "delta_yaw_rad": delta_b,
+              "delta_model_rad": delta_model, "trustworthy": steady}
+    if replay is not None:
+        xp, yp = replay.predict((final.offset_rad, final.scale))
+        series["replay"] = {"x_pred": np.where(replay.inwin, xp, np.nan),
+                            "y_pred": np.where(replay.inwin, yp, np.nan),
+                            "x": np.asarray(rec["x"], float), "y": np.asarray(rec["y"], float)}
+    return series
