@@ -1,8 +1,9 @@
-"""State estimator shared by simulate, drive and replay: an extended Kalman filter over the plant.
+"""The estimator's filter core: an extended Kalman filter over the plant, at its current time.
 
-State (7): the plant's ``[x_m, y_m, psi_rad, v_mps]`` (``models.plant``: local ENU, the
-front-wheel point of eq. 1) augmented with three slowly varying sensor/model errors that the
-car's own data make observable and that otherwise bias the plant state:
+State (7, controller/estimator/config.py): the plant's ``[x_m, y_m, psi_rad, v_mps]``
+(``models.plant``: local ENU, the front-wheel point of eq. 1) augmented with three slowly
+varying sensor/model errors that the car's own data make observable and that otherwise bias
+the plant state:
 
 - ``delta_offset_rad``: a correction to eq. 7's road-wheel angle (``delta = offset + scale *
   sw + delta_offset``). It absorbs a steering map known only to +-13 % (the comma minute) and
@@ -17,7 +18,7 @@ car's own data make observable and that otherwise bias the plant state:
 Process model: the report's eq. 1 + eq. 7 + eq. 8 of ``models.plant``, the one place they
 are written: ``HybridPlant.step`` for the mean (zone hysteresis, exact in speed, standstill
 clamp) and ``bicycle_jacobian`` for the covariance. The prediction runs a few hundred times a
-second, so both are written out in :meth:`Estimator._propagate` on Python floats, operation
+second, so both are written out in :meth:`Ekf._propagate` on Python floats, operation
 for operation, with the plant's zone lists and eq. 8 coefficients
 (``tests/test_estimator_speed.py`` holds them to the plant: the mean to the bit, ``F`` to
 ``HybridPlant.jacobians``); a plant with opt-in extensions is stepped by ``HybridPlant.step``
@@ -29,61 +30,31 @@ When the IMU supplies a longitudinal acceleration it replaces eq. 8 in the speed
 are random walks. The covariance is propagated with ``F = I + A dt`` and a diagonal process
 noise (random-walk densities in :class:`EstimatorConfig`).
 
-Inputs, each at its own rate (call the ``update_*`` methods as messages arrive):
-
-- :meth:`predict` ``(t_s, u)``: the plant input ``[steering_wheel_angle_rad, accel_pedal,
-  brake_pedal]`` from ``t_s`` on (the controller's applied command). The CAN steering-wheel
-  angle, when fresher than ``steer_input_max_age_s``, replaces ``u[0]``: it is what the
-  wheels follow.
-- :meth:`update_can`: the four wheel speeds (their mean is the speed; optionally the rear
-  difference is a second, gyro-bias-free yaw rate, the report's eq. 5), steering-wheel angle,
-  CAN yaw rate.
-- :meth:`update_imu`: gyro yaw rate, longitudinal acceleration. The CAN (KINEMATICS) and IMU
-  yaw rates share the one ``gyro_bias_radps`` state: feed one of them (a car with both has
-  two biases, which this filter does not separate).
-- :meth:`update_gnss` ``(t_meas_s, t_now_s, ...)``: position, heading, speed, measured at
-  ``t_meas_s`` and arriving at ``t_now_s``.
-
-Latency compensation (GNSS): every event the filter processes (predict ticks, CAN, IMU, GNSS)
-is kept in a time-ordered log with the state, covariance and held inputs after it
-(``history_events`` deep, allocated once; when full the oldest half is dropped). A fix
-measured in the past is inserted at its measurement time: the filter is rewound to the last
-event before it, the fix is applied at ``t_meas_s``, and every later event is re-applied (and
-its snapshot rewritten, so a later delayed fix sees this one). The result is the one the filter
-would have had with the fix on time (the tests check it is equal to rounding), not an
-approximation of it, at the cost of re-running the events of one latency (about 25 events for
-100 ms). CAN and IMU messages are applied when they arrive, at the
-filter's current time if they are stamped earlier (their latency is under a CAN period); their
-stamps are recorded, so a rewind re-applies them in arrival order. A fix older than the log
-is rejected and counted (``too_old``).
+Events (:meth:`Ekf._apply`): a predict tick (new held inputs), a CAN message, an IMU sample, a
+GNSS fix, each applied at a time no earlier than the filter's (the message API and the
+out-of-sequence replay are controller/estimator/estimator.py's).
 
 Outliers: every update is gated on its normalised innovation squared ``y' S^-1 y`` against the
 chi-square quantile with the update's degrees of freedom at ``gate_probability`` (0.999: a
 consistent filter rejects 1 in 1000 good measurements; a 10 m jump on 2 cm GNSS scores about
 10^5 against a threshold of 18.5 for a four-value fix). Rejections are counted per sensor in
-:attr:`Estimator.stats`. After ``gnss_reinit_after`` consecutive rejected fixes the filter
+``stats``. After ``gnss_reinit_after`` consecutive rejected fixes the filter
 trusts GNSS again (the fix, not the filter, was right: e.g. after a long outage the
 dead-reckoned state drifted): position and heading are reset to the fix with the initial
 uncertainty, counted as ``reinit``.
 
-Allocation and cost: the filter, Jacobian, measurement and log buffers are allocated once in
+Allocation and cost: the filter, Jacobian and measurement buffers are allocated once in
 ``__init__``; a step writes into them (flat ``memoryview`` s give their elements as Python
 floats). Per event: ``P = F P F'`` is two 7x7 products and the process noise one BLAS
 ``daxpy`` on P's diagonal; a one-value update (CAN speed, yaw rate) is ``P h``, one ``ddot``,
 ``daxpy`` for the state and ``dger`` for ``P -= PH' HP / s``, all in place (P symmetric to a
 few ulps; each GNSS update symmetrises it exactly); a GNSS update solves ``S^-1 [H P | y]``
-by Cholesky (LAPACK ``dposv``). What is still allocated per event: the log's tuples (the
-event, the held inputs after it) and the GNSS update's few small products. ``tools/bench_mpc.py`` prints the
-estimator's time per control period.
-
-Also here: :func:`estimate_recording` (the estimator over a canonical
-recording's raw channels, e.g. the real comma2k19 minute; ``tools/estimate_plot.py`` plots it).
+by Cholesky (LAPACK ``dposv``); what it still allocates is its few small products.
+``tools/bench_mpc.py`` prints the estimator's time per control period.
 """
 from __future__ import annotations
 
-import bisect
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg.blas import daxpy, ddot, dger
@@ -91,127 +62,14 @@ from scipy.linalg.lapack import dposv
 from scipy.stats import chi2
 
 from hmpc.models.params import Params
-from hmpc.models.plant import IAP, IBP, ISW, HybridPlant
+from hmpc.models.plant import HybridPlant
 from hmpc.models.zones import zone_with_hysteresis
 
-NXE = 7  #: estimator state size
-IX, IY, IPSI, IV, IDOFF, IBR, IKWS = range(NXE)
-STATE_NAMES = ("x_m", "y_m", "psi_rad", "v_mps", "delta_offset_rad", "gyro_bias_radps",
-               "wheel_speed_scale")
+from hmpc.controller.estimator.config import IBR, IDOFF, IKWS, IPSI, IV, IX, IY, NXE, SENSORS, \
+    EstimatorConfig
 
-_TICK, _CAN, _IMU, _GNSS = 0, 1, 2, 3
-SENSORS = ("can_speed", "wheel_yaw_rate", "can_yaw_rate", "imu_yaw_rate", "gnss")
-
-
-@dataclass(frozen=True)
-class EstimatorConfig:
-    """Noise model and settings of :class:`Estimator`; every number is 1-sigma and SI.
-
-    Random-walk densities are per square root of a second: over ``dt`` the state's variance
-    grows by ``density**2 * dt``.
-    """
-
-    #: eq. 8's error as a speed random walk [m/s/sqrt(s)]: on the comma minute the high zone
-    #: leaves about half the acceleration variance unexplained (NMSE 48 %), ~0.3 m/s^2 rms.
-    speed_walk_mps_rts: float = 0.5
-    #: the same when the IMU's acceleration drives the speed (accelerometer noise 0.05 m/s^2,
-    #: bias up to 0.02 m/s^2, grade) [m/s/sqrt(s)].
-    speed_walk_imu_mps_rts: float = 0.1
-    #: heading error of eq. 1 beyond a steering offset (slip, road camber) [rad/sqrt(s)].
-    heading_walk_rad_rts: float = 0.005
-    #: position error of eq. 1 (side slip of the front point) [m/sqrt(s)].
-    position_walk_m_rts: float = 0.02
-    #: drift of the road-wheel angle correction [rad/sqrt(s)] (understeer changes with speed
-    #: and lateral acceleration within seconds).
-    delta_offset_walk_rad_rts: float = 0.001
-    #: gyro bias drift [rad/s/sqrt(s)]: wanders about 0.001 rad/s in an hour, as a MEMS
-    #: gyro's bias does with temperature.
-    gyro_bias_walk_radps_rts: float = 2e-5
-    #: tyre radius drift (load, pressure, temperature) [1/sqrt(s)].
-    wheel_scale_walk_rts: float = 1e-4
-
-    #: initial uncertainty (after the first fix or :meth:`Estimator.reset`).
-    init_position_m: float = 0.5
-    init_heading_rad: float = 0.05
-    init_speed_mps: float = 0.5
-    init_delta_offset_rad: float = 0.005
-    init_gyro_bias_radps: float = 0.003
-    init_wheel_scale: float = 0.02
-
-    #: measurement noise; the defaults match ``models.sim.live_sensors.SensorConfig()``
-    #: (see :meth:`matching`).
-    can_speed_mps: float = 0.05
-    wheel_yaw_rate_radps: float = 0.035  # comma minute, rear difference against the gyro
-    can_yaw_rate_radps: float = 0.005
-    imu_yaw_rate_radps: float = 0.005
-    gnss_position_m: float = 0.02
-    gnss_heading_rad: float = math.radians(0.1)
-    gnss_speed_mps: float = 0.05
-    #: GNSS point relative to the eq. 1 point (front-axle centre), body axes (x fwd, y left)
-    #: [m]. A conventions ``nav_lever_arm_m`` [lx, ly] from the rear axle is (lx - b, ly).
-    gnss_offset_m: tuple[float, float] = (0.0, 0.0)
-
-    #: use the rear wheel-speed difference as a yaw-rate measurement (report's eq. 5). Off by
-    #: default: on the comma minute it differs from the gyro by 0.034 rad/s rms with heavy tails
-    #: and a -0.009 rad/s offset (left/right tyre radii differ), which no state here models; it
-    #: earns its place on a car without a yaw-rate sensor.
-    use_wheel_yaw_rate: bool = False
-    #: the IMU's longitudinal acceleration replaces eq. 8 while fresher than this [s].
-    use_imu_accel: bool = True
-    imu_accel_max_age_s: float = 0.05
-    #: the CAN steering-wheel angle replaces the commanded one while fresher than this [s].
-    steer_input_max_age_s: float = 0.1
-    #: innovation gate: chi-square probability (see module docstring).
-    gate_probability: float = 0.999
-    #: consecutive rejected GNSS fixes before the filter re-initialises on GNSS.
-    gnss_reinit_after: int = 20
-    #: longest propagation sub-step [s] (the plant's step is exact in speed and heading for
-    #: held inputs, midpoint in position: about dist * dpsi^2 / 24, 0.1 mm per 20 ms step at
-    #: 20 m/s on a 5 m radius).
-    max_step_s: float = 0.02
-    #: depth of the event log for latency compensation (about 300 events/s: 1.7-3.4 s).
-    history_events: int = 1024
-
-    def __post_init__(self):
-        if not 0.5 < self.gate_probability < 1.0:
-            raise ValueError("gate_probability must be within (0.5, 1), got "
-                             f"{self.gate_probability}")
-        if self.history_events < 16:
-            raise ValueError("history_events must be at least 16")
-        if not self.max_step_s > 0:
-            raise ValueError("max_step_s must be positive")
-
-    @classmethod
-    def matching(cls, sensors, **overrides) -> "EstimatorConfig":
-        """Measurement noise matched to a ``live_sensors.SensorConfig`` (noise_scale applied)."""
-        k = sensors.noise_scale
-        quant = 0.01 / 3.6 / math.sqrt(12.0)  # WHEEL_SPEEDS 0.01 km/h step
-        wheel = math.hypot(k * sensors.wheel_jitter_mps, quant)
-        track = 1.6  # nominal; only sets a noise level
-        kw = dict(can_speed_mps=math.hypot(k * sensors.speed_noise_mps, wheel / 2.0),
-                  wheel_yaw_rate_radps=math.sqrt(2.0) * wheel / track,
-                  can_yaw_rate_radps=k * sensors.can_yaw_rate_noise_radps,
-                  imu_yaw_rate_radps=k * sensors.gyro_noise_radps,
-                  gnss_position_m=max(k * sensors.position_noise_m, 1e-4),
-                  gnss_heading_rad=max(k * sensors.heading_noise_rad, 1e-5),
-                  gnss_speed_mps=max(k * sensors.gnss_speed_noise_mps, 1e-3))
-        kw.update(overrides)
-        return cls(**kw)
-
-
-def _value(v) -> float:
-    """A measurement value: None and non-finite numbers are absent (NaN)."""
-    if v is None:
-        return math.nan
-    v = float(v)
-    return v if math.isfinite(v) else math.nan
-
-
-def _time(t_s) -> float:
-    t = float(t_s)
-    if not math.isfinite(t):
-        raise ValueError(f"a message time must be finite, got {t_s!r}")
-    return t
+#: event kinds (:meth:`Ekf._apply`; the event log's first field)
+EVENT_TICK, EVENT_CAN, EVENT_IMU, EVENT_GNSS = 0, 1, 2, 3
 
 
 def _zone_bands(v_min_mps, v_max_mps, hysteresis_mps: float) -> list[tuple[float, float]]:
@@ -224,15 +82,14 @@ def _zone_bands(v_min_mps, v_max_mps, hysteresis_mps: float) -> list[tuple[float
              v_max_mps[z] + hysteresis_mps if z < n - 1 else math.inf) for z in range(n)]
 
 
-class Estimator:
-    """Extended Kalman filter over the plant state; see the module docstring.
+class Ekf:
+    """Extended Kalman filter over the plant state at its current time; see the module
+    docstring. :class:`~hmpc.controller.estimator.estimator.Estimator` adds the message API
+    and the event log.
 
     Args:
         params: the controller's model (geometry, steering map, zones).
         config: noise and settings.
-
-    Before the first GNSS fix with position and heading (or :meth:`reset`) the filter has no
-    state: ``initialized`` is False and :meth:`state` raises.
     """
 
     def __init__(self, params: Params, config: EstimatorConfig | None = None):
@@ -307,21 +164,9 @@ class Estimator:
             self._h_speed, self._h_yaw, self._h_wyaw))
         self._ph1 = np.zeros(NXE)
         self._r_speed = cfg.can_speed_mps ** 2
-        # event log: time-ordered. Per event (kind, t, 4 payload values) and the held inputs
-        # after it as tuples in fixed-length lists; state and covariance after it in arrays.
-        n = cfg.history_events
-        self._ev_n, self._ev_cap = 0, n
-        self._ev = [None] * n
-        self._ev_t = [0.0] * n
-        self._ev_aux = [None] * n
-        self._ev_x = np.zeros((n, NXE))
-        self._ev_P = np.zeros((n, NXE, NXE))
-        self._ev_xm = memoryview(self._ev_x.reshape(-1))
-        self._ev_Pm = memoryview(self._ev_P.reshape(-1))
         self.stats = {s: {"accepted": 0, "rejected": 0} for s in SENSORS}
         self.stats["gnss"].update(too_old=0, replays=0, reinit=0, latency_max_s=0.0)
         self._counting = True
-        self.initialized = False
         self._clear_held()
 
     def _clear_held(self) -> None:
@@ -331,181 +176,6 @@ class Estimator:
         self._a_imu, self._t_aimu = 0.0, -math.inf
         self._zone: int | None = None
         self._gnss_rejects = 0
-        self._last_speed = math.nan
-
-    # =================================================================== public API
-    def reset(self, t_s: float, state, sigmas=None) -> None:
-        """Start (or restart) at ``t_s`` from plant ``state`` (x, y, psi, v) or a 7-state.
-
-        ``sigmas``: initial 1-sigma per state (7); default the config's ``init_*``.
-        """
-        s = np.asarray(state, dtype=float).reshape(-1)
-        if len(s) not in (4, NXE) or not np.all(np.isfinite(s)):
-            raise ValueError(f"reset needs a finite 4- or 7-state, got {state!r}")
-        if sigmas is not None and len(sigmas) != NXE:
-            raise ValueError(f"reset needs 7 sigmas ({', '.join(STATE_NAMES)})")
-        self._x[:] = 0.0
-        self._x[IKWS] = 1.0
-        self._x[: len(s)] = s
-        self._P[:] = 0.0
-        if sigmas is None:
-            self._diag[:] = self._init_var
-        else:
-            self._diag[:] = np.asarray(sigmas, dtype=float) ** 2
-        self._t = float(t_s)
-        self._zone = self.plant.select_zone(float(self._x[IV]), None)
-        self._gnss_rejects = 0
-        self._ev_n = 0
-        self.initialized = True
-        self._log(_TICK, self._t, self._u[0], self._u[1], self._u[2], math.nan)
-
-    @property
-    def time_s(self) -> float:
-        """Time of the filter's state [s] (the latest event applied)."""
-        return self._t
-
-    def state(self) -> np.ndarray:
-        """Plant state estimate ``[x_m, y_m, psi_rad, v_mps]`` at :attr:`time_s` (a copy)."""
-        self._need_init()
-        return self._x[:4].copy()
-
-    def covariance(self) -> np.ndarray:
-        """Covariance of :meth:`state` (4x4, a copy)."""
-        self._need_init()
-        return self._P[:4, :4].copy()
-
-    def full_state(self) -> np.ndarray:
-        """All 7 states (``STATE_NAMES``), a copy."""
-        self._need_init()
-        return self._x.copy()
-
-    def full_covariance(self) -> np.ndarray:
-        """Covariance of :meth:`full_state` (7x7, a copy)."""
-        self._need_init()
-        return self._P.copy()
-
-    def predict(self, t_s: float, u=None) -> None:
-        """Propagate to ``t_s`` with the inputs held so far, then hold ``u`` (steering-wheel
-        angle [rad], accel pedal, brake pedal) from ``t_s`` on (None: keep the held input).
-
-        Raises:
-            ValueError: a non-finite time or input.
-        """
-        if u is None:
-            u0, u1, u2 = self._u
-        else:
-            u0, u1, u2 = float(u[ISW]), float(u[IAP]), float(u[IBP])
-        if not (math.isfinite(t_s) and math.isfinite(u0) and math.isfinite(u1)
-                and math.isfinite(u2)):
-            raise ValueError(f"predict needs a finite time and input, got t_s={t_s!r}, u={u!r}")
-        if not self.initialized:
-            self._u[:] = (u0, u1, u2)
-            self._t = max(self._t, float(t_s))
-            return
-        t = max(float(t_s), self._t)
-        self._apply(_TICK, t, u0, u1, u2, math.nan)
-        self._log(_TICK, t, u0, u1, u2, math.nan)
-
-    def update_can(self, t_s: float, wheel_speeds_mps=None, steering_wheel_angle_rad=None,
-                   yaw_rate_radps=None, speed_mps=None) -> None:
-        """A CAN message (or several of one instant): any of the four wheel speeds (fl, fr, rl,
-        rr) [m/s], or their mean ``speed_mps``; the steering-wheel angle [rad]; the yaw rate
-        [rad/s] (KINEMATICS). Stamped earlier than :attr:`time_s`: applied now. None or a
-        non-finite value: absent (a dropout)."""
-        t_s = _time(t_s)
-        ws_mean = wheel_yaw = math.nan
-        if wheel_speeds_mps is not None:
-            fl, fr, rl, rr = wheel_speeds_mps
-            rl, rr = _value(rl), _value(rr)
-            ws_mean = 0.25 * (_value(fl) + _value(fr) + rl + rr)
-            if self.cfg.use_wheel_yaw_rate:
-                wheel_yaw = (rr - rl) / self._track_r
-        elif speed_mps is not None:
-            ws_mean = _value(speed_mps)
-        sw = _value(steering_wheel_angle_rad)
-        yaw = _value(yaw_rate_radps)
-        if not self.initialized:
-            if sw == sw:
-                self._sw_meas, self._t_sw = sw, t_s
-            if ws_mean == ws_mean:
-                self._last_speed = ws_mean
-            return
-        t = max(t_s, self._t)
-        self._apply(_CAN, t, ws_mean, sw, yaw, wheel_yaw)
-        self._log(_CAN, t, ws_mean, sw, yaw, wheel_yaw)
-
-    def update_imu(self, t_s: float, yaw_rate_radps=None, accel_x_mps2=None) -> None:
-        """An IMU sample: yaw rate [rad/s] (gyro), longitudinal acceleration [m/s^2]. None or
-        a non-finite value: absent."""
-        t_s = _time(t_s)
-        if not self.initialized:
-            return
-        yaw, ax = _value(yaw_rate_radps), _value(accel_x_mps2)
-        t = max(t_s, self._t)
-        self._apply(_IMU, t, yaw, ax, math.nan, math.nan)
-        self._log(_IMU, t, yaw, ax, math.nan, math.nan)
-
-    def update_gnss(self, t_meas_s: float, t_now_s: float | None = None, x_m=None, y_m=None,
-                    heading_rad=None, speed_mps=None) -> bool:
-        """A GNSS/INS fix measured at ``t_meas_s`` arriving at ``t_now_s`` (default: the
-        measurement time, no latency). Any of position (both ``x_m`` and ``y_m``), heading,
-        speed. A fix older than the filter's time is applied at ``t_meas_s`` by rewinding
-        (module docstring); the filter's time does not move to ``t_now_s`` (messages of the
-        same instant may still come; :meth:`predict` moves it). ``t_now_s`` is checked and
-        its lag recorded (``stats['gnss']['latency_max_s']``). Returns True when accepted
-        (False: gated out, too old, or nothing in it).
-
-        Raises:
-            ValueError: ``t_now_s`` before ``t_meas_s`` (a fix from the future).
-        """
-        x, y = _value(x_m), _value(y_m)
-        if not (x == x and y == y):
-            x = y = math.nan
-        h, v = _value(heading_rad), _value(speed_mps)
-        t_meas = _time(t_meas_s)
-        t_now = t_meas if t_now_s is None else _time(t_now_s)
-        if not t_now >= t_meas - 1e-9:
-            raise ValueError(f"a GNSS fix measured at {t_meas} s cannot arrive at {t_now} s")
-        g = self.stats["gnss"]
-        g["latency_max_s"] = max(g["latency_max_s"], t_now - t_meas)
-        if not self.initialized:
-            if x == x and h == h:
-                v0 = v if v == v else (self._last_speed if self._last_speed == self._last_speed
-                                       else 0.0)
-                self.reset(t_meas, (x, y, h, v0))  # keeps the held inputs
-                self._count("gnss", True)
-                return True
-            return False
-        if t_meas >= self._t:
-            ok = self._apply(_GNSS, t_meas, x, y, h, v)
-            self._log(_GNSS, t_meas, x, y, h, v)
-        else:
-            ok = self._replay_with(t_meas, x, y, h, v)
-            if ok is None:
-                g["too_old"] += 1
-                return False
-        return bool(ok)
-
-    def feed(self, m, t_now_s: float | None = None):
-        """Apply one ``models.sim.live_sensors.Measurement`` (or anything with ``kind``,
-        ``t_meas_s``, ``t_arrival_s`` and ``values``)."""
-        v = m.values
-        if m.kind == "can":
-            self.update_can(m.t_meas_s, v.get("wheel_speeds_mps"),
-                            v.get("steering_wheel_angle_rad"), v.get("yaw_rate_radps"),
-                            v.get("speed_mps"))
-        elif m.kind == "imu":
-            self.update_imu(m.t_meas_s, v.get("yaw_rate_radps"), v.get("accel_x_mps2"))
-        elif m.kind == "gnss":
-            self.update_gnss(m.t_meas_s, m.t_arrival_s if t_now_s is None else t_now_s,
-                             v.get("x_m"), v.get("y_m"), v.get("heading_rad"), v.get("speed_mps"))
-        else:
-            raise ValueError(f"unknown measurement kind {m.kind!r}")
-
-    # ============================================================== the filter
-    def _need_init(self) -> None:
-        if not self.initialized:
-            raise RuntimeError("the estimator has no state yet: no GNSS fix and no reset()")
 
     def _count(self, sensor: str, ok: bool) -> None:
         if self._counting:
@@ -518,7 +188,7 @@ class Estimator:
         return self._u[0]
 
     def _propagate_to(self, t: float) -> None:
-        """Predict from :attr:`time_s` to ``t`` [s] in equal sub-steps of at most
+        """Predict from the filter's time to ``t`` [s] in equal sub-steps of at most
         ``max_step_s``. The held inputs and their freshness (CAN steering angle, IMU
         acceleration) are those at the start, for every sub-step."""
         t0 = self._t
@@ -683,11 +353,11 @@ class Estimator:
         """Apply one event at time ``t`` (``t >= self._t``); the payload meaning by kind."""
         if t > self._t:
             self._propagate_to(t)
-        if kind == _TICK:
+        if kind == EVENT_TICK:
             self._u[0], self._u[1], self._u[2] = p0, p1, p2
             return True
         cfg = self.cfg
-        if kind == _CAN:
+        if kind == EVENT_CAN:
             if p1 == p1:
                 self._sw_meas, self._t_sw = p1, t
             if p0 == p0:
@@ -699,7 +369,7 @@ class Estimator:
             if self._x[IV] < 0.0:
                 self._x[IV] = 0.0
             return True
-        if kind == _IMU:
+        if kind == EVENT_IMU:
             if p0 == p0:
                 self._yaw_update(p0, cfg.imu_yaw_rate_radps, "imu_yaw_rate", True)
             if p1 == p1:
@@ -765,208 +435,3 @@ class Estimator:
         self._gnss_rejects = 0
         if self._counting:
             self.stats["gnss"]["reinit"] += 1
-
-    # ========================================================= event log, replay
-    def _snapshot(self, i: int) -> None:
-        """Record the filter after event ``i``: state and covariance into the preallocated
-        arrays (flat memoryview copies), the held inputs as one tuple."""
-        k = i * NXE
-        self._ev_xm[k:k + NXE] = self._xm
-        k *= NXE
-        self._ev_Pm[k:k + NXE * NXE] = self._Pm
-        u = self._u
-        self._ev_aux[i] = (self._t, u[0], u[1], u[2], self._sw_meas, self._t_sw, self._a_imu,
-                           self._t_aimu, self._zone)
-
-    def _restore(self, i: int) -> None:
-        """Rewind the filter to just after event ``i``."""
-        self._x[:] = self._ev_x[i]
-        self._P[:] = self._ev_P[i]
-        (self._t, u0, u1, u2, self._sw_meas, self._t_sw, self._a_imu, self._t_aimu,
-         self._zone) = self._ev_aux[i]
-        self._u[0], self._u[1], self._u[2] = u0, u1, u2
-
-    def _make_room(self) -> None:
-        """When the log is full, drop its oldest half (the copies do not overlap)."""
-        n, cap = self._ev_n, self.cfg.history_events
-        if n < cap:
-            return
-        h = cap // 2
-        m = n - h
-        for a in (self._ev, self._ev_t, self._ev_aux, self._ev_x, self._ev_P):
-            a[:m] = a[h:n]
-        self._ev_n = m
-
-    def _log(self, kind: int, t: float, p0, p1, p2, p3) -> None:
-        """Append the event just applied, with the filter after it."""
-        if self._ev_n >= self._ev_cap:
-            self._make_room()
-        i = self._ev_n
-        self._ev[i] = (kind, t, p0, p1, p2, p3)
-        self._ev_t[i] = t
-        self._snapshot(i)
-        self._ev_n = i + 1
-
-    def _replay_with(self, t_meas: float, gx, gy, gh, gv):
-        """Insert a GNSS fix at ``t_meas`` into the log and re-run everything after it.
-        Returns the update's result, or None when the log does not reach back that far
-        (the fix is older than its first event's time)."""
-        n = self._ev_n
-        i = bisect.bisect_right(self._ev_t, t_meas, 0, n)
-        if i == 0:
-            return None
-        self._make_room()
-        if self._ev_n != n:  # room was made by dropping old events
-            i -= n - self._ev_n
-            n = self._ev_n
-            if i <= 0:
-                return None
-        # shift the events i..n-1 up by one (their snapshots are all rewritten below)
-        ev = self._ev
-        ev[i + 1:n + 1] = ev[i:n]
-        self._ev_t[i + 1:n + 1] = self._ev_t[i:n]
-        ev[i] = (_GNSS, t_meas, gx, gy, gh, gv)
-        self._ev_t[i] = t_meas
-        self._ev_n = n + 1
-        self._restore(i - 1)
-        ok = self._apply(_GNSS, t_meas, gx, gy, gh, gv)
-        self._snapshot(i)
-        after_rejects = self._gnss_rejects
-        self._counting = False
-        apply, snapshot = self._apply, self._snapshot
-        try:
-            for k in range(i + 1, n + 1):
-                apply(*ev[k])
-                snapshot(k)
-        finally:
-            self._counting = True
-        self._gnss_rejects = after_rejects
-        self.stats["gnss"]["replays"] += 1
-        return ok
-
-# ============================================================ offline: a recording
-@dataclass
-class EstimateRun:
-    """The estimator run over a recording (see :func:`estimate_recording`).
-
-    Attributes:
-        t_s: tick times [s]; state: (n, 7) estimate at each tick (``STATE_NAMES``);
-        sigma: (n, 7) 1-sigma; stats: the estimator's per-sensor counts; events: messages fed
-        per stream.
-    """
-
-    t_s: np.ndarray
-    state: np.ndarray
-    sigma: np.ndarray
-    stats: dict
-    events: dict
-
-
-def _source_of(rec, channel: str) -> str:
-    info = rec.meta.get("channels", {}).get(channel, {}) if isinstance(rec.meta, dict) else {}
-    src = str(info.get("source", "")) if isinstance(info, dict) else ""
-    return src.split(":", 1)[0] if src else ""
-
-
-def estimate_recording(rec, params: Params, config: EstimatorConfig | None = None, *,
-                       tick_s: float = 0.02, gnss_latency_s: float = 0.0) -> EstimateRun:
-    """Run the estimator over a canonical recording's raw channels, each at its own times.
-
-    Streams (``rec.raw``, falling back to the grid when a channel has no raw samples): the four
-    wheel speeds and the steering-wheel angle as CAN messages; ``yaw_rate`` (from the IMU, or
-    from CAN when ingest says so) with ``accel_x`` as IMU samples; ``x``, ``y``, ``heading``,
-    ``gps_speed`` as GNSS fixes. The plant input for :meth:`Estimator.predict` every ``tick_s``
-    is the held steering-wheel angle and pedals. Ingest has already put every source on the
-    CAN clock, so fixes are fed without latency unless ``gnss_latency_s`` > 0 (they are then
-    delivered that much later than their stamp: the filter's rewind runs on real data).
-    Non-finite samples are skipped.
-
-    Raises:
-        InputError: the recording lacks the GNSS position or heading (nothing to start from).
-    """
-    rec.require("x", "y", "heading")
-
-    def stream(name):
-        if name in rec.raw and len(rec.raw[name][0]):
-            t, v = rec.raw[name]
-        elif name in rec.channels:
-            t, v = rec.time, rec.channels[name]
-        else:
-            return None
-        return np.asarray(t, dtype=float), np.asarray(v, dtype=float)
-
-    events: list[tuple[float, int, int, str]] = []  # (t_arrival, order, index, kind)
-    wheels = [stream(f"wheel_speed_{w}") for w in ("fl", "fr", "rl", "rr")]
-    sw = stream("steering_wheel_angle")
-    yaw, ax = stream("yaw_rate"), stream("accel_x")
-    gx, gy, gh, gv = stream("x"), stream("y"), stream("heading"), stream("gps_speed")
-    wheels_ok = all(w is not None for w in wheels) and all(
-        np.array_equal(w[0], wheels[0][0]) for w in wheels)
-    if wheels_ok:
-        events += [(t, 0, i, "wheels") for i, t in enumerate(wheels[0][0])]
-    if sw is not None:
-        events += [(t, 0, i, "sw") for i, t in enumerate(sw[0])]
-    yaw_on_can = _source_of(rec, "yaw_rate") == "can"
-    if yaw is not None:
-        events += [(t, 1, i, "yaw") for i, t in enumerate(yaw[0])]
-    imu_ax = ax is not None and yaw is not None and np.array_equal(ax[0], yaw[0]) \
-        and _source_of(rec, "accel_x") != "can"
-    events += [(t + gnss_latency_s, 2, i, "gnss") for i, t in enumerate(gx[0])]
-    events.sort()
-    grid = rec.time
-    ap = rec.channels.get("accel_pedal", np.zeros(len(grid)))
-    bp = rec.channels.get("brake_pedal", np.zeros(len(grid)))
-    swg = rec.channels.get("steering_wheel_angle", np.zeros(len(grid)))
-    gh_on = gh[1] if gh is not None and np.array_equal(gh[0], gx[0]) else None
-    gv_on = gv[1] if gv is not None and np.array_equal(gv[0], gx[0]) else None
-    gy_v = np.interp(gx[0], gy[0], gy[1]) if not np.array_equal(gy[0], gx[0]) else gy[1]
-
-    est = Estimator(params, config)
-    t_start = events[0][0] if events else float(grid[0])
-    t_end = max(events[-1][0] if events else float(grid[-1]), float(grid[-1]))
-    ticks = np.arange(t_start, t_end + 1e-9, tick_s)
-    out_x = np.full((len(ticks), NXE), np.nan)
-    out_s = np.full((len(ticks), NXE), np.nan)
-    counts = {"can": 0, "imu": 0, "gnss": 0}
-
-    def fin(v):
-        return None if v is None or not math.isfinite(v) else float(v)
-    k = 0
-    for j, tk in enumerate(ticks):
-        while k < len(events) and events[k][0] <= tk:
-            t, _, i, kind = events[k]
-            k += 1
-            if kind == "wheels":
-                ws = [w[1][i] for w in wheels]
-                if all(math.isfinite(q) for q in ws):
-                    est.update_can(t, wheel_speeds_mps=ws)
-                    counts["can"] += 1
-            elif kind == "sw":
-                if math.isfinite(sw[1][i]):
-                    est.update_can(t, steering_wheel_angle_rad=float(sw[1][i]))
-                    counts["can"] += 1
-            elif kind == "yaw":
-                r = fin(yaw[1][i])
-                if yaw_on_can:
-                    if r is not None:
-                        est.update_can(t, yaw_rate_radps=r)
-                        counts["can"] += 1
-                else:
-                    est.update_imu(t, r, fin(ax[1][i]) if imu_ax else None)
-                    counts["imu"] += 1
-            else:
-                t_meas = float(gx[0][i])
-                x, y = fin(gx[1][i]), fin(gy_v[i])
-                if x is None or y is None:
-                    x = y = None
-                est.update_gnss(t_meas, t, x, y, fin(None if gh_on is None else gh_on[i]),
-                                fin(None if gv_on is None else gv_on[i]))
-                counts["gnss"] += 1
-        g = min(max(int(np.searchsorted(grid, tk, side="right")) - 1, 0), len(grid) - 1)
-        u = (swg[g] if math.isfinite(swg[g]) else 0.0, ap[g] if math.isfinite(ap[g]) else 0.0,
-             bp[g] if math.isfinite(bp[g]) else 0.0)
-        est.predict(tk, u)
-        if est.initialized:
-            out_x[j] = est._x
-            out_s[j] = np.sqrt(np.maximum(np.diag(est._P), 0.0))
-    return EstimateRun(ticks, out_x, out_s, est.stats, counts)
