@@ -1,4 +1,5 @@
-"""What the MPC (OSQP) and the NMPC (CasADi) share about one horizon: small typed records.
+"""What the MPC (OSQP) and the NMPC (CasADi) share about one horizon: small typed records,
+and the reference sampled at the stages.
 
 - :class:`InFlight`: commands already issued that will act during the first stages (dead
   times), fixed in the optimisation;
@@ -6,21 +7,28 @@
   shifted in time, when a solve fails;
 - :class:`PathReference`, :class:`SpeedBand` and :class:`StageData`: everything one solve
   takes, per stage (the fast path writes it into its QP, the NMPC into its NLP parameters);
-- :class:`SolveOutcome`: what one solve returns.
+- :class:`SolveOutcome`: what one solve returns;
+- :func:`path_reference` and :func:`speed_reference`: the reference path at the nominal
+  stage positions and the speed reference at the stage times (a stop command or an obstacle
+  brings it down).
 
 Shapes: N stages, states (N+1, 4) = [x_m, y_m, psi_rad, v_mps], inputs (N, 3) =
 [steering_wheel_angle_rad, accel_pedal, brake_pedal].
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from hmpc.models.plant import HybridPlant, steering_wheel_angle_for
+from hmpc.models.reference import Reference
+
 
 @dataclass(frozen=True)
 class InFlight:
-    """Inputs in flight at the start of the horizon (see ``MpcController._predict_through_delay``).
+    """Inputs in flight at the start of the horizon (see ``controller/mpc/delay.py``).
 
     Attributes:
         steer_stages: number of first stages whose steering is already issued.
@@ -118,7 +126,7 @@ class SolveOutcome:
     """What one solve returns: the solution vector (None when it failed) and its figures.
 
     Attributes:
-        solution: the QP variable vector z (``_QpLayout`` order), or None.
+        solution: the QP variable vector z (``controller.mpc.qp.QpLayout`` order), or None.
         solver_status: the solver's own status text.
         solver: "osqp" or "ipopt".
         inaccurate: solved to the looser tolerance only.
@@ -138,3 +146,43 @@ class SolveOutcome:
     @property
     def reason(self) -> str:
         return f"{self.solver}: {self.solver_status}"
+
+
+def path_reference(ref: Reference, s_k: np.ndarray, Xb: np.ndarray, Ub: np.ndarray,
+                   x0: np.ndarray, seed_guess: bool, plant: HybridPlant,
+                   sw_max_rad: float) -> PathReference:
+    """The path at the stage positions ``s_k`` [m], its steering feed-forward on ``plant``'s
+    eq. 7 within +-``sw_max_rad``. With ``seed_guess`` (the first iteration of a cold start)
+    the nominal states ``Xb`` and steering ``Ub`` are first put on the path, in place (``x0``:
+    the initial state, whose heading the path's is unwrapped to)."""
+    pl = plant
+    xr, yr, th, kap = ref.point_at(s_k)
+    dref = np.arcsin(np.minimum(np.maximum(kap * pl.wheelbase_m, -0.95), 0.95))  # clip
+    psi_r = th - dref
+    if seed_guess:  # the cold guess lies on the path
+        Xb[1:, 0], Xb[1:, 1], Xb[1:, 2] = xr[1:], yr[1:], psi_r[1:]
+        Xb[1:, 2] += 2 * np.pi * np.round((x0[2] - psi_r[0]) / (2 * np.pi))
+    psi_r = psi_r + 2 * np.pi * np.round((Xb[:, 2] - psi_r) / (2 * np.pi))
+    sw_max = sw_max_rad
+    sw_ff = np.minimum(np.maximum(steering_wheel_angle_for(dref, pl.offset_rad, pl.scale),
+                                  -sw_max), sw_max)
+    if seed_guess:
+        Ub[:, 0] = sw_ff[:-1]
+    return PathReference(xr, yr, th, psi_r, dref, sw_ff)
+
+
+def speed_reference(ref: Reference, tk: np.ndarray, v0: float, stop: bool,
+                    obstacle_m: float | None, s_rel: np.ndarray, stop_decel_mps2: float,
+                    obstacle_margin_m: float) -> np.ndarray:
+    """The speed reference at the stage times ``tk`` [s]: the reference's, brought down at
+    ``stop_decel_mps2`` from the speed ``v0`` [m/s] on a ``stop`` command, and to a stop
+    ``obstacle_margin_m`` before an obstacle ``obstacle_m`` ahead [m] (``s_rel``: the
+    stages' distance along the nominal [m])."""
+    v_r = ref.speed_at(tk)
+    dec = stop_decel_mps2
+    if stop:
+        v_r = np.minimum(v_r, np.maximum(v0 - dec * (tk - tk[0]), 0.0))
+    if obstacle_m is not None and math.isfinite(obstacle_m):
+        room = np.maximum(obstacle_m - obstacle_margin_m - s_rel, 0.0)
+        v_r = np.minimum(v_r, np.sqrt(2 * dec * room))
+    return v_r

@@ -9,11 +9,11 @@ with the same explicit midpoint rule the QP is discretised from) is solved by IP
 (CasADi ``Opti``), warm-started from the previous plan. The NLP is built once; each step
 sets its parameters.
 
-The input cost is the fast path's, term for term (issue 9's smoothness included, read
-from the same :class:`MpcConfig`): per stage the steering-wheel and pedal rates (the
-effort weights, velocity above steering, report VI; the steering rate also weighted by
-the path-sharpness term at the stage's nominal speed), their changes (second
-differences), the two inputs before the horizon as the fast path sees them
+The input cost is the fast path's, term for term (the smoothness terms included, with
+the weights of the fast path's ``QpCost``, controller/mpc/cost.py): per stage the
+steering-wheel and pedal rates (the effort weights, velocity above steering, report VI; the
+steering rate also weighted by the path-sharpness term at the stage's nominal speed), their
+changes (second differences), the two inputs before the horizon as the fast path sees them
 (``MpcController._prior_inputs``: the last command, and its planned rate), and the cost
 of moving the first ``replan_window_s`` of inputs away from the previous plan. The
 smoothness is thus a separate term from tracking in both, and both solve one problem.
@@ -34,7 +34,8 @@ from hmpc.models.plant import HybridPlant, bicycle_rates, road_wheel_angle, zone
 from hmpc.controller.horizon import SolveOutcome, StageData
 from hmpc.controller.limits import ActuatorLimits
 from hmpc.controller.modes import ModeConfig
-from hmpc.controller.mpc import NS, NU, NX, MpcConfig, MpcController
+from hmpc.controller.mpc import MpcConfig, MpcController
+from hmpc.controller.mpc.qp import NS, NU, NX
 
 
 class NmpcController(MpcController):
@@ -59,7 +60,7 @@ class NmpcController(MpcController):
         # ``extensions:`` the fast path adds (models.plant.plant_extensions), in the delay
         # prediction too, so that both see one model
         self.plant = HybridPlant(params)
-        self.lag_s = (0.0, 0.0)
+        self.delay.lag_s = (0.0, 0.0)
 
     # ------------------------------------------------------------- the NLP
     def _build(self) -> None:
@@ -104,7 +105,7 @@ class NmpcController(MpcController):
                   + p["w_hi"][k] * S[2, k]
                   + 0.5 * cfg.w_slack_quadratic * dt * ca.sumsqr(S[:, k]))
             o.subject_to(o.bounded(p["u_lo"][:, k], uk, p["u_hi"][:, k]))
-            # row 0's bounds already hold the last command (see MpcController._input_bounds)
+            # row 0's bounds already hold the last command (QpConstraints.input_bounds)
             o.subject_to(o.bounded(p["sr_lo"][k], uk[0] - U[0, k - 1] if k else uk[0],
                                    p["sr_hi"][k]))
             a_k = (X[3, k + 1] - X[3, k]) / dt
@@ -127,10 +128,11 @@ class NmpcController(MpcController):
         self._opti, self._X, self._U, self._S, self._p = o, X, U, S, p
 
     def _input_cost(self, U, p):
-        """The fast path's input cost (``MpcController._input_cost_values`` and the input
-        part of its q) as a CasADi expression: rates and rate changes from the inputs before
+        """The fast path's input cost (``QpCost.input_values`` and the input part of its
+        q) as a CasADi expression: rates and rate changes from the inputs before
         the horizon, levels, and the distance from the previous plan."""
-        w_pr, w_src, w_prc = self._w_pr, self._w_src, self._w_prc
+        c = self.cost
+        w_pr, w_src, w_prc = c.w_pr, c.w_src, c.w_prc
         J = 0
         for k in range(self.N):
             u, u1 = U[:, k], (U[:, k - 1] if k >= 1 else p["prior"][:, 1])
@@ -138,9 +140,9 @@ class NmpcController(MpcController):
             d1, d2 = u - u1, u - 2 * u1 + u2
             J += 0.5 * (p["w_rate_s"][k] * d1[0] ** 2 + w_pr * (d1[1] ** 2 + d1[2] ** 2)
                         + w_src * d2[0] ** 2 + w_prc * (d2[1] ** 2 + d2[2] ** 2)
-                        + self._w_sl * (u[0] - p["sw_ff"][k]) ** 2
-                        + self._w_pl * (u[1] ** 2 + u[2] ** 2))
-            w_re = self._w_replan[k]
+                        + c.w_sl * (u[0] - p["sw_ff"][k]) ** 2
+                        + c.w_pl * (u[1] ** 2 + u[2] ** 2))
+            w_re = c.w_replan[k]
             if np.any(w_re > 0):
                 J += 0.5 * p["has_plan"] * sum(float(w_re[i]) * (u[i] - p["u_plan"][i, k]) ** 2
                                                for i in range(NU))
@@ -187,15 +189,16 @@ class NmpcController(MpcController):
         o.set_value(p["nvec"], np.vstack([-np.sin(th[1:]), np.cos(th[1:])]))
         nx_, ny_ = -np.sin(th[-1]), np.cos(th[-1])
         T = np.array([[nx_, ny_, 0.0, 0.0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
-        P3 = self._lqr_terminal(float(stage.states[-1, 3]),
-                                float(path.road_wheel_angle_rad[-1]))
+        P3 = self.cost.lqr_terminal(float(stage.states[-1, 3]),
+                                    float(path.road_wheel_angle_rad[-1]), self.plant)
         o.set_value(p["PT"], T.T @ P3 @ T)
         o.set_value(p["rN"], np.array([xr[-1], yr[-1], psi_r[-1], v_r[-1]]))
         o.set_value(p["sw_ff"], path.steering_ff_rad[:N])
         o.set_value(p["z_off"], pl.z_offset[zones])
         o.set_value(p["z_scale"], pl.z_scale[zones])
         o.set_value(p["z_brake"], pl.z_brake[zones])
-        ulo, uhi, srlo, srhi = self._input_bounds(stage.modes)
+        ulo, uhi, srlo, srhi = self.constraints.input_bounds(stage.modes, None, self.delay.fixed,
+                                                             self._last_cmd)
         big = 1e4  # IPOPT takes finite bounds: "free" rate rows get a huge band
         o.set_value(p["u_lo"], ulo.T)
         o.set_value(p["u_hi"], uhi.T)
@@ -206,7 +209,7 @@ class NmpcController(MpcController):
         prior = self._prior_inputs()
         o.set_value(p["prior"], np.zeros((NU, 2)) if prior is None else prior.T)
         v = np.maximum(stage.states[:N, 3], self.config.steer_sharpness_speed_floor_mps)
-        o.set_value(p["w_rate_s"], self._w_sr + self._w_sharp / (v * v))
+        o.set_value(p["w_rate_s"], self.cost.w_sr + self.cost.w_sharp / (v * v))
         o.set_value(p["u_plan"], stage.inputs.T)
         o.set_value(p["has_plan"], 0.0 if self._shift_stages is None else 1.0)
         o.set_value(p["a_prev"], stage.a_prev_mps2)

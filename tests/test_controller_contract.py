@@ -70,14 +70,14 @@ def _boom(*_a, **_k):
     raise TypeError("deliberate bug")
 
 
-@pytest.mark.parametrize("cls, method", [(MpcController, "_osqp_solve"),
-                                         (NmpcController, "_set_parameters"),
-                                         (PidController, "_step")],
+@pytest.mark.parametrize("cls, part, method", [(MpcController, "qp", "solve"),
+                                               (NmpcController, None, "_set_parameters"),
+                                               (PidController, None, "_step")],
                          ids=["mpc", "nmpc", "pid"])
-def test_a_bug_is_an_internal_error_with_traceback_and_a_safe_stop(params, cls, method,
+def test_a_bug_is_an_internal_error_with_traceback_and_a_safe_stop(params, cls, part, method,
                                                                    monkeypatch):
     ctl = cls(params)
-    monkeypatch.setattr(ctl, method, _boom)
+    monkeypatch.setattr(ctl if part is None else getattr(ctl, part), method, _boom)
     ref = straight(3.0)
     r = ctl.step(ref.initial_state(params), ref, 0.0)
     assert r.status is Status.INTERNAL_ERROR and not r.ok
@@ -92,7 +92,7 @@ def test_a_bug_after_a_good_plan_is_still_a_stop_not_the_old_plan(params, monkey
     ctl = MpcController(params)
     x = ref.initial_state(params)
     assert ctl.step(x, ref, 0.0).status is Status.SOLVED
-    monkeypatch.setattr(ctl, "_osqp_solve", _boom)
+    monkeypatch.setattr(ctl.qp, "solve", _boom)
     r = ctl.step(x + np.array([0.5, 0.0, 0.0, 0.0]), ref, 0.1)
     assert r.status is Status.INTERNAL_ERROR and r.plan is None
     assert_safe_stop(r, ctl.limits)
@@ -104,7 +104,7 @@ def test_a_bug_after_a_good_plan_is_still_a_stop_not_the_old_plan(params, monkey
 
 def test_a_bug_in_the_fallback_too_still_returns_a_safe_stop(params, monkeypatch):
     ctl = MpcController(params)
-    monkeypatch.setattr(ctl, "_osqp_solve", _boom)
+    monkeypatch.setattr(ctl.qp, "solve", _boom)
     monkeypatch.setattr(ctl, "_controlled_stop", _boom)
     ref = straight(3.0)
     r = ctl.step(ref.initial_state(params), ref, 0.0)
@@ -126,7 +126,7 @@ def test_bad_input_is_a_controlled_stop_not_an_internal_error(params):
 def test_the_closed_loop_counts_internal_errors(params, monkeypatch):
     ref = straight(3.0, seconds=2.0)
     ctl = MpcController(params)
-    monkeypatch.setattr(ctl, "_osqp_solve", _boom)
+    monkeypatch.setattr(ctl.qp, "solve", _boom)
     res = run_closed_loop(ctl, ref, params)
     m = res.metrics
     assert m["steps"] == 20 and m["internal_errors"] == 20 and m["failures"] == 20

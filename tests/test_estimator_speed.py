@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from _data import REPORT_PARAMS
-from hmpc.controller.estimator import NXE, Estimator, EstimatorConfig, _zone_bands
+from hmpc.controller.estimator import NXE, Estimator, EstimatorConfig
+from hmpc.controller.estimator.ekf import _zone_bands
 from hmpc.models.params import load_params
 from hmpc.models.plant import HybridPlant
 from hmpc.models.zones import zone_with_hysteresis

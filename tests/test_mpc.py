@@ -1,4 +1,4 @@
-"""The OSQP fast path (controller/mpc.py): structure, modes, failure handling."""
+"""The OSQP fast path (controller/mpc/): structure, modes, failure handling."""
 from __future__ import annotations
 
 import copy
@@ -11,9 +11,10 @@ import scipy.signal
 from _data import REPORT_PARAMS
 from hmpc.controller.limits import ActuatorLimits
 from hmpc.controller.modes import ModeConfig, PedalMode, PedalModeLogic, transition_allowed
-from hmpc.controller.mpc import MpcConfig, MpcController, jacobians_batch, preferred_zone
+from hmpc.controller.mpc import MpcConfig, MpcController, preferred_zone
+from hmpc.controller.mpc.cost import difference_bands
 from hmpc.models.params import load_params
-from hmpc.models.plant import HybridPlant
+from hmpc.models.plant import HybridPlant, jacobians_batch
 from hmpc.models.reference import Reference
 
 SEED = 11
@@ -75,14 +76,14 @@ def test_qp_pattern_is_built_once_and_updated_in_place(params):
     ctl = MpcController(params)
     ref = straight(3.0)
     ctl.step(ref.initial_state(params), ref, 0.0)
-    solver = ctl._solver
+    solver = ctl.qp.solver
     nnz = (ctl.layout.P.nnz, ctl.layout.A.nnz)
     x = ref.initial_state(params)
     for i in range(1, 6):
         x = x + np.array([0.3, 0.0, 0.0, 0.0])
         r = ctl.step(x, ref, 0.1 * i)
         assert r.status == "solved"
-    assert ctl._solver is solver                      # one OSQP object, never rebuilt
+    assert ctl.qp.solver is solver                    # one OSQP object, never rebuilt
     assert (ctl.layout.P.nnz, ctl.layout.A.nnz) == nnz
     # horizon 10 s at 0.2 s; the same at 0.1 s has twice the stages
     assert ctl.N == 50 and MpcController(params, MpcConfig(dt_s=0.1)).N == 100
@@ -100,7 +101,7 @@ def test_terminal_cost_is_the_dare_solution(params):
         ctl = MpcController(params, MpcConfig(dt_s=dt_s))
         c = ctl.config
         for v, d in ((3.0, 0.0), (8.0, 0.1), (15.0, -0.2)):
-            P3 = ctl._lqr_terminal(v, d)
+            P3 = ctl.cost.lqr_terminal(v, d, ctl.plant)
             sw = (d - plant.offset_rad) / plant.scale              # road-wheel angle d
             A, B = plant.jacobians(np.array([0.0, 0.0, -d, v]), np.array([sw, 0.0, 0.0]), 1)
             Ac = A[np.ix_(rows, rows)]
@@ -174,7 +175,7 @@ def test_solver_failure_shifts_the_plan_then_stops(params):
     ctl = MpcController(params)
     out = drive(ctl, ref, params, 2.0)
     assert out[-1][2].status == "solved"
-    ctl._solver.update_settings(max_iter=1)  # force every later solve to fail
+    ctl.qp.solver.update_settings(max_iter=1)  # force every later solve to fail
     later = drive_from(ctl, ref, params, out[-1][1], t0=2.1, seconds=12.0)
     st = [r.status for _, _, r in later]
     assert st[0] == "shifted_plan" and "maximum iterations" in later[0][2].reason
@@ -239,7 +240,6 @@ def test_commands_respect_limits_every_step(params):
 
 # ------------------------------------------------------------ issue 9: smoothness terms
 def test_difference_bands_are_the_dense_hessian():
-    from hmpc.controller.mpc import _difference_bands
     rng = np.random.default_rng(SEED)
     n = 7
     w1, w2 = rng.uniform(0.5, 2.0, n), rng.uniform(0.5, 2.0, n)
@@ -248,7 +248,7 @@ def test_difference_bands_are_the_dense_hessian():
         D1[k, k + 2], D1[k, k + 1] = 1.0, -1.0
         D2[k, k + 2], D2[k, k + 1], D2[k, k] = 1.0, -2.0, 1.0
     H = D1.T @ np.diag(w1) @ D1 + D2.T @ np.diag(w2) @ D2
-    dg, o1, o2 = _difference_bands(w1, w2)
+    dg, o1, o2 = difference_bands(w1, w2)
     assert np.allclose(dg, np.diag(H)) and np.allclose(o1, np.diag(H, 1))
     assert np.allclose(o2, np.diag(H, 2)) and np.allclose(np.diag(H, 3), 0.0)
     # the cost it encodes: 1/2 sum w1 (du)^2 + 1/2 sum w2 (d2u)^2 on a known sequence
@@ -292,9 +292,9 @@ def test_smoothness_terms_keep_one_qp_pattern_and_damp_estimate_noise(params):
             assert r.ok, r.reason
             sw.append(r.command.steering_wheel_angle_rad)
             if i == 0:
-                solver = ctl._solver
+                solver = ctl.qp.solver
             s = s + np.array([0.1 * np.cos(s[2]), 0.1 * np.sin(s[2]), 0.0, 0.0])
-        assert ctl._solver is solver  # never rebuilt
+        assert ctl.qp.solver is solver  # never rebuilt
         moves[name] = float(np.degrees(np.sqrt(np.mean(np.diff(sw[20:]) ** 2))))
     L = MpcController(params).layout
     assert L.P.nnz == L.p_seg[-1]  # the pattern includes the second off-diagonal band

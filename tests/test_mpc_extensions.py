@@ -18,7 +18,10 @@ import pytest
 
 from _data import REPORT_PARAMS
 from hmpc.controller.closed_loop import run_closed_loop
-from hmpc.controller.mpc import _APAT, MpcController, _lag_through
+from hmpc.controller.mpc import MpcController
+from hmpc.controller.mpc.constraints import linearise
+from hmpc.controller.mpc.delay import _lag_through
+from hmpc.controller.mpc.qp import APAT
 from hmpc.models.params import load_params, parse_params
 from hmpc.models.plant import (IAP, IBP, ISW, IV, HybridPlant, derivative_batch,
                                first_order_lag, jacobians_batch, plant_extensions)
@@ -158,10 +161,10 @@ def test_the_qp_pattern_holds_every_entry_the_extensions_make():
     rng = np.random.default_rng(SEED)
     X, U = random_rows(c.N, rng)
     X = np.vstack([X, X[-1]])
-    Ad, _, _ = c._linearise(X, U, np.zeros(c.N, dtype=np.int64))
+    Ad, _, _ = linearise(c.plant, X, U, np.zeros(c.N, dtype=np.int64), c.dt)
     nz = {(i, j) for i in range(4) for j in range(4) if np.any(Ad[:, i, j] != 0)}
     assert (IV, IV) in nz  # the resistances' speed dependence reaches the QP
-    assert nz <= set(_APAT), nz - set(_APAT)
+    assert nz <= set(APAT), nz - set(APAT)
 
 
 def test_the_lag_is_exact_through_piecewise_constant_commands():

@@ -1,4 +1,4 @@
-"""The MPC step's vectorised helpers (controller/mpc.py, controller/modes.py) against the
+"""The MPC step's vectorised helpers (controller/mpc/, controller/modes.py) against the
 straightforward code they replaced: same values, to the bit.
 
 They run every control step and were rewritten for speed (issue 9: the whole controller
@@ -13,7 +13,9 @@ import pytest
 
 from _data import REPORT_PARAMS
 from hmpc.controller.modes import ModeConfig, PedalMode, PedalModeLogic, next_mode
-from hmpc.controller.mpc import MpcConfig, MpcController, _linspace6, _QpLayout
+from hmpc.controller.mpc import MpcConfig, MpcController
+from hmpc.controller.mpc.controller import _linspace6
+from hmpc.controller.mpc.qp import QpLayout
 from hmpc.models.params import load_params
 
 SEED = 5
@@ -40,7 +42,7 @@ def _shifted_blockwise(v, sh, blocks):
 
 @pytest.mark.parametrize("n_stages", [5, 50])
 def test_warm_start_shift_is_the_blockwise_interpolation(n_stages):
-    lay = _QpLayout(n_stages, 0.2)
+    lay = QpLayout(n_stages, 0.2)
     rng = np.random.default_rng(SEED)
     y = rng.normal(size=lay.m)
     s = rng.normal(size=3 * n_stages)
@@ -103,13 +105,14 @@ def test_pedal_schedule_is_the_plain_loop():
 
 
 def test_pedal_bounds_table_is_the_per_stage_formula(params):
-    """_input_bounds with zones: the acceleration limits as bounds on the free pedal."""
+    """QpConstraints.input_bounds with zones: the acceleration limits as bounds on the free pedal."""
     ctl = MpcController(params, MpcConfig())
     pl, lim, N = ctl.plant, ctl.limits, ctl.N
     rng = np.random.default_rng(SEED)
     modes = rng.choice([PedalMode.THROTTLE, PedalMode.BRAKE], N).astype(np.int8)
     zones = rng.integers(0, pl.n_zones, N)
-    ulo, uhi, _srlo, _srhi = ctl._input_bounds(modes, zones)
+    ulo, uhi, _srlo, _srhi = ctl.constraints.input_bounds(modes, zones, ctl.delay.fixed,
+                                                          ctl._last_cmd)
     thr = modes == PedalMode.THROTTLE
     off = pl.z_offset[zones]
     sc, br = np.maximum(pl.z_scale[zones], 1e-6), np.maximum(pl.z_brake[zones], 1e-6)
@@ -125,7 +128,7 @@ def test_pedal_bounds_table_is_the_per_stage_formula(params):
 
 
 def test_zone_schedule_is_the_plants_loop(params):
-    """_zone_schedule: zone0 throughout when the nominal stays in its hysteresis band (checked
+    """ZoneRules.schedule: zone0 throughout when the nominal stays in its hysteresis band (checked
     at once), else the plant's stage-by-stage rule; both as the plant's loop gives them."""
     ctl = MpcController(params, MpcConfig())
     pl, N = ctl.plant, ctl.N
@@ -136,7 +139,7 @@ def test_zone_schedule_is_the_plants_loop(params):
         centre = 0.5 * (pl.v_min[zone0] + min(pl.v_max[zone0], pl.v_min[zone0] + 6.0))
         vb = centre + rng.normal(0, [0.05, 0.5, 3.0][trial % 3], N + 1)
         want = np.concatenate([[zone0], pl.zone_schedule(vb[1:N], zone0)])
-        got = ctl._zone_schedule(zone0, vb)
+        got = ctl.zone_rules.schedule(zone0, vb)
         assert got.dtype == want.dtype and np.array_equal(got, want), trial
         inside += bool(np.all(want == zone0))
     assert 30 < inside < 270  # both ways were taken

@@ -192,7 +192,7 @@ def test_every_user_calls_the_one_zone_rule(plant):
     vb = np.clip(np.cumsum(rng.normal(0, 0.4, ctl.N + 1)) + 3.0, 0.0, None)
     expect = [1] + zones_with_hysteresis(vb[1:ctl.N], vmin, vmax, h, start=1,
                                          clamp=True).tolist()
-    assert ctl._zone_schedule(1, vb).tolist() == expect
+    assert ctl.zone_rules.schedule(1, vb).tolist() == expect
     # and the plant's step uses it with hysteresis from the current zone
     for x, cur in ((2.1, 0), (1.9, 1), (30.0, 2), (3.0, None)):
         s = plant.step(np.array([0.0, 0.0, 0.0, x]), np.zeros(3), 1e-4, cur)

@@ -1,0 +1,141 @@
+"""MPC tuning: :class:`MpcConfig`, each weight and limit of the fast path (and the NMPC, which
+solves the same problem) with its unit and reason.
+
+Weights are per second of horizon (tracking) or per change (effort), so the balance does not
+move when ``dt_s`` changes. ``__post_init__`` checks the report's ordering (section VI:
+velocity effort above steering effort, also for the smoothness terms).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class MpcConfig:
+    """MPC tuning. Weights are per second of horizon (tracking) or per change (effort), so
+    the balance does not move when ``dt_s`` changes."""
+
+    horizon_s: float = 10.0        # horizon length: 10-15 s
+    dt_s: float = 0.2              # QP stage length: 0.1 or 0.2 s
+    # tracking
+    w_lateral: float = 4.0         # per m^2 of lateral error, per s
+    w_heading: float = 4.0         # per rad^2 of heading error, per s
+    w_speed: float = 10.0          # per (m/s)^2 of speed error, per s
+    # effort on the change of an input per stage, normalised to its range (steering-wheel
+    # angle / its max, pedals as fractions). Report VI: velocity effort above steering.
+    w_speed_effort: float = 4.0
+    w_steer_effort: float = 1.0
+    # smoothness, separate from tracking: the effort weights above are the RATE
+    # terms (a change per stage is the rate times dt: w * (du/range/dt)^2 * dt per stage);
+    # these weight the change of that rate, per (normalised rate change per s)^2 per s
+    # (second differences: w * (d2u/range/dt^2)^2 * dt per stage). A reversal of the
+    # command is a large second difference, a steady ramp (a curve coming) none, so they
+    # damp the chatter that estimate noise causes without holding back a planned turn.
+    # Velocity above steering here too (report VI). Tuned at the default sensor noise
+    # (estimate noise about 1 cm, 1 mrad, 0.02 m/s) on report_2008; checked on a parameter
+    # set not used for tuning (tests/test_smooth_control.py holds the figures).
+    w_steer_rate_change: float = 0.3
+    w_pedal_rate_change: float = 1.0
+    # the standstill HOLD brake is reached at this rate [full travel / s] from the brake the
+    # plan already had on (the car is already stopping; a step jolts it and the pedal)
+    hold_brake_rate_ps: float = 0.25
+    # path sharpness: the steering-wheel rate per metre driven, (d sw / ds)^2 = (d sw/dt)^2
+    # / v^2, normalised like the effort, per s. Noise in the estimate (1 cm, 1 mrad) asks
+    # for a steering correction that grows as 1 / v^2 (a lateral offset y is undone over a
+    # time T with a road-wheel angle of about 2 b y / (v T)^2): without this the wheel
+    # chases 1 cm of estimate noise by several degrees at 1 m/s. At speed it fades (8 m/s:
+    # 1/64 of its 1 m/s weight). Below the floor speed the weight stops growing [m/s].
+    w_steer_sharpness: float = 100.0
+    steer_sharpness_speed_floor_mps: float = 0.5
+    # the UNPLANNED part of the rate: each step the inputs of the first ``replan_window_s``
+    # cost their squared distance from the previous plan (shifted to now), normalised like
+    # the effort, per s. A turn the reference announced is in that plan and passes freely;
+    # what a new estimate adds (noise, 1 cm / 1 mrad) is low-pass filtered step to step.
+    # Pedals above steering (report VI).
+    w_steer_replan: float = 3000.0
+    w_pedal_replan: float = 6000.0
+    replan_window_s: float = 1.0
+    w_pedal_level: float = 0.02    # per pedal^2 per s: prefer the lighter pedal
+    w_steer_level: float = 0.02    # per (sw - feedforward)^2 / max^2 per s
+    # terminal LQR input weights (per rad^2 of steering wheel, per (m/s^2)^2)
+    r_terminal_steer: float = 0.05
+    r_terminal_accel: float = 2.0
+    # soft constraints: linear (exact) penalty per unit of violation per s
+    w_limit_violation: float = 100.0   # accel [m/s^2], jerk [m/s^2 per stage]
+    w_standstill: float = 500.0        # speed below 0 [m/s]
+    w_floor: float = 10.0              # speed below the minimum-speed floor [m/s]
+    w_transition: float = 10.0         # speed outside the current zone's band [m/s]; 0 = off
+    w_slack_quadratic: float = 1.0
+    w_speed_max: float = 100.0
+    # zone-transition rule (report VI)
+    transition_accel_tol_mps2: float = 0.2   # "no acceleration change": spread <= tol
+    transition_window_s: float = 1.0         # checked this long either side of the crossing
+    transition_dwell_s: float = 2.0          # the reference must stay in the new zone this long
+    # the band kept is the zone's hysteresis band narrowed by this margin [m/s], so that
+    # tracking error and the controller's 10 Hz view of the speed do not let the plant cross
+    transition_band_margin_mps: float = 0.15
+    # minimum-speed floor [m/s]; None: the preferred zone's lower bound; 0 disables
+    min_speed_mps: float | None = None
+    # stop command / obstacle: reference speed brought down at this deceleration [m/s^2]
+    stop_decel_mps2: float = 1.5
+    obstacle_margin_m: float = 3.0
+    # controlled stop after the plan ran out: brake decel target and ramp (jerk) [m/s^2, m/s^3]
+    stop_brake_decel_mps2: float = 2.0
+    # OSQP
+    max_iter: int = 4000
+    eps_abs: float = 1e-3          # 1 mm, 1 mm/s: far below what the plant can act on
+    eps_rel: float = 1e-3
+    # OSQP: test convergence every this many iterations. Warm-started (shifted primal and
+    # dual) the QP converges in a few tens of iterations: a sparser test runs far past that
+    check_termination: int = 5
+    # OSQP rho adaptation every this many iterations (0: OSQP's timing-based choice, which
+    # adapted too late for a 15-iteration solve) and the factor that triggers it
+    adaptive_rho_interval: int = 5
+    adaptive_rho_tolerance: float = 3.0
+    # OSQP relaxation (its default 1.6): from a shifted warm start strong over-relaxation
+    # overshoots, and 1.2 stops in fewer iterations (tools/bench_mpc.py); 1.0 stops as early
+    # but with a less converged steering plan (the MPC/NMPC agreement test, tests/test_nmpc.py)
+    admm_alpha: float = 1.2
+    time_limit_s: float = 0.0      # 0: none (OSQP time_limit)
+    cold_start_iterations: int = 3  # SQP iterations when no previous plan exists
+    accept_inaccurate: bool = True  # OSQP "solved inaccurate" is used (status says so)
+    warm_start_shifted: bool = True  # warm-start x with the shifted plan (else OSQP's last x, y)
+
+    def __post_init__(self):
+        n = self.horizon_s / self.dt_s
+        if not (self.dt_s > 0 and self.horizon_s > 0 and abs(n - round(n)) < 1e-6 and round(n) >= 2):
+            raise ValueError("MpcConfig: horizon_s must be a whole number (>= 2) of dt_s steps")
+        if not self.w_speed_effort > self.w_steer_effort:
+            raise ValueError("MpcConfig: the report (section VI) weights velocity effort above "
+                             "steering effort: need w_speed_effort > w_steer_effort")
+        for name in ("w_lateral", "w_heading", "w_speed", "w_steer_effort", "w_slack_quadratic",
+                     "r_terminal_steer", "r_terminal_accel", "w_limit_violation", "w_standstill"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"MpcConfig.{name} must be positive")
+        if self.w_steer_rate_change > 0 and not self.w_pedal_rate_change > self.w_steer_rate_change:
+            raise ValueError("MpcConfig: the report (section VI) weights velocity effort above "
+                             "steering effort: need w_pedal_rate_change > w_steer_rate_change")
+        if self.w_steer_replan > 0 and not self.w_pedal_replan > self.w_steer_replan:
+            raise ValueError("MpcConfig: the report (section VI) weights velocity effort above "
+                             "steering effort: need w_pedal_replan > w_steer_replan")
+        if not self.hold_brake_rate_ps > 0:
+            raise ValueError("MpcConfig.hold_brake_rate_ps must be positive")
+        for name in ("w_floor", "w_transition", "w_pedal_level", "w_steer_level",
+                     "w_steer_rate_change", "w_pedal_rate_change", "w_steer_sharpness",
+                     "w_steer_replan", "w_pedal_replan", "replan_window_s"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"MpcConfig.{name} must be >= 0")
+        if self.check_termination < 1 or self.adaptive_rho_interval < 0:
+            raise ValueError("MpcConfig: check_termination must be >= 1 and "
+                             "adaptive_rho_interval >= 0")
+        if not self.adaptive_rho_tolerance >= 1:
+            raise ValueError("MpcConfig.adaptive_rho_tolerance must be >= 1")
+        if not 0 < self.admm_alpha < 2:
+            raise ValueError("MpcConfig.admm_alpha must be in (0, 2)")
+        if self.max_iter < 1:
+            raise ValueError("MpcConfig.max_iter must be >= 1")
+
+    @property
+    def n_stages(self) -> int:
+        return int(round(self.horizon_s / self.dt_s))
+
