@@ -105,6 +105,11 @@ class ClosedLoopResult:
             arrive, between steps).
         estimated_state, true_state: (steps, 4) what the controller was given and the
             plant's state at each control step (x_m, y_m, psi_rad, v_mps).
+        adapter: the online model estimator of the run (``controller.adapt.ModelAdapter``),
+            None without one.
+        adapt_time_s: its CPU time per control step [s] (learning and handing the model
+            over to the controller and the estimator; the messages it sums are included;
+            CPU time, so that a loaded host's preemptions do not count).
     """
 
     recording: Recording
@@ -122,6 +127,8 @@ class ClosedLoopResult:
     estimated_state: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     true_state: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     estimate_latency_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    adapter: object = None
+    adapt_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def run_closed_loop(controller: Controller, reference: Reference, params: Params, *,
@@ -134,7 +141,8 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
                     initial_state: np.ndarray | None = None,
                     sensors: SensorConfig | None = None,
                     estimator_config: EstimatorConfig | None = None,
-                    effects: list | None = None) -> ClosedLoopResult:
+                    effects: list | None = None, adapter=None,
+                    sensor_faults: list | None = None) -> ClosedLoopResult:
     """Closed loop: ``controller.step(estimated_state, reference, t)`` every control period.
 
     The controller never sees the plant state: the truth goes, every plant step, to the
@@ -166,6 +174,12 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
         effects: concealed physics in the plant (``models.sim.effects``: delays, lag, rack
             nonlinearity, understeer, drag, grade, idle creep, ...): the plant is then the
             ground-truth simulator's (``TruthPlant``), which the controller's model lacks.
+        adapter: an online model estimator (``controller.adapt.ModelAdapter``, built for
+            ``params`` and ``control_period_s``): it is fed every sensor message, learns each
+            control step before the controller's step and hands a changed model to the
+            controller's and the estimator's ``use_model``; told every command sent.
+        sensor_faults: :class:`SensorFault` s applied to the messages before the estimator
+            (and the adapter) see them.
     """
     every = _check_rates(control_period_s, plant_dt_s, progress)
     pp = plant_params if plant_params is not None else params
@@ -195,18 +209,30 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
     accel = 0.0            # true acceleration over the previous step [m/s^2]
     sw_eff = 0.0           # steering-wheel angle the road wheels followed (after effects)
     last_report = -1
+    faults = list(sensor_faults or ())
     for i in range(n):
         t = t0 + i * plant_dt_s
-        log.pending_est_s += _observe(fb, t, s, u[0], accel, plant.road_wheel_angle(sw_eff))
+        log.pending_est_s += _observe(fb, t, s, u[0], accel, plant.road_wheel_angle(sw_eff),
+                                      adapter, faults, log)
         if i % every == 0:
             t_w = time.perf_counter()
             est = fb.estimate(t)
             meas = est[0] if est is not None else s.copy()  # reset above: never None
             t_est = time.perf_counter() - t_w
+            if adapter is not None:  # its cost in CPU time: the host's load is not its own
+                t_w = time.thread_time()
+                _adapt(adapter, fb.estimator, controller, t)
+                log.pending_adapt_s += time.thread_time() - t_w
             res = controller.step(meas, reference, t)
             # the actuation boundary applies the limits again, whatever the controller did
             cmd = apply_limits(res.command, prev_applied, lim, control_period_s)
             prev_applied = cmd
+            if adapter is not None:
+                t_w = time.thread_time()
+                adapter.commanded(t, cmd.steering_wheel_angle_rad, cmd.accel_pedal,
+                                  cmd.brake_pedal)
+                log.adapt_t.append(log.pending_adapt_s + time.thread_time() - t_w)
+                log.pending_adapt_s = 0.0
             log.add(t, res, t_est, meas, s)
             if progress is not None:
                 tenth = int(100 * i / max(n - 1, 1)) // 10
@@ -237,11 +263,86 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
                               np.array(log.step_t), np.array(log.ctl_t), log.reasons,
                               log.errors, np.array(log.est_t),
                               np.array(log.est_state).reshape(-1, 4),
-                              np.array(log.true_state).reshape(-1, 4), np.array(log.est_now_t))
+                              np.array(log.true_state).reshape(-1, 4), np.array(log.est_now_t),
+                              adapter, np.array(log.adapt_t))
     result.metrics = metrics_of(result, lim)
     result.metrics["seed"] = seed
     result.metrics["estimator"] = _estimator_figures(result, fb)
+    if adapter is not None:
+        result.metrics["adaptation"] = adapter.report(t0)
+        result.metrics["adaptation_details"] = {**adapter.summary(),
+                                                "cost_us": _percentiles(log.adapt_t, 1e6),
+                                                "sensor_faults": log.faults_applied}
     return result
+
+
+def _adapt(adapter, estimator, controller, t: float) -> None:
+    """One learning step of ``adapter`` at ``t`` [s] from the estimator's speed and gyro bias;
+    a changed model goes to the controller and the estimator."""
+    v, bias = estimator.model_inputs()
+    model = adapter.learn(t, v, bias if bias == bias else 0.0)
+    if model is not None:
+        use = getattr(controller, "use_model", None)
+        if use is not None:
+            use(model)
+        estimator.use_model(model)
+
+
+def _percentiles(values, scale: float) -> dict:
+    a = np.asarray(values, dtype=float) * scale
+    if not len(a):
+        return {"p50": 0.0, "p99": 0.0, "max": 0.0}
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+            "max": float(a.max())}
+
+
+@dataclass(frozen=True)
+class SensorFault:
+    """A simulated sensor fault on the messages of a closed-loop run.
+
+    ``kind``: ``frozen_wheel_speed`` (the front-left wheel speed keeps the value it had at
+    ``t0_s`` until ``t1_s``), ``yaw_rate_spike`` (the IMU yaw rate reads ``value`` [rad/s]
+    more from ``t0_s`` to ``t1_s``), ``frozen_yaw_rate`` (the IMU yaw rate keeps its value
+    from ``t0_s`` to ``t1_s``).
+    """
+
+    kind: str
+    t0_s: float
+    t1_s: float
+    value: float = 0.0
+
+    def __post_init__(self):
+        if self.kind not in SENSOR_FAULTS:
+            raise ValueError(f"unknown sensor fault {self.kind!r} (one of "
+                             f"{', '.join(SENSOR_FAULTS)})")
+        if not self.t0_s < self.t1_s:
+            raise ValueError("a sensor fault needs t0_s < t1_s")
+
+
+#: the kinds of :class:`SensorFault`
+SENSOR_FAULTS = ("frozen_wheel_speed", "yaw_rate_spike", "frozen_yaw_rate")
+
+
+def _apply_faults(m, faults: list, held: dict) -> int:
+    """Change message ``m`` in place by the faults active at its measurement time; returns
+    how many acted. ``held``: the values a frozen channel keeps."""
+    n = 0
+    for f in faults:
+        if not f.t0_s <= m.t_meas_s < f.t1_s:
+            continue
+        v = m.values
+        if f.kind == "frozen_wheel_speed" and m.kind == "can" and "wheel_speeds_mps" in v:
+            ws = list(v["wheel_speeds_mps"])
+            ws[0] = held.setdefault(("ws", id(f)), ws[0])
+            v["wheel_speeds_mps"] = tuple(ws)
+            n += 1
+        elif f.kind == "yaw_rate_spike" and m.kind == "imu":
+            v["yaw_rate_radps"] = v["yaw_rate_radps"] + f.value
+            n += 1
+        elif f.kind == "frozen_yaw_rate" and m.kind == "imu":
+            v["yaw_rate_radps"] = held.setdefault(("yaw", id(f)), v["yaw_rate_radps"])
+            n += 1
+    return n
 
 
 #: the recording's channels: plant state, applied input, commands, yaw rate, acceleration
@@ -302,16 +403,26 @@ def sensor_config(sensors: SensorConfig | None = None, speed_noise_mps: float | 
 
 
 def _observe(fb: SensorFeedback, t: float, s: np.ndarray, sw_rad: float, accel_mps2: float,
-             delta_rad: float) -> float:
-    """Truth at ``t`` to the sensors, arrived messages to the estimator; returns the wall time
-    the estimator spent on them [s] (the sensors' simulation is not the controller's time)."""
+             delta_rad: float, adapter=None, faults=(), log=None) -> float:
+    """Truth at ``t`` to the sensors, arrived messages (after the sensor ``faults``) to the
+    estimator and the ``adapter``; returns the wall time the estimator spent on them [s] (the
+    sensors' simulation is not the controller's time; the adapter's goes to ``log``)."""
     msgs = fb.sensors.observe(t, s, sw_rad, accel_mps2, float(delta_rad))
     if not msgs:
         return 0.0
+    if faults:
+        for m in msgs:
+            log.faults_applied += _apply_faults(m, faults, log.fault_held)
     t_w = time.perf_counter()
     for m in msgs:
         fb.estimator.feed(m, t)
-    return time.perf_counter() - t_w
+    t_a = time.perf_counter()
+    if adapter is not None:
+        c_a = time.thread_time()
+        for m in msgs:
+            adapter.feed(m)
+        log.pending_adapt_s += time.thread_time() - c_a
+    return t_a - t_w
 
 
 class _StepLog:
@@ -322,6 +433,10 @@ class _StepLog:
         self.solve_t, self.step_t, self.ctl_t, self.est_t, self.est_now_t = [], [], [], [], []
         self.est_state, self.true_state = [], []
         self.pending_est_s = 0.0  # estimator time spent after the last control step [s]
+        self.adapt_t = []          # the adapter's time per control step [s]
+        self.pending_adapt_s = 0.0
+        self.faults_applied = 0    # messages a sensor fault changed
+        self.fault_held = {}       # the values frozen channels keep
 
     def add(self, t: float, res, t_est_s: float, est: np.ndarray, truth: np.ndarray) -> None:
         status = Status(res.status)

@@ -61,6 +61,17 @@ class NmpcController(MpcController):
         # prediction too, so that both see one model
         self.plant = HybridPlant(params)
         self.delay.lag_s = (0.0, 0.0)
+        self._map_as_parameters = False  # eq. 7 in the NLP: constants, or parameters (use_model)
+
+    def use_model(self, model) -> None:
+        """:meth:`MpcController.use_model`; the NLP's zone models are per-step parameters
+        already, eq. 7's offset and scale become two more (the NLP is built once more, the
+        first time, with them as parameters), and the lags stay out as at the start."""
+        super().use_model(model)
+        self.delay.lag_s = (0.0, 0.0)
+        if not self._map_as_parameters:
+            self._map_as_parameters = True
+            self._opti = None
 
     # ------------------------------------------------------------- the NLP
     def _build(self) -> None:
@@ -83,6 +94,9 @@ class NmpcController(MpcController):
             "v_hi": o.parameter(N), "w_lo": o.parameter(N), "w_hi": o.parameter(N),
         }
         b, off, sc = pl.wheelbase_m, pl.offset_rad, pl.scale
+        if self._map_as_parameters:
+            p["sw_off"], p["sw_scale"] = o.parameter(), o.parameter()
+            off, sc = p["sw_off"], p["sw_scale"]
 
         def f(x, u, k):  # the plant's eq. 1, 7, 8 on CasADi symbols
             xd, yd, psid = bicycle_rates(x[2], x[3], road_wheel_angle(u[0], off, sc), b, ops=ca)
@@ -197,6 +211,9 @@ class NmpcController(MpcController):
         o.set_value(p["z_off"], pl.z_offset[zones])
         o.set_value(p["z_scale"], pl.z_scale[zones])
         o.set_value(p["z_brake"], pl.z_brake[zones])
+        if self._map_as_parameters:
+            o.set_value(p["sw_off"], pl.offset_rad)
+            o.set_value(p["sw_scale"], pl.scale)
         ulo, uhi, srlo, srhi = self.constraints.input_bounds(stage.modes, None, self.delay.fixed,
                                                              self._last_cmd)
         big = 1e4  # IPOPT takes finite bounds: "free" rate rows get a huge band

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -108,6 +108,12 @@ class PidController:
         self.limits = limits or ActuatorLimits.from_params(params)
         self.wheelbase_m = params.vehicle.wheelbase_m
         self.reset()
+
+    def use_model(self, model) -> None:
+        """New model values (``controller.adapt.LearnedModel``): the PID uses only eq. 7's
+        offset and scale, for its steering feed-forward."""
+        self.params = replace(self.params, steering=replace(
+            self.params.steering, offset_rad=float(model.offset_rad), scale=float(model.scale)))
 
     def reset(self) -> None:
         self._i = 0.0

@@ -42,7 +42,8 @@ import numpy as np
 from hmpc.models.params import Params
 from hmpc.models.plant import IAP, IBP, ISW
 
-from hmpc.controller.estimator.config import IKWS, IV, NXE, STATE_NAMES, EstimatorConfig
+from hmpc.controller.estimator.config import IBR, IDOFF, IKWS, IV, NXE, STATE_NAMES, \
+    EstimatorConfig
 from hmpc.controller.estimator.ekf import EVENT_CAN, EVENT_GNSS, EVENT_IMU, EVENT_TICK, Ekf
 
 
@@ -140,6 +141,36 @@ class Estimator(Ekf):
         """Covariance of :meth:`full_state` (7x7, a copy)."""
         self._need_init()
         return self._P.copy()
+
+    def model_inputs(self) -> tuple[float, float]:
+        """(speed [m/s], gyro bias [rad/s]) now, as Python floats (what the online model
+        estimator, controller/adapt, reads each control step); NaN before the first fix."""
+        if not self.initialized:
+            return math.nan, math.nan
+        return self._xm[IV], self._xm[IBR]
+
+    def use_model(self, model) -> None:
+        """Predict with new model values (``controller.adapt.LearnedModel``): eq. 7's offset
+        and scale, eq. 8 per zone. The road-wheel angle the filter holds is kept: the change of
+        eq. 7 at the current steering-wheel angle is taken out of ``delta_offset_rad`` (in the
+        event log too, so that a late GNSS fix replays consistently), so the learned map and the
+        filter's own offset correction never count one error twice."""
+        off, sc = float(model.offset_rad), float(model.scale)
+        if self.initialized:
+            sw = self._steer(self._t)
+            d = (self._off + self._scale * sw) - (off + sc * sw)
+            self._x[IDOFF] += d
+            n = self._ev_n
+            if n:
+                self._ev_x[:n, IDOFF] += d
+        self._off, self._scale = off, sc
+        self._geometry = (off, sc, self._b)
+        pl = self.plant
+        pl.offset_rad, pl.scale = off, sc
+        pl.z_offset[:] = model.zone_offset_mps2
+        pl.z_scale[:] = model.zone_scale_mps2
+        pl.z_brake[:] = model.zone_brake_mps2
+        self._eq8[:] = zip(pl.z_offset.tolist(), pl.z_scale.tolist(), pl.z_brake.tolist())
 
     def predict(self, t_s: float, u=None) -> None:
         """Propagate to ``t_s`` with the inputs held so far, then hold ``u`` (steering-wheel

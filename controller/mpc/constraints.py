@@ -95,6 +95,10 @@ class QpConstraints:
         self._pedal_bounds = _pedal_bound_table(plant, limits)
         self._sr_free = np.full(N, lim.steering_wheel_rate_max_radps * dt)  # _rate_and_fixed
 
+    def use_zone_models(self, plant: HybridPlant) -> None:
+        """The pedal bounds again, from ``plant``'s zone models (new model values)."""
+        self._pedal_bounds = _pedal_bound_table(plant, self.limits)
+
     def dynamics_values(self, Ad: np.ndarray, Bd: np.ndarray) -> np.ndarray:
         """A values (CSC order): the dynamics blocks written into the fixed pattern."""
         L = self.layout

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -61,6 +62,10 @@ from hmpc.controller.mpc.qp import NU, NX, QpLayout, QpSolver
 from hmpc.controller.mpc.zone_rules import ZoneRules
 
 _THROTTLE, _BRAKE = int(PedalMode.THROTTLE), int(PedalMode.BRAKE)
+#: [1] relative change of the steering scale after which the terminal cost's cache (dlqr per
+#: speed and road-wheel angle, a function of the scale) is recomputed: below it the terminal
+#: weight differs by less than the cache's own speed and angle rounding moves it
+LQR_SCALE_TOL = 0.02
 _STEPS6 = np.arange(6.0)
 
 
@@ -132,6 +137,34 @@ class MpcController:
     def use_lag_method(self, method: str) -> None:
         """Choose how an ``actuator_lag`` is handled (``lag_method``) before the first step."""
         self.delay.use_lag_method(method)
+
+    def use_model(self, model) -> None:
+        """Predict with new model values from now on (the online model estimator's
+        ``controller.adapt.LearnedModel``: eq. 7's offset and scale, eq. 8 per zone, the dead
+        times and lags). Values only: the QP's pattern, the plan and the warm start stay; the
+        prediction model's coefficients are written in place, the pedal bounds that derive
+        from them recomputed, the terminal cost's cache dropped when the steering scale moved
+        (it is a function of the scale), and the zones the limits read replaced."""
+        pl = self.plant
+        if abs(model.scale - pl.scale) > LQR_SCALE_TOL * abs(pl.scale):
+            self.cost._lqr_cache.clear()
+        pl.offset_rad, pl.scale = float(model.offset_rad), float(model.scale)
+        pl.z_offset[:] = model.zone_offset_mps2
+        pl.z_scale[:] = model.zone_scale_mps2
+        pl.z_brake[:] = model.zone_brake_mps2
+        pl._eq8[:] = zip(pl.z_offset.tolist(), pl.z_scale.tolist(), pl.z_brake.tolist())
+        self.constraints.use_zone_models(pl)
+        self.delay.use_timing(model.steer_delay_s, model.long_delay_s, model.steer_lag_s,
+                              model.long_lag_s)
+        if not getattr(self, "_own_model", False):  # the caller's file is never written to
+            p = self.params
+            self.params = replace(p, steering=replace(p.steering),
+                                  zones=[replace(z) for z in p.zones])
+            self._own_model = True
+        self.params.steering.offset_rad, self.params.steering.scale = pl.offset_rad, pl.scale
+        for z, o, s, b in zip(self.params.zones, model.zone_offset_mps2, model.zone_scale_mps2,
+                              model.zone_brake_mps2):
+            z.offset_mps2, z.scale_mps2, z.brake_scale_mps2 = o, s, b
 
     # ----------------------------------------------------------------- state
     def reset(self) -> None:

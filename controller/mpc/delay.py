@@ -141,6 +141,17 @@ class DelayCompensation:
             s, zone = r.state, r.zone
         return s, d0
 
+    def use_timing(self, dead_time_steer_s: float, dead_time_long_s: float, lag_steer_s: float,
+                   lag_long_s: float) -> None:
+        """New dead times and lags [s] (new model values), with ``lag_method`` applied as at
+        the start (a "delay" method adds the lags to the dead times)."""
+        self.lag_s = (float(lag_steer_s), float(lag_long_s))
+        self.dead_time_steer_s = float(dead_time_steer_s)
+        self.dead_time_long_s = float(dead_time_long_s)
+        if self.lag_method == "delay":
+            self.dead_time_steer_s += self.lag_s[0]
+            self.dead_time_long_s += self.lag_s[1]
+
     def use_lag_method(self, method: str) -> None:
         """Choose how an ``actuator_lag`` is handled (``lag_method``) before the first step."""
         if method not in ("inverse", "stage", "delay", "none"):
