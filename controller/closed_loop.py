@@ -32,7 +32,8 @@ from hmpc.models.reference import Reference
 from hmpc.controller.base import Controller, Status
 from hmpc.controller.estimator import Estimator, EstimatorConfig
 from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
-from hmpc.controller.metrics import pedal_switches, smoothness_of
+from hmpc.controller.metrics import follow_verdict, limit_times, pedal_switches, smoothness_of, \
+    stall_figures
 
 
 class SensorFeedback:
@@ -483,7 +484,9 @@ def control_updates(res: ClosedLoopResult) -> np.ndarray:
 
 def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
     """The tracking figures (stable keys, SI units), the internal errors, the
-    smoothness figures (:func:`smoothness_of`) and the whole step with the estimator."""
+    smoothness figures (:func:`smoothness_of`), the whole step with the estimator, and
+    whether the car did what was asked: time at each actuator limit (``limits``), stalls
+    (``stalls``) and the verdict (``followed``, ``not_followed``)."""
     rec = res.recording
     t = rec.channels["time"]
     minutes = max((t[-1] - t[0]) / 60.0, 1e-9)
@@ -499,6 +502,12 @@ def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
     ap, bp = rec.channels["accel_pedal_cmd"], rec.channels["brake_pedal_cmd"]
     nz = int(np.count_nonzero(np.diff(res.zone)))
     upd = control_updates(res)
+    sw_max = limits.steering_wheel_angle_max_rad
+    lim = limit_times(t, rec.channels["steering_cmd"], ap, bp, steering_wheel_angle_max_rad=sw_max,
+                      pedal_max=limits.pedal_max)
+    stalls = stall_figures(t, v, res.speed_ref_mps)
+    followed, why = follow_verdict(lim, stalls, float(t[-1] - t[0]),
+                                   steering_wheel_angle_max_rad=sw_max)
     return {
         "speed_error_rms_mps": float(np.sqrt(np.mean(ev ** 2))),
         "lateral_error_rms_m": float(np.sqrt(np.mean(res.lateral_error_m ** 2))),
@@ -525,6 +534,8 @@ def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
         "both_pedals_samples": int(np.count_nonzero((ap > limits.pedal_deadband)
                                                     & (bp > limits.pedal_deadband))),
         "statuses": _count(res.statuses),
+        # whether the car did what was asked (controller.metrics.follow_verdict)
+        "followed": followed, "not_followed": why, "limits": lim, "stalls": stalls,
     }
 
 

@@ -93,3 +93,86 @@ def smoothness_of(time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd, *,
         "accel_pedal_rate_rms_ps": rate_rms(t, accel_pedal_cmd),
         "brake_pedal_rate_rms_ps": rate_rms(t, brake_pedal_cmd),
     }
+
+
+# ------------------------------------------------------------- did the car do what was asked
+#: [m/s] the reference "moves" above this speed (faster than a creeping car's hold)
+STALL_REF_SPEED_MPS = 0.5
+#: [m/s] the car "does not" below this speed (the standstill of the wheel speeds' resolution
+#: and the plant's clamp, with margin)
+STALL_SPEED_MPS = 0.2
+#: [s] a stall this long means the run did not follow its reference: no controller waits
+#: that long to pull away (the MPC's standstill hold releases within its look-ahead, 1 s)
+STALL_MAX_S = 2.0
+#: [1] an actuator at its limit for more than this share of the run (and at least
+#: ``LIMIT_MIN_S``) means the run asked more than the car could do: a tracking controller
+#: touches a limit in a transient, it does not live there
+LIMIT_MAX_SHARE = 0.2
+LIMIT_MIN_S = 3.0
+#: [1] relative tolerance of "at the limit" (a command clamped there equals it)
+LIMIT_TOL = 0.005
+
+
+def _durations(time_s: np.ndarray) -> np.ndarray:
+    """Each sample's share of time [s]: until the next sample (the last: the median step)."""
+    t = np.asarray(time_s, dtype=float)
+    if len(t) < 2:
+        return np.zeros(len(t))
+    d = np.diff(t)
+    return np.append(d, np.median(d))
+
+
+def limit_times(time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd, *,
+                steering_wheel_angle_max_rad: float, pedal_max: float = 1.0) -> dict:
+    """Time [s] each command spent at its limit: the steering wheel at its lock (either
+    side), the accelerator and the brake pedal at full travel."""
+    dt = _durations(time_s)
+    sw = np.abs(np.asarray(steering_cmd_rad, dtype=float))
+    ap = np.asarray(accel_pedal_cmd, dtype=float)
+    bp = np.asarray(brake_pedal_cmd, dtype=float)
+    tol = 1.0 - LIMIT_TOL
+    return {"steering_at_lock_s": float(dt[sw >= tol * steering_wheel_angle_max_rad].sum()),
+            "accel_pedal_at_max_s": float(dt[ap >= tol * pedal_max].sum()),
+            "brake_pedal_at_max_s": float(dt[bp >= tol * pedal_max].sum())}
+
+
+def stall_figures(time_s, speed_mps, speed_ref_mps) -> dict:
+    """Stalls: stretches where the reference moves (above ``STALL_REF_SPEED_MPS``) and the car
+    does not (below ``STALL_SPEED_MPS``): {total_s, longest_s, count, first_t_s}."""
+    t = np.asarray(time_s, dtype=float)
+    dt = _durations(t)
+    on = (np.asarray(speed_ref_mps, dtype=float) > STALL_REF_SPEED_MPS) & \
+        (np.asarray(speed_mps, dtype=float) < STALL_SPEED_MPS)
+    longest = run = 0.0
+    count, first = 0, None
+    for i in range(len(t)):
+        if on[i]:
+            if run == 0.0:
+                count += 1
+                first = float(t[i]) if first is None else first
+            run += dt[i]
+            longest = max(longest, run)
+        else:
+            run = 0.0
+    return {"total_s": float(dt[on].sum()), "longest_s": float(longest), "count": int(count),
+            "first_t_s": first}
+
+
+def follow_verdict(limits: dict, stalls: dict, duration_s: float, *,
+                   steering_wheel_angle_max_rad: float) -> tuple[bool, list[str]]:
+    """Whether a run followed its reference, and if not why, one line each: a stall longer
+    than ``STALL_MAX_S``, an actuator at its limit for more than ``LIMIT_MAX_SHARE`` of the run
+    (and at least ``LIMIT_MIN_S``)."""
+    why = []
+    if stalls["longest_s"] > STALL_MAX_S:
+        why.append(f"the car stood still {stalls['longest_s']:.1f} s while the reference moved "
+                   f"(from {stalls['first_t_s']:.1f} s; {stalls['total_s']:.1f} s in all)")
+    names = {"steering_at_lock_s": f"the steering wheel sat at its "
+                                   f"{steering_wheel_angle_max_rad:.2f} rad lock",
+             "accel_pedal_at_max_s": "the accelerator was at full travel",
+             "brake_pedal_at_max_s": "the brake was at full travel"}
+    for key, text in names.items():
+        s = limits[key]
+        if s >= LIMIT_MIN_S and s > LIMIT_MAX_SHARE * max(duration_s, 1e-9):
+            why.append(f"{text} {s:.1f} of {duration_s:.1f} s")
+    return not why, why

@@ -17,7 +17,18 @@ Two uses:
 
   The controller sees the plant only through simulated car sensors and the EKF
   (``controller.estimator``): ``--speed-noise``, ``--position-noise``,
-  ``--sensor-noise-scale``, ``--gnss-rate``, ``--gnss-latency``, ``--gnss-outage T0:T1``.
+  ``--sensor-noise-scale``, ``--gnss-rate``, ``--gnss-latency``, ``--gnss-outage T0:T1``,
+  ``--sensor-fault KIND@T0:T1[:VALUE]``.
+
+  ``--adapt`` learns the model on line (``controller.adapt``) and controls with it while it
+  is valid; the JSON's ``adaptation`` holds {KEY: {initial, final, ci95, converged_t_s,
+  valid, used, ...}} per learned value (KEY the fleet contract's dotted parameter key) and
+  ``details.adaptation`` its cost per control step and counts. ``--learned FILE`` restores
+  and saves the learned state.
+
+  Whether the car did what was asked: ``limits`` (time at each actuator limit) and
+  ``stalls`` (the reference moves, the car does not); a run that could not follow its
+  reference (``followed: false``, its ``not_followed`` reasons) says so and exits 1.
 """
 from __future__ import annotations
 
@@ -28,7 +39,8 @@ from hmpc.models.errors import InputError
 from hmpc.models.reference import load_reference
 
 from hmpc.controller.build import make_controller
-from hmpc.tools.common import (CONTROLLERS, add_accept_unidentifiable, load_model_params,
+from hmpc.tools.common import (CONTROLLERS, add_accept_unidentifiable, add_adapt_arguments,
+                               adapter_from_args, finish_adapter, load_model_params,
                                write_json)
 
 #: what ``--out`` holds, for the CLI's check of output paths (tools/cli.py)
@@ -84,6 +96,11 @@ def add_arguments(p) -> None:
                    help="concealed physics in the simulated car that the controller's model "
                         "lacks, e.g. road_grade:grade_rad=0.03, steering_lag:tau_s=0.15, "
                         "idle_creep:accel_mps2=0.5,creep_speed_mps=2 (repeatable)")
+    p.add_argument("--sensor-fault", action="append", default=[], metavar="KIND@T0:T1[:VALUE]",
+                   help="a sensor fault on the simulated messages: frozen_wheel_speed (one wheel "
+                        "speed keeps its value), frozen_yaw_rate, yaw_rate_spike (VALUE rad/s "
+                        "added) from T0 to T1 [s] (repeatable)")
+    add_adapt_arguments(p)
     p.add_argument("--no-transition-penalty", action="store_true",
                    help="MPC without the zone-transition penalty (for comparison)")
     p.add_argument("--noise", choices=("typical", "quantised", "none"), default="typical",
@@ -165,9 +182,14 @@ def _run_closed_loop(args, params, write_json) -> int:
         print(f"  closed loop {ref.name}: {100 * fraction:3.0f}% (t = {t_s:.1f} s)",
               file=sys.stderr, flush=True)
 
+    k = sensors.noise_scale
+    adapter = adapter_from_args(args, params, args.control_period, "simulate",
+                                yaw_rate_noise_radps=max(k * sensors.gyro_noise_radps, 1e-4),
+                                accel_noise_mps2=max(k * sensors.accel_noise_mps2, 1e-3))
     res = run_closed_loop(ctl, ref, params, plant_params=plant_params,
                           control_period_s=args.control_period, seed=args.seed,
-                          sensors=sensors, progress=progress, effects=effects or None)
+                          sensors=sensors, progress=progress, effects=effects or None,
+                          adapter=adapter, sensor_faults=_sensor_faults(args))
     m = res.metrics
     if res.internal_errors:
         t_err, tb = res.internal_errors[0]
@@ -180,7 +202,10 @@ def _run_closed_loop(args, params, write_json) -> int:
                                  "pedal_switches_per_min", "zone_transitions_per_min",
                                  "solve_time_ms", "steps", "failures", "internal_errors",
                                  "steering_reversals_per_min", "steering_rate_rms_radps",
-                                 "accel_pedal_rate_rms_ps", "brake_pedal_rate_rms_ps")}
+                                 "accel_pedal_rate_rms_ps", "brake_pedal_rate_rms_ps",
+                                 "followed", "not_followed", "limits", "stalls")}
+    if adapter is not None:
+        payload["adaptation"] = m["adaptation"]
     payload.update({"controller": args.controller, "reference": ref.name,
                     "plant_params": args.plant_params, "seed": args.seed,
                     "sensors": _sensor_echo(sensors),
@@ -192,12 +217,60 @@ def _run_closed_loop(args, params, write_json) -> int:
             payload["plots"] = plot_closed_loop(
                 res, ref, args.plots, args.controller,
                 [(z.name, z.v_min_mps, z.v_max_mps) for z in zp.zones], control_updates(res))
+            if adapter is not None:
+                payload["plots"].append(_plot_adaptation(adapter, args, plant_params))
         except OSError as exc:
             raise InputError(f"cannot write the plots ({exc.strerror or exc})",
                              args.plots) from None
     _print_summary(payload)
+    finish_adapter(args, adapter, "simulate", float(m["duration_s"]))
     write_json(args.json, payload)
+    if not m["followed"]:
+        print(f"hmpc simulate: the car did not follow its reference: "
+              f"{'; '.join(m['not_followed'])}", file=sys.stderr)
+        return 1
     return 0
+
+
+def _plot_adaptation(adapter, args, plant_params) -> str:
+    """The learned parameters against time (``--plots``); the plant's values as the truth
+    when the plant is another file."""
+    from pathlib import Path
+
+    from hmpc.models.report.adaptation import plot_adaptation
+
+    truth = None
+    if plant_params is not None:
+        from hmpc.controller.adapt.config import KEY_STEER_OFFSET, KEY_STEER_SCALE, zone_key
+        truth = {KEY_STEER_OFFSET: plant_params.steering.offset_rad,
+                 KEY_STEER_SCALE: plant_params.steering.scale}
+        if adapter.inputs == "pedals":
+            for z in plant_params.zones:
+                truth.update({zone_key(z.name, c): getattr(z, c) for c in
+                              ("offset_mps2", "scale_mps2", "brake_scale_mps2")})
+    t, v, sg = adapter.history.arrays()
+    t0 = adapter.t0_s or 0.0
+    return plot_adaptation(t - t0, adapter.keys, v, sg, Path(args.plots) / "adaptation.png",
+                           title="learned parameters (estimate, 95 % interval)", truth=truth)
+
+
+def _sensor_faults(args) -> list:
+    """``--sensor-fault KIND@T0:T1[:VALUE]`` (InputError naming a bad one)."""
+    from hmpc.controller.closed_loop import SENSOR_FAULTS, SensorFault
+
+    out = []
+    for text in args.sensor_fault:
+        kind, _, span = text.partition("@")
+        parts = span.split(":")
+        try:
+            if kind not in SENSOR_FAULTS or len(parts) not in (2, 3):
+                raise ValueError
+            out.append(SensorFault(kind, float(parts[0]), float(parts[1]),
+                                   float(parts[2]) if len(parts) == 3 else 0.0))
+        except ValueError:
+            raise InputError(f"--sensor-fault {text!r}: expected KIND@T0:T1[:VALUE] with KIND "
+                             f"one of {', '.join(SENSOR_FAULTS)} and T0 < T1") from None
+    return out
 
 
 def _print_summary(p: dict) -> None:
@@ -210,6 +283,11 @@ def _print_summary(p: dict) -> None:
           f"solve time p50/p99/max {st['p50']:.2f}/{st['p99']:.2f}/{st['max']:.2f} ms, "
           f"{p['steps']} steps, {p['failures']} failures, "
           f"{p['internal_errors']} internal errors")
+    lim, stl = p["limits"], p["stalls"]
+    at = [f"{k.replace('_s', '')} {v:.1f} s" for k, v in lim.items() if v > 0]
+    print(f"  actuators at their limits: {', '.join(at) if at else 'none'}; stalled "
+          f"{stl['total_s']:.1f} s (longest {stl['longest_s']:.1f} s)"
+          + ("" if p["followed"] else f"; DID NOT FOLLOW: {'; '.join(p['not_followed'])}"))
     rv = p["steering_reversals_per_min"]
     print(f"  smoothness: steering reversals >= 1/5 deg {rv['1deg']:.1f}/{rv['5deg']:.1f} per "
           f"min, steering-wheel rate RMS {p['steering_rate_rms_radps']:.3f} rad/s, pedal rate "

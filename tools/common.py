@@ -22,9 +22,10 @@ from hmpc.models.params import ACCEPT_UNIDENTIFIABLE_FLAG, Params
 
 from hmpc.controller.build import CONTROLLERS, load_model
 
-__all__ = ["CONTROLLERS", "STOP_WHY", "add_accept_unidentifiable", "add_bus_arguments",
-           "add_ingest_options", "bus_kwargs", "ingest_from_args", "load_model_params",
-           "positive_float", "progress_printer", "recording_or_log", "stop_times", "write_json"]
+__all__ = ["CONTROLLERS", "STOP_WHY", "add_accept_unidentifiable", "add_adapt_arguments",
+           "add_bus_arguments", "add_ingest_options", "adapter_from_args", "bus_kwargs",
+           "finish_adapter", "ingest_from_args", "load_model_params", "positive_float",
+           "progress_printer", "recording_or_log", "stop_times", "write_json"]
 
 
 def progress_printer(command: str) -> Callable[[str], None]:
@@ -213,3 +214,66 @@ def bus_kwargs(text: str) -> dict:
     if not sep or not iface or not chan:
         raise InputError(f"--bus '{text}': expected virtual or INTERFACE:CHANNEL")
     return {"interface": iface, "channel": chan}
+
+
+def add_adapt_arguments(p) -> None:
+    """The online model estimator's options (``simulate``, ``drive``, ``teleop``, ``replay``)."""
+    p.add_argument("--adapt", action="store_true",
+                   help="learn the model on line (steering map, zone gains, dead times and "
+                        "lags) and control with what was learned while it is valid; the "
+                        "JSON's 'adaptation' holds each value's start, end, interval and "
+                        "convergence time")
+    p.add_argument("--learned", metavar="FILE",
+                   help="with --adapt (implied): restore the learned state of this vehicle "
+                        "from FILE (a parameter file) when it exists, and save it there at "
+                        "the end")
+
+
+def adapter_from_args(args, params: Params, period_s: float, command: str, **kw):
+    """The run's ``controller.adapt.ModelAdapter`` (None without ``--adapt``/``--learned``),
+    restored from ``--learned`` when that file exists (its lines printed on stderr). ``kw``:
+    the adapter's keyword arguments (inputs, sensor noise)."""
+    from hmpc.controller.adapt import ModelAdapter
+    from hmpc.controller.adapt.learned import restore
+    from hmpc.models.params import load_params
+
+    path = getattr(args, "learned", None)
+    if not (getattr(args, "adapt", False) or path):
+        return None
+    adapter = ModelAdapter(params, period_s, **kw)
+    if path:
+        folder = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
+            raise InputError(f"cannot write the learned state (--learned: folder '{folder}' "
+                             "is not a writable folder)", path)
+        if os.path.exists(path):
+            for line in restore(adapter, load_params(path, require_model=True), path):
+                print(f"hmpc {command}: restored from {path}: {line}", file=sys.stderr)
+        else:
+            print(f"hmpc {command}: {path} does not exist yet: learning from the model's "
+                  "values; saved there at the end", file=sys.stderr)
+    return adapter
+
+
+def finish_adapter(args, adapter, command: str, run_s: float) -> None:
+    """After a run with an adapter: print its fall-backs and a line per learned value on
+    stderr, and save the state to ``--learned``."""
+    if adapter is None:
+        return
+    from hmpc.controller.adapt.learned import learned_params, save_learned
+
+    for t, what in adapter.events:
+        print(f"hmpc {command}: adaptation at {t:.1f} s: {what}", file=sys.stderr)
+    rep = adapter.report(adapter.t0_s)
+    for key, e in rep.items():
+        if e.get("updates", 1) or e.get("valid"):
+            ci = e.get("ci95")
+            ci_s = f" [{ci[0]:.4g}, {ci[1]:.4g}]" if ci else ""
+            conv = e["converged_t_s"]
+            print(f"  adaptation {key}: {e['initial']:.4g} -> {e['final']:.4g}{ci_s}"
+                  f"{'' if conv is None else f', converged at {conv:.1f} s'}"
+                  f"{'' if e.get('valid') else ' (not used: ' + e.get('reason', 'not valid') + ')'}",
+                  file=sys.stderr)
+    if getattr(args, "learned", None):
+        save_learned(learned_params(adapter, run_s=run_s), args.learned)
+        print(f"hmpc {command}: learned state saved to {args.learned}", file=sys.stderr)

@@ -47,9 +47,9 @@ TIMING_PERIOD_S = 0.1
 #: [1] an identified value stays identified while its 95 % half-width is within this many
 #: times its threshold (hysteresis: the flag does not flicker with its interval)
 VALID_HYSTERESIS = 1.25
-#: samples a filter must have taken before its values are used (half a second at 10 Hz: a
-#: single sample can be an undetected outlier)
-MIN_UPDATES = 5
+#: samples a filter must have taken before its values are used (a single sample can be an
+#: outlier the gate did not catch; a car pulling up needs its brake gain within a second)
+MIN_UPDATES = 2
 
 
 @dataclass(frozen=True)
@@ -121,10 +121,12 @@ class ModelAdapter:
         self.zones.use_timing(self.timing_used[1], self.timing_used[3])
         self._v_max = [z.v_max_mps for z in params.zones]
         self._t_prev = None
+        self.t0_s: float | None = None   # time of the first learning step [s]
         self._v_prev = math.nan
         self._sw_prev = math.nan
         self._t_timing = -math.inf
         self._drift_s = 0.0
+        self._force_push = False            # hand the model over at the next step (restore)
         self._ab_num = self._ab_den = 0.0   # accelerometer bias: forgotten sums (learn)
         self.events: list[tuple[float, str]] = []
         self._coefs = ("offset_mps2", "scale_mps2", "brake_scale_mps2") if inputs == "pedals" \
@@ -180,6 +182,9 @@ class ModelAdapter:
         ``gyro_bias_radps``: the state estimator's speed [m/s] and gyro bias [rad/s] now.
         Returns the model to hand over when it changed materially, else None."""
         sig = self.signals
+        if self.t0_s is None:  # the history starts with the values the run started from
+            self.t0_s = t_s
+            self.history.add(t_s, [self.initial[k] for k in self.keys])
         t_prev, v_prev = self._t_prev, self._v_prev
         self._t_prev, self._v_prev = t_s, v_mps
         if t_prev is None or not (t_s > t_prev) or not math.isfinite(v_mps):
@@ -191,7 +196,8 @@ class ModelAdapter:
             else (v_mps, v_mps)
         v = 0.5 * (v_lo + v_hi)
         suspect = sig.suspect(t_s)
-        changed = False
+        changed = force = self._force_push
+        self._force_push = False
         sw = sig.sum_sw / sig.n_sw if sig.n_sw else math.nan
         if sig.n_acc:
             accel = sig.sum_acc / sig.n_acc
@@ -238,7 +244,7 @@ class ModelAdapter:
             self._update_timing()
             changed = True
         self._record(t_s)
-        return self._push_if_changed(t_s) if changed else None
+        return self._push_if_changed(t_s, force) if changed else None
 
     def _fit_period(self, t_s: float) -> None:
         """The response fits' period that ended at ``t_s``: each channel's mean response,
@@ -311,9 +317,9 @@ class ModelAdapter:
             lim = thr * abs(v) if rel else thr
             if ident[j]:
                 lim *= VALID_HYSTERESIS
-            ident[j] = f.updates[i] > 0 and 3.8416 * f.P[i][i] <= lim * lim
+            ident[j] = (f.updates[i] > 0 or f.restored) and 3.8416 * f.P[i][i] <= lim * lim
         for g, (f, js) in enumerate(self._groups):
-            ok = (max(f.updates) >= MIN_UPDATES and not any(f.at_bound)
+            ok = ((f.restored or max(f.updates) >= MIN_UPDATES) and not any(f.at_bound)
                   and f.rejects_run < f.widen_after // 2)
             for j in js:
                 valid[j] = ok
@@ -324,7 +330,7 @@ class ModelAdapter:
         _k, f, i, thr, rel = self._plist[j]
         if any(f.at_bound):
             return "at its bound (a change this large is a broken sensor or another car)"
-        if max(f.updates) < MIN_UPDATES:
+        if max(f.updates) < MIN_UPDATES and not f.restored:
             return "no data has exercised it"
         if f.rejects_run >= f.widen_after // 2:
             return "the last samples disagree with it"
@@ -367,7 +373,7 @@ class ModelAdapter:
         """The model in use now: each learned value while valid, the file's otherwise."""
         return self._model_of(self._used_values())
 
-    def _push_if_changed(self, t_s: float) -> LearnedModel | None:
+    def _push_if_changed(self, t_s: float, force: bool = False) -> LearnedModel | None:
         """The model in use if a value moved by more than its immaterial amount since the
         last hand-over (and the events of parameters that stopped being valid)."""
         prev = list(self.valid)
@@ -379,7 +385,7 @@ class ModelAdapter:
         u = self._used_values()
         p, tol = self._pushed_values, self._push_tol
         for a, b, (ta, tr) in zip(u, p, tol):
-            if abs(a - b) > ta + tr * abs(b):
+            if abs(a - b) > ta + tr * abs(b) or force:
                 self._pushed_values = u
                 return self._model_of(u)
         return None
@@ -411,12 +417,15 @@ class ModelAdapter:
         vals = self._values_now()
         h.add(t_s, [vals[k] for k in self.keys])
 
-    def report(self, t0_s: float) -> dict:
+    def report(self, t0_s: float | None = None) -> dict:
         """The run JSON's ``adaptation``: KEY -> {initial, final, ci95, converged_t_s, valid,
-        used, ...} (``converged_t_s``: seconds from ``t0_s`` after which the estimate stayed
+        used, ...} (``converged_t_s``: seconds from ``t0_s`` (default: the first learning
+        step) after which the estimate stayed
         within its final interval, widened to an immaterial difference; None for a value no
         data moved). Filter parameters add ``updates`` and, when not valid, ``reason``; dead
         times and lags their fit's ``excited_s`` and ``r2``, and ``ci95`` is their 95 % set."""
+        if t0_s is None:
+            t0_s = self.t0_s if self.t0_s is not None else 0.0
         self._drift_all()
         self._check_validity()
         now = self._values_now()

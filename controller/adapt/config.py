@@ -32,9 +32,11 @@ class AdaptConfig:
     """Gates, priors, drift rates and bounds of the online model estimator (SI, 1-sigma)."""
 
     # ---- steering (eq. 7 from the yaw rate: delta = asin(r b / v))
-    #: [m/s] identification's v_min: below it the yaw rate per road-wheel angle is so small
-    #: that a 0.002 rad/s gyro bias is a 3.5 mrad road-wheel angle.
-    steer_v_min_mps: float = 1.5
+    #: [m/s] openpilot's paramsd learns above 1 m/s: below, the yaw rate per road-wheel angle
+    #: is so small that what is left of a gyro bias (~0.001 rad/s once the state estimator has
+    #: it) is a 2.6 mrad road-wheel angle. Each sample's noise grows as b / v (below), so the
+    #: slow samples weigh little; they matter when a car pulls away with its offset unknown.
+    steer_v_min_mps: float = 1.0
     #: [m/s] identification's kinematic_speed_mps: the scale is learned only below it (above,
     #: tyre side slip folds understeer into the gain); the offset is learned at any speed.
     steer_scale_v_max_mps: float = 10.0

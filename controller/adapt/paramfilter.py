@@ -61,12 +61,14 @@ class ParamFilter:
         self.rejected = 0            # gated-out updates
         self.widened = 0             # times the filter widened to its prior
         self.rejects_run = 0         # consecutive gated-out updates
+        self.restored = False        # started from a saved state (learned before)
         self._ph = [0.0] * n         # P h
         self._C = [[0.0] * n for _ in range(n)]  # a conditional covariance
         self._k = [0.0] * n          # the gain
 
     def restore(self, theta, sigma) -> None:
         """Start from ``theta`` with 1-sigma ``sigma`` (a saved state), within the bounds."""
+        self.restored = True
         for i in range(self.n):
             self.theta[i] = min(max(float(theta[i]), self.lo[i]), self.hi[i])
             row = self.P[i]
