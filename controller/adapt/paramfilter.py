@@ -18,8 +18,9 @@ road). Here the covariance grows only by a stated drift rate per second and neve
 prior's variances (each parameter's diagonal capped, by a congruence that keeps ``P``
 positive semi-definite): an unexcited direction returns at most to "as uncertain as at the
 start". After ``widen_after`` consecutive gated-out updates the filter widens back to the
-prior, so that a sudden, real change of the car is learned within seconds while a single
-outlier never is.
+prior and takes the next sample whatever its score, so that a sudden, real change of the car
+is learned within seconds while a single outlier never is (the sensor checks upstream keep a
+frozen or spiking channel from being that persistent).
 
 Bounds: a value leaving ``[lo, hi]`` is clamped there and flagged (``at_bound``); the caller
 falls back to its file for it.
@@ -62,6 +63,7 @@ class ParamFilter:
         self.widened = 0             # times the filter widened to its prior
         self.rejects_run = 0         # consecutive gated-out updates
         self.restored = False        # started from a saved state (learned before)
+        self._gate_open = False      # after widening, the next sample passes the gate
         self._ph = [0.0] * n         # P h
         self._C = [[0.0] * n for _ in range(n)]  # a conditional covariance
         self._k = [0.0] * n          # the gain
@@ -112,13 +114,14 @@ class ParamFilter:
             inn -= h[i] * th[i]
         if not (s > 0.0 and math.isfinite(inn)):
             return False
-        if inn * inn / s > self.gate:
+        if inn * inn / s > self.gate and not self._gate_open:
             self.rejected += 1
             self.rejects_run += 1
             if self.rejects_run >= self.widen_after:
                 self._widen()
             return False
         self.rejects_run = 0
+        self._gate_open = False
         # the gain of the free parameters alone, the held ones taken as known: the Kalman
         # gain with the free block's covariance conditional on the held values; zero for the
         # held ones
@@ -190,3 +193,4 @@ class ParamFilter:
             row[i] = self.cap[i]
         self.rejects_run = 0
         self.widened += 1
+        self._gate_open = True  # the next sample is taken whatever its score: it re-anchors
