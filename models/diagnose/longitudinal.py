@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, fold_ids,
-                                         lstsq_bounded, profile_interval, rmse, segments,
+from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded,
+                                         profile_interval, rmse, segment_fold_ids, segments,
                                          train_mask, windows)
 from hmpc.models.identify.stats import savgol_derivative
 
@@ -563,7 +563,7 @@ def evaluate(d: LonData, name: str | None, cfg: DiagnoseConfig, corr_len: float,
              base: dict | None = None) -> LonScore:
     """Blocked k-fold free-run score plus the full-data fit, parameters and intervals
     (``base``: an accepted delay or lag that every fit here keeps)."""
-    folds = fold_ids(d.n, d.segs, cfg.n_folds)
+    folds = segment_fold_ids(d.n, d.segs, cfg.n_folds)
     guard = int(cfg.guard_s / d.dt)
     L = int(cfg.window_lon_s / d.dt)
     err = np.full(d.n, np.nan)
@@ -748,7 +748,7 @@ def _joint_heldout(d: LonData, spec, best: tuple, cfg: DiagnoseConfig) -> float:
     """Held-out free-run speed RMSE [m/s] of the joint fit (blocked folds as in
     :func:`evaluate`; each fold picks d and tau on its own data, each within 0.05 s of the
     full-data optimum)."""
-    folds = fold_ids(d.n, d.segs, cfg.n_folds)
+    folds = segment_fold_ids(d.n, d.segs, cfg.n_folds)
     guard = int(cfg.guard_s / d.dt)
     L = int(cfg.window_lon_s / d.dt)
     near = JOINT_STEPS_S[2] * np.arange(-1, 2)

@@ -27,8 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, fold_ids, lstsq_bounded,
-                                         profile_interval, rmse, segments, train_mask, windows)
+from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded, profile_interval,
+                                         rmse, segment_fold_ids, segments, train_mask,
+                                         windows)
 
 HYPOTHESES = ("actuator_delay", "actuator_lag", "steering_nonlinearity", "understeer")
 NONLINEAR = {"actuator_delay": "delay_s", "actuator_lag": "tau_s",
@@ -241,7 +242,7 @@ class SteerScore:
 
 
 def evaluate(d: SteerData, name, cfg: DiagnoseConfig, corr_len: float) -> SteerScore:
-    folds = fold_ids(d.n, d.segs, cfg.n_folds)
+    folds = segment_fold_ids(d.n, d.segs, cfg.n_folds)
     guard = int(cfg.guard_s / d.dt)
     L = int(cfg.window_steer_s / d.dt)
     full, grid, sse_grid = fit_best(d, name, d.ok)

@@ -86,9 +86,9 @@ from hmpc.models.identify.fos import fos
 from hmpc.models.params import Vehicle, Zone
 from hmpc.models.zones import zones_of_speed, zones_with_hysteresis
 from hmpc.models.logs.recording import Recording
-from hmpc.models.identify.stats import (apply_kernel, dilate, fold_ids, half_sample_kernels,
-                                        heldout_sse, matched_kernels, not_worse_than_best,
-                                        ols_hac)
+from hmpc.models.identify.stats import (apply_kernel, contiguous_fold_ids, dilate,
+                                        half_sample_kernels, heldout_sse, matched_kernels,
+                                        not_worse_than_best, ols_hac)
 from hmpc.models.identify.steering import delayed, road_wheel_angle_from_front
 
 #: default zones: the report's section V (name, v_min [m/s], v_max [m/s]).
@@ -562,7 +562,7 @@ def pedal_dead_time_cv(a_meas: np.ndarray, ok: np.ndarray, zid: np.ndarray, n_zo
         ok = ok & np.isfinite(pair[0]) & np.isfinite(pair[1])
     ok = ok & np.isfinite(a_meas)
     K = max(3, int(cfg.cv_folds))
-    fold = fold_ids(len(a_meas), K)
+    fold = contiguous_fold_ids(len(a_meas), K)
     y = np.where(ok, a_meas, 0.0)[:, None]
     E = np.array([_heldout_by_zone(p, y, ok, zid, n_zones, fold, K, 0,
                                    cfg.min_samples(dt_s))[:, 0] for p in lagged])
@@ -626,7 +626,7 @@ def choose_accel_source(sig: LongitudinalSignals, ok: np.ndarray, zid: np.ndarra
     for pair in lagged:
         ok = ok & np.isfinite(pair[0]) & np.isfinite(pair[1])
     K = max(3, int(cfg.cv_folds))
-    fold = fold_ids(len(Y), K)
+    fold = contiguous_fold_ids(len(Y), K)
     Yf = np.where(ok[:, None], Y, 0.0)
     E = {}
     for j, c in enumerate(names):
