@@ -923,7 +923,7 @@ def _params_out(rec, vehicle, params, ld, lon_scores, steer_scores, findings, zo
         steering = Steering(offset_rad=m.offset_rad, scale=m.scale,
                             method=f"hmpc diagnose ({best or 'baseline'})")
         if best == "actuator_delay":
-            steering.dead_time_s = m.nl
+            steering.dead_time_s = m.delay_s
     d_pedal = ld
     if "accel_cmd" in ld.input_names:  # the conventions' zones are pedal maps
         ch = {k: v for k, v in rec.channels.items() if k != "accel_cmd"}

@@ -27,13 +27,18 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from hmpc.models.plant import PlantExtensions
 from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded, profile_interval,
                                          rmse, segment_fold_ids, segments, train_mask,
                                          windows)
 
 HYPOTHESES = ("actuator_delay", "actuator_lag", "steering_nonlinearity", "understeer")
+#: hypothesis -> its grid-searched parameter as the catalogue names it (the JSON's key)
 NONLINEAR = {"actuator_delay": "delay_s", "actuator_lag": "tau_s",
              "understeer": "gradient_rad_per_mps2"}
+#: hypothesis -> the :class:`SteerModel` field that holds its grid-searched parameter
+SEARCHED_FIELD = {"actuator_delay": "delay_s", "actuator_lag": "tau_s",
+                  "understeer": "understeer_rad_per_mps2"}
 #: understeer gradients of passenger cars are 0.002..0.005 rad/(m/s^2); 0.02 is a bound
 K_MAX = 0.02
 #: rack nonlinearity bound [1/rad^2]: 0.02 changes the gain by 140 % at 8.4 rad (full lock)
@@ -112,26 +117,38 @@ def prepare(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
 
 @dataclass
 class SteerModel:
+    """Eq. 7 in eq. 1 fitted with the steering hypothesis ``name`` (None: the baseline); the
+    parameters of the other hypotheses are 0."""
+
     name: str | None
-    nl: float                  #: nonlinear parameter (delay, tau or K), 0 for the others
     offset_rad: float
     scale: float
-    bias_radps: float
-    k3: float = 0.0            #: cubic coefficient [1/rad^2]
+    bias_radps: float                     #: yaw-rate sensor bias r0 [rad/s]
+    delay_s: float = 0.0                  #: actuator_delay: dead time d [s]
+    tau_s: float = 0.0                    #: actuator_lag: time constant tau [s]
+    cubic_per_rad2: float = 0.0           #: steering_nonlinearity: cubic k3 [1/rad^2]
+    understeer_rad_per_mps2: float = 0.0  #: understeer: gradient K [rad/(m/s^2)]
     sse: float = float("nan")
     n: int = 0
     k: int = 0
 
 
-def _sw(d: SteerData, name, nl) -> np.ndarray:
-    if name == "actuator_delay" and nl > 0:
+def searched(m: SteerModel) -> float:
+    """The value of the parameter grid-searched for ``m.name`` (:data:`SEARCHED_FIELD`)."""
+    return getattr(m, SEARCHED_FIELD[m.name])
+
+
+def _sw(d: SteerData, delay_s: float = 0.0, tau_s: float = 0.0) -> np.ndarray:
+    """The steering-wheel angle as the rack receives it: after the dead time ``delay_s`` or
+    through the lag ``tau_s`` (each when set; per segment)."""
+    if delay_s > 0:
         out = np.full(d.n, np.nan)
         for a, b in d.segs:
             tt = d.t[a:b]
-            out[a:b] = np.interp(tt - nl, tt, d.sw[a:b])  # held before the start
+            out[a:b] = np.interp(tt - delay_s, tt, d.sw[a:b])  # held before the start
         return out
-    if name == "actuator_lag" and nl > 0:
-        al = 1.0 - np.exp(-d.dt / nl)
+    if tau_s > 0:
+        al = 1.0 - np.exp(-d.dt / tau_s)
         out = np.full(d.n, np.nan)
         for a, b in d.segs:
             x = d.sw[a:b]
@@ -140,8 +157,12 @@ def _sw(d: SteerData, name, nl) -> np.ndarray:
     return d.sw
 
 
-def fit(d: SteerData, name: str | None, nl: float, mask: np.ndarray) -> SteerModel:
-    sw = _sw(d, name, nl)
+def fit(d: SteerData, name: str | None, value: float, mask: np.ndarray) -> SteerModel:
+    """Eq. 7 with hypothesis ``name`` fitted jointly with the offset, the scale and the
+    yaw-rate bias on ``mask``; ``value``: the grid-searched parameter of ``name``
+    (:data:`SEARCHED_FIELD`; ignored for the others)."""
+    searched_kw = {SEARCHED_FIELD[name]: value} if name in SEARCHED_FIELD else {}
+    sw = _sw(d, searched_kw.get("delay_s", 0.0), searched_kw.get("tau_s", 0.0))
     use = mask & d.fit_ok & np.isfinite(sw)
     v = d.v[use]
     vf = d.vf[use]
@@ -149,7 +170,8 @@ def fit(d: SteerData, name: str | None, nl: float, mask: np.ndarray) -> SteerMod
     if name == "steering_nonlinearity":
         cols.append(sw[use] ** 3)
     X = np.column_stack(cols)
-    div = 1.0 + nl * vf * vf / d.b if name == "understeer" else 1.0
+    gradient = searched_kw.get("understeer_rad_per_mps2", 0.0)
+    div = 1.0 + gradient * vf * vf / d.b if name == "understeer" else 1.0
     y = d.dm[use]
     c, _ = lstsq_bounded(X / np.atleast_1d(div)[:, None] if name == "understeer" else X, y)
     k3 = float(c[3] / c[1]) if name == "steering_nonlinearity" and c[1] != 0 else 0.0
@@ -162,16 +184,18 @@ def fit(d: SteerData, name: str | None, nl: float, mask: np.ndarray) -> SteerMod
     pred = (X @ c) / div if name == "understeer" else X @ c
     sse = float(np.sum((y - pred) ** 2))
     k = len(c) + (name in NONLINEAR)
-    return SteerModel(name, nl, float(c[0]), float(c[1]), float(c[2]), k3, sse, int(use.sum()), k)
+    return SteerModel(name, float(c[0]), float(c[1]), float(c[2]), cubic_per_rad2=k3, sse=sse,
+                      n=int(use.sum()), k=k, **searched_kw)
 
 
 def road_wheel_angle(d: SteerData, m: SteerModel) -> np.ndarray:
-    """Model road-wheel angle [rad] (the kinematic angle eq. 1 turns with)."""
-    sw = _sw(d, m.name, m.nl)
-    delta = m.offset_rad + m.scale * (sw + m.k3 * sw ** 3)
-    if m.name == "understeer":
-        delta = delta / (1.0 + m.nl * d.vf * d.vf / d.b)
-    return delta
+    """Model road-wheel angle [rad] (the kinematic angle eq. 1 turns with): eq. 7 with the
+    rack's cubic and the understeer gradient as the plant writes them
+    (``models.plant.PlantExtensions.road_wheel_angle``, at the front point's speed), on the
+    steering-wheel angle after the model's dead time or lag."""
+    ext = PlantExtensions(cubic_per_rad2=m.cubic_per_rad2,
+                          understeer_rad_per_mps2=m.understeer_rad_per_mps2)
+    return ext.road_wheel_angle(_sw(d, m.delay_s, m.tau_s), d.vf, m.offset_rad, m.scale, d.b)
 
 
 def free_run(d: SteerData, m: SteerModel, idx: np.ndarray) -> np.ndarray:
@@ -249,7 +273,7 @@ def evaluate(d: SteerData, name, cfg: DiagnoseConfig, corr_len: float) -> SteerS
     local = None
     if name in NONLINEAR:
         step = {"actuator_delay": 0.05, "actuator_lag": 0.05, "understeer": K_MAX / 40}[name]
-        local = np.unique(np.maximum(full.nl + step * np.arange(-2, 3), 0.0))
+        local = np.unique(np.maximum(searched(full) + step * np.arange(-2, 3), 0.0))
     err = np.full(d.n, np.nan)
     vals = []
     for f in range(cfg.n_folds):
@@ -257,16 +281,16 @@ def evaluate(d: SteerData, name, cfg: DiagnoseConfig, corr_len: float) -> SteerS
         idx = windows(folds == f, L)
         if idx.size:
             err[idx] = free_run(d, m, idx)
-        vals.append(m.nl if name in NONLINEAR else m.k3)
+        vals.append(searched(m) if name in NONLINEAR else m.cubic_per_rad2)
     params, intervals = {}, {}
     if name in NONLINEAR:
         key = NONLINEAR[name]
-        params[key] = float(full.nl)
+        params[key] = float(searched(full))
         lo, hi = profile_interval(grid, sse_grid * full.n, full.n, corr_len)
         half = 0.5 * float(np.min(np.diff(grid))) if len(grid) > 1 else 0.0
         intervals[key] = [max(lo - half, float(grid[0])), hi + half]
     if name == "steering_nonlinearity":
-        params["cubic_per_rad2"] = full.k3
+        params["cubic_per_rad2"] = full.cubic_per_rad2
         intervals["cubic_per_rad2"] = list(_k3_interval(d, full, corr_len))
     if name is not None:
         params["offset_rad"], params["scale"] = full.offset_rad, full.scale
@@ -275,7 +299,8 @@ def evaluate(d: SteerData, name, cfg: DiagnoseConfig, corr_len: float) -> SteerS
 
 
 def _k3_interval(d: SteerData, m: SteerModel, corr_len: float):
-    grid = np.clip(m.k3 + np.linspace(-1, 1, 41) * max(abs(m.k3), 1e-4), -K3_MAX, K3_MAX)
+    grid = np.clip(m.cubic_per_rad2 + np.linspace(-1, 1, 41) * max(abs(m.cubic_per_rad2), 1e-4),
+                   -K3_MAX, K3_MAX)
     sse = []
     use = d.fit_ok
     v, sw, y = d.v[use], d.sw[use], d.dm[use]
