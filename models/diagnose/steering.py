@@ -28,6 +28,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from hmpc.models.plant import PlantExtensions
+from hmpc.models.diagnose.hypothesis import grid_search, sse_per_sample
 from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded, profile_interval,
                                          rmse, segment_fold_ids, segments, train_mask,
                                          windows)
@@ -223,26 +224,21 @@ def _grid(name):
 
 
 def fit_best(d: SteerData, name, mask, grid=None):
+    """Fit hypothesis ``name`` on ``mask``, its searched parameter by grid on the SSE
+    (``grid`` overrides the default grid, which is refined around the best point: a delay or
+    lag to one sample, the understeer gradient to a tenth of its step).
+
+    Returns (model, grid, SSE per sample per grid point)."""
     if name not in NONLINEAR:
         m = fit(d, name, 0.0, mask)
-        return m, np.zeros(1), np.array([m.sse / max(m.n, 1)])
+        return m, np.zeros(1), np.array([sse_per_sample(m)])
     refine = grid is None
     grid = _grid(name) if grid is None else np.asarray(grid, float)
-    ms = [fit(d, name, g, mask) for g in grid]
-    sse = np.array([m.sse / max(m.n, 1) for m in ms])
-    best = int(np.nanargmin(sse))
+    fine_step = None
     if refine:
-        step = grid[1] - grid[0]
-        fine_step = max(d.dt, 0.01) if name != "understeer" else step / 10
-        fine = np.arange(max(grid[best] - step, 0.0), grid[best] + step + 1e-12, fine_step)
-        fine = fine[~np.isclose(fine[:, None], grid[None, :], rtol=0, atol=fine_step / 10).any(1)]
-        ms += [fit(d, name, g, mask) for g in fine]
-        grid = np.concatenate([grid, fine])
-        sse = np.concatenate([sse, [m.sse / max(m.n, 1) for m in ms[len(sse):]]])
-        order = np.argsort(grid)
-        grid, sse, ms = grid[order], sse[order], [ms[i] for i in order]
-        best = int(np.nanargmin(sse))
-    return ms[best], grid, sse
+        fine_step = max(d.dt, 0.01) if name != "understeer" else (grid[1] - grid[0]) / 10
+    return grid_search(lambda g: fit(d, name, g, mask), grid, fine_step, end_pad=1e-12,
+                       rtol=0.0, atol=fine_step / 10 if refine else 0.0)
 
 
 def residual(d: SteerData, m: SteerModel) -> np.ndarray:
