@@ -537,7 +537,8 @@ def residual(d: LonData, m: LonModel) -> np.ndarray:
 
 @dataclass
 class LonScore:
-    """Held-out and full-data results of one hypothesis."""
+    """Held-out and full-data results of one hypothesis (a
+    :class:`~models.diagnose.hypothesis.HypothesisScore`)."""
 
     name: str | None
     model: LonModel

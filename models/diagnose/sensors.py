@@ -104,6 +104,9 @@ def predict(d: SensorData, name, val) -> np.ndarray:
 
 @dataclass
 class SensorScore:
+    """Held-out and full-data results of one sensor hypothesis (a
+    :class:`~models.diagnose.hypothesis.HypothesisScore`)."""
+
     name: str | None
     value: float
     heldout_rmse_mps: float

@@ -19,6 +19,8 @@ Extensions (``CATALOGUE`` ids):
 
 Scores are heading free-run replays: the heading integrated from eq. 1 with the measured speed
 and steering over each window, against the INS heading (or the bias-corrected gyro).
+:func:`position_errors` replays eq. 1's position over the same windows, and
+:func:`separability` says whether a recording can tell understeer from the steering ratio.
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from hmpc.models.params import Vehicle
 from hmpc.models.plant import PlantExtensions
 from hmpc.models.diagnose.hypothesis import grid_search, sse_per_sample
 from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded, profile_interval,
@@ -251,6 +254,9 @@ def residual(d: SteerData, m: SteerModel) -> np.ndarray:
 
 @dataclass
 class SteerScore:
+    """Held-out and full-data results of one steering hypothesis (a
+    :class:`~models.diagnose.hypothesis.HypothesisScore`)."""
+
     name: str | None
     model: SteerModel
     heldout_rmse_rad: float
@@ -305,3 +311,76 @@ def _k3_interval(d: SteerData, m: SteerModel, corr_len: float):
         _, s = lstsq_bounded(X, y)
         sse.append(s)
     return profile_interval(grid, np.array(sse), len(y), corr_len)
+
+
+def position_errors(ch, d: SteerData, m: SteerModel, cfg) -> np.ndarray | None:
+    """Position error [m] of free-run windows of eq. 1 (measured speed, modelled heading)."""
+    if "x" not in ch or "y" not in ch:
+        return None
+    x, y = np.asarray(ch["x"], float), np.asarray(ch["y"], float)
+    L = int(cfg.window_steer_s / d.dt)
+    idx = windows(d.ok & np.isfinite(x) & np.isfinite(y), L)
+    if idx.size == 0:
+        return None
+    delta = np.nan_to_num(road_wheel_angle(d, m))
+    r = d.v * np.tan(delta) / d.b
+    vf = d.v / np.cos(delta)  # the front point (eq. 1's x, y) moves faster than the rear axle
+    psi = d.heading[idx[:, :1]] + np.concatenate(
+        [np.zeros((len(idx), 1)), np.cumsum(r[idx][:, :-1] * d.dt, axis=1)], axis=1)
+    ang = psi + delta[idx]
+    vx, vy = vf[idx] * np.cos(ang), vf[idx] * np.sin(ang)
+    px = x[idx[:, :1]] + np.concatenate([np.zeros((len(idx), 1)),
+                                         np.cumsum(vx[:, :-1] * d.dt, axis=1)], axis=1)
+    py = y[idx[:, :1]] + np.concatenate([np.zeros((len(idx), 1)),
+                                         np.cumsum(vy[:, :-1] * d.dt, axis=1)], axis=1)
+    out = np.full(d.n, np.nan)
+    out[idx] = np.hypot(px - x[idx], py - y[idx])
+    return out
+
+
+def _sse_fixed_scale(d: SteerData, scale: float) -> float:
+    """Smallest angle SSE with the steering scale fixed and the understeer gradient free."""
+    use = d.fit_ok
+    v, sw, y = d.v[use], d.sw[use], d.dm[use]
+    best = np.inf
+    for k in np.linspace(0.0, K_MAX, 81):
+        div = 1.0 + k * v * v / d.b
+        X = np.column_stack([1.0 / div, d.b / v])
+        r = y - scale * sw / div
+        c = np.linalg.lstsq(X, r, rcond=None)[0]
+        best = min(best, float(np.sum((r - X @ c) ** 2)))
+    return best
+
+
+def separability(d: SteerData, us: SteerScore, base: SteerScore, vehicle: Vehicle,
+                 corr_len: float) -> dict:
+    """Can this recording tell understeer (delta / (1 + K v^2 / b)) from the steering ratio?
+
+    Two explanations of the measured yaw response are compared: the kinematic one (scale
+    fitted, K = 0: the baseline) and the maker's ratio with understeer (scale = 1 /
+    steering_ratio, K fitted). Separable when the likelihood ratio between them exceeds the
+    95 % chi-square(1) point with the effective sample size; without a maker's ratio, when
+    the understeer gradient's interval is narrower than the passenger-car range (0.003)."""
+    lo, hi = us.intervals.get("gradient_rad_per_mps2", [0.0, K_MAX])
+    ne = max(base.model.n / max(corr_len, 1.0), 3.0)
+    out = {"gradient_interval": [lo, hi]}
+    ratio = vehicle.steering_ratio
+    if ratio:
+        sse_maker = _sse_fixed_scale(d, 1.0 / ratio)
+        lr = float(ne * np.log(sse_maker / base.model.sse))
+        ok = abs(lr) > 3.84
+        out.update(maker_scale=1.0 / ratio, kinematic_scale=base.model.scale,
+                   likelihood_ratio=lr)
+        verdict = ("understeer and the steering ratio are separable on this recording: "
+                   if ok else "this recording cannot separate understeer from the steering "
+                   "ratio: ") + (
+            f"the kinematic scale {base.model.scale:.4f} with no understeer and the maker's "
+            f"1/{ratio:g} = {1 / ratio:.4f} with understeer fit with likelihood ratio "
+            f"{lr:.1f} (separable above 3.84)")
+    else:
+        ok = (hi - lo) < 0.003
+        verdict = ("understeer and the steering ratio are separable on this recording"
+                   if ok else "this recording cannot separate understeer from the steering ratio") \
+            + f": understeer gradient in [{lo:.4f}, {hi:.4f}] rad/(m/s^2)"
+    out.update(separable=bool(ok), verdict=verdict)
+    return out
