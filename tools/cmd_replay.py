@@ -139,6 +139,9 @@ def _run_log(args, params, ctl, cfg):
     from hmpc.models.errors import Problems
     from hmpc.models.logs.canlog import read_log
 
+    if getattr(args, "topics", None):
+        raise InputError("--mode log replays a CAN log's frames; replay a ROS recording read "
+                         "with --topics in --mode reference", args.recording)
     profile = load_profile(args.actuation)
     if not (args.dbc or args.signals):   # the profile's own DBC and signal map
         args.dbc, args.signals = profile.dbc_path, str(profile.signal_map.path)
