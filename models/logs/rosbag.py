@@ -80,10 +80,10 @@ class _Collector:
     def _time(self, log_time_ns: int, msg: Any) -> float:
         ts = self.tspec.time
         if ts is None or ts == LOG_TIME:
-            return log_time_ns * 1e-9
+            return log_time_ns / 1e9
         if isinstance(ts, str):
             return _value(msg, ts, self)
-        return _value(msg, ts[0], self) + 1e-9 * _value(msg, ts[1], self)
+        return _value(msg, ts[0], self) + _value(msg, ts[1], self) / 1e9
 
     def result(self) -> TopicData:
         ts = self.tspec.time
@@ -116,7 +116,7 @@ def _number(obj: Any, path: str, col: _Collector) -> float:
         return float(obj)
     for sec, nsec in (("sec", "nanosec"), ("secs", "nsecs")):
         if hasattr(obj, sec) and hasattr(obj, nsec):
-            return float(getattr(obj, sec)) + 1e-9 * float(getattr(obj, nsec))
+            return float(getattr(obj, sec)) + float(getattr(obj, nsec)) / 1e9
     raise InputError(f"topic '{col.topic}': field '{path}' is not a number "
                      f"(it is {type(obj).__name__}: {', '.join(_attrs(obj)) or 'no fields'})",
                      col.where)

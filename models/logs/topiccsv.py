@@ -227,7 +227,7 @@ def _row_values(row: list[str], index: dict[str, int], tcols: tuple[str, ...],
         parts = [float(cell(c)) for c in tcols]
     except ValueError:
         return [], f"time {', '.join(repr(cell(c)) for c in tcols)} is not a number"
-    ts = parts[0] + (1e-9 * parts[1] if len(parts) > 1 else 0.0)
+    ts = parts[0] + (parts[1] / 1e9 if len(parts) > 1 else 0.0)
     if not math.isfinite(ts):
         return [], "time is not finite"
     vals.append(ts)
