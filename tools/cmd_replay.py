@@ -76,7 +76,8 @@ def run(args) -> int:
 
     from hmpc.controller.replay import ReplayConfig
 
-    if not Path(args.recording).is_file():
+    if not getattr(args, "topics", None) and not Path(args.recording).is_file():
+        # (a ROS recording read with --topics may be a bag folder or a CSV export's folder)
         raise InputError("not a file (a folder)" if Path(args.recording).is_dir()
                          else "no such file", args.recording)
     if args.mode == "log" and not args.actuation:
