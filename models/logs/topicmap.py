@@ -31,7 +31,8 @@ right side down), in the ZYX (yaw-pitch-roll) order.
 ``time`` (per topic): ``log`` (a bag's record time of each message; the default for bags),
 a field (a ROS time ``{sec, nanosec}``/``{secs, nsecs}``, or a number of seconds, e.g.
 ``header.stamp``), or a list ``[SECONDS, NANOSECONDS]`` of two fields. A CSV export without
-``time`` is stamped by its ``Time`` column (bagpy), else by ``s`` + ``ns`` columns.
+``time`` (or with ``log``) is stamped by its ``Time`` column (bagpy writes the bag's record time
+there), else by ``s`` + ``ns`` columns.
 
 ``frame`` (per topic): ``local`` -- the topic's ``x``/``y``/``z`` are already metres in a local
 right-handed frame with z up (ENU, or a map frame) -- or ``utm <zone><N|S>``: x is easting and
