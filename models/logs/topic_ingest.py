@@ -186,9 +186,9 @@ def _to_local(tmap: TopicMap, data: dict[str, TopicData], vals: dict[str, np.nda
            "x_m": x0, "y_m": y0}
     if spec.frame is not None:
         gp = utm_to_geodetic(x0, y0, spec.frame)
-        vals["x"], vals["y"] = grid_to_local(x, y, gp, (x0, y0))
+        vals["x"], vals["y"] = grid_to_local(x, y, spec.frame, gp)
         out.update({"lat_deg": gp.lat_deg, "lon_deg": gp.lon_deg,
-                    "convergence_rad": gp.convergence_rad, "scale": gp.scale})
+                    "convergence_rad": gp.convergence_rad})
         if "heading" in tmap.channels and tmap.channels["heading"].topic == cx.topic:
             # a heading on the grid is from grid east: turned to true east like the positions
             vals["heading"] = _wrap(vals["heading"] - gp.convergence_rad)

@@ -1,46 +1,28 @@
-"""UTM grid coordinates to hmpc's local ENU frame (WGS84).
+"""UTM grid coordinates to hmpc's local ENU frame (WGS84), through pyproj and pymap3d.
 
-A UTM easting/northing is a transverse-Mercator grid position: its grid north differs from true
-north by the grid convergence angle ``gamma`` (zero on the zone's central meridian, about
-``dlon * sin(lat)`` off it), and a grid distance is the true distance times the point scale
-factor ``k`` (0.9996 on the central meridian, up to about 1.001 at a zone's edge). Over a drive
-of a few kilometres both are constant to better than 1e-6 of their value, so hmpc makes a
-topic's UTM positions local ENU by subtracting the first fix, rotating by ``gamma`` at that fix
-and dividing by ``k`` there (:func:`grid_to_local`); a heading measured on the grid (from grid
-east) becomes an ENU heading by subtracting ``gamma``.
-
-:func:`utm_to_geodetic` is Krueger's series for the inverse transverse Mercator projection to
-third order in the third flattening ``n`` (C. F. F. Karney, "Transverse Mercator with an
-accuracy of a few nanometers", J. Geodesy 85 (2011), eqs. 7-11 and 13-14 reduced to n^3):
-better than a millimetre within a zone. It also gives ``gamma`` and ``k`` at the point.
+A UTM easting/northing is a transverse-Mercator grid position. pyproj (PROJ) inverts the
+projection to latitude and longitude (:func:`utm_to_geodetic`); pymap3d turns those into
+local ENU from the first fix (:func:`grid_to_local`), so distances and directions are true
+ones, not grid ones. A heading measured on the grid (from grid east) becomes an ENU heading by
+subtracting the grid convergence at the fix (grid north minus true north, positive clockwise),
+which :func:`utm_to_geodetic` reads off the projection itself: the grid direction of a step
+due north.
 """
 from __future__ import annotations
 
 import math
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
-
-#: WGS84 semi-major axis [m] and flattening (the GNSS datum)
-WGS84_A_M = 6378137.0
-WGS84_F = 1.0 / 298.257223563
-#: UTM: scale on the central meridian, false easting [m], false northing south of the equator [m]
-UTM_K0 = 0.9996
-UTM_FALSE_EASTING_M = 500000.0
-UTM_FALSE_NORTHING_SOUTH_M = 10000000.0
-
-_N = WGS84_F / (2.0 - WGS84_F)
-#: rectifying radius [m]
-_A_RECT_M = WGS84_A_M / (1.0 + _N) * (1.0 + _N ** 2 / 4.0 + _N ** 4 / 64.0)
-_BETA = (_N / 2.0 - 2.0 * _N ** 2 / 3.0 + 37.0 * _N ** 3 / 96.0,
-         _N ** 2 / 48.0 + _N ** 3 / 15.0,
-         17.0 * _N ** 3 / 480.0)
-_DELTA = (2.0 * _N - 2.0 * _N ** 2 / 3.0 - 2.0 * _N ** 3,
-          7.0 * _N ** 2 / 3.0 - 8.0 * _N ** 3 / 5.0,
-          56.0 * _N ** 3 / 15.0)
+import pymap3d
+from pyproj import Transformer
 
 _ZONE_RE = re.compile(r"^\s*utm\s*(\d{1,2})\s*([NS])\s*$", re.IGNORECASE)
+#: latitude step [deg] of the due-north probe that reads the grid convergence: ~1 m, far
+#: above the projection's round-off and far below any curvature of the grid lines
+_NORTH_STEP_DEG = 1e-5
 
 
 @dataclass(frozen=True)
@@ -51,8 +33,9 @@ class UtmZone:
     north: bool
 
     @property
-    def central_meridian_deg(self) -> float:
-        return -183.0 + 6.0 * self.number
+    def epsg(self) -> int:
+        """EPSG code of WGS84 / UTM in this zone (326NN north, 327NN south)."""
+        return (32600 if self.north else 32700) + self.number
 
     def __str__(self) -> str:
         return f"utm {self.number}{'N' if self.north else 'S'}"
@@ -73,54 +56,41 @@ def parse_zone(text: str) -> UtmZone:
     return UtmZone(number, m.group(2).upper() == "N")
 
 
+@lru_cache(maxsize=8)
+def _transformers(zone: UtmZone) -> tuple[Transformer, Transformer]:
+    """(grid -> lon/lat, lon/lat -> grid) for ``zone``, built once."""
+    return (Transformer.from_crs(zone.epsg, 4326, always_xy=True),
+            Transformer.from_crs(4326, zone.epsg, always_xy=True))
+
+
 @dataclass(frozen=True)
 class GridPoint:
-    """A UTM point as geodetic coordinates, with the grid's convergence and scale there."""
+    """A UTM point as geodetic coordinates, with the grid convergence there."""
 
     lat_deg: float
     lon_deg: float
-    convergence_rad: float   # grid north minus true north, positive clockwise (east of the meridian, north)
-    scale: float             # grid distance / true distance
+    #: grid north minus true north [rad], positive clockwise (east of the central meridian
+    #: in the northern hemisphere)
+    convergence_rad: float
 
 
 def utm_to_geodetic(easting_m: float, northing_m: float, zone: UtmZone) -> GridPoint:
-    """Latitude, longitude, grid convergence and point scale of a UTM position (WGS84)."""
-    xi = (northing_m - (0.0 if zone.north else UTM_FALSE_NORTHING_SOUTH_M)) / (UTM_K0 * _A_RECT_M)
-    eta = (easting_m - UTM_FALSE_EASTING_M) / (UTM_K0 * _A_RECT_M)
-    xi1, eta1, sigma1, tau1 = xi, eta, 1.0, 0.0
-    for j, b in enumerate(_BETA, start=1):
-        xi1 -= b * math.sin(2 * j * xi) * math.cosh(2 * j * eta)
-        eta1 -= b * math.cos(2 * j * xi) * math.sinh(2 * j * eta)
-        sigma1 -= 2 * j * b * math.cos(2 * j * xi) * math.cosh(2 * j * eta)
-        tau1 += 2 * j * b * math.sin(2 * j * xi) * math.sinh(2 * j * eta)
-    chi = math.asin(math.sin(xi1) / math.cosh(eta1))
-    lat = chi + sum(d * math.sin(2 * j * chi) for j, d in enumerate(_DELTA, start=1))
-    lon = math.radians(zone.central_meridian_deg) + math.atan2(math.sinh(eta1), math.cos(xi1))
-    # Karney (2011) eqs. 13-14 for the inverse series' convergence and scale
-    tt = math.tan(xi1) * math.tanh(eta1)
-    gamma = math.atan2(tau1 + sigma1 * tt, sigma1 - tau1 * tt)
-    e2 = WGS84_F * (2.0 - WGS84_F)
-    k = (UTM_K0 * _A_RECT_M / WGS84_A_M
-         * math.sqrt((1.0 - e2 * math.sin(lat) ** 2)
-                     * (math.cos(xi1) ** 2 + math.sinh(eta1) ** 2)
-                     / (math.cos(lat) ** 2 * (sigma1 ** 2 + tau1 ** 2))))
-    return GridPoint(math.degrees(lat), math.degrees(lon), gamma, k)
+    """Latitude, longitude and grid convergence of a UTM position (WGS84)."""
+    inverse, forward = _transformers(zone)
+    lon, lat = inverse.transform(float(easting_m), float(northing_m))
+    e1, n1 = forward.transform(lon, lat + _NORTH_STEP_DEG)
+    # true north points at grid bearing -gamma: a step due north moves the grid position by
+    # (dE, dN) with atan2(dE, dN) = -gamma
+    gamma = -math.atan2(e1 - float(easting_m), n1 - float(northing_m))
+    return GridPoint(float(lat), float(lon), gamma)
 
 
-def grid_to_local(easting_m, northing_m, origin: GridPoint, origin_en: tuple[float, float]
+def grid_to_local(easting_m, northing_m, zone: UtmZone, origin: GridPoint
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """UTM positions [m] to local ENU [m] at ``origin`` (see the module docstring).
-
-    Args:
-        easting_m, northing_m: arrays of grid positions.
-        origin: :func:`utm_to_geodetic` of the first fix.
-        origin_en: that fix's (easting, northing) [m].
-
-    Returns:
-        (east, north) [m] from the first fix.
-    """
-    de = (np.asarray(easting_m, float) - origin_en[0]) / origin.scale
-    dn = (np.asarray(northing_m, float) - origin_en[1]) / origin.scale
-    # grid north is `convergence` clockwise of true north: turn the grid vector clockwise by it
-    c, s = math.cos(origin.convergence_rad), math.sin(origin.convergence_rad)
-    return c * de + s * dn, -s * de + c * dn
+    """UTM positions [m] to local ENU east, north [m] from ``origin`` (the first fix), on the
+    ellipsoid (heights are not used: a drive's few metres of height change its east/north by
+    well under a millimetre)."""
+    inverse, _ = _transformers(zone)
+    lon, lat = inverse.transform(np.asarray(easting_m, float), np.asarray(northing_m, float))
+    east, north, _ = pymap3d.geodetic2enu(lat, lon, 0.0, origin.lat_deg, origin.lon_deg, 0.0)
+    return np.asarray(east, float), np.asarray(north, float)
