@@ -50,7 +50,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from hmpc.models.logs.channels import CHANNELS
-from hmpc.models.sim.effects import Effect
+from hmpc.models.sim.effect_base import Effect
 from hmpc.models.errors import InputError, ParamError
 from hmpc.models.params import Params, Steering, Vehicle, Zone
 from hmpc.models.plant import HybridPlant, StepResult
