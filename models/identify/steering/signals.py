@@ -81,11 +81,38 @@ class SteeringSignals:
 class SampleMasks:
     """Which samples to trust (module doc): ``usable`` for the dead time and the replay,
     ``steady`` (usable and no steering transient) for the direct fits; ``excluded`` counts why
-    (None: a check the channels do not allow)."""
+    (None: a check the channels do not allow; a sample may count under several reasons);
+    ``dropped`` attributes every sample not trusted to the first reason that drops it
+    (:func:`_dropped`: the counts add up to the samples not trusted)."""
 
     usable: np.ndarray
     steady: np.ndarray
     excluded: dict
+    dropped: list = field(default_factory=list)
+
+
+def _dropped(masks: list[tuple[str, np.ndarray, float | None, str]],
+             steady: np.ndarray) -> list[dict]:
+    """Each sample not in ``steady`` counted under the first of ``masks`` (reason, mask,
+    threshold, text) that holds for it; reasons that drop nothing are left out."""
+    left = ~steady
+    out = []
+    for reason, m, threshold, text in masks:
+        n = int(np.sum(left & m))
+        left &= ~m
+        if n:
+            out.append({"reason": reason, "samples": n, "threshold": threshold, "text": text})
+    if left.any():  # nothing above: never expected; counted so that the total holds
+        out.append({"reason": "other", "samples": int(left.sum()), "threshold": None,
+                    "text": "other"})
+    return out
+
+
+def dropped_text(dropped: list[dict], total: int) -> str:
+    """One line: how many of ``total`` samples each reason dropped, largest first."""
+    parts = [f"{d['samples']} {d['text']}" for d in sorted(dropped, key=lambda d: -d["samples"])]
+    return f"dropped {sum(d['samples'] for d in dropped)} of {total}: " + (
+        "; ".join(parts) if parts else "none")
 
 
 def steering_signals(rec: Recording, vehicle: Vehicle) -> SteeringSignals:
@@ -201,8 +228,29 @@ def trustworthy_samples(rec: Recording, sig: SteeringSignals,
         "reverse": int(np.sum(reverse)),
         "steering_transient": int(np.sum(usable & ~steady)),
     }
+    with np.errstate(invalid="ignore"):
+        dropped = _dropped([
+            ("missing", ~finite | (~np.isfinite(sig.yaw) if sig.yaw is not None else False),
+             None, "with a channel missing (NaN)"),
+            ("reverse", reverse, None, "in reverse gear"),
+            ("slow", ~moving, cfg.v_min_mps, f"slower than {cfg.v_min_mps:.3g} m/s"),
+            ("wheel_slip", np.nan_to_num(slip, nan=1.0) > cfg.slip_max, cfg.slip_max,
+             f"with wheel slip above {100 * cfg.slip_max:g}%"),
+            ("longitudinal_accel", np.abs(np.nan_to_num(accel, nan=1e9)) > cfg.accel_max_mps2,
+             cfg.accel_max_mps2, f"accelerating beyond {cfg.accel_max_mps2:g} m/s^2"),
+            ("lateral_accel", ~(np.abs(lat) <= cfg.lat_accel_max_mps2), cfg.lat_accel_max_mps2,
+             f"with lateral acceleration beyond {cfg.lat_accel_max_mps2:g} m/s^2"),
+            ("guard_margin", ~usable, cfg.guard_s,
+             f"within {cfg.guard_s:g} s of a dropped sample"),
+            ("steering_transient", transient, cfg.sw_rate_max_radps,
+             f"steering faster than {cfg.sw_rate_max_radps:.3g} rad/s"),
+            ("transient_guard", ~steady, cfg.guard_s,
+             f"within {cfg.guard_s:g} s of fast steering"),
+        ], steady)
     if steady.sum() < 20:
-        raise InputError(f"only {int(steady.sum())} trustworthy steering samples (moving >= "
-                         f"{cfg.v_min_mps} m/s, no slip, no transients): cannot identify the "
-                         "steering map", rec.meta.get("path"), channel="steering_wheel_angle")
-    return SampleMasks(usable, steady, excluded)
+        raise InputError(f"only {int(steady.sum())} trustworthy steering samples of {len(sw)} "
+                         f"({dropped_text(dropped, len(sw))}; thresholds for a "
+                         f"{sig.b:g} m wheelbase, --steering-threshold overrides them): "
+                         "cannot identify the steering map", rec.meta.get("path"),
+                         channel="steering_wheel_angle")
+    return SampleMasks(usable, steady, excluded, dropped)
