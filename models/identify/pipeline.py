@@ -151,8 +151,7 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
     if st is None and lo is None:
         raise InputError("nothing could be identified: " + "; ".join(
             f"{k}: {e.reason}" + (f" (channel '{e.channel}')" if e.channel else "")
-            for k, e in zip(not_identified, errors)), recording.meta.get("path"),
-            channel=errors[0].channel)
+            for k, e in zip(not_identified, errors)), recording.meta.get("path"))
     # every zone value the recording did not determine (copied from another zone, the prior,
     # or absorbing unobserved braking), named with its reason whether or not the zone was
     # fitted: ``longitudinal.zones.<name>.<key>`` (the zone itself is written, complete and
