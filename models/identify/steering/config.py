@@ -17,6 +17,9 @@ REFERENCE_WHEELBASE_M = 2.65
 SPEED_THRESHOLDS = ("v_min_mps", "kinematic_speed_mps")
 RATE_THRESHOLDS = ("sw_rate_max_radps",)
 LENGTH_THRESHOLDS = ("lever_arm_x_bounds_m", "max_lever_arm_ci_m")
+#: durations of the vehicle's motion (the replay window: long enough for a heading error to show
+#: in position); the smoothing and guard windows belong to the recording's sampling and stay.
+TIME_THRESHOLDS = ("window_s",)
 
 
 @dataclass(frozen=True)
@@ -117,7 +120,8 @@ class SteeringIdConfig:
     @classmethod
     def for_vehicle(cls, vehicle, **overrides) -> "SteeringIdConfig":
         """The defaults scaled to a vehicle smaller than the reference (:data:`SPEED_THRESHOLDS`,
-        :data:`RATE_THRESHOLDS`, :data:`LENGTH_THRESHOLDS`), then ``overrides`` (field name ->
+        :data:`RATE_THRESHOLDS`, :data:`LENGTH_THRESHOLDS`, :data:`TIME_THRESHOLDS`), then
+        ``overrides`` (field name ->
         value) on top. A vehicle at least as long as the reference keeps the defaults: the
         reasons behind the speed thresholds (wheel-speed steps, gyro bias over speed) do not
         grow with size.
@@ -136,6 +140,7 @@ class SteeringIdConfig:
         if f < 1.0:
             scaled.update({k: getattr(base, k) * math.sqrt(f) for k in SPEED_THRESHOLDS})
             scaled.update({k: getattr(base, k) / math.sqrt(f) for k in RATE_THRESHOLDS})
+            scaled.update({k: getattr(base, k) * math.sqrt(f) for k in TIME_THRESHOLDS})
             for k in LENGTH_THRESHOLDS:
                 v = getattr(base, k)
                 scaled[k] = tuple(x * f for x in v) if isinstance(v, tuple) else v * f

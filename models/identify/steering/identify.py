@@ -77,6 +77,12 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
     sw_d = delayed(sig.sw, dead.tau_s, sig.dt_s)
     steady = masks.steady & np.isfinite(sw_d)
     usable = masks.usable & np.isfinite(sw_d)
+    if steady.sum() < masks.steady.sum():  # the delayed angle reaches before the start
+        masks.dropped.append({"reason": "dead_time_edge",
+                              "samples": int(masks.steady.sum() - steady.sum()),
+                              "threshold": dead.tau_s,
+                              "text": f"within the dead time {dead.tau_s:.3g} s of a gap or "
+                                      "the start"})
     say(f"steering: dead time {dead.tau_s:.3f} s (" + (
         f"held-out interval {dead.interval_s[0]:.3f}-{dead.interval_s[1]:.3f} s" if dead.used
         else "not determined") + f", from {dead.source})")

@@ -230,7 +230,8 @@ def trustworthy_samples(rec: Recording, sig: SteeringSignals,
     }
     with np.errstate(invalid="ignore"):
         dropped = _dropped([
-            ("missing", ~finite | (~np.isfinite(sig.yaw) if sig.yaw is not None else False),
+            ("missing", ~(np.isfinite(sw) & np.isfinite(v_rear))
+             | (~np.isfinite(sig.yaw) if sig.yaw is not None else False),
              None, "with a channel missing (NaN)"),
             ("reverse", reverse, None, "in reverse gear"),
             ("slow", ~moving, cfg.v_min_mps, f"slower than {cfg.v_min_mps:.3g} m/s"),
