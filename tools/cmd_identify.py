@@ -10,7 +10,7 @@ from hmpc.models.errors import InputError
 from hmpc.tools.common import add_ingest_options, progress_printer, recording_or_log, write_json
 from hmpc.models.identify.pipeline import identify
 from hmpc.models.identify.longitudinal import ACCEL_SOURCES, LongitudinalIdConfig
-from hmpc.models.identify.steering import SteeringIdConfig
+from hmpc.models.identify.steering import SENSOR_HEADLINE, SteeringIdConfig
 from hmpc.models.params import dump_params, load_params
 
 #: what a recording must hold, shown under --help
@@ -217,8 +217,8 @@ def _steering_evidence(res) -> list[str]:
                 if k in sr["fits"]]
         sens = sel.get("sensors")
         if sens:
-            out.append(f"  steering: {'SENSORS DISAGREE: ' if sens['verdict'] != 'agree' else ''}"
-                       f"{sens['note']}")
+            head = SENSOR_HEADLINE.get(sens["verdict"])
+            out.append(f"  steering: {head + ': ' if head else ''}{sens['note']}")
     ag = sr.get("agreement_a_b")
     if ag:
         out.append(f"  steering: (a) wheel speeds vs (b) yaw rate: rms difference "

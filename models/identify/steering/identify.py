@@ -14,12 +14,13 @@ from hmpc.models.identify.steering.config import SteeringIdConfig
 from hmpc.models.identify.steering.deadtime import delayed, estimate_dead_time
 from hmpc.models.identify.steering.fits import MapFit, direct_fits
 from hmpc.models.identify.steering.identifiable import identifiability, understeer_testability
-from hmpc.models.identify.steering.reconcile import (disagreement, negative_gains,
-                                                     sensor_comparison)
+from hmpc.models.identify.steering.reconcile import (SENSOR_HEADLINE, disagreement,
+                                                     negative_gains, sensor_comparison)
 from hmpc.models.identify.steering.replay import _fit_replay
 from hmpc.models.identify.steering.selection import agreement_a_b, choose_fit, cross_validate
-from hmpc.models.identify.steering.signals import (SteeringSignals, dropped_text,
-                                                   steering_signals, trustworthy_samples)
+from hmpc.models.identify.steering.signals import (MIN_FIT_SAMPLES, SteeringSignals,
+                                                   dropped_text, steering_signals,
+                                                   trustworthy_samples)
 
 
 @dataclass
@@ -73,6 +74,8 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
     masks = trustworthy_samples(rec, sig, cfg)
     say(f"steering: {int(masks.steady.sum())} trustworthy samples of {len(sig.sw)} ("
         f"{dropped_text(masks.dropped, len(sig.sw))})")
+    if masks.relaxed:
+        say(f"steering: too few samples pass every check: the fits include {masks.relaxed}")
     dead = estimate_dead_time(sig, masks.usable, cfg)
     sw_d = delayed(sig.sw, dead.tau_s, sig.dt_s)
     steady = masks.steady & np.isfinite(sw_d)
@@ -129,7 +132,7 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
                                    "wheel-speed angle depends on the effective track width "
                                    f"(reconciled_by: wheel_speed_scale; by held-out score: {why})")
     if sensors is not None and sensors["verdict"] != "agree":
-        say(f"steering: SENSORS DISAGREE: {sensors['note']}")
+        say(f"steering: {SENSOR_HEADLINE[sensors['verdict']]}: {sensors['note']}")
     final = fits[chosen]
     pairs, disagree_note = disagreement(fits, cfg, sensors)
     ident = dict(idents[chosen])
@@ -139,6 +142,9 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
         not_ident.append(sensors["note"])
     if disagree_note:
         not_ident.append(disagree_note)
+    if masks.relaxed:
+        not_ident.append(f"fewer than {MIN_FIT_SAMPLES} samples pass every sample check, so "
+                         f"the fits include {masks.relaxed}")
     if not_ident:
         ident["identifiable"] = False
         ident["note"] = ("NOT identifiable: " + "; ".join(not_ident) + ". " +
@@ -194,7 +200,7 @@ def _report(sig, cfg, final, why, selection, dead, fits, agreement, rms_rad, ide
                                    for k, v in idents.items()},
         "samples": {"total": int(len(sig.sw)), "usable": int(usable.sum()),
                     "trustworthy": int(steady.sum()), "excluded": masks.excluded,
-                    "dropped": masks.dropped},
+                    "dropped": masks.dropped, "relaxed": masks.relaxed},
         "speed_source": sig.speed_source,
         "speed_range_mps": [float(np.percentile(sig.v_front[steady], 2.5)),
                             float(np.percentile(sig.v_front[steady], 97.5))],

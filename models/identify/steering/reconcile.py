@@ -34,6 +34,9 @@ import math
 from hmpc.models.identify.steering.config import SteeringIdConfig
 from hmpc.models.identify.steering.fits import MapFit
 
+#: how a person is told each verdict of :func:`sensor_comparison` other than "agree"
+SENSOR_HEADLINE = {"reconciled": "SENSORS DISAGREE", "offset": "SENSORS DISAGREE",
+                   "unresolved": "SENSORS DIFFER (within their noise)"}
 #: the channel each fit's road-wheel angle comes from, named when its sign looks reversed
 SIGN_CHANNEL = {"wheel_speed_difference": "the wheel speeds (left and right swapped?)",
                 "yaw_rate": "yaw_rate (left turn positive)",
