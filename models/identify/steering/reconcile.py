@@ -5,7 +5,7 @@ that reconciles two of them.
 angle and yaw rate (CONVENTIONS), so the scale is positive; a fit with a scale <= 0 is never a
 model value. It points at the channel whose sign convention is reversed (every fit negative:
 the steering-wheel angle; one fit: its own channel), or at a recording that does not determine
-the gain (its interval spans 0).
+the gain (its interval does not exclude 0, e.g. a channel that reads 0 throughout).
 
 **The two sensors** (:func:`sensor_comparison`): the wheel-speed difference (a) and the yaw
 rate (b) are independent sensors of one road-wheel angle; their difference is judged against
@@ -48,13 +48,15 @@ def negative_gains(fits: dict[str, MapFit]) -> dict[str, str]:
     bad = {k: f for k, f in fits.items() if not f.scale > 0}
     if not bad:
         return {}
-    every = len(bad) == len(fits)
+    negative = {k for k, f in bad.items() if f.scale < 0 and f.scale_ci95[1] < 0}
+    every = len(negative) == len(fits)
     out = {}
     for k, f in bad.items():
         lo, hi = f.scale_ci95
-        if hi > 0:
+        if k not in negative:
             out[k] = (f"gain not determined: scale {f.scale:.4g}, its 95% interval "
-                      f"[{lo:.4g}, {hi:.4g}] spans 0 (too little steering?)")
+                      f"[{lo:.4g}, {hi:.4g}] does not exclude 0 (too little steering, or a "
+                      "channel that does not move)")
             continue
         channel = ("steering_wheel_angle (left turn positive)" if every else SIGN_CHANNEL[k])
         out[k] = (f"negative gain {f.scale:.4g} [{lo:.4g}, {hi:.4g}]: the road-wheel angle falls "
