@@ -121,9 +121,9 @@ def _fit(method, offset, off_ci, scale, scale_ci):
 
 
 def test_the_reported_case_is_a_disagreement():
-    """The numbers a user reported from a real slalom: wheel-speed scale 0.052 [0.048, 0.056], yaw-rate
-    0.063 [0.056, 0.071], ratio 0.82. The intervals touch, but the difference is beyond its
-    own interval: a disagreement, reconciled by wheel_speed_scale."""
+    """The numbers a user reported from a real slalom: wheel-speed scale 0.052 [0.048, 0.056],
+    yaw-rate 0.063 [0.056, 0.071], ratio 0.82. The intervals touch, but the difference is
+    beyond its own interval: a disagreement, reconciled by wheel_speed_scale."""
     fits = {"wheel_speed_difference": _fit("wheel_speed_difference", 0.0082, (0.0072, 0.0092),
                                            0.052, (0.048, 0.056)),
             "yaw_rate": _fit("yaw_rate", 0.0100, (0.0080, 0.0120), 0.063, (0.056, 0.071))}
