@@ -26,7 +26,7 @@ from hmpc.models.params import Params
 from hmpc.models.plant import DelayLine, HybridPlant, heading_rate
 from hmpc.models.logs.recording import Recording
 from hmpc.models.sim.live_sensors import LiveSensors, SensorConfig
-from hmpc.models.sim.simulator import TruthPlant
+from hmpc.models.sim.truth_plant import TruthPlant
 from hmpc.models.reference import Reference
 
 from hmpc.controller.base import Controller, Status

@@ -304,7 +304,8 @@ def log_replay(frames: FrameTable, profile, params: Params, controller, referenc
         :class:`LogReplay`; ``summary`` holds ``hash`` (sha256 of the sent frames),
         ``differences`` and ``windows`` per signal, ``engaged_s`` and the loop's figures.
     """
-    from hmpc.controller.actuation.drive import DriveConfig, DriveLoop, audit_candump
+    from hmpc.controller.actuation.candump import audit_candump
+    from hmpc.controller.actuation.drive import DriveConfig, DriveLoop
 
     path = str(frames.path)
     source, t_accept = check_log(frames, profile)

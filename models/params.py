@@ -3,7 +3,9 @@
 The contract is ``../shared/CONVENTIONS.md``: every numeric key carries its unit as a suffix
 (``_m``, ``_s``, ``_rad``, ``_mps``, ``_mps2``, ...), a file with only ``vehicle``,
 ``steering`` and ``longitudinal.zones`` is a complete model, and everything else is optional.
-Unknown keys and keys without a unit are rejected (:class:`ParamError`), never defaulted.
+Unknown keys and keys without a unit are rejected (:class:`ParamError`), never defaulted; so is
+a geometry no road vehicle has (a wheelbase in millimetres, :data:`GEOMETRY_RANGES_M`), and
+:func:`dump_params` never writes a file the loader would refuse.
 
 Optional keys (all documented here, nowhere else):
 
@@ -47,6 +49,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 from dataclasses import dataclass, field, fields, asdict
 from pathlib import Path
 from typing import Any
@@ -291,6 +294,61 @@ _POSITIVE_VEHICLE = ("wheelbase_m", "track_front_m", "track_rear_m", "wheel_radi
                      "steering_ratio", "steering_wheel_angle_max_rad",
                      "steering_wheel_rate_max_radps")
 
+#: [m] plausible geometry of a road vehicle, from a 1:10 model car (wheelbase ~0.33 m, track
+#: ~0.28 m, wheel radius ~0.05 m) to a long bus or a mining truck (wheelbase ~7 m, track
+#: ~2.5 m, wheel radius ~1.8 m): a value outside is a unit mistake (mm, cm, inches), and
+#: identification with it finds no trustworthy sample instead of saying so.
+GEOMETRY_RANGES_M = {"wheelbase_m": (0.1, 10.0), "track_front_m": (0.1, 5.0),
+                     "track_rear_m": (0.1, 5.0), "wheel_radius_m": (0.02, 2.0)}
+#: [1] plausible track / wheelbase: ~0.3 for a truck or bus, ~0.6 for a passenger car, ~0.9
+#: for a kart or a 1:10 model; outside, the two lengths are in different units or swapped.
+TRACK_WHEELBASE_RATIO = (0.2, 1.5)
+#: units a length is mistakenly given in, with their size [m]
+_LENGTH_UNITS = (("millimetres", 1e-3), ("centimetres", 1e-2), ("inches", 0.0254),
+                 ("feet", 0.3048))
+
+
+def _unit_hint(value: float, lo: float, hi: float, ratio_to: float | None = None) -> str:
+    """The units in which ``value`` would be a plausible length in [lo, hi] m, as text; with
+    ``ratio_to`` (the other of wheelbase and track, in range), only those that also give a
+    plausible track / wheelbase when there are any."""
+    fits = [(name, value * size) for name, size in _LENGTH_UNITS if lo <= value * size <= hi]
+    if ratio_to is not None:
+        r_lo, r_hi = TRACK_WHEELBASE_RATIO
+        both = [(n, x) for n, x in fits if r_lo <= min(x, ratio_to) / max(x, ratio_to) <= r_hi]
+        fits = both or fits
+    fits = [f"{name} ({x:.4g} m)" for name, x in fits]
+    if not fits:
+        return ""
+    return "; likely given in " + (fits[0] if len(fits) == 1 else
+                                  ", ".join(fits[:-1]) + " or " + fits[-1])
+
+
+def _check_geometry(path: str, vehicle: "Vehicle") -> None:
+    """Refuse a geometry no road vehicle has (:data:`GEOMETRY_RANGES_M`,
+    :data:`TRACK_WHEELBASE_RATIO`), naming the key and the likely unit mistake."""
+    def in_range(k):
+        lo, hi = GEOMETRY_RANGES_M[k]
+        v = getattr(vehicle, k)
+        return v if v is not None and lo <= v <= hi else None
+
+    for k, (lo, hi) in GEOMETRY_RANGES_M.items():
+        v = getattr(vehicle, k)
+        if v is not None and not lo <= v <= hi:
+            other = (in_range("track_front_m") if k == "wheelbase_m" else
+                     in_range("wheelbase_m") if k.startswith("track_") else None)
+            raise ParamError(f"{v:g} m is not a plausible length (road vehicles from 1:10 models "
+                             f"up have {lo:g}-{hi:g} m){_unit_hint(v, lo, hi, other)}", path,
+                             key=f"vehicle.{k}")
+    lo, hi = TRACK_WHEELBASE_RATIO
+    for k in ("track_front_m", "track_rear_m"):
+        t = getattr(vehicle, k)
+        if t is not None and not lo <= t / vehicle.wheelbase_m <= hi:
+            raise ParamError(f"{k} / wheelbase_m = {t:g} / {vehicle.wheelbase_m:g} = "
+                             f"{t / vehicle.wheelbase_m:.3g} is not plausible (road vehicles "
+                             f"have {lo:g}-{hi:g}): the two are likely in different units or "
+                             "swapped", path, key=f"vehicle.{k}")
+
 _LONG = {"zones": None, "dead_time_s": _num, "hysteresis_mps": _num, "accel_source": _text,
          "accel_source_chosen": _text, "accel_source_scores_mps2": _scores}
 
@@ -311,6 +369,7 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
         v = getattr(vehicle, k)
         if v is not None and v <= 0:
             raise ParamError(f"must be positive, got {v:g}", path, key=f"vehicle.{k}")
+    _check_geometry(path, vehicle)
     p = Params(vehicle=vehicle, path=path)
     if "steering" in data:
         p.steering = Steering(**_check_keys(path, "steering", data["steering"], Steering))
@@ -512,9 +571,31 @@ def load_params(path: str | Path, *, require_model: bool = False) -> Params:
 
 
 def dump_params(params: Params, path: str | Path) -> None:
-    """Write ``params`` as YAML (keys in CONVENTIONS order)."""
-    with open(path, "w", encoding="utf-8") as fh:
-        yaml.safe_dump(params.to_dict(), fh, sort_keys=False, default_flow_style=None)
+    """Write ``params`` as YAML (keys in CONVENTIONS order), never a file hmpc would refuse.
+
+    The text is checked with the loader's own rules (:func:`parse_params`) before anything is
+    written, then written to a temporary name beside ``path`` and renamed over it, so ``path``
+    holds either the old file or the complete new one.
+
+    Raises:
+        ParamError: the parameters break a loader rule (nothing is written).
+        OSError: the file cannot be written (nothing is left at a temporary name).
+    """
+    path = Path(path)
+    text = yaml.safe_dump(params.to_dict(), sort_keys=False, default_flow_style=None)
+    try:
+        parse_params(yaml.safe_load(text), str(path))
+    except ParamError as exc:
+        raise ParamError(f"{exc.reason} (not written: hmpc would refuse the file)", exc.path,
+                         key=exc.key) from None
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
 
 
 #: the command-line flag that accepts values flagged ``identifiable: false`` (named in the refusal)

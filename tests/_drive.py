@@ -8,7 +8,9 @@ import os
 import numpy as np
 
 from _data import PARAMS_DIR, REPORT_PARAMS
-from hmpc.controller.actuation.drive import DriveLoop, audit_candump, parse_fault
+from hmpc.controller.actuation.candump import audit_candump
+from hmpc.controller.actuation.drive import DriveLoop
+from hmpc.controller.actuation.faults import parse_fault
 from hmpc.controller.actuation.profiles import load_profile
 from hmpc.controller.actuation.vehicle_node import BYWIRE_RATES_HZ, TOYOTA_RATES_HZ, VehicleNode
 from hmpc.controller.closed_loop import run_closed_loop

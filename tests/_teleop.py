@@ -12,7 +12,8 @@ import time
 import numpy as np
 
 from _drive import PROFILES, params
-from hmpc.controller.actuation.drive import DriveConfig, DriveLoop, audit_candump
+from hmpc.controller.actuation.candump import audit_candump
+from hmpc.controller.actuation.drive import DriveConfig, DriveLoop
 from hmpc.controller.actuation.profiles import load_profile
 from hmpc.controller.actuation.vehicle_node import VehicleNode
 from hmpc.controller.mpc import MpcConfig, MpcController

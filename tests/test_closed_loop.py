@@ -276,14 +276,14 @@ def test_candump_writer_orders_a_frame_read_late(tmp_path):
     but read on the next tick is written before them; nothing is written before the frames
     it might precede are read, and every frame is written once."""
     import can
-    from hmpc.controller.actuation.drive import _OrderedCandump
+    from hmpc.controller.actuation.candump import OrderedCandump
 
     def frame(t, rx):
         return can.Message(timestamp=t, arbitration_id=0x100 + int(1000 * t), data=b"\x01",
                            is_rx=rx, channel=0)
 
     path = tmp_path / "c.log"
-    w = _OrderedCandump(path)
+    w = OrderedCandump(path)
     w.reading(10.000)                                      # tick 0: read
     w.on_message_received(frame(9.999, True))
     w.on_message_received(frame(10.004, False))            # sent

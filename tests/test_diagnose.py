@@ -224,10 +224,10 @@ def test_dead_time_or_lag_within_the_resolution_is_decided_by_the_joint_fit(
     (0.005 m/s), the joint fit names the one that alone fits as well as both; when either does,
     the dead time (the more phase lag for the same effective delay); beyond the resolution
     the replay decides."""
-    from hmpc.models.diagnose.diagnose import _drop_alternatives
+    from hmpc.models.diagnose.stacking import drop_alternatives
 
     cands = _dyn_cands(0.2544, after_lag)
-    _drop_alternatives(cands, response=_response(lr_dead, lr_lag))
+    drop_alternatives(cands, response=_response(lr_dead, lr_lag))
     kept = [c["effect"] for c in cands if c["_ok"]]
     assert kept == [named]
     other = next(c for c in cands if not c["_ok"])

@@ -17,7 +17,7 @@ sensors), and these tests hold hmpc to the truth there:
   minutes off by up to about 0.1 s, more often low than high).
 
 So a half-second response would read as about half a second on a minute like comma's; hmpc's
-0.27-0.30 s there is the car's, not a bias of the method (README, "What hmpc finds").
+0.27-0.30 s there is the car's, not a bias of the method (docs/results.md, "Diagnosis").
 """
 from __future__ import annotations
 

@@ -8,8 +8,8 @@ residual is one independent sample per 1-5 s, so 13-67 effective samples carry t
 6-10 parameters, and the best of 13 splits lowered the equation error by 16-73 %: with the
 former rule (a reduction of 15 % is a change) 16 of 16 such minutes (flat and hilly, seeds
 0-7) reported "mass, load, tyres, a trailer". The split is now an F test in effective samples,
-Bonferroni over the splits, on top of that reduction (``_change_unexplained``): measured
-0 of 40 minutes (five acc_truth cases, seeds 0-7; smallest family-wise p 0.28) and none of
+Bonferroni over the splits, on top of that reduction (``unexplained.unexplained_change``):
+measured 0 of 40 minutes (five acc_truth cases, seeds 0-7; smallest family-wise p 0.28) and none of
 ten 10-minute ones, while a 0.7 x pedal gain from half time (CommonRoad generator,
 ``gain_factor_second_half``, truth sets A-C, seeds 0-2) is still found on every minute the
 former rule found it on (8 of 12, family-wise p <= 1e-6; on the other 4 no split reduces

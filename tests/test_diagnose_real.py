@@ -168,7 +168,7 @@ def test_extended_model_carries_the_findings(comma):
 def test_the_split_verdict_says_what_the_likelihood_ratios_say():
     """The joint dead-time + lag fit's wording (VerifiedCAN: dead time alone 9.6, lag alone
     0.0 -> a lag; the comma minute: 0.7 and 0.1 -> cannot tell)."""
-    from hmpc.models.diagnose.diagnose import _split_verdict
+    from hmpc.models.diagnose.stacking import _split_verdict
     assert "the response is a lag" in _split_verdict(9.6, 0.0)
     assert "the response is a dead time" in _split_verdict(0.2, 12.0)
     both = _split_verdict(0.7, 0.1)

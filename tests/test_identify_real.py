@@ -2,7 +2,7 @@
 RAV4 drive (raw CAN only, no GNSS). Properties, not hard-coded results: there is no truth
 here, so each interval is checked against an independent figure (the other sensor's fit, the
 maker's steering ratio, the physics of understeer); honest identifiability verdicts; NMSE%.
-The README's figures themselves are pinned in test_readme_figures.py."""
+The figures docs/results.md quotes are pinned in test_docs_figures.py."""
 import math
 
 import pytest

@@ -14,7 +14,8 @@ import pytest
 
 from hmpc.models.identify.pipeline import concat_recordings, identify
 from hmpc.models.params import load_params
-from hmpc.models.sim.simulator import EXPERIMENTS, random_params, simulate_experiment
+from hmpc.models.sim.plans import EXPERIMENTS
+from hmpc.models.sim.simulator import random_params, simulate_experiment
 from _data import PARAMS_DIR
 
 SIM_SEED = 11

@@ -191,14 +191,15 @@ def dilate_mask(mask, n):
 
 def test_heldout_sse_equals_refitting_without_each_fold():
     """stats.heldout_sse from per-fold sums = an explicit refit per fold (seeded data)."""
-    from hmpc.models.identify.stats import fold_ids, heldout_sse, not_worse_than_best
+    from hmpc.models.identify.stats import (contiguous_fold_ids, heldout_sse,
+                                            not_worse_than_best)
 
     rng = np.random.default_rng(5)
     n, k = 600, 5
     X = np.column_stack([np.ones(n), rng.normal(size=n), rng.normal(size=n)])
     Y = np.column_stack([X @ [0.3, 1.2, -0.7] + 0.1 * rng.normal(size=n),
                          X @ [0.3, 1.3, -0.7] + 0.1 * rng.normal(size=n)])
-    fold = fold_ids(n, k)
+    fold = contiguous_fold_ids(n, k)
     sse, cnt = heldout_sse(X, Y, fold, k, fit_col=0)
     for g in range(k):
         tr, te = fold != g, fold == g

@@ -78,14 +78,20 @@ def test_unreadable_files(tmp_path):
     assert str(bad) in str(ei.value)
 
 
-# signal maps (*.signals.yaml) and actuation profiles (*.actuation.yaml) are other formats,
-# checked by test_signalmap and below
+# signal maps (*.signals.yaml), topic maps (*.topics.yaml) and actuation profiles
+# (*.actuation.yaml) are other formats, checked by test_signalmap and below
 @pytest.mark.parametrize("path", sorted(p for p in PARAMS_DIR.glob("*.yaml")
-                                        if not p.name.endswith((".signals.yaml",
+                                        if not p.name.endswith((".signals.yaml", ".topics.yaml",
                                                                 ".actuation.yaml"))),
                          ids=lambda p: p.name)
 def test_shipped_parameter_files_load(path):
     load_params(path)
+
+
+@pytest.mark.parametrize("path", sorted(PARAMS_DIR.glob("*.topics.yaml")), ids=lambda p: p.name)
+def test_shipped_topic_maps_load(path):
+    from hmpc.models.logs.topicmap import load_topic_map
+    assert load_topic_map(path).channels
 
 
 @pytest.mark.parametrize("path", sorted(PARAMS_DIR.glob("*.actuation.yaml")),

@@ -18,8 +18,8 @@ from hmpc.models.errors import InputError, ParamError
 from hmpc.models.params import Params, dump_params, load_params
 from hmpc.models.plant import HybridPlant
 from hmpc.models.logs.recording import Recording
-from hmpc.models.sim.simulator import (DEFAULT_SW_MAX_RAD, EXPERIMENTS, random_params, run_experiment,
-                        simulate_experiment)
+from hmpc.models.sim.plans import DEFAULT_SW_MAX_RAD, EXPERIMENTS
+from hmpc.models.sim.simulator import random_params, run_experiment, simulate_experiment
 from _data import PARAMS_DIR, bundled
 
 ALL_CHANNELS = ["time", "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr",
@@ -382,7 +382,7 @@ def test_steering_nonlinearity_and_understeer_bend_the_steering_map(report):
 
 
 def test_truth_plant_applies_effects_step_by_step(report):
-    from hmpc.models.sim.simulator import TruthPlant
+    from hmpc.models.sim.truth_plant import TruthPlant
     tp = TruthPlant(report, [fx.SteeringDeadTime(0.1), fx.AeroDrag(1e-3)], dt_s=0.01)
     s = np.array([0.0, 0.0, 0.0, 10.0])
     sw_eff = []

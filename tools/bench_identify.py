@@ -36,7 +36,8 @@ import numpy as np  # noqa: E402
 from hmpc.models.identify.fos import fos  # noqa: E402
 from hmpc.models.identify.pipeline import concat_recordings, identify  # noqa: E402
 from hmpc.models.params import load_params  # noqa: E402
-from hmpc.models.sim.simulator import EXPERIMENTS, simulate_experiment  # noqa: E402
+from hmpc.models.sim.plans import EXPERIMENTS  # noqa: E402
+from hmpc.models.sim.simulator import simulate_experiment  # noqa: E402
 from hmpc.tools.datafiles import PARAMS_DIR  # noqa: E402
 
 TARGET_S = 10.0  # issue 3: identification of one hour of 50 Hz recording in under 10 s

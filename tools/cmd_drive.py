@@ -48,7 +48,9 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from hmpc.controller.actuation.drive import DriveLoop, audit_candump, parse_fault
+    from hmpc.controller.actuation.candump import audit_candump
+    from hmpc.controller.actuation.drive import DriveLoop
+    from hmpc.controller.actuation.faults import parse_fault
     from hmpc.controller.actuation.profiles import load_profile
     from hmpc.controller.actuation.vehicle_node import VehicleNode
     from hmpc.models.sim.scenarios import make_scenario

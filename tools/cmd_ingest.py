@@ -1,4 +1,5 @@
-"""`hmpc ingest`: raw CAN log (+ GPS/INS, IMU) to one canonical recording (models.ingest)."""
+"""`hmpc ingest`: raw CAN log (+ GPS/INS, IMU) to one canonical recording (models.ingest), or
+a ROS recording with a topic map (``--topics``, models.logs.topic_ingest)."""
 from __future__ import annotations
 
 import argparse
@@ -14,7 +15,9 @@ OUTPUTS = {"out": "the recording"}
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", metavar="LOG", help="CAN log (candump -L, .asc, .blf, .trc, python-can "
-                                              ".csv, libpanda CSV; optionally .gz)")
+                                              ".csv, libpanda CSV; optionally .gz), or with "
+                                              "--topics a ROS recording (.bag, ROS 2 bag folder, "
+                                              ".mcap, folder of topic CSVs)")
     add_ingest_options(p)
     p.add_argument("--out", required=True, metavar="REC.csv",
                    help="canonical recording to write (.csv, .csv.gz, or .parquet with pyarrow)")

@@ -192,7 +192,8 @@ def experiment_script(name: str, params, *, seed: int = 0, rate_hz: float | None
         rate_hz: command rate [Hz] (a divisor of the simulator's 100 Hz is exact).
     """
     from hmpc.controller.teleop.operator import RATE_HZ, inputs_script
-    from hmpc.models.sim.simulator import EXPERIMENTS, run_experiment
+    from hmpc.models.sim.plans import EXPERIMENTS
+    from hmpc.models.sim.simulator import run_experiment
 
     rate_hz = RATE_HZ if rate_hz is None else rate_hz
     if name not in EXPERIMENTS:

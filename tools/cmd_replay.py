@@ -76,7 +76,8 @@ def run(args) -> int:
 
     from hmpc.controller.replay import ReplayConfig
 
-    if not Path(args.recording).is_file():
+    if not getattr(args, "topics", None) and not Path(args.recording).is_file():
+        # (a ROS recording read with --topics may be a bag folder or a CSV export's folder)
         raise InputError("not a file (a folder)" if Path(args.recording).is_dir()
                          else "no such file", args.recording)
     if args.mode == "log" and not args.actuation:
@@ -139,6 +140,9 @@ def _run_log(args, params, ctl, cfg):
     from hmpc.models.errors import Problems
     from hmpc.models.logs.canlog import read_log
 
+    if getattr(args, "topics", None):
+        raise InputError("--mode log replays a CAN log's frames; replay a ROS recording read "
+                         "with --topics in --mode reference", args.recording)
     profile = load_profile(args.actuation)
     if not (args.dbc or args.signals):   # the profile's own DBC and signal map
         args.dbc, args.signals = profile.dbc_path, str(profile.signal_map.path)

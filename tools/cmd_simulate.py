@@ -136,10 +136,11 @@ def run(args) -> int:
 
 def _run_experiment(args, params, write_json) -> int:
     from hmpc.models.sim import simulator as sim  # imported only when used
+    from hmpc.models.sim.plans import EXPERIMENTS
 
-    if args.experiment not in sim.EXPERIMENTS:
+    if args.experiment not in EXPERIMENTS:
         raise InputError(f"unknown experiment '{args.experiment}' (choose from "
-                         f"{', '.join(sim.EXPERIMENTS)})")
+                         f"{', '.join(EXPERIMENTS)})")
     if not args.out:
         raise InputError("--experiment needs --out REC.csv")
     if args.plant_params or args.plots:

@@ -69,7 +69,8 @@ def standstill_reference():
 
 
 def run(args) -> int:
-    from hmpc.controller.actuation.drive import DriveLoop, audit_candump
+    from hmpc.controller.actuation.candump import audit_candump
+    from hmpc.controller.actuation.drive import DriveLoop
     from hmpc.controller.actuation.profiles import load_profile
     from hmpc.controller.actuation.vehicle_node import VehicleNode
     from hmpc.controller.teleop import link as L

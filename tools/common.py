@@ -84,10 +84,19 @@ def _prefer(text: str) -> tuple[str, str]:
 
 
 def add_ingest_options(p: argparse.ArgumentParser, *, log_required: bool = True) -> None:
-    """The options of `hmpc ingest` (also used by commands that take a raw log)."""
-    p.add_argument("--dbc", required=log_required, help="the car's DBC file (optionally .gz)")
-    p.add_argument("--signals", required=log_required, metavar="MAP.yaml",
-                   help="signal map (params/<vehicle>.signals.yaml)")
+    """The options of `hmpc ingest` (also used by commands that take a raw log).
+
+    ``log_required``: a CAN log needs ``--dbc`` and ``--signals`` unless ``--topics`` names a
+    ROS recording's topic map (checked by :func:`ingest_from_args`)."""
+    p.add_argument("--dbc", help="the car's DBC file (optionally .gz)"
+                   + ("; required for a CAN log" if log_required else ""))
+    p.add_argument("--signals", metavar="MAP.yaml",
+                   help="signal map (params/<vehicle>.signals.yaml)"
+                   + ("; required for a CAN log" if log_required else ""))
+    p.add_argument("--topics", metavar="MAP.yaml",
+                   help="topic map (params/*.topics.yaml): the log is a ROS recording -- a ROS 1 "
+                        ".bag, a ROS 2 bag folder, an .mcap file or a folder of per-topic CSV "
+                        "exports (bagpy, pandas) -- instead of a CAN log")
     p.add_argument("--nav", metavar="NAV.csv", help="GPS/INS CSV (lat/lon or x/y, velocities, attitude)")
     p.add_argument("--imu", metavar="IMU.csv", help="IMU CSV (gyro + accelerometer)")
     p.add_argument("--columns", metavar="COLS.yaml",
@@ -113,8 +122,21 @@ def add_ingest_options(p: argparse.ArgumentParser, *, log_required: bool = True)
                         "instead of refusing the DBC; strict by default")
 
 
+#: options of :func:`add_ingest_options` that apply to CAN logs only (dest -> option)
+CAN_ONLY_OPTIONS = {"dbc": "--dbc", "signals": "--signals", "nav": "--nav", "imu": "--imu",
+                    "columns": "--columns", "clock_offset": "--clock-offset",
+                    "imu_offset": "--imu-offset", "no_mount_correction": "--no-mount-correction",
+                    "prefer": "--prefer", "dbc_lenient": "--dbc-lenient"}
+
+
 def ingest_from_args(args, progress=None):
-    """Run models.ingest.ingest_files with the options of :func:`add_ingest_options`."""
+    """Run models.ingest.ingest_files with the options of :func:`add_ingest_options`, or
+    models.logs.topic_ingest.ingest_topics when ``--topics`` names a topic map."""
+    if getattr(args, "topics", None):
+        return _ingest_topics_from_args(args, progress)
+    if not (args.dbc and args.signals):
+        raise InputError("a CAN log needs --dbc and --signals (a ROS recording: --topics "
+                         "MAP.yaml)", args.log)
     nav_cols = imu_cols = None
     if args.columns:
         nav_cols, imu_cols = load_columns(args.columns)
@@ -127,12 +149,31 @@ def ingest_from_args(args, progress=None):
                         progress=progress)
 
 
+def _ingest_topics_from_args(args, progress):
+    """``--topics``: a ROS recording; the CAN-only options are refused (one line each)."""
+    from hmpc.models.logs.topic_ingest import ingest_topics
+
+    for dest, option in CAN_ONLY_OPTIONS.items():
+        if getattr(args, dest, None):
+            raise InputError(f"{option} applies to CAN logs, not to a ROS recording read with "
+                             "--topics", args.log)
+    return ingest_topics(args.log, args.topics, rate_hz=args.rate, gap_s=args.gap,
+                         progress=progress)
+
+
 def recording_or_log(args, progress):
     """(recording, sources, ingest summary or None) for a subcommand that takes a canonical
     recording or a raw log with the ``hmpc ingest`` options (``args.recording``, ``--dbc``,
     ``--signals``, ``--nav``, ``--imu``, ...); ``progress(msg)`` reports on stderr."""
     from hmpc.models.logs.recording import Recording
 
+    if getattr(args, "topics", None):
+        progress("ingesting the ROS recording")
+        res = ingest_from_args(argparse.Namespace(**{**vars(args), "log": args.recording}),
+                               progress=progress)
+        for line in res.problems.lines():
+            progress(line)
+        return res.recording, {"log": args.recording, "topics": args.topics}, res.summary
     if args.dbc or args.signals:
         if not (args.dbc and args.signals):
             raise InputError("a raw log needs both --dbc and --signals", args.recording)

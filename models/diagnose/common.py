@@ -61,8 +61,11 @@ def segments(valid: np.ndarray, min_len: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(starts, stops) if b - a >= min_len]
 
 
-def fold_ids(n: int, segs: list[tuple[int, int]], n_folds: int) -> np.ndarray:
-    """Fold index (0..n_folds-1) of every sample in ``segs`` by time order; -1 elsewhere."""
+def segment_fold_ids(n: int, segs: list[tuple[int, int]], n_folds: int) -> np.ndarray:
+    """Fold index (0..n_folds-1) of every sample in ``segs`` by time order; -1 elsewhere: the
+    samples of all segments together cut into ``n_folds`` contiguous blocks (the gaps between
+    segments belong to no fold). ``models.identify.stats.contiguous_fold_ids`` cuts a whole
+    range of samples."""
     out = np.full(n, -1, dtype=int)
     idx = np.concatenate([np.arange(a, b) for a, b in segs]) if segs else np.zeros(0, int)
     if len(idx) == 0:

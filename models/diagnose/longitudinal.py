@@ -34,9 +34,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, fold_ids,
-                                         lstsq_bounded, profile_interval, rmse, segments,
+from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded,
+                                         profile_interval, rmse, segment_fold_ids, segments,
                                          train_mask, windows)
+from hmpc.models.diagnose.hypothesis import grid_search, sse_per_sample
 from hmpc.models.identify.stats import savgol_derivative
 
 G_MPS2 = 9.80665
@@ -186,7 +187,7 @@ def input_alignment(d: LonData) -> float:
         for sh in shifts:
             d.U = shift_inputs(d, U0, float(sh))
             m = fit(d, LonSpec(), d.ok)
-            sse.append(m.sse / max(m.n, 1))
+            sse.append(sse_per_sample(m))
     finally:
         d.U = U0
     sse = np.asarray(sse)
@@ -512,23 +513,12 @@ def fit_best(d: LonData, name: str | None, mask: np.ndarray, cfg: DiagnoseConfig
     Returns (model, grid, sse per sample per grid point)."""
     if name is None or name not in NONLINEAR or (name == "road_grade" and not d.commanded):
         m = fit(d, _spec(name, 0.0, base), mask)
-        return m, np.zeros(1), np.array([m.sse / max(m.n, 1)])
+        return m, np.zeros(1), np.array([sse_per_sample(m)])
     refine = grid is None and name in ("actuator_delay", "actuator_lag")
     grid = _grid(name, cfg, d.dt, d.commanded) if grid is None else np.asarray(grid, float)
-    models = [fit(d, _spec(name, g, base), mask) for g in grid]
-    sse = np.array([m.sse / max(m.n, 1) for m in models])  # per sample: a delay drops a few
-    best = int(np.nanargmin(sse))
-    if refine:
-        step = grid[1] - grid[0]
-        fine = np.arange(max(grid[best] - step, 0.0), grid[best] + step + 1e-9, max(d.dt, 0.01))
-        fine = fine[~np.isclose(fine[:, None], grid[None, :]).any(axis=1)]
-        models += [fit(d, _spec(name, g, base), mask) for g in fine]
-        grid = np.concatenate([grid, fine])
-        sse = np.concatenate([sse, [m.sse / max(m.n, 1) for m in models[len(sse):]]])
-        order = np.argsort(grid)
-        grid, sse, models = grid[order], sse[order], [models[i] for i in order]
-        best = int(np.nanargmin(sse))
-    return models[best], grid, sse
+    # refined to one sample; numpy's default closeness to a coarse point (rtol 1e-5, atol 1e-8)
+    return grid_search(lambda g: fit(d, _spec(name, g, base), mask), grid,
+                       max(d.dt, 0.01) if refine else None, end_pad=1e-9, rtol=1e-5, atol=1e-8)
 
 
 def residual(d: LonData, m: LonModel) -> np.ndarray:
@@ -547,7 +537,8 @@ def residual(d: LonData, m: LonModel) -> np.ndarray:
 
 @dataclass
 class LonScore:
-    """Held-out and full-data results of one hypothesis."""
+    """Held-out and full-data results of one hypothesis (a
+    :class:`~models.diagnose.hypothesis.HypothesisScore`)."""
 
     name: str | None
     model: LonModel
@@ -563,7 +554,7 @@ def evaluate(d: LonData, name: str | None, cfg: DiagnoseConfig, corr_len: float,
              base: dict | None = None) -> LonScore:
     """Blocked k-fold free-run score plus the full-data fit, parameters and intervals
     (``base``: an accepted delay or lag that every fit here keeps)."""
-    folds = fold_ids(d.n, d.segs, cfg.n_folds)
+    folds = segment_fold_ids(d.n, d.segs, cfg.n_folds)
     guard = int(cfg.guard_s / d.dt)
     L = int(cfg.window_lon_s / d.dt)
     err = np.full(d.n, np.nan)
@@ -710,7 +701,7 @@ def joint_response(d: LonData, base: dict | None, cfg: DiagnoseConfig, corr_len:
             key = (round(float(a), 6), round(float(b), 6))
             if key not in sse and key[0] + key[1] <= top + 1e-9:
                 m = fit(d, spec(*key), d.ok)
-                sse[key] = (m.sse / max(m.n, 1), m.n)
+                sse[key] = (sse_per_sample(m), m.n)
 
     coarse, fine, wide = JOINT_STEPS_S
     g = np.arange(0.0, top + 1e-9, coarse)
@@ -748,7 +739,7 @@ def _joint_heldout(d: LonData, spec, best: tuple, cfg: DiagnoseConfig) -> float:
     """Held-out free-run speed RMSE [m/s] of the joint fit (blocked folds as in
     :func:`evaluate`; each fold picks d and tau on its own data, each within 0.05 s of the
     full-data optimum)."""
-    folds = fold_ids(d.n, d.segs, cfg.n_folds)
+    folds = segment_fold_ids(d.n, d.segs, cfg.n_folds)
     guard = int(cfg.guard_s / d.dt)
     L = int(cfg.window_lon_s / d.dt)
     near = JOINT_STEPS_S[2] * np.arange(-1, 2)
@@ -758,7 +749,7 @@ def _joint_heldout(d: LonData, spec, best: tuple, cfg: DiagnoseConfig) -> float:
     err = np.full(d.n, np.nan)
     for f in range(cfg.n_folds):
         tr = train_mask(folds, f, guard)
-        m = min((fit(d, spec(a, b), tr) for a, b in local), key=lambda m: m.sse / max(m.n, 1))
+        m = min((fit(d, spec(a, b), tr) for a, b in local), key=sse_per_sample)
         idx = _covered(d, tr, windows(folds == f, L))
         if idx.size:
             err[idx] = free_run(d, m, idx)

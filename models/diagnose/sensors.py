@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, fold_ids, profile_interval, rmse,
-                                         segments, train_mask)
+from hmpc.models.diagnose.common import (DiagnoseConfig, bic, profile_interval, rmse,
+                                         segment_fold_ids, segments, train_mask)
 
 HYPOTHESES = ("wheel_radius_error", "sensor_time_offset")
 SCALE_BOUNDS = (0.9, 1.1)
@@ -104,6 +104,9 @@ def predict(d: SensorData, name, val) -> np.ndarray:
 
 @dataclass
 class SensorScore:
+    """Held-out and full-data results of one sensor hypothesis (a
+    :class:`~models.diagnose.hypothesis.HypothesisScore`)."""
+
     name: str | None
     value: float
     heldout_rmse_mps: float
@@ -114,7 +117,7 @@ class SensorScore:
 
 
 def evaluate(d: SensorData, name, cfg: DiagnoseConfig, corr_len: float) -> SensorScore:
-    folds = fold_ids(len(d.t), d.segs, cfg.n_folds)
+    folds = segment_fold_ids(len(d.t), d.segs, cfg.n_folds)
     guard = int(cfg.guard_s / d.dt)
     coarse = np.round(np.arange(-OFFSET_MAX_S, OFFSET_MAX_S + 1e-9, max(d.dt, 0.01)), 6)
     err = np.full(len(d.t), np.nan)

@@ -19,6 +19,8 @@ Extensions (``CATALOGUE`` ids):
 
 Scores are heading free-run replays: the heading integrated from eq. 1 with the measured speed
 and steering over each window, against the INS heading (or the bias-corrected gyro).
+:func:`position_errors` replays eq. 1's position over the same windows, and
+:func:`separability` says whether a recording can tell understeer from the steering ratio.
 """
 from __future__ import annotations
 
@@ -27,12 +29,20 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, fold_ids, lstsq_bounded,
-                                         profile_interval, rmse, segments, train_mask, windows)
+from hmpc.models.params import Vehicle
+from hmpc.models.plant import PlantExtensions
+from hmpc.models.diagnose.hypothesis import grid_search, sse_per_sample
+from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded, profile_interval,
+                                         rmse, segment_fold_ids, segments, train_mask,
+                                         windows)
 
 HYPOTHESES = ("actuator_delay", "actuator_lag", "steering_nonlinearity", "understeer")
+#: hypothesis -> its grid-searched parameter as the catalogue names it (the JSON's key)
 NONLINEAR = {"actuator_delay": "delay_s", "actuator_lag": "tau_s",
              "understeer": "gradient_rad_per_mps2"}
+#: hypothesis -> the :class:`SteerModel` field that holds its grid-searched parameter
+SEARCHED_FIELD = {"actuator_delay": "delay_s", "actuator_lag": "tau_s",
+                  "understeer": "understeer_rad_per_mps2"}
 #: understeer gradients of passenger cars are 0.002..0.005 rad/(m/s^2); 0.02 is a bound
 K_MAX = 0.02
 #: rack nonlinearity bound [1/rad^2]: 0.02 changes the gain by 140 % at 8.4 rad (full lock)
@@ -111,26 +121,38 @@ def prepare(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
 
 @dataclass
 class SteerModel:
+    """Eq. 7 in eq. 1 fitted with the steering hypothesis ``name`` (None: the baseline); the
+    parameters of the other hypotheses are 0."""
+
     name: str | None
-    nl: float                  #: nonlinear parameter (delay, tau or K), 0 for the others
     offset_rad: float
     scale: float
-    bias_radps: float
-    k3: float = 0.0            #: cubic coefficient [1/rad^2]
+    bias_radps: float                     #: yaw-rate sensor bias r0 [rad/s]
+    delay_s: float = 0.0                  #: actuator_delay: dead time d [s]
+    tau_s: float = 0.0                    #: actuator_lag: time constant tau [s]
+    cubic_per_rad2: float = 0.0           #: steering_nonlinearity: cubic k3 [1/rad^2]
+    understeer_rad_per_mps2: float = 0.0  #: understeer: gradient K [rad/(m/s^2)]
     sse: float = float("nan")
     n: int = 0
     k: int = 0
 
 
-def _sw(d: SteerData, name, nl) -> np.ndarray:
-    if name == "actuator_delay" and nl > 0:
+def searched(m: SteerModel) -> float:
+    """The value of the parameter grid-searched for ``m.name`` (:data:`SEARCHED_FIELD`)."""
+    return getattr(m, SEARCHED_FIELD[m.name])
+
+
+def _sw(d: SteerData, delay_s: float = 0.0, tau_s: float = 0.0) -> np.ndarray:
+    """The steering-wheel angle as the rack receives it: after the dead time ``delay_s`` or
+    through the lag ``tau_s`` (each when set; per segment)."""
+    if delay_s > 0:
         out = np.full(d.n, np.nan)
         for a, b in d.segs:
             tt = d.t[a:b]
-            out[a:b] = np.interp(tt - nl, tt, d.sw[a:b])  # held before the start
+            out[a:b] = np.interp(tt - delay_s, tt, d.sw[a:b])  # held before the start
         return out
-    if name == "actuator_lag" and nl > 0:
-        al = 1.0 - np.exp(-d.dt / nl)
+    if tau_s > 0:
+        al = 1.0 - np.exp(-d.dt / tau_s)
         out = np.full(d.n, np.nan)
         for a, b in d.segs:
             x = d.sw[a:b]
@@ -139,8 +161,12 @@ def _sw(d: SteerData, name, nl) -> np.ndarray:
     return d.sw
 
 
-def fit(d: SteerData, name: str | None, nl: float, mask: np.ndarray) -> SteerModel:
-    sw = _sw(d, name, nl)
+def fit(d: SteerData, name: str | None, value: float, mask: np.ndarray) -> SteerModel:
+    """Eq. 7 with hypothesis ``name`` fitted jointly with the offset, the scale and the
+    yaw-rate bias on ``mask``; ``value``: the grid-searched parameter of ``name``
+    (:data:`SEARCHED_FIELD`; ignored for the others)."""
+    searched_kw = {SEARCHED_FIELD[name]: value} if name in SEARCHED_FIELD else {}
+    sw = _sw(d, searched_kw.get("delay_s", 0.0), searched_kw.get("tau_s", 0.0))
     use = mask & d.fit_ok & np.isfinite(sw)
     v = d.v[use]
     vf = d.vf[use]
@@ -148,7 +174,8 @@ def fit(d: SteerData, name: str | None, nl: float, mask: np.ndarray) -> SteerMod
     if name == "steering_nonlinearity":
         cols.append(sw[use] ** 3)
     X = np.column_stack(cols)
-    div = 1.0 + nl * vf * vf / d.b if name == "understeer" else 1.0
+    gradient = searched_kw.get("understeer_rad_per_mps2", 0.0)
+    div = 1.0 + gradient * vf * vf / d.b if name == "understeer" else 1.0
     y = d.dm[use]
     c, _ = lstsq_bounded(X / np.atleast_1d(div)[:, None] if name == "understeer" else X, y)
     k3 = float(c[3] / c[1]) if name == "steering_nonlinearity" and c[1] != 0 else 0.0
@@ -161,16 +188,18 @@ def fit(d: SteerData, name: str | None, nl: float, mask: np.ndarray) -> SteerMod
     pred = (X @ c) / div if name == "understeer" else X @ c
     sse = float(np.sum((y - pred) ** 2))
     k = len(c) + (name in NONLINEAR)
-    return SteerModel(name, nl, float(c[0]), float(c[1]), float(c[2]), k3, sse, int(use.sum()), k)
+    return SteerModel(name, float(c[0]), float(c[1]), float(c[2]), cubic_per_rad2=k3, sse=sse,
+                      n=int(use.sum()), k=k, **searched_kw)
 
 
 def road_wheel_angle(d: SteerData, m: SteerModel) -> np.ndarray:
-    """Model road-wheel angle [rad] (the kinematic angle eq. 1 turns with)."""
-    sw = _sw(d, m.name, m.nl)
-    delta = m.offset_rad + m.scale * (sw + m.k3 * sw ** 3)
-    if m.name == "understeer":
-        delta = delta / (1.0 + m.nl * d.vf * d.vf / d.b)
-    return delta
+    """Model road-wheel angle [rad] (the kinematic angle eq. 1 turns with): eq. 7 with the
+    rack's cubic and the understeer gradient as the plant writes them
+    (``models.plant.PlantExtensions.road_wheel_angle``, at the front point's speed), on the
+    steering-wheel angle after the model's dead time or lag."""
+    ext = PlantExtensions(cubic_per_rad2=m.cubic_per_rad2,
+                          understeer_rad_per_mps2=m.understeer_rad_per_mps2)
+    return ext.road_wheel_angle(_sw(d, m.delay_s, m.tau_s), d.vf, m.offset_rad, m.scale, d.b)
 
 
 def free_run(d: SteerData, m: SteerModel, idx: np.ndarray) -> np.ndarray:
@@ -198,26 +227,21 @@ def _grid(name):
 
 
 def fit_best(d: SteerData, name, mask, grid=None):
+    """Fit hypothesis ``name`` on ``mask``, its searched parameter by grid on the SSE
+    (``grid`` overrides the default grid, which is refined around the best point: a delay or
+    lag to one sample, the understeer gradient to a tenth of its step).
+
+    Returns (model, grid, SSE per sample per grid point)."""
     if name not in NONLINEAR:
         m = fit(d, name, 0.0, mask)
-        return m, np.zeros(1), np.array([m.sse / max(m.n, 1)])
+        return m, np.zeros(1), np.array([sse_per_sample(m)])
     refine = grid is None
     grid = _grid(name) if grid is None else np.asarray(grid, float)
-    ms = [fit(d, name, g, mask) for g in grid]
-    sse = np.array([m.sse / max(m.n, 1) for m in ms])
-    best = int(np.nanargmin(sse))
+    fine_step = None
     if refine:
-        step = grid[1] - grid[0]
-        fine_step = max(d.dt, 0.01) if name != "understeer" else step / 10
-        fine = np.arange(max(grid[best] - step, 0.0), grid[best] + step + 1e-12, fine_step)
-        fine = fine[~np.isclose(fine[:, None], grid[None, :], rtol=0, atol=fine_step / 10).any(1)]
-        ms += [fit(d, name, g, mask) for g in fine]
-        grid = np.concatenate([grid, fine])
-        sse = np.concatenate([sse, [m.sse / max(m.n, 1) for m in ms[len(sse):]]])
-        order = np.argsort(grid)
-        grid, sse, ms = grid[order], sse[order], [ms[i] for i in order]
-        best = int(np.nanargmin(sse))
-    return ms[best], grid, sse
+        fine_step = max(d.dt, 0.01) if name != "understeer" else (grid[1] - grid[0]) / 10
+    return grid_search(lambda g: fit(d, name, g, mask), grid, fine_step, end_pad=1e-12,
+                       rtol=0.0, atol=fine_step / 10 if refine else 0.0)
 
 
 def residual(d: SteerData, m: SteerModel) -> np.ndarray:
@@ -230,6 +254,9 @@ def residual(d: SteerData, m: SteerModel) -> np.ndarray:
 
 @dataclass
 class SteerScore:
+    """Held-out and full-data results of one steering hypothesis (a
+    :class:`~models.diagnose.hypothesis.HypothesisScore`)."""
+
     name: str | None
     model: SteerModel
     heldout_rmse_rad: float
@@ -241,14 +268,14 @@ class SteerScore:
 
 
 def evaluate(d: SteerData, name, cfg: DiagnoseConfig, corr_len: float) -> SteerScore:
-    folds = fold_ids(d.n, d.segs, cfg.n_folds)
+    folds = segment_fold_ids(d.n, d.segs, cfg.n_folds)
     guard = int(cfg.guard_s / d.dt)
     L = int(cfg.window_steer_s / d.dt)
     full, grid, sse_grid = fit_best(d, name, d.ok)
     local = None
     if name in NONLINEAR:
         step = {"actuator_delay": 0.05, "actuator_lag": 0.05, "understeer": K_MAX / 40}[name]
-        local = np.unique(np.maximum(full.nl + step * np.arange(-2, 3), 0.0))
+        local = np.unique(np.maximum(searched(full) + step * np.arange(-2, 3), 0.0))
     err = np.full(d.n, np.nan)
     vals = []
     for f in range(cfg.n_folds):
@@ -256,16 +283,16 @@ def evaluate(d: SteerData, name, cfg: DiagnoseConfig, corr_len: float) -> SteerS
         idx = windows(folds == f, L)
         if idx.size:
             err[idx] = free_run(d, m, idx)
-        vals.append(m.nl if name in NONLINEAR else m.k3)
+        vals.append(searched(m) if name in NONLINEAR else m.cubic_per_rad2)
     params, intervals = {}, {}
     if name in NONLINEAR:
         key = NONLINEAR[name]
-        params[key] = float(full.nl)
+        params[key] = float(searched(full))
         lo, hi = profile_interval(grid, sse_grid * full.n, full.n, corr_len)
         half = 0.5 * float(np.min(np.diff(grid))) if len(grid) > 1 else 0.0
         intervals[key] = [max(lo - half, float(grid[0])), hi + half]
     if name == "steering_nonlinearity":
-        params["cubic_per_rad2"] = full.k3
+        params["cubic_per_rad2"] = full.cubic_per_rad2
         intervals["cubic_per_rad2"] = list(_k3_interval(d, full, corr_len))
     if name is not None:
         params["offset_rad"], params["scale"] = full.offset_rad, full.scale
@@ -274,7 +301,8 @@ def evaluate(d: SteerData, name, cfg: DiagnoseConfig, corr_len: float) -> SteerS
 
 
 def _k3_interval(d: SteerData, m: SteerModel, corr_len: float):
-    grid = np.clip(m.k3 + np.linspace(-1, 1, 41) * max(abs(m.k3), 1e-4), -K3_MAX, K3_MAX)
+    grid = np.clip(m.cubic_per_rad2 + np.linspace(-1, 1, 41) * max(abs(m.cubic_per_rad2), 1e-4),
+                   -K3_MAX, K3_MAX)
     sse = []
     use = d.fit_ok
     v, sw, y = d.v[use], d.sw[use], d.dm[use]
@@ -283,3 +311,76 @@ def _k3_interval(d: SteerData, m: SteerModel, corr_len: float):
         _, s = lstsq_bounded(X, y)
         sse.append(s)
     return profile_interval(grid, np.array(sse), len(y), corr_len)
+
+
+def position_errors(ch, d: SteerData, m: SteerModel, cfg) -> np.ndarray | None:
+    """Position error [m] of free-run windows of eq. 1 (measured speed, modelled heading)."""
+    if "x" not in ch or "y" not in ch:
+        return None
+    x, y = np.asarray(ch["x"], float), np.asarray(ch["y"], float)
+    L = int(cfg.window_steer_s / d.dt)
+    idx = windows(d.ok & np.isfinite(x) & np.isfinite(y), L)
+    if idx.size == 0:
+        return None
+    delta = np.nan_to_num(road_wheel_angle(d, m))
+    r = d.v * np.tan(delta) / d.b
+    vf = d.v / np.cos(delta)  # the front point (eq. 1's x, y) moves faster than the rear axle
+    psi = d.heading[idx[:, :1]] + np.concatenate(
+        [np.zeros((len(idx), 1)), np.cumsum(r[idx][:, :-1] * d.dt, axis=1)], axis=1)
+    ang = psi + delta[idx]
+    vx, vy = vf[idx] * np.cos(ang), vf[idx] * np.sin(ang)
+    px = x[idx[:, :1]] + np.concatenate([np.zeros((len(idx), 1)),
+                                         np.cumsum(vx[:, :-1] * d.dt, axis=1)], axis=1)
+    py = y[idx[:, :1]] + np.concatenate([np.zeros((len(idx), 1)),
+                                         np.cumsum(vy[:, :-1] * d.dt, axis=1)], axis=1)
+    out = np.full(d.n, np.nan)
+    out[idx] = np.hypot(px - x[idx], py - y[idx])
+    return out
+
+
+def _sse_fixed_scale(d: SteerData, scale: float) -> float:
+    """Smallest angle SSE with the steering scale fixed and the understeer gradient free."""
+    use = d.fit_ok
+    v, sw, y = d.v[use], d.sw[use], d.dm[use]
+    best = np.inf
+    for k in np.linspace(0.0, K_MAX, 81):
+        div = 1.0 + k * v * v / d.b
+        X = np.column_stack([1.0 / div, d.b / v])
+        r = y - scale * sw / div
+        c = np.linalg.lstsq(X, r, rcond=None)[0]
+        best = min(best, float(np.sum((r - X @ c) ** 2)))
+    return best
+
+
+def separability(d: SteerData, us: SteerScore, base: SteerScore, vehicle: Vehicle,
+                 corr_len: float) -> dict:
+    """Can this recording tell understeer (delta / (1 + K v^2 / b)) from the steering ratio?
+
+    Two explanations of the measured yaw response are compared: the kinematic one (scale
+    fitted, K = 0: the baseline) and the maker's ratio with understeer (scale = 1 /
+    steering_ratio, K fitted). Separable when the likelihood ratio between them exceeds the
+    95 % chi-square(1) point with the effective sample size; without a maker's ratio, when
+    the understeer gradient's interval is narrower than the passenger-car range (0.003)."""
+    lo, hi = us.intervals.get("gradient_rad_per_mps2", [0.0, K_MAX])
+    ne = max(base.model.n / max(corr_len, 1.0), 3.0)
+    out = {"gradient_interval": [lo, hi]}
+    ratio = vehicle.steering_ratio
+    if ratio:
+        sse_maker = _sse_fixed_scale(d, 1.0 / ratio)
+        lr = float(ne * np.log(sse_maker / base.model.sse))
+        ok = abs(lr) > 3.84
+        out.update(maker_scale=1.0 / ratio, kinematic_scale=base.model.scale,
+                   likelihood_ratio=lr)
+        verdict = ("understeer and the steering ratio are separable on this recording: "
+                   if ok else "this recording cannot separate understeer from the steering "
+                   "ratio: ") + (
+            f"the kinematic scale {base.model.scale:.4f} with no understeer and the maker's "
+            f"1/{ratio:g} = {1 / ratio:.4f} with understeer fit with likelihood ratio "
+            f"{lr:.1f} (separable above 3.84)")
+    else:
+        ok = (hi - lo) < 0.003
+        verdict = ("understeer and the steering ratio are separable on this recording"
+                   if ok else "this recording cannot separate understeer from the steering ratio") \
+            + f": understeer gradient in [{lo:.4f}, {hi:.4f}] rad/(m/s^2)"
+    out.update(separable=bool(ok), verdict=verdict)
+    return out

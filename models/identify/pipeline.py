@@ -149,7 +149,9 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
     st = part("steering", identify_steering, recording, vehicle, steering_config)
     lo = part("longitudinal", identify_longitudinal, recording, vehicle, lcfg)
     if st is None and lo is None:
-        raise errors[0]
+        raise InputError("nothing could be identified: " + "; ".join(
+            f"{k}: {e.reason}" + (f" (channel '{e.channel}')" if e.channel else "")
+            for k, e in zip(not_identified, errors)), recording.meta.get("path"))
     # every zone value the recording did not determine (copied from another zone, the prior,
     # or absorbing unobserved braking), named with its reason whether or not the zone was
     # fitted: ``longitudinal.zones.<name>.<key>`` (the zone itself is written, complete and
@@ -161,7 +163,8 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
         offset_rad=float(st.offset_rad), scale=float(st.scale), dead_time_s=float(st.dead_time_s),
         offset_ci95_rad=tuple(float(x) for x in st.offset_ci95_rad),
         scale_ci95=tuple(float(x) for x in st.scale_ci95),
-        rms_error_rad=float(st.rms_error_rad), method=st.method,
+        rms_error_rad=(float(st.rms_error_rad) if math.isfinite(st.rms_error_rad) else None),
+        method=st.method,
         method_scores=_steering_scores(st.report), dead_time_ci95_s=_dead_time_ci(st.report),
         identifiable=bool(st.identifiable), note=st.note)
     t = recording.time

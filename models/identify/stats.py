@@ -444,8 +444,10 @@ def half_sample_kernels(d: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndar
     return early, late
 
 
-def fold_ids(n: int, k: int) -> np.ndarray:
-    """Contiguous blocked cross-validation: fold index (0..k-1) of each of ``n`` samples."""
+def contiguous_fold_ids(n: int, k: int) -> np.ndarray:
+    """Contiguous blocked cross-validation: fold index (0..k-1) of each of ``n`` samples, the
+    whole range cut into ``k`` blocks in time order (fold ``i * k // n`` of sample ``i``).
+    ``models.diagnose.common.segment_fold_ids`` cuts only the samples inside segments."""
     return np.minimum(np.arange(n) * k // max(n, 1), k - 1)
 
 

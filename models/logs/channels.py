@@ -28,6 +28,7 @@ CHANNELS: dict[str, str] = {
     "accel_pedal_cmd": "1",
     "brake_pedal_cmd": "1",
     "accel_cmd": "m/s^2",
+    "speed_cmd": "m/s",
 }
 
 #: channels whose values are strings, not numbers.

@@ -2,13 +2,14 @@
 
 - ``fig2_steering.png`` (Fig. 2): turn rate from the front wheel-speed difference (eq. 5),
   the front wheel speeds, the steering-wheel angle, and the model's road-wheel angle (eq. 7)
-  against the angle from the wheel speeds (eqs. 2-6) and from the yaw rate. The measured
-  angles are not drawn below the fit's minimum speed (they divide by the speed), and the
-  angle panels are scaled to the samples the fit trusts: anything beyond is clipped, counted
-  in the panel title.
+  against the angle from the wheel speeds (eqs. 2-6) and from the yaw rate; panels of channels
+  the recording lacks are left out. The measured angles are not drawn below the fit's minimum
+  speed (they divide by the speed), and the angle panels are scaled to the samples the fit
+  trusts: anything beyond is clipped, counted in the panel title. Angles in deg.
 - ``steering_replay.png``: measured track against the eq. 1 replay windows (the refinement),
   and the position error of the replay against time (on a long, nearly straight road the path
-  panel cannot show errors of a few decimetres).
+  panel cannot show errors of a few decimetres; drawn at equal scale only while its extents
+  differ by at most ``PATH_ASPECT_MAX``).
 - ``fig3_idle.png``, ``fig4_low.png``, ``fig5_high.png`` (Figs. 3-5; one per zone, named by
   zone order for the default zones, ``zone_<name>.png`` otherwise): upper panel accelerator
   pedal, brake and speed; lower panels measured against modelled acceleration (eq. 8) and the
@@ -33,6 +34,9 @@ from hmpc.models.report.figure import new_figure, save_png
 _REPORT_FIG = {0: "fig3", 1: "fig4", 2: "fig5"}
 #: [s] zone samples closer than this stay on one stretch of the time axis; longer gaps are cut.
 JOIN_GAP_S = 2.0
+#: [1] the path panel is drawn at equal scale only while its extents (east, north) differ by at
+#: most this factor: a 1 km straight with 10 m of curvature at equal scale is an unreadable sliver.
+PATH_ASPECT_MAX = 5.0
 
 
 def _t(series) -> np.ndarray:
@@ -64,40 +68,54 @@ def _trusted_limits(arrays, trust, pad: float = 0.1) -> tuple[float, float] | No
 
 
 def steering_figure(result):
-    """Fig. 2 as a figure: the steering model against the two measured road-wheel angles."""
+    """Fig. 2 as a figure: the steering model against the two measured road-wheel angles.
+
+    Panels of channels the recording lacks are left out: without wheel speeds, the turn rate,
+    the wheel speeds and the angle from them; without a yaw rate, the angle from it."""
     s = result.steering.series
     t = _t(s)
     st = result.steering
-    fig, ax = new_figure(5, 1, figsize=(12, 11.5), sharex=True)
-    ax[0].plot(t, s["turn_rate_wheels_radps"], lw=0.7)
-    ax[0].set_ylabel("turn rate, eq. 5\n[rad/s]")
-    ax[0].set_title("front wheel-speed difference / track width", fontsize=10)
     fl = np.asarray(s["wheel_speed_fl"], float)
     fr = np.asarray(s["wheel_speed_fr"], float)
-    ax[1].plot(t, fl, lw=0.7, label="front left")
-    ax[1].plot(t, fr, lw=0.7, label="front right")
-    ax[1].set_ylabel("wheel speed [m/s]")
-    _legend_right(ax[1])
-    ax[2].plot(t, np.degrees(s["steering_wheel_angle"]), lw=0.7)
-    ax[2].set_ylabel("steering-wheel\nangle [deg]")
+    have_wheels = bool(np.isfinite(fl).any() and np.isfinite(fr).any())
+    measured = [(label, meas) for label, meas in (
+        ("from wheel speeds (eqs. 2-6)", s.get("delta_wheels_rad")),
+        ("from yaw rate, atan(L r / v)", s.get("delta_yaw_rad")))
+        if meas is not None and np.isfinite(np.asarray(meas, float)).any()]
+    if not measured:  # no measured angle (replay only): the model alone
+        measured = [("model only (no measured road-wheel angle)", None)]
+    n = (2 if have_wheels else 0) + 1 + len(measured)
+    fig, ax = new_figure(n, 1, figsize=(12, 2.3 * n + 0.0), sharex=True, squeeze=False)
+    ax = list(ax[:, 0])
+    k = 0
+    if have_wheels:
+        ax[0].plot(t, s["turn_rate_wheels_radps"], lw=0.7)
+        ax[0].set_ylabel("turn rate, eq. 5\n[rad/s]")
+        ax[0].set_title("front wheel-speed difference / track width", fontsize=10)
+        ax[1].plot(t, fl, lw=0.7, label="front left")
+        ax[1].plot(t, fr, lw=0.7, label="front right")
+        ax[1].set_ylabel("wheel speed [m/s]")
+        _legend_right(ax[1])
+        k = 2
+    ax[k].plot(t, np.degrees(s["steering_wheel_angle"]), lw=0.7)
+    ax[k].set_ylabel("steering-wheel\nangle [deg]")
     trust = np.asarray(s["trustworthy"], dtype=bool)
     model = np.degrees(s["delta_model_rad"])
     # the measured angles divide by the speed: below the fit's minimum speed they are noise
-    v_min = SteeringIdConfig().v_min_mps
+    v_min = float(st.report.get("thresholds", {}).get("v_min_mps",
+                                                      SteeringIdConfig().v_min_mps))
     with np.errstate(invalid="ignore"):
         v_front = 0.5 * (fl + fr)
         slow = v_front < v_min
     have_speed = bool(np.isfinite(v_front).any())
-    measured = [("from wheel speeds (eqs. 2-6)", s.get("delta_wheels_rad")),
-                ("from yaw rate, atan(L r / v)", s.get("delta_yaw_rad"))]
-    for a, (label, meas) in zip(ax[3:], measured):
+    for a, (label, meas) in zip(ax[k + 1:], measured):
         m = None if meas is None else np.degrees(np.asarray(meas, float))
-        if m is not None and np.isfinite(m).any():
+        if m is not None:
             a.plot(t, np.where(slow, np.nan, m), lw=0.5, color="0.6", label=label)
         a.plot(t, np.where(trust, model, np.nan), lw=1.0, color="C3", label="model (eq. 7)")
         a.set_ylabel("road-wheel\nangle [deg]")
         lim = _trusted_limits([model] + ([] if m is None else [m]), trust)
-        notes = [f"below {v_min:g} m/s not shown"] if have_speed else []
+        notes = [f"below {v_min:.3g} m/s not shown"] if have_speed and m is not None else []
         if lim is not None:
             a.set_ylim(*lim)
             if m is not None:
@@ -108,12 +126,13 @@ def steering_figure(result):
         a.set_title(f"road-wheel angle {label.split(',')[0]} vs model"
                     + (f" ({'; '.join(notes)})" if notes else ""), fontsize=9)
         _legend_right(a)
-    ax[4].set_xlabel("time [s]")
+    ax[-1].set_xlabel("time [s]")
     for a in ax:
         a.grid(True, alpha=0.3)
     verdict = "identifiable" if st.identifiable else "NOT identifiable"
-    fig.suptitle(f"steering map (eq. 7): offset {st.offset_rad:+.4f} rad "
-                 f"[{st.offset_ci95_rad[0]:+.4f}, {st.offset_ci95_rad[1]:+.4f}], scale "
+    deg = np.degrees
+    fig.suptitle(f"steering map (eq. 7): offset {deg(st.offset_rad):+.3f} deg "
+                 f"[{deg(st.offset_ci95_rad[0]):+.3f}, {deg(st.offset_ci95_rad[1]):+.3f}], scale "
                  f"{st.scale:.4f} [{st.scale_ci95[0]:.4f}, {st.scale_ci95[1]:.4f}]\n"
                  f"method {st.method}, {verdict}; model shown on trustworthy samples",
                  fontsize=10)
@@ -142,7 +161,12 @@ def replay_figure(result):
     ax[0].plot(xp, yp, lw=1.0, color="C3", label="eq. 1 replay from each window start")
     ax[0].set_xlabel("east x [m]")
     ax[0].set_ylabel("north y [m]")
-    ax[0].set_aspect("equal", adjustable="datalim")
+    ext = [float(np.nanmax(c) - np.nanmin(c)) if np.isfinite(c).any() else 0.0 for c in (x, y)]
+    if min(ext) > 0 and max(ext) / min(ext) <= PATH_ASPECT_MAX:
+        ax[0].set_aspect("equal", adjustable="datalim")
+    else:  # a long straight at equal scale is a sliver: the axes are scaled apart, and say so
+        ax[0].set_title(f"axes NOT to scale (the path spans {ext[0]:.0f} m east by "
+                        f"{ext[1]:.0f} m north)", fontsize=9)
     ax[0].legend(loc="best", fontsize=8)
     ax[1].plot(t, err_line, lw=1.0, color="C3")
     ax[1].set_xlabel("time [s]")
@@ -216,8 +240,8 @@ def zone_figure(result, zone_index: int):
     nm = "n/a" if z.nmse_pct is None else f"{z.nmse_pct:.1f}%"
     sr = "n/a" if z.speed_rmse_mps is None else f"{z.speed_rmse_mps:.3f} m/s"
     title = (f"zone {z.name} ({z.v_min_mps:g}, {z.v_max_mps:g}] m/s: a = "
-             f"{z.offset_mps2:+.3f} + {z.scale_mps2:.3f} accel - {z.brake_scale_mps2:.3f} "
-             f"brake [m/s^2]\nNMSE {nm}, speed RMSE {sr}"
+             f"{z.offset_mps2:+.3f} + {z.scale_mps2:.3f} * accel_pedal - "
+             f"{z.brake_scale_mps2:.3f} * brake_pedal [m/s^2]\nNMSE {nm}, speed RMSE {sr}"
              f"{'' if z.identifiable else ' (NOT identifiable)'}")
     dt = float(np.median(np.diff(s["time"])))
     fig, ax = new_figure(3, 1, figsize=(11, 9), sharex=True)

@@ -1,31 +1,12 @@
 """Concealed physics for the simulator: effects the report's models (eqs. 1, 7, 8) do not hold.
 
-The ground-truth simulator (``models.sim``) runs the hybrid plant of ``models.plant`` and lets
-a list of :class:`Effect` objects change what the plant sees and what the sensors report.
-Identification and, later, mismatch diagnosis are tested by hiding these effects in a
-recording and checking that hmpc notices them. The default run has no effects.
+The ground-truth simulator (``models.sim``) lets a list of effects (the hooks of
+``models.sim.effect_base.Effect``) change what the plant sees and what the sensors report.
+Identification and mismatch diagnosis are tested by hiding these effects in a recording and
+checking that hmpc notices them. The default run has no effects.
 
-Hooks (each a no-op in the base class; a subclass overrides only what it changes):
-
-- ``start(dt_s, params)``: reset state before a run (the simulator calls it, so a list of
-  effects can be reused and a seeded run is repeatable). ``dt_s`` is the plant's internal
-  step [s]; ``params`` the truth (``models.params.Params``).
-- ``steering(sw_rad, v_mps)``: the steering-wheel angle the road wheels follow, before eq. 7,
-  called once per internal step with the measured steering-wheel angle [rad] and speed [m/s].
-- ``pedals(accel_pedal, brake_pedal)``: the pedals the powertrain acts on (fractions 0..1),
-  called once per internal step with the measured pedal positions.
-- ``accel_extra_mps2(state, u)``: extra longitudinal acceleration [m/s^2] added to eq. 8, given
-  the plant state ``(x_m, y_m, psi_rad, v_mps)`` and the effective inputs
-  ``(steering_wheel_angle_rad, accel_pedal, brake_pedal)``.
-- ``grade_rad()``: road grade [rad] (positive uphill) seen by the INS (pitch, height).
-- ``wheel_speed_scale()``: factor on the CAN wheel speeds (and the speed derived from them).
-- ``can_clock_offset_s()``: CAN timestamps minus INS timestamps [s] in the recording.
-
-Effects compose: steering and pedal hooks are chained in list order, accelerations add,
-grades add, wheel-speed scales multiply, clock offsets add.
-
-The named effects (``EFFECTS``) can be built from text, e.g. for a command line:
-``parse_effect("steering_dead_time:delay_s=0.2")``.
+The named effects (``EFFECTS`` here, ``EXTRA_EFFECTS`` of ``models.sim.effects_extra``) can be
+built from text, e.g. for a command line: ``parse_effect("steering_dead_time:delay_s=0.2")``.
 """
 from __future__ import annotations
 
@@ -33,60 +14,8 @@ import math
 from collections import deque
 
 from hmpc.models.errors import InputError
-
-G_MPS2 = 9.80665  #: standard gravity [m/s^2]
-
-
-class Effect:
-    """Base class: every hook leaves the plant and the sensors unchanged."""
-
-    #: registry name (see ``EFFECTS``)
-    name = "effect"
-
-    def start(self, dt_s: float, params=None) -> None:
-        """Reset internal state before a run with internal step ``dt_s`` [s] on truth ``params``."""
-
-    def steering(self, sw_rad: float, v_mps: float) -> float:
-        """Steering-wheel angle [rad] the road wheels follow (before eq. 7) at speed ``v_mps``."""
-        return sw_rad
-
-    def pedals(self, accel_pedal: float, brake_pedal: float) -> tuple[float, float]:
-        """Pedal positions (0..1) the powertrain acts on."""
-        return accel_pedal, brake_pedal
-
-    def accel_extra_mps2(self, state, u) -> float:
-        """Extra longitudinal acceleration [m/s^2] given state (x, y, psi, v) and inputs u."""
-        return 0.0
-
-    def grade_rad(self) -> float:
-        """Road grade [rad], positive uphill."""
-        return 0.0
-
-    def wheel_speed_scale(self) -> float:
-        """Factor on the wheel speeds reported on CAN (1 = exact)."""
-        return 1.0
-
-    def can_clock_offset_s(self) -> float:
-        """CAN timestamps minus INS timestamps [s] (CAN time = true time + offset)."""
-        return 0.0
-
-    def describe(self) -> dict:
-        """A JSON-friendly description: ``{"type": name, <parameter with unit>: value, ...}``."""
-        return {"type": self.name}
-
-    def __repr__(self) -> str:
-        args = ", ".join(f"{k}={v!r}" for k, v in self.describe().items() if k != "type")
-        return f"{type(self).__name__}({args})"
-
-
-def _finite(name: str, value: float, *, lo: float | None = None, lo_open: bool = False) -> float:
-    v = float(value)
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    if lo is not None and (v < lo or (lo_open and v == lo)):
-        rel = ">" if lo_open else ">="
-        raise ValueError(f"{name} must be {rel} {lo}, got {value!r}")
-    return v
+from hmpc.models.sim.effect_base import G_MPS2, Effect, finite_param
+from hmpc.models.sim.effects_extra import EXTRA_EFFECTS
 
 
 class _Delay:
@@ -117,7 +46,7 @@ class SteeringDeadTime(Effect):
     name = "steering_dead_time"
 
     def __init__(self, delay_s: float):
-        self.delay_s = _finite("delay_s", delay_s, lo=0.0)
+        self.delay_s = finite_param("delay_s", delay_s, lo=0.0)
         self._line = _Delay(self.delay_s)
         self._started = False
 
@@ -144,7 +73,7 @@ class SteeringLag(Effect):
     name = "steering_lag"
 
     def __init__(self, tau_s: float):
-        self.tau_s = _finite("tau_s", tau_s, lo=0.0)
+        self.tau_s = finite_param("tau_s", tau_s, lo=0.0)
         self._state: float | None = None
 
     def start(self, dt_s: float, params=None) -> None:
@@ -174,7 +103,7 @@ class SteeringCubic(Effect):
     name = "steering_cubic"
 
     def __init__(self, cubic_per_rad2: float):
-        self.cubic_per_rad2 = _finite("cubic_per_rad2", cubic_per_rad2)
+        self.cubic_per_rad2 = finite_param("cubic_per_rad2", cubic_per_rad2)
 
     def steering(self, sw_rad: float, v_mps: float) -> float:
         return sw_rad + self.cubic_per_rad2 * sw_rad ** 3
@@ -195,7 +124,7 @@ class Understeer(Effect):
     name = "understeer"
 
     def __init__(self, gradient_rad_per_mps2: float):
-        self.gradient_rad_per_mps2 = _finite("gradient_rad_per_mps2", gradient_rad_per_mps2, lo=0.0)
+        self.gradient_rad_per_mps2 = finite_param("gradient_rad_per_mps2", gradient_rad_per_mps2, lo=0.0)
         self._map = None
 
     def start(self, dt_s: float, params=None) -> None:
@@ -218,7 +147,7 @@ class PedalDeadTime(Effect):
     name = "pedal_dead_time"
 
     def __init__(self, delay_s: float):
-        self.delay_s = _finite("delay_s", delay_s, lo=0.0)
+        self.delay_s = finite_param("delay_s", delay_s, lo=0.0)
         self._line = _Delay(self.delay_s)
 
     def start(self, dt_s: float, params=None) -> None:
@@ -241,7 +170,7 @@ class AeroDrag(Effect):
     name = "aero_drag"
 
     def __init__(self, coeff_per_m: float):
-        self.coeff_per_m = _finite("coeff_per_m", coeff_per_m, lo=0.0)
+        self.coeff_per_m = finite_param("coeff_per_m", coeff_per_m, lo=0.0)
 
     def accel_extra_mps2(self, state, u) -> float:
         v = state[3]
@@ -262,7 +191,7 @@ class RoadGrade(Effect):
     name = "road_grade"
 
     def __init__(self, grade_rad: float):
-        self.grade = _finite("grade_rad", grade_rad)
+        self.grade = finite_param("grade_rad", grade_rad)
         if abs(self.grade) > 0.35:  # 35 % slope: steeper than any public road
             raise ValueError(f"grade_rad must be within +-0.35 rad, got {grade_rad!r}")
 
@@ -286,7 +215,7 @@ class WheelRadiusError(Effect):
     name = "wheel_radius_error"
 
     def __init__(self, scale: float):
-        self.scale = _finite("scale", scale, lo=0.0, lo_open=True)
+        self.scale = finite_param("scale", scale, lo=0.0, lo_open=True)
 
     def wheel_speed_scale(self) -> float:
         return self.scale
@@ -304,7 +233,7 @@ class ClockOffset(Effect):
     name = "clock_offset"
 
     def __init__(self, can_offset_s: float):
-        self.can_offset_s = _finite("can_offset_s", can_offset_s)
+        self.can_offset_s = finite_param("can_offset_s", can_offset_s)
         if abs(self.can_offset_s) > 5.0:
             raise ValueError(f"can_offset_s must be within +-5 s, got {can_offset_s!r}")
 
@@ -322,13 +251,6 @@ EFFECTS: dict[str, type[Effect]] = {
 }
 
 
-def _extra_effects() -> dict[str, type[Effect]]:
-    """The effects kept in ``models.sim.effects_extra`` (idle creep, hilly road, mass change),
-    which imports this module: looked up when a name is not one of ``EFFECTS``."""
-    from hmpc.models.sim.effects_extra import EXTRA_EFFECTS
-    return EXTRA_EFFECTS
-
-
 def effect_from_dict(spec: dict, *, where: str | None = None) -> Effect:
     """Build an effect from ``{"type": name, <keyword>: value, ...}`` (the ``describe()`` form).
 
@@ -337,7 +259,7 @@ def effect_from_dict(spec: dict, *, where: str | None = None) -> Effect:
     if not isinstance(spec, dict) or "type" not in spec:
         raise InputError("an effect needs a 'type'", where, key="type")
     kind = spec["type"]
-    known = {**EFFECTS, **_extra_effects()}
+    known = {**EFFECTS, **EXTRA_EFFECTS}
     cls = known.get(kind) if isinstance(kind, str) else None
     if cls is None:
         raise InputError(f"unknown effect {kind!r} (known: {', '.join(sorted(known))})", where,

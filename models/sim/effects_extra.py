@@ -1,6 +1,6 @@
-"""More concealed physics for the ground-truth simulator (issue 12's diagnosis benchmark).
+"""More concealed physics for the ground-truth simulator (the diagnosis benchmark's).
 
-Kept apart from ``models.sim.effects`` (same :class:`~hmpc.models.sim.effects.Effect` hooks):
+Kept apart from ``models.sim.effects`` (same :class:`~hmpc.models.sim.effect_base.Effect` hooks):
 
 - :class:`IdleCreep`: a speed-regulating idle torque (torque converter at idle);
 - :class:`HillyRoad`: a road grade that varies with the distance travelled (the constant
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 
-from hmpc.models.sim.effects import G_MPS2, Effect, _finite
+from hmpc.models.sim.effect_base import G_MPS2, Effect, finite_param
 
 
 class IdleCreep(Effect):
@@ -29,8 +29,8 @@ class IdleCreep(Effect):
     name = "idle_creep"
 
     def __init__(self, accel_mps2: float, creep_speed_mps: float):
-        self.accel_mps2 = _finite("accel_mps2", accel_mps2, lo=0.0)
-        self.creep_speed_mps = _finite("creep_speed_mps", creep_speed_mps, lo=0.0, lo_open=True)
+        self.accel_mps2 = finite_param("accel_mps2", accel_mps2, lo=0.0)
+        self.creep_speed_mps = finite_param("creep_speed_mps", creep_speed_mps, lo=0.0, lo_open=True)
 
     def accel_extra_mps2(self, state, u) -> float:
         if u[1] >= 0.01:
@@ -52,10 +52,10 @@ class HillyRoad(Effect):
     name = "hilly_road"
 
     def __init__(self, amplitude_rad: float, wavelength_m: float):
-        self.amplitude_rad = _finite("amplitude_rad", amplitude_rad)
+        self.amplitude_rad = finite_param("amplitude_rad", amplitude_rad)
         if abs(self.amplitude_rad) > 0.2:  # 20 % grades are the steepest public roads
             raise ValueError(f"amplitude_rad must be within +-0.2 rad, got {amplitude_rad!r}")
-        self.wavelength_m = _finite("wavelength_m", wavelength_m, lo=1.0)
+        self.wavelength_m = finite_param("wavelength_m", wavelength_m, lo=1.0)
         self._s_m = 0.0
         self._dt_s = 0.01
 
@@ -85,8 +85,8 @@ class MassChange(Effect):
     name = "mass_change"
 
     def __init__(self, at_s: float, factor: float):
-        self.at_s = _finite("at_s", at_s, lo=0.0)
-        self.factor = _finite("factor", factor, lo=0.0, lo_open=True)
+        self.at_s = finite_param("at_s", at_s, lo=0.0)
+        self.factor = finite_param("factor", factor, lo=0.0, lo_open=True)
         self._k = 0
         self._dt_s = 0.01
 

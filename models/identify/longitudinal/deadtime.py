@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hmpc.models.identify.stats import fold_ids, heldout_sse, not_worse_than_best
+from hmpc.models.identify.stats import contiguous_fold_ids, heldout_sse, not_worse_than_best
 from hmpc.models.identify.longitudinal.config import LongitudinalIdConfig
 
 
@@ -63,7 +63,7 @@ def pedal_dead_time_cv(a_meas: np.ndarray, ok: np.ndarray, zid: np.ndarray, n_zo
         ok = ok & np.isfinite(pair[0]) & np.isfinite(pair[1])
     ok = ok & np.isfinite(a_meas)
     K = max(3, int(cfg.cv_folds))
-    fold = fold_ids(len(a_meas), K)
+    fold = contiguous_fold_ids(len(a_meas), K)
     y = np.where(ok, a_meas, 0.0)[:, None]
     E = np.array([_heldout_by_zone(p, y, ok, zid, n_zones, fold, K, 0,
                                    cfg.min_samples(dt_s))[:, 0] for p in lagged])

@@ -1,7 +1,9 @@
 """What each zone's data determined, and the written zone (:func:`zone_from_fit`).
 
-**Identifiability**: a coefficient whose input is never exercised in a zone (pedal pressed for
-less than ``min_pressed_s``) is not fitted; it is copied from the nearest zone that identified
+**Identifiability**: a pedal gain fitted below zero is set aside (:func:`drop_negative_gains`: a
+reversed sign convention, or an input that is not a pedal), and then, like a coefficient whose
+input is never exercised in a zone (pedal pressed for less than ``min_pressed_s``), it is not
+fitted; it is copied from the nearest zone that identified
 it, or (brake only) set to ``brake_scale_prior_mps2``, and the zone is marked
 ``identifiable: false`` with a note. A zone with less than ``min_zone_s`` of usable samples is
 copied from the nearest fitted zone and marked the same way. Without brake data (no channel, or the
@@ -46,6 +48,42 @@ def _nearest_fitted(i: int, fits, key: str) -> int | None:
 def _rel_half_width(value: float, ci) -> float:
     """Half-width of the 95% interval relative to the value (inf for a zero value)."""
     return abs(0.5 * (ci[1] - ci[0]) / value) if value != 0 else float("inf")
+
+
+#: a pedal's channel and what pressing it must do, by the zone key of its gain
+_GAIN_INPUT = {"scale_mps2": ("accel_pedal", "accelerate"),
+               "brake_scale_mps2": ("brake_pedal", "decelerate (the brake term is subtracted)")}
+
+
+def drop_negative_gains(fits: list[ZoneFit]) -> None:
+    """Set aside every fitted pedal gain < 0 (in place): pressing a pedal never works against
+    it, so a negative gain is a reversed sign convention or an input that is not a pedal (a
+    speed or torque command), never a model value. The gain goes to
+    ``report['negative_gains'][key]`` with its interval and the reason, and ``report[key]`` to
+    None, so the zone takes the value as a zone that did not exercise the pedal does."""
+    for f in fits:
+        if not f.fitted:
+            continue
+        rep = f.report
+        for key, (channel, does) in _GAIN_INPUT.items():
+            v = rep.get(key)
+            if v is None or v >= 0:
+                continue
+            ci_key = key.replace("_mps2", "_ci95_mps2")
+            lo, hi = rep.get(ci_key) or (v, v)
+            why = (f"gain not determined: {key} {v:.3g} m/s^2, its 95% interval [{lo:.3g}, "
+                   f"{hi:.3g}] spans 0" if hi > 0 else
+                   f"negative gain {v:.3g} m/s^2 [{lo:.3g}, {hi:.3g}]: pressing {channel} must "
+                   f"{does}; check the sign convention of {channel} (0 released, 1 pressed), or "
+                   "the input is not a pedal (a speed or torque command?)")
+            rep.setdefault("negative_gains", {})[key] = {"value": v, "ci95": [lo, hi],
+                                                         "reason": why}
+            rep[key], rep[ci_key] = None, None
+
+
+def _negative_why(rep: dict, key: str) -> str | None:
+    """The reason a fitted gain was set aside (:func:`drop_negative_gains`), or None."""
+    return (rep.get("negative_gains") or {}).get(key, {}).get("reason")
 
 
 def zone_from_fit(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig,
@@ -132,11 +170,15 @@ def _zone_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig, p
     if sc is None:
         j = _nearest_fitted(i, fits, "scale_mps2")
         if j is None:
-            raise InputError("the accelerator pedal is never pressed long enough in any zone "
-                             f"(need {cfg.min_pressed_s} s): cannot identify eq. 8",
+            neg = next((w for g in fits if g.fitted
+                        for w in [_negative_why(g.report, "scale_mps2")] if w), None)
+            raise InputError((f"no zone has a usable accelerator gain ({neg})" if neg else
+                              "the accelerator pedal is never pressed long enough in any zone "
+                              f"(need {cfg.min_pressed_s} s)") + ": cannot identify eq. 8",
                              path, channel="accel_pedal")
         sc = fits[j].report["scale_mps2"]
-        why = (f"accelerator pressed only {rep['accel_pedal_pressed_s']:.1f} s "
+        why = (_negative_why(rep, "scale_mps2") or
+               f"accelerator pressed only {rep['accel_pedal_pressed_s']:.1f} s "
                f"({cfg.min_pressed_s:g} s needed)" if f.fitted else rep["not_fitted_because"])
         rep["not_identified"]["scale_mps2"] = f"{why}: copied from zone '{zones[j][0]}'"
         notes.append(f"{why}: scale copied from zone '{zones[j][0]}'" if f.fitted else
@@ -161,6 +203,7 @@ def _zone_brake_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdCon
     if br is None:
         j = _nearest_fitted(i, fits, "brake_scale_mps2")
         why = ("no brake_pedal channel" if not has_brake else
+               _negative_why(rep, "brake_scale_mps2") or
                f"brake pressed only {rep['brake_pedal_pressed_s']:.1f} s" if f.fitted else
                rep["not_fitted_because"])
         ni = rep["not_identified"]

@@ -12,7 +12,8 @@ from hmpc.models.params import Vehicle, Zone
 from hmpc.models.logs.recording import Recording
 from hmpc.models.identify.longitudinal.config import LongitudinalIdConfig, _check_config
 from hmpc.models.identify.longitudinal.deadtime import PedalDeadTime, pedal_dead_time_cv
-from hmpc.models.identify.longitudinal.identifiable import braking_evidence, zone_from_fit
+from hmpc.models.identify.longitudinal.identifiable import (braking_evidence,
+                                                            drop_negative_gains, zone_from_fit)
 from hmpc.models.identify.longitudinal.signals import (LongitudinalSignals, ZoneMasks, _pedals,
                                                        lagged_pedals, longitudinal_signals,
                                                        zone_masks)
@@ -70,6 +71,7 @@ def identify_longitudinal(rec: Recording, vehicle: Vehicle,
                          f"zone; need {cfg.min_zone_s:g} s per zone): cannot identify eq. 8",
                          rec.meta.get("path"), channel="accel_pedal")
     selection["disagreements"] = source_disagreements(sig, masks, fits, deads, cfg)
+    drop_negative_gains(fits)
     for zi, f in enumerate(fits):
         if f.fitted:
             f.report["braking"] = braking_evidence(sig, masks, zi, f, cfg)

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from hmpc.models.identify.stats import fold_ids, not_worse_than_best
+from hmpc.models.identify.stats import contiguous_fold_ids, not_worse_than_best
 from hmpc.models.identify.longitudinal.config import SOURCE_ORDER, LongitudinalIdConfig
 from hmpc.models.identify.longitudinal.deadtime import _heldout_by_zone, pedal_dead_time_cv
 from hmpc.models.identify.longitudinal.signals import LongitudinalSignals, ZoneMasks, _pedals
@@ -50,7 +50,7 @@ def choose_accel_source(sig: LongitudinalSignals, ok: np.ndarray, zid: np.ndarra
     for pair in lagged:
         ok = ok & np.isfinite(pair[0]) & np.isfinite(pair[1])
     K = max(3, int(cfg.cv_folds))
-    fold = fold_ids(len(Y), K)
+    fold = contiguous_fold_ids(len(Y), K)
     Yf = np.where(ok[:, None], Y, 0.0)
     E = {}
     for j, c in enumerate(names):

@@ -1,9 +1,25 @@
 """Thresholds of steering identification (:class:`SteeringIdConfig`), each with the reason for
-its number. Imports nothing of hmpc.
+its number, and their scaling to the vehicle's size (:meth:`SteeringIdConfig.for_vehicle`).
+Imports nothing of hmpc.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, fields, replace
+
+#: [m] the wheelbase the default thresholds were set for: the report's car (a passenger car).
+REFERENCE_WHEELBASE_M = 2.65
+#: thresholds that :meth:`SteeringIdConfig.for_vehicle` scales with a smaller vehicle's size f =
+#: wheelbase / REFERENCE_WHEELBASE_M (f <= 1), by dynamic similarity (equal Froude number v^2 /
+#: (g b): a 1:10 model behaves like the full-size car at speeds scaled by sqrt(f), on time scales
+#: scaled by sqrt(f), so rates scale by 1/sqrt(f)) and geometric similarity (lengths by f).
+#: Accelerations (tyre friction, 0.3-0.4 g) are the same at every size and stay.
+SPEED_THRESHOLDS = ("v_min_mps", "kinematic_speed_mps")
+RATE_THRESHOLDS = ("sw_rate_max_radps",)
+LENGTH_THRESHOLDS = ("lever_arm_x_bounds_m", "max_lever_arm_ci_m")
+#: durations of the vehicle's motion (the replay window: long enough for a heading error to show
+#: in position); the smoothing and guard windows belong to the recording's sampling and stay.
+TIME_THRESHOLDS = ("window_s",)
 
 
 @dataclass(frozen=True)
@@ -84,3 +100,53 @@ class SteeringIdConfig:
     kinematic_speed_mps: float = 10.0
     #: [s] of trustworthy steering below ``kinematic_speed_mps`` needed.
     min_kinematic_s: float = 5.0
+    # ---- the two independent sensors (wheel-speed difference, yaw rate)
+    #: [1] relative difference of the wheel-speed and yaw-rate scales above which it matters
+    #: even when it is within the noise: half of ``max_scale_rel_ci``, so the value written is
+    #: not off by more than an identifiable scale's own interval allows, whichever sensor is
+    #: right. Within the noise, such a difference leaves the scale NOT identifiable.
+    sensor_scale_material_rel: float = 0.05
+    # ---- understeer: whether the recording can test it at all
+    #: [m/s^2] lateral acceleration (97.5th percentile of |a_y| on the trustworthy samples)
+    #: needed before anything is said about understeer: its angle is K a_y, and a passenger
+    #: car's K ~ 0.004 rad/(m/s^2) (2.3 deg/g) makes 0.008 rad at 2 m/s^2, several times the
+    #: angle sensor's 0.1 deg step; on a straight line it is not testable.
+    understeer_min_lat_accel_mps2: float = 2.0
+    #: [1] (v_high / v_low)^2 of the steered samples (10th and 90th speed percentiles where
+    #: |a_y| > a quarter of ``understeer_min_lat_accel_mps2``) needed: at one speed the
+    #: understeer factor 1 / (1 + K v^2 / b) is a constant on the gain, not separable from it.
+    understeer_min_speed_sq_ratio: float = 2.0
+
+    @classmethod
+    def for_vehicle(cls, vehicle, **overrides) -> "SteeringIdConfig":
+        """The defaults scaled to a vehicle smaller than the reference (:data:`SPEED_THRESHOLDS`,
+        :data:`RATE_THRESHOLDS`, :data:`LENGTH_THRESHOLDS`, :data:`TIME_THRESHOLDS`), then
+        ``overrides`` (field name ->
+        value) on top. A vehicle at least as long as the reference keeps the defaults: the
+        reasons behind the speed thresholds (wheel-speed steps, gyro bias over speed) do not
+        grow with size.
+
+        Raises:
+            ValueError: an override names no threshold.
+        """
+        known = {f.name for f in fields(cls)}
+        bad = [k for k in overrides if k not in known]
+        if bad:
+            raise ValueError(f"unknown steering threshold '{bad[0]}' (one of "
+                             f"{', '.join(sorted(known))})")
+        f = min(1.0, float(vehicle.wheelbase_m) / REFERENCE_WHEELBASE_M)
+        base = cls()
+        scaled = {}
+        if f < 1.0:
+            scaled.update({k: getattr(base, k) * math.sqrt(f) for k in SPEED_THRESHOLDS})
+            scaled.update({k: getattr(base, k) / math.sqrt(f) for k in RATE_THRESHOLDS})
+            scaled.update({k: getattr(base, k) * math.sqrt(f) for k in TIME_THRESHOLDS})
+            for k in LENGTH_THRESHOLDS:
+                v = getattr(base, k)
+                scaled[k] = tuple(x * f for x in v) if isinstance(v, tuple) else v * f
+        return replace(base, **{**scaled, **overrides})
+
+    @staticmethod
+    def size_factor(vehicle) -> float:
+        """The factor f (<= 1) by which :meth:`for_vehicle` scales to ``vehicle``."""
+        return min(1.0, float(vehicle.wheelbase_m) / REFERENCE_WHEELBASE_M)

@@ -190,7 +190,8 @@ def dead_time_cv(sw: np.ndarray, meas: np.ndarray, mask: np.ndarray, dt_s: float
     return {"best_s": best * dt_s,
             "interval_s": [(float(lags[lo]) - 0.5) * dt_s, (float(lags[hi]) + 0.5) * dt_s],
             "used": bool(used), "folds": int(Kk), "samples": int(ok.sum()),
-            "excess_at_zero": (float(D[j0].mean() / mean[jb]) if j0 is not None else None),
+            "excess_at_zero": (float(D[j0].mean() / mean[jb]) if j0 is not None
+                               and mean[jb] > 0 else None),
             "excess_at_zero_t": (float(D[j0].mean() / se[j0]) if j0 is not None and se[j0] > 0
                                  else None), "t_critical": crit}
 

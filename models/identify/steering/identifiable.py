@@ -4,7 +4,8 @@ The estimate is called identifiable only when enough trustworthy samples exist, 
 steering-wheel range is wide enough, offset and scale are not too correlated, their intervals
 are narrow, and some steering happened at speeds where the kinematic (no side-slip) assumption
 holds. Otherwise ``identifiable`` is False and the note says plainly what the recording cannot
-separate.
+separate. Understeer (:func:`understeer_testability`) is named only as far as the recording
+excites it: with no lateral acceleration, or steering at one speed only, it is not testable.
 """
 from __future__ import annotations
 
@@ -45,7 +46,8 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
         f"scale 95% interval +-{100 * rel:.1f}% (need <= {100 * cfg.max_scale_rel_ci:.0f}%)")
     half_o = 0.5 * (fit.offset_ci95_rad[1] - fit.offset_ci95_rad[0])
     add("offset_ci95_rad", half_o, cfg.max_offset_ci_rad, half_o <= cfg.max_offset_ci_rad,
-        f"offset 95% interval +-{half_o:.4f} rad (need <= {cfg.max_offset_ci_rad} rad)")
+        f"offset 95% interval +-{np.degrees(half_o):.3f} deg (need <= "
+        f"{np.degrees(cfg.max_offset_ci_rad):.2f} deg)")
     slow_s = float(np.sum(v_steady <= cfg.kinematic_speed_mps) * dt_s)
     add("kinematic_speed_s", slow_s, cfg.min_kinematic_s, slow_s >= cfg.min_kinematic_s,
         f"{slow_s:.1f} s of trustworthy steering at or below {cfg.kinematic_speed_mps:g} m/s "
@@ -78,7 +80,7 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
     if not ok["scale_rel_ci95"]:
         notes.append(f"the scale is known only to +-{100 * rel:.0f}%")
     if not ok["offset_ci95_rad"]:
-        notes.append(f"the offset is known only to +-{half_o:.4f} rad")
+        notes.append(f"the offset is known only to +-{np.degrees(half_o):.3f} deg")
     if not bias_ok:
         # the offset's yaw rate is v tan(offset)/b, the bias a constant: only the spread of
         # the speeds tells them apart; say which speeds there were and what that left
@@ -88,7 +90,7 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
                 if vs.size else "")
         notes.append("the speed range is too narrow to separate the offset from the yaw-rate "
                      f"sensor's bias ({span}|corr(offset, bias)| = {abs(bias_corr):.3f}: "
-                     f"offset +-{half_o:.4f} rad; arcs at other speeds separate them)")
+                     f"offset +-{np.degrees(half_o):.3f} deg; arcs at other speeds separate them)")
     if not ok["kinematic_speed_s"]:
         notes.append(_kinematic_note(v_steady, slow_s, cfg))
     if notes:
@@ -116,3 +118,43 @@ def _kinematic_note(v_steady: np.ndarray, slow_s: float, cfg) -> str:
             "into the kinematic gain") if v.size and np.max(v) > cfg.kinematic_speed_mps else ""
     return (f"only {slow_s:.1f} s of trustworthy steering at or below "
             f"{cfg.kinematic_speed_mps:g} m/s{span}, {cfg.min_kinematic_s:g} s are needed{fast}")
+
+
+def understeer_testability(v_mps: np.ndarray, lat_accel_mps2: np.ndarray,
+                           cfg: SteeringIdConfig) -> dict:
+    """Whether the trustworthy samples (speeds ``v_mps`` [m/s], lateral accelerations
+    ``lat_accel_mps2`` [m/s^2]) can test understeer at all: its angle K a_y needs lateral
+    acceleration (``understeer_min_lat_accel_mps2``), and telling it from the scale needs the
+    steered samples at different speeds (``understeer_min_speed_sq_ratio``); on a straight line
+    neither holds. Nothing is claimed about understeer, separable or not, unless both hold.
+
+    Returns ``{"testable", "lat_accel_p97_5_mps2", "speed_sq_ratio", "steered_s"?, "note"}``.
+    """
+    v = np.asarray(v_mps, dtype=float)
+    ay = np.abs(np.asarray(lat_accel_mps2, dtype=float))
+    ok = np.isfinite(v) & np.isfinite(ay)
+    v, ay = v[ok], ay[ok]
+    a97 = float(np.percentile(ay, 97.5)) if ay.size else 0.0
+    steered = ay > 0.25 * cfg.understeer_min_lat_accel_mps2
+    if steered.sum() >= 2:
+        v10, v90 = np.percentile(v[steered], [10, 90])
+        ratio = float((v90 / v10) ** 2) if v10 > 0 else float("inf")
+    else:
+        v10 = v90 = ratio = float("nan")
+    lat_ok = a97 >= cfg.understeer_min_lat_accel_mps2
+    speed_ok = ratio >= cfg.understeer_min_speed_sq_ratio
+    if not lat_ok:
+        note = (f"understeer not testable on this recording: the lateral acceleration reaches "
+                f"{a97:.2f} m/s^2 (97.5th percentile; {cfg.understeer_min_lat_accel_mps2:g} "
+                "m/s^2 needed), and understeer acts only through it")
+    elif not speed_ok:
+        note = (f"understeer not testable on this recording: the steering happened at "
+                f"{v10:.1f}-{v90:.1f} m/s ((v_high/v_low)^2 = {ratio:.2f}, "
+                f"{cfg.understeer_min_speed_sq_ratio:g} needed); at one speed understeer is a "
+                "constant factor on the gain, not separable from the scale")
+    else:
+        note = (f"understeer testable: lateral acceleration up to {a97:.2f} m/s^2, steering at "
+                f"{v10:.1f}-{v90:.1f} m/s (hmpc diagnose tests it)")
+    return {"testable": bool(lat_ok and speed_ok), "lat_accel_p97_5_mps2": a97,
+            "speed_sq_ratio": float(ratio) if np.isfinite(ratio) else None,
+            "steered_speed_p10_p90_mps": [float(v10), float(v90)], "note": note}

@@ -13,11 +13,13 @@ from hmpc.models.logs.recording import Recording
 from hmpc.models.identify.steering.config import SteeringIdConfig
 from hmpc.models.identify.steering.deadtime import delayed, estimate_dead_time
 from hmpc.models.identify.steering.fits import MapFit, direct_fits
-from hmpc.models.identify.steering.identifiable import identifiability
+from hmpc.models.identify.steering.identifiable import identifiability, understeer_testability
+from hmpc.models.identify.steering.reconcile import (SENSOR_HEADLINE, disagreement,
+                                                     negative_gains, sensor_comparison)
 from hmpc.models.identify.steering.replay import _fit_replay
-from hmpc.models.identify.steering.selection import (agreement_a_b, choose_fit, cross_validate,
-                                                     disagreement)
-from hmpc.models.identify.steering.signals import (SteeringSignals, steering_signals,
+from hmpc.models.identify.steering.selection import agreement_a_b, choose_fit, cross_validate
+from hmpc.models.identify.steering.signals import (MIN_FIT_SAMPLES, SteeringSignals,
+                                                   dropped_text, steering_signals,
                                                    trustworthy_samples)
 
 
@@ -26,9 +28,11 @@ class SteeringResult:
     """Outcome of :func:`identify_steering`.
 
     ``offset_rad``/``scale`` are the final estimate: the trusted fit with the best held-out
-    score (:func:`choose_fit`; identifiable fits first), flagged NOT identifiable when the fits
-    disagree beyond their intervals. ``fits`` holds all fits by name, ``report`` the
-    JSON-ready figures, ``series`` time series for plots (road-wheel angle estimates etc.).
+    score (:func:`choose_fit`; identifiable fits first), or the yaw-rate fit when the two
+    sensors' scales are reconciled by ``wheel_speed_scale`` (``reconcile``), flagged NOT
+    identifiable when the fits disagree beyond their intervals otherwise. ``fits`` holds all
+    fits by name, ``report`` the JSON-ready figures, ``series`` time series for plots
+    (road-wheel angle estimates etc.).
     """
 
     offset_rad: float
@@ -55,20 +59,33 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
     them by held-out evidence, and names each skipped method and why
     (``report['selection']['skipped']``). Uses ``gear`` to drop reverse.
 
+    The thresholds default to :meth:`SteeringIdConfig.for_vehicle` (scaled to a vehicle
+    smaller than a passenger car).
+
     Raises:
-        InputError: no method has its channels, or no trustworthy samples remain.
+        InputError: no method has its channels, no trustworthy samples remain, or no fit is
+            trusted (every one with a gain <= 0, or only an untrusted replay).
     """
-    cfg = config or SteeringIdConfig()
+    cfg = config or SteeringIdConfig.for_vehicle(vehicle)
     say = progress or (lambda msg: None)
     sig = steering_signals(rec, vehicle)
     for m, why in sig.skipped.items():
         say(f"steering: {m} skipped: {why}")
     masks = trustworthy_samples(rec, sig, cfg)
-    say(f"steering: {int(masks.steady.sum())} trustworthy samples of {len(sig.sw)}")
+    say(f"steering: {int(masks.steady.sum())} trustworthy samples of {len(sig.sw)} ("
+        f"{dropped_text(masks.dropped, len(sig.sw))})")
+    if masks.relaxed:
+        say(f"steering: too few samples pass every check: the fits include {masks.relaxed}")
     dead = estimate_dead_time(sig, masks.usable, cfg)
     sw_d = delayed(sig.sw, dead.tau_s, sig.dt_s)
     steady = masks.steady & np.isfinite(sw_d)
     usable = masks.usable & np.isfinite(sw_d)
+    if steady.sum() < masks.steady.sum():  # the delayed angle reaches before the start
+        masks.dropped.append({"reason": "dead_time_edge",
+                              "samples": int(masks.steady.sum() - steady.sum()),
+                              "threshold": dead.tau_s,
+                              "text": f"within the dead time {dead.tau_s:.3g} s of a gap or "
+                                      "the start"})
     say(f"steering: dead time {dead.tau_s:.3f} s (" + (
         f"held-out interval {dead.interval_s[0]:.3f}-{dead.interval_s[1]:.3f} s" if dead.used
         else "not determined") + f", from {dead.source})")
@@ -91,26 +108,54 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
         raise InputError("no steering fit converged (" + "; ".join(
             f"{m}: {w}" for m, w in sig.skipped.items()) + ")", rec.meta.get("path"),
             channel="steering_wheel_angle")
+    for k, why in negative_gains(fits).items():  # a gain <= 0 is never a model value
+        fits[k].extra.update(trusted=False, untrusted_because=why)
+        say(f"steering: {k} not used: {why}")
+    if not any(f.extra.get("trusted", True) for f in fits.values()):
+        raise InputError("no trusted steering fit (" + "; ".join(
+            [f"{k}: {f.extra['untrusted_because']}" for k, f in fits.items()]
+            + [f"{m}: {w}" for m, w in sig.skipped.items()]) + ")", rec.meta.get("path"),
+            channel="steering_wheel_angle")
     idents = {k: identifiability(f, sw_d[steady], sig.v_front[steady], sig.dt_s, cfg,
                                  vehicle.steering_ratio) for k, f in fits.items()}
-    rp_fit = fits.get("position_replay")
-    if rp_fit is not None and not rp_fit.extra.get("trusted", True):
-        idents["position_replay"] = dict(idents["position_replay"], identifiable=False,
-                                         note="NOT trusted: " + rp_fit.extra["untrusted_because"])
+    for k, f in fits.items():
+        if not f.extra.get("trusted", True):
+            idents[k] = dict(idents[k], identifiable=False,
+                             note="NOT trusted: " + f.extra["untrusted_because"])
     say("steering: choosing by blocked cross-validation")
     cv = cross_validate(rec, sig, fits, sw_d, steady, usable, cfg, lever)
     chosen, why = choose_fit(fits, idents, cv)
+    sensors = sensor_comparison(fits, sig.b, sig.T, cfg)
+    if sensors is not None and sensors["verdict"] == "reconciled" \
+            and chosen == "wheel_speed_difference":
+        chosen, why = "yaw_rate", ("the wheel-speed and yaw-rate scales disagree and the "
+                                   "wheel-speed angle depends on the effective track width "
+                                   f"(reconciled_by: wheel_speed_scale; by held-out score: {why})")
+    if sensors is not None and sensors["verdict"] != "agree":
+        say(f"steering: {SENSOR_HEADLINE[sensors['verdict']]}: {sensors['note']}")
     final = fits[chosen]
-    pairs, disagree_note = disagreement(fits, cfg)
+    pairs, disagree_note = disagreement(fits, cfg, sensors)
     ident = dict(idents[chosen])
+    not_ident = []
+    if sensors is not None and (sensors["verdict"] == "offset" or (
+            sensors["verdict"] == "unresolved" and chosen == "wheel_speed_difference")):
+        not_ident.append(sensors["note"])
     if disagree_note:
+        not_ident.append(disagree_note)
+    if masks.relaxed:
+        not_ident.append(f"fewer than {MIN_FIT_SAMPLES} samples pass every sample check, so "
+                         f"the fits include {masks.relaxed}")
+    if not_ident:
         ident["identifiable"] = False
-        ident["note"] = ("NOT identifiable: " + disagree_note + ". " +
+        ident["note"] = ("NOT identifiable: " + "; ".join(not_ident) + ". " +
                          ident["note"].removeprefix("NOT identifiable: "))
+    if sensors is not None and sensors["verdict"] == "reconciled":
+        ident["note"] += " " + sensors["note"] + "."
     if sig.skipped:  # the parameter file's note names the methods the recording did not allow
         ident["note"] += " Not run: " + "; ".join(f"{m} ({w})" for m, w in sig.skipped.items()) \
             + "."
     selection = {"chosen": chosen, "because": why, **cv, "disagreements": pairs,
+                 "sensors": sensors,
                  "untrusted": {k: f.extra["untrusted_because"] for k, f in fits.items()
                                if not f.extra.get("trusted", True)},
                  "skipped": dict(sig.skipped), "speeds": sig.speed_note}
@@ -121,6 +166,10 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
                else float("nan"))
     report = _report(sig, cfg, final, why, selection, dead, fits, agreement, rms_rad, ident,
                      idents, masks, steady, usable, sw_d)
+    with np.errstate(invalid="ignore"):
+        lat = sig.v_rear ** 2 * np.tan(delta_model) / sig.b
+    report["understeer"] = understeer_testability(sig.v_rear[steady], lat[steady], cfg)
+    report["thresholds_size_factor"] = SteeringIdConfig.size_factor(vehicle)
     series = _series(rec, sig, delta_b, delta_model, steady, replay, final)
     return SteeringResult(
         offset_rad=final.offset_rad, scale=final.scale, offset_ci95_rad=final.offset_ci95_rad,
@@ -150,7 +199,8 @@ def _report(sig, cfg, final, why, selection, dead, fits, agreement, rms_rad, ide
                                        "note": v["note"]}
                                    for k, v in idents.items()},
         "samples": {"total": int(len(sig.sw)), "usable": int(usable.sum()),
-                    "trustworthy": int(steady.sum()), "excluded": masks.excluded},
+                    "trustworthy": int(steady.sum()), "excluded": masks.excluded,
+                    "dropped": masks.dropped, "relaxed": masks.relaxed},
         "speed_source": sig.speed_source,
         "speed_range_mps": [float(np.percentile(sig.v_front[steady], 2.5)),
                             float(np.percentile(sig.v_front[steady], 97.5))],

@@ -1,12 +1,10 @@
-"""The choice among the fits of eq. 7 by held-out evidence, and where they disagree.
+"""The choice among the fits of eq. 7 by held-out evidence, and how the two measured angles agree.
 
 **Choice** (:func:`cross_validate`, :func:`choose_fit`): blocked cross-validation over
 ``cv_folds`` contiguous folds; each fit, refitted without the fold, predicts the road-wheel
 angle of the independent channel(s) it did not use, normalised by that channel's own held-out
 error; the lowest score among the trusted identifiable fits is the final estimate. The choice,
-every score and every disagreement (:func:`disagreement`: 95% intervals that do not overlap
-beyond ``agree_offset_rad``/``agree_scale_rel``, with the likely cause) are in
-``report['selection']``; a disagreement makes the estimate "NOT identifiable".
+every score and every disagreement (``reconcile``) are in ``report['selection']``.
 """
 from __future__ import annotations
 
@@ -118,41 +116,6 @@ def choose_fit(fits: dict[str, MapFit], idents: dict[str, dict],
         return (f.scale_ci95[1] - f.scale_ci95[0]) / abs(f.scale) if f.scale else np.inf
     pool = [k for k in order if idents[k]["identifiable"]] or order
     return min(pool, key=rel_width), "no held-out scores: the narrowest scale interval"
-
-
-def disagreement(fits: dict[str, MapFit],
-                 cfg: SteeringIdConfig | None = None) -> tuple[list[dict], str | None]:
-    """Pairs of trusted fits whose 95% intervals (offset or scale, each widened by
-    ``cfg.agree_offset_rad`` / ``cfg.agree_scale_rel``) do not overlap, and a note naming them
-    and the likely cause (None when all agree)."""
-    cfg = cfg or SteeringIdConfig()
-    names = [k for k in ("wheel_speed_difference", "yaw_rate", "position_replay") if k in fits
-             and fits[k].extra.get("trusted", True)]
-    pairs = []
-    for i, a in enumerate(names):
-        for b_ in names[i + 1:]:
-            fa, fb = fits[a], fits[b_]
-            tol_s = 0.5 * cfg.agree_scale_rel * (abs(fa.scale) + abs(fb.scale))
-            what = [q for q, (ia, ib), tol in (
-                ("scale", (fa.scale_ci95, fb.scale_ci95), tol_s),
-                ("offset", (fa.offset_ci95_rad, fb.offset_ci95_rad), cfg.agree_offset_rad))
-                if ia[1] + tol < ib[0] - tol or ib[1] + tol < ia[0] - tol]
-            if what:
-                pairs.append({"fits": [a, b_], "quantities": what})
-    if not pairs:
-        return [], None
-    causes = []
-    for p in pairs:
-        if "position_replay" in p["fits"]:
-            c = ("the position's reference point (vehicle.nav_lever_arm_m) or the heading's "
-                 "mount")
-        elif "scale" in p["quantities"]:
-            c = "understeer (tyre side slip) folded into the yaw-rate angle"
-        else:
-            c = "a sensor bias (gyro bias, tyre radius mismatch, angle-sensor zero)"
-        causes.append(f"{' and '.join(p['fits'])} disagree on {' and '.join(p['quantities'])} "
-                      f"beyond their 95% intervals (likely cause: {c})")
-    return pairs, "; ".join(causes)
 
 
 def agreement_a_b(sig: SteeringSignals, fits: dict[str, MapFit],

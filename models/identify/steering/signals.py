@@ -15,7 +15,10 @@ wheel speeds).
 speed within ``slip_max`` of ``v cos(delta)``), longitudinal acceleration within
 ``accel_max_mps2`` and lateral acceleration within ``lat_accel_max_mps2`` (the tyres' linear
 range), and, for the least-squares fits, no transients (steering-wheel rate below
-``sw_rate_max_radps``); every excluded sample also excludes ``guard_s`` around it.
+``sw_rate_max_radps``); every excluded sample also excludes ``guard_s`` around it. When fewer
+than ``MIN_FIT_SAMPLES`` pass (a fast slalom: beyond the tyres' linear range at the peaks,
+steering fast in between), the fits take the samples without the transient check, else every
+moving forward sample, and the map is NOT identifiable with what was let in named.
 """
 from __future__ import annotations
 
@@ -36,6 +39,8 @@ from hmpc.models.identify.steering.kinematics import (rear_axle_speed, road_whee
 WHEEL_SPEEDS = ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")
 #: speed channels for the yaw-rate method and the replay when the wheel speeds are absent
 SPEED_CHANNELS = ("speed", "gps_speed")
+#: [samples] fewest samples the direct fits run on (two parameters and a blocked interval)
+MIN_FIT_SAMPLES = 20
 
 
 def _need(rec: Recording, *names: str) -> None:
@@ -81,11 +86,42 @@ class SteeringSignals:
 class SampleMasks:
     """Which samples to trust (module doc): ``usable`` for the dead time and the replay,
     ``steady`` (usable and no steering transient) for the direct fits; ``excluded`` counts why
-    (None: a check the channels do not allow)."""
+    (None: a check the channels do not allow; a sample may count under several reasons);
+    ``dropped`` attributes every sample not trusted to the first reason that drops it
+    (:func:`_dropped`: the counts add up to the samples not trusted); ``relaxed`` names the
+    checks let go when too few samples passed them all (module doc)."""
 
     usable: np.ndarray
     steady: np.ndarray
     excluded: dict
+    dropped: list = field(default_factory=list)
+    #: what the fits let in because fewer than MIN_FIT_SAMPLES passed every check (None: all
+    #: checks held)
+    relaxed: str | None = None
+
+
+def _dropped(masks: list[tuple[str, np.ndarray, float | None, str]],
+             steady: np.ndarray) -> list[dict]:
+    """Each sample not in ``steady`` counted under the first of ``masks`` (reason, mask,
+    threshold, text) that holds for it; reasons that drop nothing are left out."""
+    left = ~steady
+    out = []
+    for reason, m, threshold, text in masks:
+        n = int(np.sum(left & m))
+        left &= ~m
+        if n:
+            out.append({"reason": reason, "samples": n, "threshold": threshold, "text": text})
+    if left.any():  # nothing above: never expected; counted so that the total holds
+        out.append({"reason": "other", "samples": int(left.sum()), "threshold": None,
+                    "text": "other"})
+    return out
+
+
+def dropped_text(dropped: list[dict], total: int) -> str:
+    """One line: how many of ``total`` samples each reason dropped, largest first."""
+    parts = [f"{d['samples']} {d['text']}" for d in sorted(dropped, key=lambda d: -d["samples"])]
+    return f"dropped {sum(d['samples'] for d in dropped)} of {total}: " + (
+        "; ".join(parts) if parts else "none")
 
 
 def steering_signals(rec: Recording, vehicle: Vehicle) -> SteeringSignals:
@@ -166,7 +202,7 @@ def trustworthy_samples(rec: Recording, sig: SteeringSignals,
     needs the wheel speeds: None when they are absent).
 
     Raises:
-        InputError: fewer than 20 trustworthy samples.
+        InputError: fewer than MIN_FIT_SAMPLES moving forward samples.
     """
     dt, sw, v_front, v_rear = sig.dt_s, sig.sw, sig.v_front, sig.v_rear
     delta_m = _measured_angle(sig)
@@ -201,8 +237,43 @@ def trustworthy_samples(rec: Recording, sig: SteeringSignals,
         "reverse": int(np.sum(reverse)),
         "steering_transient": int(np.sum(usable & ~steady)),
     }
-    if steady.sum() < 20:
-        raise InputError(f"only {int(steady.sum())} trustworthy steering samples (moving >= "
-                         f"{cfg.v_min_mps} m/s, no slip, no transients): cannot identify the "
-                         "steering map", rec.meta.get("path"), channel="steering_wheel_angle")
-    return SampleMasks(usable, steady, excluded)
+    relaxed = None
+    if steady.sum() < MIN_FIT_SAMPLES:
+        # too few pass every check (a fast slalom: beyond the tyres' linear range at the
+        # peaks, steering fast in between): fit on fewer checks rather than not at all; the
+        # caller flags the map NOT identifiable, naming what was let in
+        forward = moving & ~reverse & (np.isfinite(sig.yaw) if sig.yaw is not None else True)
+        for what, mask, use in (
+                ("fast steering (tyre relaxation and yaw lag in the fits)", usable, usable),
+                ("fast steering, wheel slip, hard acceleration and lateral acceleration beyond "
+                 f"{cfg.lat_accel_max_mps2:g} m/s^2 (side slip in the fits)", forward, forward)):
+            if mask.sum() >= MIN_FIT_SAMPLES:
+                relaxed, steady, usable = what, mask, use
+                break
+    with np.errstate(invalid="ignore"):
+        dropped = _dropped([
+            ("missing", ~(np.isfinite(sw) & np.isfinite(v_rear))
+             | (~np.isfinite(sig.yaw) if sig.yaw is not None else False),
+             None, "with a channel missing (NaN)"),
+            ("reverse", reverse, None, "in reverse gear"),
+            ("slow", ~moving, cfg.v_min_mps, f"slower than {cfg.v_min_mps:.3g} m/s"),
+            ("wheel_slip", np.nan_to_num(slip, nan=1.0) > cfg.slip_max, cfg.slip_max,
+             f"with wheel slip above {100 * cfg.slip_max:g}%"),
+            ("longitudinal_accel", np.abs(np.nan_to_num(accel, nan=1e9)) > cfg.accel_max_mps2,
+             cfg.accel_max_mps2, f"accelerating beyond {cfg.accel_max_mps2:g} m/s^2"),
+            ("lateral_accel", ~(np.abs(lat) <= cfg.lat_accel_max_mps2), cfg.lat_accel_max_mps2,
+             f"with lateral acceleration beyond {cfg.lat_accel_max_mps2:g} m/s^2"),
+            ("guard_margin", ~usable, cfg.guard_s,
+             f"within {cfg.guard_s:g} s of a dropped sample"),
+            ("steering_transient", transient, cfg.sw_rate_max_radps,
+             f"steering faster than {cfg.sw_rate_max_radps:.3g} rad/s"),
+            ("transient_guard", ~steady, cfg.guard_s,
+             f"within {cfg.guard_s:g} s of fast steering"),
+        ], steady)
+    if steady.sum() < MIN_FIT_SAMPLES:
+        raise InputError(f"only {int(steady.sum())} trustworthy steering samples of {len(sw)} "
+                         f"({dropped_text(dropped, len(sw))}; thresholds for a "
+                         f"{sig.b:g} m wheelbase, --steering-threshold overrides them): "
+                         "cannot identify the steering map", rec.meta.get("path"),
+                         channel="steering_wheel_angle")
+    return SampleMasks(usable, steady, excluded, dropped, relaxed)
