@@ -143,7 +143,8 @@ def reference_replay(rec: Recording, params: Params, controller, *,
                      plant_params: Params | None = None, control_period_s: float = 0.1,
                      seed: int = 0, reference_source: str = "auto",
                      config: ReplayConfig = ReplayConfig(),
-                     progress: Callable[[float, float], None] | None = None) -> ReferenceReplay:
+                     progress: Callable[[float, float], None] | None = None,
+                     adapter=None) -> ReferenceReplay:
     """The controller drives the identified plant along the recorded drive; compared with the car.
 
     Args:
@@ -154,11 +155,14 @@ def reference_replay(rec: Recording, params: Params, controller, *,
         seed: the simulated sensors' seed.
         reference_source: ``auto``, ``nav`` or ``can`` (see :func:`recording_reference`).
         progress: ``progress(fraction, t_s)`` (``run_closed_loop``'s).
+        adapter: an online model estimator (``controller.adapt.ModelAdapter``) for the run;
+            its ``adaptation`` goes into the summary.
     """
     name = str(rec.meta.get("path", "recording"))
     ref = recording_reference(rec, params, source=reference_source, name=name)
     res = run_closed_loop(controller, ref, params, plant_params=plant_params,
-                          control_period_s=control_period_s, seed=seed, progress=progress)
+                          control_period_s=control_period_s, seed=seed, progress=progress,
+                          adapter=adapter)
     ch = res.recording.channels
     t = ch["time"]
     plant = HybridPlant(plant_params or params)
@@ -193,6 +197,9 @@ def reference_replay(rec: Recording, params: Params, controller, *,
                            "against the recorded car along the recorded path and speed: speed "
                            "and steering-wheel angle (controller minus car), distance from the "
                            "driven path, pedal switches and zone transitions per minute"}
+    if adapter is not None:
+        summary["adaptation"] = m["adaptation"]
+        summary["adaptation_details"] = m["adaptation_details"]
     return ReferenceReplay(summary, res, ref, car)
 
 
@@ -287,7 +294,8 @@ def _check_feedback(source, profile, path: str) -> None:
 
 def log_replay(frames: FrameTable, profile, params: Params, controller, reference: Reference, *,
                candump: str | Path | None = None, config: ReplayConfig = ReplayConfig(),
-               progress: Callable[[float, float], None] | None = None) -> LogReplay:
+               progress: Callable[[float, float], None] | None = None,
+               adapter=None) -> LogReplay:
     """The log's feedback frames through the drive loop with no plant, on a simulated clock.
 
     Args:
@@ -299,6 +307,8 @@ def log_replay(frames: FrameTable, profile, params: Params, controller, referenc
         reference: the drive as a reference, on the log's clock (0 = the log's first frame).
         candump: where the loop writes its candump (default: a temporary file).
         progress: ``progress(fraction, t_s)`` as the simulated clock advances.
+        adapter: an online model estimator for the drive loop (its ``adaptation`` in the
+            summary): what the logged car's feedback teaches the model.
 
     Returns:
         :class:`LogReplay`; ``summary`` holds ``hash`` (sha256 of the sent frames),
@@ -323,7 +333,8 @@ def log_replay(frames: FrameTable, profile, params: Params, controller, referenc
         dump = Path(candump) if candump is not None else Path(tmp) / "replay.log"
         loop = DriveLoop(profile, params, controller, reference,
                          {"interface": "hmpc_replay", "channel": "replay", "source": source,
-                          "clock": clock}, dump, duration_s=span, config=dcfg, clock=clock)
+                          "clock": clock}, dump, duration_s=span, config=dcfg, clock=clock,
+                         adapter=adapter)
         drive = loop.run()
         audit = audit_candump(profile, params, dump)
     sent = source.sent
@@ -341,6 +352,9 @@ def log_replay(frames: FrameTable, profile, params: Params, controller, referenc
                                                          "solve_time_ms")},
                         "limit_violations": audit["limit_violations"]},
                "limit_violations": audit["limit_violations"], "limit_audit": audit}
+    if adapter is not None:
+        summary["adaptation"] = drive.summary["adaptation"]
+        summary["adaptation_details"] = drive.summary["adaptation_details"]
     for name, s in signals.items():
         both = s["engaged_log"] & s["engaged_hmpc"]
         dt = float(np.median(np.diff(s["t_s"]))) if len(s["t_s"]) > 1 else 0.0

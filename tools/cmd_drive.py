@@ -9,7 +9,9 @@ JSON keys: ``steps``, ``loop_period_ms`` {p50, p99, max}, ``deadline_misses``, `
 per message, ``frames_rejected_by_vehicle``, ``limit_clips``, ``limit_violations``,
 ``engaged_s``, ``stop`` {reason, t_s, detected_t_s, standstill_t_s}, and the ``hmpc simulate``
 KPIs (``speed_error_rms_mps``, ``lateral_error_rms_m``, ``pedal_switches_per_min``,
-``zone_transitions_per_min``, ``solve_time_ms``, ``failures``).
+``zone_transitions_per_min``, ``solve_time_ms``, ``failures``), whether the car did what was
+asked (``followed``, ``not_followed``, ``limits``, ``stalls``: a run that did not exits 1) and,
+with ``--adapt``, ``adaptation`` as ``hmpc simulate``'s.
 """
 from __future__ import annotations
 
@@ -18,8 +20,9 @@ import sys
 from hmpc.models.errors import InputError
 from hmpc.controller.build import make_controller
 from hmpc.models.reference import load_reference
-from hmpc.tools.common import (CONTROLLERS, STOP_WHY, add_bus_arguments, bus_kwargs,
-                               load_model_params, stop_times, write_json)
+from hmpc.tools.common import (CONTROLLERS, STOP_WHY, add_adapt_arguments, add_bus_arguments,
+                               adapter_for_profile, bus_kwargs, finish_adapter,
+                               load_model_params, report_not_followed, stop_times, write_json)
 
 
 
@@ -45,6 +48,7 @@ def add_arguments(p) -> None:
     p.add_argument("--candump", required=True, metavar="RUN.log",
                    help="write every frame sent and received here (candump -L)")
     p.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
+    add_adapt_arguments(p)
 
 
 def run(args) -> int:
@@ -73,8 +77,9 @@ def run(args) -> int:
     duration = args.duration if args.duration is not None else ref.duration_s
     print(f"hmpc drive: {args.controller} on {ref.name} via {profile.name} "
           f"({args.bus}{', vehicle sim' if node else ''}), {duration:.1f} s", file=sys.stderr)
+    adapter = adapter_for_profile(args, params, profile, "drive")
     loop = DriveLoop(profile, params, ctl, ref, kw, args.candump, duration_s=duration,
-                     faults=faults, node=node)
+                     faults=faults, node=node, adapter=adapter)
     import signal
     old = signal.signal(signal.SIGINT, lambda *_: loop.request_stop("interrupted"))
     try:
@@ -102,10 +107,11 @@ def run(args) -> int:
               f"{' at ' + format(st['detected_t_s'], '.2f') + ' s' if st['detected_t_s'] is not None else ''}"
               f" of {duration:.1f} s asked; {STOP_WHY.get(st['reason'], 'see stop in the JSON')})",
               file=sys.stderr)
+    finish_adapter(args, adapter, "drive", float(out["engaged_s"]))
     write_json(args.json, out)
     if st["reason"] in ("no_feedback", "car_not_accepting"):
         raise InputError(f"bus {args.bus}: never engaged: "
                          + ("no wheel speeds on the bus (is the car, or --vehicle-sim, there?)"
                             if st["reason"] == "no_feedback"
                             else "the car's status never accepted commands"))
-    return 0
+    return report_not_followed(out, "drive")

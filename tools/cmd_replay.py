@@ -24,9 +24,10 @@ from pathlib import Path
 from hmpc.models.errors import InputError
 from hmpc.controller.build import make_controller
 from hmpc.models.report.closed_loop import plot_log_replay, plot_reference_replay
-from hmpc.tools.common import (CONTROLLERS, add_accept_unidentifiable, add_ingest_options,
-                               load_model_params, progress_printer, recording_or_log,
-                               write_json)
+from hmpc.tools.common import (CONTROLLERS, adapter_for_profile, adapter_from_args,
+                               add_accept_unidentifiable, add_adapt_arguments,
+                               add_ingest_options, finish_adapter, load_model_params,
+                               progress_printer, recording_or_log, write_json)
 
 
 
@@ -64,6 +65,7 @@ def add_arguments(p) -> None:
                    help="log mode: write the drive loop's frames (candump -L)")
     p.add_argument("--plots", metavar="DIR", help="write labelled PNG plots into DIR")
     p.add_argument("--json", metavar="FILE", help="write the figures as JSON")
+    add_adapt_arguments(p)
     g = p.add_argument_group("raw log input (the options of `hmpc ingest`)")
     add_ingest_options(g, log_required=False)
 
@@ -120,9 +122,11 @@ def _run_reference(args, params, ctl, cfg):
 
     def progress(fraction: float, t_s: float) -> None:
         _progress(f"closed loop {100 * fraction:3.0f}% (t = {t_s:.1f} s)")
+    adapter = adapter_from_args(args, params, args.control_period, "replay")
     rr = reference_replay(rec, params, ctl, control_period_s=args.control_period, seed=args.seed,
                           reference_source=args.reference_source or "auto", config=cfg,
-                          progress=progress)
+                          progress=progress, adapter=adapter)
+    finish_adapter(args, adapter, "replay", float(rr.run.metrics["duration_s"]))
     out = dict(rr.summary)
     out.pop("mode", None)
     out["input"] = sources
@@ -164,8 +168,10 @@ def _run_log(args, params, ctl, cfg):
 
     def progress(fraction: float, t_s: float) -> None:
         _progress(f"log {100 * fraction:3.0f}% (t = {t_s:.1f} s of the log)")
+    adapter = adapter_for_profile(args, params, profile, "replay")
     lr = log_replay(frames, profile, params, ctl, ref, candump=args.candump, config=cfg,
-                    progress=progress)
+                    progress=progress, adapter=adapter)
+    finish_adapter(args, adapter, "replay", float(lr.drive.summary["engaged_s"]))
     out = dict(lr.summary)
     out.pop("mode", None)
     out["input"] = {**sources, "actuation": args.actuation,

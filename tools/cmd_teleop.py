@@ -34,7 +34,8 @@ import numpy as np
 from hmpc.models.errors import InputError
 from hmpc.controller.build import make_controller
 from hmpc.models.reference import load_reference
-from hmpc.tools.common import (CONTROLLERS, add_bus_arguments, bus_kwargs, load_model_params,
+from hmpc.tools.common import (CONTROLLERS, adapter_for_profile, add_adapt_arguments,
+                               add_bus_arguments, bus_kwargs, finish_adapter, load_model_params,
                                stop_times, write_json)
 
 
@@ -58,6 +59,7 @@ def add_arguments(p) -> None:
     p.add_argument("--candump", required=True, metavar="RUN.log",
                    help="write every frame sent and received here (candump -L)")
     p.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
+    add_adapt_arguments(p)
 
 
 def standstill_reference():
@@ -110,8 +112,9 @@ def run(args) -> int:
         print(f"hmpc teleop: listening on {rx.address[0]}:{rx.address[1]}, {profile.name} on "
               f"{args.bus}{' (vehicle sim)' if node else ''}, handover to {args.controller} on "
               f"{ref.name}", file=sys.stderr)
+        adapter = adapter_for_profile(args, params, profile, "teleop")
         loop = DriveLoop(profile, params, src, ref, kw, args.candump, duration_s=math.inf,
-                         node=node)
+                         node=node, adapter=adapter)
         import signal
         old = signal.signal(signal.SIGINT, lambda *_: loop.request_stop("interrupted"))
         try:
@@ -121,6 +124,7 @@ def run(args) -> int:
     finally:
         rx.close()
     out = finish_summary(res.summary, src, audit_candump(profile, params, args.candump))
+    finish_adapter(args, adapter, "teleop", float(out["engaged_s"]))
     write_json(args.json, out)
     st, lk = out["stop"], out["link"]
     print(f"hmpc teleop: engaged {out['engaged_s']:.1f} s, stop {st['reason']} "

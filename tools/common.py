@@ -23,9 +23,10 @@ from hmpc.models.params import ACCEPT_UNIDENTIFIABLE_FLAG, Params
 from hmpc.controller.build import CONTROLLERS, load_model
 
 __all__ = ["CONTROLLERS", "STOP_WHY", "add_accept_unidentifiable", "add_adapt_arguments",
-           "add_bus_arguments", "add_ingest_options", "adapter_from_args", "bus_kwargs",
-           "finish_adapter", "ingest_from_args", "load_model_params", "positive_float",
-           "progress_printer", "recording_or_log", "stop_times", "write_json"]
+           "add_bus_arguments", "add_ingest_options", "adapter_for_profile", "adapter_from_args",
+           "bus_kwargs", "finish_adapter", "ingest_from_args", "load_model_params",
+           "positive_float", "progress_printer", "recording_or_log", "report_not_followed",
+           "stop_times", "write_json"]
 
 
 def progress_printer(command: str) -> Callable[[str], None]:
@@ -318,3 +319,23 @@ def finish_adapter(args, adapter, command: str, run_s: float) -> None:
     if getattr(args, "learned", None):
         save_learned(learned_params(adapter, run_s=run_s), args.learned)
         print(f"hmpc {command}: learned state saved to {args.learned}", file=sys.stderr)
+
+
+def adapter_for_profile(args, params: Params, profile, command: str):
+    """:func:`adapter_from_args` for a loop on a CAN bus (``drive``, ``teleop``, ``replay
+    --mode log``): the drive loop's control period, and the commands the car takes (an
+    acceleration request, or pedal positions)."""
+    from hmpc.controller.actuation.drive import DriveConfig
+
+    inputs = "accel_cmd" if "accel" in profile.commands else "pedals"
+    return adapter_from_args(args, params, DriveConfig().control_period_s, command,
+                             inputs=inputs)
+
+
+def report_not_followed(summary: dict, command: str) -> int:
+    """1 (printed why on stderr) when the run's car did not follow its reference, else 0."""
+    if summary.get("followed", True):
+        return 0
+    print(f"hmpc {command}: the car did not follow its reference: "
+          f"{'; '.join(summary['not_followed'])}", file=sys.stderr)
+    return 1

@@ -36,6 +36,14 @@ simulator node's true state when a node is present.
 The run starts with the car on the reference's start, so the reference's clock is the loop's
 clock (the controller takes over at engagement).
 
+Online model estimation (``adapter``, a ``controller.adapt.ModelAdapter`` built for the
+control period): every tick's decoded wheel speeds, steering angle, yaw rate and acceleration
+feed it; each control step it learns before the controller's step and a changed model goes to
+the controller, the estimator and the dead reckoning's steering map; the commands it is told
+are the pedal plan (a Toyota's acceleration request is formed from it with the file's eq. 8,
+so its adapter learns the command's response, ``inputs="accel_cmd"``). The run JSON then has
+``adaptation``.
+
 After the run, ``candump.audit_candump`` re-checks every command frame of the written log.
 """
 from __future__ import annotations
@@ -57,10 +65,12 @@ from hmpc.models.plant import HybridPlant, heading_rate
 from hmpc.models.reference import Reference
 
 from hmpc.controller.base import Status
+from hmpc.controller.limits import ActuatorLimits
 from hmpc.controller.actuation import builders
 from hmpc.controller.actuation.candump import OrderedCandump
 from hmpc.controller.actuation.command_path import CommandPath
-from hmpc.controller.actuation.drive_summary import TRACE_KEYS, record_row, summarize
+from hmpc.controller.actuation.drive_summary import TRACE_KEYS, cpu_percentiles, record_row, \
+    summarize
 from hmpc.controller.actuation.faults import (Fault, check_node_faults, fault_active,
                                               schedule_node_faults)
 from hmpc.controller.actuation.feedback import Feedback
@@ -212,12 +222,16 @@ class DriveLoop:
         config: timing and stop behaviour.
         clock: ``monotonic()``, ``time()`` and ``sleep(s)`` of the loop (default
             :class:`SystemClock`, the real clocks; ``controller/replay.py`` injects a simulated one).
+        adapter: an online model estimator (module docstring), or None.
     """
 
     def __init__(self, profile: ActuationProfile, params: Params, controller, reference: Reference,
                  bus_kwargs: dict, candump: str | Path, *, duration_s: float,
                  faults: list[Fault] = (), node=None, config: DriveConfig = DriveConfig(),
-                 clock=None):
+                 clock=None, adapter=None):
+        self.adapter = adapter
+        self.adapt_cpu_s: list = []   # the adapter's CPU time per control step [s]
+        self._adapt_pending_s = 0.0
         self.profile = profile
         self.params = params
         self.controller = controller
@@ -291,7 +305,13 @@ class DriveLoop:
             controller_name=getattr(self.controller, "name", type(self.controller).__name__),
             reference=self.reference, node=self.node, car_rejected=car_rejected,
             control_period_s=self.config.control_period_s, candump=str(self.candump),
-            estimator=self.config.estimator)
+            estimator=self.config.estimator,
+            steering_wheel_angle_max_rad=ActuatorLimits.from_params(
+                self.params).steering_wheel_angle_max_rad)
+        if self.adapter is not None:
+            summary["adaptation"] = self.adapter.report()
+            summary["adaptation_details"] = {**self.adapter.summary(),
+                                             "cost_us": cpu_percentiles(self.adapt_cpu_s)}
         return DriveResult(summary, {kk: np.asarray(vv) for kk, vv in r.trace.items()})
 
     def _start_run(self) -> _Run:
@@ -432,6 +452,37 @@ class DriveLoop:
             est[2] += dpsi
             est[3] = v_meas
         r.t_est = t
+        if self.adapter is not None:
+            c0 = time.thread_time()
+            self._feed_adapter(r, tk)
+            self._adapt_pending_s += time.thread_time() - c0
+
+    def _feed_adapter(self, r: _Run, tk: _Tick) -> None:
+        """This tick's fresh feedback to the adapter: wheel speeds and steering angle when the
+        wheel-speed message came, the yaw rate and the acceleration when theirs did."""
+        fb, t, sig = r.fb, tk.t, self.adapter.signals
+        if fb.speed_msg in tk.seen:
+            sig.add_can(t, [fb.value(f"wheel_speed_{w}") for w in ("fl", "fr", "rl", "rr")],
+                        tk.sw_meas)
+        for ch, add in (("yaw_rate", sig.add_yaw), ("accel_x", sig.add_accel)):
+            tv = fb.channels.get(ch)
+            if tv is not None and tv[0] == t:
+                add(t, tv[1])
+
+    def _adapt(self, r: _Run, t: float) -> None:
+        """The adapter's learning step at ``t`` [s]; a changed model to the controller, the
+        estimator and the dead reckoning's eq. 7."""
+        c0 = time.thread_time()
+        bias = r.ekf.model_inputs()[1] if r.ekf is not None else 0.0
+        model = self.adapter.learn(t, float(r.est[3]), bias if bias == bias else 0.0)
+        if model is not None:
+            use = getattr(self.controller, "use_model", None)
+            if use is not None:
+                use(model)
+            if r.ekf is not None:
+                r.ekf.use_model(model)
+            self.plant.offset_rad, self.plant.scale = model.offset_rad, model.scale
+        self._adapt_pending_s += time.thread_time() - c0
 
     def _poll_source(self, r: _Run, tk: _Tick) -> None:
         """Command-source hook (tele-operation, ``controller/teleop/vehicle.py``): a controller
@@ -496,6 +547,8 @@ class DriveLoop:
             r.periods.append(c0 - r.last_ctl_start)
         r.last_ctl_start = c0
         t_ref = float(ref.time_s[0]) + t
+        if self.adapter is not None:
+            self._adapt(r, t)
         res = self.controller.step(r.est.copy(), ref, t_ref)
         if fault_active(self.faults, "solver_failure", t):
             res = replace(res, status=Status.SHIFTED_PLAN, reason="solver failure (injected)")
@@ -507,6 +560,11 @@ class DriveLoop:
             self._begin_stop(r, "solver_failure", tk)
         else:
             r.sw_cmd, r.ap_cmd, r.bp_cmd = (float(x) for x in res.command.as_tuple())
+        if self.adapter is not None:
+            c0 = time.thread_time()
+            self.adapter.commanded(t, r.sw_cmd, r.ap_cmd, r.bp_cmd, float(r.est[3]))
+            self.adapt_cpu_s.append(self._adapt_pending_s + time.thread_time() - c0)
+            self._adapt_pending_s = 0.0
         record_row(r.trace, self.node, ref, t, t_ref, r.est, r.sw_cmd, tk.sw_meas, r.ap_cmd,
                    r.bp_cmd, r.act.last_accel_req, res, engaged=1, stopping=0)
         late = (self.clock.monotonic() - (r.mono0 + r.k * cfg.tick_s)) > cfg.control_period_s

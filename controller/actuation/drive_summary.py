@@ -9,7 +9,8 @@ import math
 
 import numpy as np
 
-from hmpc.controller.metrics import pedal_switches, smoothness_of
+from hmpc.controller.metrics import follow_verdict, limit_times, pedal_switches, \
+    smoothness_of, stall_figures
 
 #: the trace's columns, one value per recorded row
 TRACE_KEYS = ("t_s", "x", "y", "v", "v_ref", "sw_cmd", "sw", "ap_cmd", "bp_cmd", "accel_req",
@@ -43,10 +44,13 @@ def record_row(trace: dict, node, reference, t, t_ref, est, sw_cmd, sw_meas, ap,
 def summarize(trace, periods, late_steps, solve_ms, statuses, failures, sent, blocked, clips,
               engaged_at, stop, ticks, *, profile_name: str, controller_name: str, reference,
               node, car_rejected, control_period_s: float, candump: str,
-              estimator: str) -> dict:
+              estimator: str, steering_wheel_angle_max_rad: float = math.inf) -> dict:
     """The run JSON's summary. ``periods``: the control steps' start-to-start intervals [s];
     ``node``: the vehicle simulator node or None; ``car_rejected``: the frames the car reports
-    rejected (without a node), or None."""
+    rejected (without a node), or None. Whether the car did what was asked, over the engaged
+    rows: time at each actuator limit (``limits``, the steering lock
+    ``steering_wheel_angle_max_rad``), stalls (``stalls``) and the verdict (``followed``,
+    ``not_followed``; ``controller.metrics.follow_verdict``)."""
     def pct(a, q):
         return float(np.percentile(a, q)) if len(a) else 0.0
     per = np.asarray(periods) * 1e3
@@ -71,6 +75,15 @@ def summarize(trace, periods, late_steps, solve_ms, statuses, failures, sent, bl
                # the engaged rows are the control updates, so a rate is each update's
                # change over the control period (metrics.rate_rms)
                **smoothness_of(tr["t_s"][eng], tr["sw_cmd"][eng], ap, bp)}
+    follow = {"followed": True, "not_followed": [], "limits": None, "stalls": None}
+    if eng.sum() >= 2:
+        te = tr["t_s"][eng]
+        lim = limit_times(te, tr["sw_cmd"][eng], tr["ap_cmd"][eng], tr["bp_cmd"][eng],
+                          steering_wheel_angle_max_rad=steering_wheel_angle_max_rad)
+        stalls = stall_figures(te, tr["v"][eng], tr["v_ref"][eng])
+        ok, why = follow_verdict(lim, stalls, float(te[-1] - te[0]),
+                                 steering_wheel_angle_max_rad=steering_wheel_angle_max_rad)
+        follow = {"followed": ok, "not_followed": why, "limits": lim, "stalls": stalls}
     sm = np.asarray(solve_ms)
     node_stats = node.stats.to_dict() if node is not None else None
     # the node's count; without a node, what the car reports (the kit's REJECTED_FRAMES)
@@ -95,6 +108,7 @@ def summarize(trace, periods, late_steps, solve_ms, statuses, failures, sent, bl
                       and eng.any() else 0.0),
         "stop": {k: (round(v, 4) if isinstance(v, float) else v) for k, v in stop.items()},
         **kpi,
+        **follow,
         "solve_time_ms": {"p50": pct(sm, 50), "p99": pct(sm, 99),
                           "max": float(sm.max()) if len(sm) else 0.0},
         "failures": int(failures),
@@ -103,3 +117,12 @@ def summarize(trace, periods, late_steps, solve_ms, statuses, failures, sent, bl
         "estimator": estimator,
     }
     return out
+
+
+def cpu_percentiles(seconds) -> dict:
+    """{p50, p99, max} [us] of CPU times given in seconds."""
+    a = np.asarray(seconds, dtype=float) * 1e6
+    if not len(a):
+        return {"p50": 0.0, "p99": 0.0, "max": 0.0}
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+            "max": float(a.max())}

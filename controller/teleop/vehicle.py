@@ -166,6 +166,13 @@ class TeleopController:
         self.reset()
 
     # ------------------------------------------------------------------ contract
+    def use_model(self, model) -> None:
+        """New model values (the online model estimator's ``LearnedModel``) for the
+        controller that drives after a handover; the operator's own commands pass unchanged."""
+        use = getattr(self.mpc, "use_model", None)
+        if use is not None:
+            use(model)
+
     def reset(self) -> None:
         """Forget the commands of a previous run (the link's counters are the receiver's)."""
         self.last: TeleopCommand | None = None
