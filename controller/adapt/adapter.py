@@ -40,6 +40,9 @@ from hmpc.controller.adapt.timing import ResponseFit
 
 #: [s] how often the dead-time and lag fits are evaluated (an argmin over their grids)
 TIMING_EVERY_S = 1.0
+#: [s] a changed model is looked for at most this often (a 50 Hz loop need not re-check its
+#: model's validity and hand-over every step; the controller's own horizon is seconds)
+PUSH_EVERY_S = 0.1
 #: [s] the dead-time and lag fits' period: control periods are summed up to about this (a
 #: 50 Hz loop feeds them at 10 Hz); with the grid's 0.05 s steps placed inside a period
 #: exactly, it resolves dead times as lagd's 20 Hz does, at a fifth of the vector work
@@ -127,6 +130,8 @@ class ModelAdapter:
         self._t_timing = -math.inf
         self._drift_s = 0.0
         self._force_push = False            # hand the model over at the next step (restore)
+        self._changed = False               # a learner moved since the last hand-over check
+        self._t_push = -math.inf
         self._ab_num = self._ab_den = 0.0   # accelerometer bias: forgotten sums (learn)
         self.events: list[tuple[float, str]] = []
         self._coefs = ("offset_mps2", "scale_mps2", "brake_scale_mps2") if inputs == "pedals" \
@@ -244,7 +249,11 @@ class ModelAdapter:
             self._update_timing()
             changed = True
         self._record(t_s)
-        return self._push_if_changed(t_s, force) if changed else None
+        self._changed = self._changed or changed
+        if force or (self._changed and t_s - self._t_push >= PUSH_EVERY_S - 1e-9):
+            self._t_push, self._changed = t_s, False
+            return self._push_if_changed(t_s, force)
+        return None
 
     def _fit_period(self, t_s: float) -> None:
         """The response fits' period that ended at ``t_s``: each channel's mean response,
