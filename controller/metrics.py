@@ -1,7 +1,9 @@
 """Figures of a run's commands that every loop reports the same way: simulate, replay and drive.
 
-Pedal switches, steering reversals (the reversal-rate count of driver studies) and the rates
-of the commands per control update. Pure functions of arrays; no controller, plant or bus.
+Pedal switches, steering reversals (the reversal-rate count of driver studies), the rates of
+the commands per control update, and whether the car did what was asked: time at each actuator
+limit, stalls (the reference moves, the car does not) and the verdict that a run could not
+follow its reference. Pure functions of arrays; no controller, plant or bus.
 """
 from __future__ import annotations
 

@@ -134,7 +134,19 @@ def _run_reference(args, params, ctl, cfg):
         out["ingest"] = {"duration_s": ingest_summary.get("duration_s"),
                          "channels": sorted(ingest_summary.get("channels", {}))}
     zones = [(z.name, z.v_min_mps, z.v_max_mps) for z in params.zones]
-    return out, lambda d: plot_reference_replay(rr, d, args.controller, zones)
+
+    def plots(d):
+        files = plot_reference_replay(rr, d, args.controller, zones)
+        if adapter is not None:  # the learned parameters against time
+            from pathlib import Path
+
+            from hmpc.models.report.adaptation import plot_adaptation
+            t, v, sg = adapter.history.arrays()
+            files.append(plot_adaptation(t - (adapter.t0_s or 0.0), adapter.keys, v, sg,
+                                         Path(d) / "adaptation.png",
+                                         title="learned parameters (estimate, 95 % interval)"))
+        return files
+    return out, plots
 
 
 def _run_log(args, params, ctl, cfg):

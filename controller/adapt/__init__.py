@@ -6,8 +6,8 @@ and handed to the controller and the state estimator as values (``ModelAdapter``
 parameter keys), ``paramfilter`` (the Kalman filter on a few parameters), ``signals`` (one
 control period's measurements and the sensor checks), ``steering`` and ``longitudinal`` (the
 gates and regressions of eq. 7 and eq. 8), ``timing`` (dead time and lag by a candidate grid),
-``adapter`` (validity, the model in use, the run's report) and ``learned`` (the learned
-state as a parameter file: restore and save).
+``adapter`` (validity, the model in use), ``report`` (the run's ``adaptation`` and the
+history) and ``learned`` (the learned state as a parameter file: restore and save).
 
 May import ``hmpc.models`` (not ``hmpc.models.sim``); never ``hmpc.tools``, nor the rest of
 ``hmpc.controller``.

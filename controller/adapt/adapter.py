@@ -11,21 +11,22 @@ Per control step, in this order, the loop calls:
    loop hands it to the controller's and the estimator's ``use_model``), else None;
 3. :meth:`ModelAdapter.commanded` with the command sent to the actuators.
 
-**Validity** (openpilot's ``valid`` flags): a learned value is used only while its 95 %
-interval is narrower than identification's identifiability threshold and it is not at its
-bound; otherwise the file's value is used, and the change to the file's value is recorded as
-an event (:attr:`ModelAdapter.events`) that the command prints. A dead time or lag is used
-only when its fit is valid and its 95 % set excludes the file's value.
+**Validity** (openpilot's ``valid`` flags): a filter's values (the steering map; a zone) are
+used together once it has taken ``MIN_UPDATES`` samples, while none of them is at its bound
+and its last samples agree with it; otherwise the file's values are used, and the change to
+them is recorded as an event (:attr:`ModelAdapter.events`) that the command prints. Each value
+also says whether it is ``identified`` (its 95 % interval within identification's
+identifiability threshold). A dead time or lag is used only when its fit is valid and its 95 %
+set excludes the file's value.
 
-Cost: the learners work on Python floats and preallocated arrays; per control step a few tens
-of microseconds (``details.adaptation.cost_us`` of a run).
+Cost: the learners work on Python floats and preallocated arrays; per control step some tens
+of microseconds (``details.adaptation_details.cost_us`` of a run). What it reports is
+``controller.adapt.report``'s.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-
-import numpy as np
 
 from hmpc.models.params import Params
 from hmpc.models.plant import plant_extensions
@@ -34,6 +35,7 @@ from hmpc.controller.adapt.config import (KEY_LONG_DELAY, KEY_LONG_LAG, KEY_STEE
                                           KEY_STEER_LAG, KEY_STEER_OFFSET, KEY_STEER_SCALE,
                                           AdaptConfig, zone_key)
 from hmpc.controller.adapt.longitudinal import ZoneLearner
+from hmpc.controller.adapt.report import History, adaptation_counts, adaptation_report
 from hmpc.controller.adapt.signals import PeriodSignals
 from hmpc.controller.adapt.steering import OFFSET, SCALE, SteeringLearner
 from hmpc.controller.adapt.timing import ResponseFit
@@ -149,7 +151,7 @@ class ModelAdapter:
         self._push_tol = ([(c.push_offset_rad, 0.0), (0.0, c.push_scale_rel)]
                           + [(c.push_zone_offset_mps2, 0.0)] * nz
                           + [(0.0, c.push_gain_rel)] * (2 * nz) + [(0.5 * c.push_timing_s, 0.0)] * 4)
-        self.history = _History(len(self.keys), c.history_period_s)
+        self.history = History(len(self.keys), c.history_period_s)
         self.cost_s: list = []   # not filled here: the loop times learn() and use_model()
 
     # ------------------------------------------------------------------ inputs
@@ -427,89 +429,12 @@ class ModelAdapter:
         h.add(t_s, [vals[k] for k in self.keys])
 
     def report(self, t0_s: float | None = None) -> dict:
-        """The run JSON's ``adaptation``: KEY -> {initial, final, ci95, converged_t_s, valid,
-        used, ...} (``converged_t_s``: seconds from ``t0_s`` (default: the first learning
-        step) after which the estimate stayed
-        within its final interval, widened to an immaterial difference; None for a value no
-        data moved). Filter parameters add ``updates`` and, when not valid, ``reason``; dead
-        times and lags their fit's ``excited_s`` and ``r2``, and ``ci95`` is their 95 % set."""
-        if t0_s is None:
-            t0_s = self.t0_s if self.t0_s is not None else 0.0
-        self._drift_all()
-        self._check_validity()
-        now = self._values_now()
-        used = self._used_values()
-        nz = len(self.zones.names)
-        used_of = dict(zip((KEY_STEER_OFFSET, KEY_STEER_SCALE), used[:2]))
-        used_of.update(zip((KEY_STEER_DELAY, KEY_LONG_DELAY, KEY_STEER_LAG, KEY_LONG_LAG),
-                           used[2 + 3 * nz:]))
-        if self.zones.inputs == "pedals":
-            for zi, name in enumerate(self.zones.names):
-                for k, coef in enumerate(self._coefs):
-                    used_of[zone_key(name, coef)] = used[2 + k * nz + zi]
-        t, vals, _sig = self.history.arrays()
-        out = {}
-        for j, key in enumerate(self.keys):
-            final, s = now[key]
-            ent = {"initial": float(self.initial[key][0]), "final": float(final),
-                   "ci95": None,
-                   "converged_t_s": self._converged(key, t, vals[:, j], final, s, t0_s),
-                   "used": used_of.get(key)}
-            if j < len(self._plist):
-                ent["ci95"] = [float(final - 1.96 * s), float(final + 1.96 * s)]
-                ent["valid"] = bool(self.valid[j])
-                ent["identified"] = bool(self.identified[j])
-                _k, f, i, _t, _r = self._plist[j]
-                ent["updates"] = int(f.updates[i])
-                why = self._why_not(j)
-                if why:
-                    ent["reason"] = why
-            else:
-                ch = "steering" if key in (KEY_STEER_DELAY, KEY_STEER_LAG) else "longitudinal"
-                est = self.timing_est[ch]
-                ent["valid"] = bool(est is not None and est["valid"])
-                ent["excited_s"] = 0.0 if est is None else est["excited_s"]
-                if est is not None:
-                    ent["ci95"] = est["delay_ci95_s" if "delay" in key else "lag_ci95_s"]
-                    ent["r2"] = est["r2"]
-            out[key] = ent
-        return out
-
-    def _converged(self, key, t, v, final, sigma, t0_s) -> float | None:
-        """Seconds from ``t0_s`` after which the estimate stayed within its final interval
-        (widened to the config's immaterial difference); None when it never moved."""
-        if len(t) == 0 or not np.any(v != v[0]) and v[0] == self.initial[key][0]:
-            return None
-        c = self.cfg
-        if key == KEY_STEER_OFFSET:
-            floor = c.converged_offset_rad
-        elif key.endswith("offset_mps2"):
-            floor = c.converged_offset_mps2
-        elif key.endswith("_s"):
-            floor = c.converged_timing_s
-        else:
-            floor = c.converged_rel * abs(final)
-        tol = max(1.96 * sigma if sigma == sigma else 0.0, floor)
-        out = np.flatnonzero(np.abs(v - final) > tol)
-        if len(out) == 0:
-            return float(t[0] - t0_s)
-        if out[-1] + 1 >= len(t):
-            return None
-        return float(t[out[-1] + 1] - t0_s)
+        """The run JSON's ``adaptation`` (``controller.adapt.report.adaptation_report``)."""
+        return adaptation_report(self, t0_s)
 
     def summary(self) -> dict:
-        """Counts for ``details.adaptation``: samples used and gated, spikes dropped, wheel
-        faults, widenings, events."""
-        fs = [self.steering.filter] + self.zones.filters
-        return {"steering_samples": dict(self.steering.samples),
-                "zone_samples": dict(self.zones.samples),
-                "spikes_dropped": dict(self.signals.spikes),
-                "wheel_speed_faults": int(self.signals.wheel_faults),
-                "widened": int(sum(f.widened for f in fs)),
-                "rejected": int(sum(f.rejected for f in fs)),
-                "inputs": self.inputs,
-                "timing": {k: v for k, v in self.timing_est.items()},
-                "events": [{"t_s": round(t, 3), "what": w} for t, w in self.events]}
+        """Counts for ``details.adaptation`` (``controller.adapt.report.adaptation_counts``)."""
+        return adaptation_counts(self)
 
 
 def _zone(v: float, v_max: list) -> int:
@@ -519,31 +444,3 @@ def _zone(v: float, v_max: list) -> int:
         if v <= hi:
             return i
     return len(v_max) - 1
-
-
-class _History:
-    """(t, estimate, 1-sigma) per key every ``period_s``, in arrays that double when full."""
-
-    def __init__(self, n_keys: int, period_s: float):
-        self.period_s = float(period_s)
-        self.n = 0
-        self.t = np.zeros(1024)
-        self.v = np.zeros((1024, n_keys))
-        self.s = np.zeros((1024, n_keys))
-        self.t_last = -math.inf
-
-    def add(self, t_s: float, vals) -> None:
-        if self.n >= len(self.t):
-            self.t = np.concatenate([self.t, np.zeros(len(self.t))])
-            self.v = np.concatenate([self.v, np.zeros_like(self.v)])
-            self.s = np.concatenate([self.s, np.zeros_like(self.s)])
-        i = self.n
-        self.t[i] = t_s
-        for j, (v, s) in enumerate(vals):
-            self.v[i, j] = v
-            self.s[i, j] = s
-        self.n += 1
-        self.t_last = t_s
-
-    def arrays(self):
-        return self.t[:self.n], self.v[:self.n], self.s[:self.n]

@@ -146,7 +146,9 @@ class ResponseFit:
         self._started = False
 
     def command(self, t_s: float, values) -> None:
-        """The commands issued at ``t_s`` [s] (one per channel), held for one period."""
+        """The commands (one per channel) that acted over the period ending at ``t_s`` [s]
+        (their means, when the period spans several control periods), pushed before
+        :meth:`advance` computes that period's responses."""
         if not self._started:
             self.ring[:] = np.asarray(values, dtype=float)[:, None]
             self.e[:] = self.ring[:, :1]
