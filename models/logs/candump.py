@@ -38,7 +38,7 @@ def parse_block(b: np.ndarray, line0: int, first_line: int = 1) -> Chunk:
     ``line0`` = lines before the block."""
     ls, le = line_bounds(b)
     lineno = line0 + 1 + np.arange(len(ls), dtype=np.int64)
-    keep = (le > ls) & (lineno >= first_line)  # blank lines carry nothing (python-can skips them too)
+    keep = (le > ls) & (lineno >= first_line)  # blank lines: nothing (python-can skips them too)
     return parse_lines(Buf(b), ls[keep], le[keep], lineno[keep])
 
 

@@ -48,8 +48,8 @@ def _rep(byte: int) -> np.uint64:
     return _U(byte * 0x0101010101010101)
 
 
-_M80, _M7F, _M0F, _MF0 = _rep(0x80), _rep(0x7F), _rep(0x0F), _rep(0xF0)
-_M30, _M06 = _rep(0x30), _rep(0x06)
+_M80, _M7F, _M0F, _M30, _M76 = _rep(0x80), _rep(0x7F), _rep(0x0F), _rep(0x30), _rep(0x76)
+_M50, _M46, _M20, _M1F, _M19 = _rep(0x50), _rep(0x46), _rep(0x20), _rep(0x1F), _rep(0x19)
 
 
 def _bytemask(first: int, count: int) -> int:
@@ -153,28 +153,59 @@ class _LineWords:
         return (self.word(o // 8) >> _U(8 * (o % 8))) & _U(0xFF)
 
 
-def _digit_words(lay: Layout, lw: _LineWords, err: np.ndarray) -> np.ndarray:
-    """The timestamp's digits as one int64 per line; bad digits set bits of ``err``."""
-    cols = [1 + i for i in range(lay.time_chars) if i != lay.dot]  # line offsets of digits
+class _Plan:
+    """A layout's constants, worked out once: which bytes of which words are checked for a
+    fixed character, and which slices of which fields make up each word of 8 timestamp digits.
+    """
+
+    def __init__(self, lay: Layout):
+        tc, nc = lay.time_chars, lay.name_chars
+        fixed = {0: 0x28, tc + 1: 0x29, tc + 2: 0x20, tc + 3 + nc: 0x20}  # ( ) and two spaces
+        if lay.dot >= 0:
+            fixed[1 + lay.dot] = 0x2E
+        self.fixed = []  # (word, mask, value)
+        for j in sorted({o // 8 for o in fixed}):
+            mask = sum(0xFF << (8 * (o % 8)) for o in fixed if o // 8 == j)
+            val = sum(c << (8 * (o % 8)) for o, c in fixed.items() if o // 8 == j)
+            self.fixed.append((j, _U(mask), _U(val)))
+        cols = [1 + i for i in range(tc) if i != lay.dot]  # line offsets of the digits
+        self.digit_words = []  # ([(field offset, byte mask or None)], fill, power of ten)
+        for hi in range(len(cols), 0, -8):  # words of up to 8 digits, least significant first
+            lo = max(hi - 8, 0)
+            fill = 8 - (hi - lo)  # right-aligned: the leading bytes read as '0'
+            parts, i = [], lo
+            while i < hi:  # each contiguous run of digits (split at the dot)
+                j = i
+                while j + 1 < hi and cols[j + 1] == cols[j] + 1:
+                    j += 1
+                pos = fill + (i - lo)
+                mask = _bytemask(pos, j + 1 - i)
+                parts.append((cols[i] - pos, None if mask == 0xFFFFFFFFFFFFFFFF else _U(mask)))
+                i = j + 1
+            self.digit_words.append((parts, _U(_M30 & _U(_bytemask(0, fill))) if fill else None,
+                                     np.int64(10 ** (len(cols) - hi))))
+        self.name_mask = _U(_bytemask(0, nc))
+
+
+def _digits(plan: _Plan, lw: _LineWords, err: np.ndarray) -> np.ndarray:
+    """The timestamp's digits as one int64 per line; bytes that are not digits set bits of
+    ``err``."""
     value = None
-    for hi in range(len(cols), 0, -8):  # words of up to 8 digits, least significant first
-        lo = max(hi - 8, 0)
-        n = hi - lo
-        fill = 8 - n  # right-aligned: the leading bytes read as '0'
+    for parts, fill, power in plan.digit_words:
         w = None
-        i = lo
-        while i < hi:  # each contiguous run of digits (split at the dot)
-            j = i
-            while j + 1 < hi and cols[j + 1] == cols[j] + 1:
-                j += 1
-            pos = fill + (i - lo)
-            part = lw.field(cols[i] - pos) & _U(_bytemask(pos, j + 1 - i))
+        for off, mask in parts:
+            part = lw.field(off)
+            if mask is not None:
+                part = part & mask
             w = part if w is None else w | part
-            i = j + 1
-        if fill:
-            w |= _M30 & _U(_bytemask(0, fill))
-        err |= ((w & _MF0) ^ _M30) | (((w + _M06) & _MF0) ^ _M30)
-        x = w - _M30
+        if fill is not None:
+            w = w | fill
+        x = w - _M30  # digits' values, one per byte, if all were digits
+        y = x + _M76  # a byte over 9 sets its high bit here, one under '0' in x itself
+        y |= x
+        y &= _M80
+        err |= y
+        # pairs, then quadruples, then all eight (most significant digit in the lowest byte)
         x = x * _U(10) + (x >> _U(8))
         x = ((((x & _U(0x000000FF000000FF)) * _U(100 + (1000000 << 32)))
               + (((x >> _U(16)) & _U(0x000000FF000000FF)) * _U(1 + (10000 << 32)))) >> _U(32))
@@ -182,7 +213,8 @@ def _digit_words(lay: Layout, lw: _LineWords, err: np.ndarray) -> np.ndarray:
         if value is None:
             value = x
         else:
-            value += x * np.int64(10 ** (len(cols) - hi))
+            x *= power
+            value += x
     return value
 
 
@@ -190,22 +222,34 @@ def _hex_nibbles(x: np.ndarray):
     """8 characters per word -> (their hex values, one per byte; 0x80 in each byte that is a
     hex digit)."""
     x7 = x & _M7F
-    ascii_ = ~x & _M80
-    digit = (x7 + _rep(0x50)) & ~(x7 + _rep(0x46))         # '0'..'9'
-    low = x7 | _rep(0x20)
-    alpha = (low + _rep(0x1F)) & ~(low + _rep(0x19))       # 'a'..'f' or 'A'..'F'
+    ascii_ = ~x
+    ascii_ &= _M80
+    digit = x7 + _M50                                       # '0'..'9'
+    digit &= ~(x7 + _M46)
+    x7 |= _M20
+    alpha = x7 + _M1F                                       # 'a'..'f' or 'A'..'F'
+    alpha &= ~(x7 + _M19)
     alpha &= ascii_
-    valid = (digit | alpha) & ascii_
-    nib = (x & _M0F) + (alpha >> _U(7)) * _U(9)
-    return nib, valid
+    digit |= alpha
+    digit &= ascii_
+    nib = x & _M0F
+    alpha >>= _U(7)
+    alpha *= _U(9)
+    nib += alpha
+    return nib, digit
 
 
 def _pack_nibbles(nib: np.ndarray) -> np.ndarray:
     """Byte values of 8 hex digits (one per byte, first in the lowest) -> 4 bytes, the value
     of characters 2k and 2k+1 in byte k."""
-    y = ((nib << _U(4)) | (nib >> _U(8))) & _U(0x00FF00FF00FF00FF)
-    y = (y | (y >> _U(8))) & _U(0x0000FFFF0000FFFF)
-    return (y | (y >> _U(16))) & _U(0xFFFFFFFF)
+    y = nib << _U(4)
+    y |= nib >> _U(8)
+    y &= _U(0x00FF00FF00FF00FF)
+    y |= y >> _U(8)
+    y &= _U(0x0000FFFF0000FFFF)
+    y |= y >> _U(16)
+    y &= _U(0xFFFFFFFF)
+    return y
 
 
 @dataclass
@@ -222,30 +266,30 @@ class Fixed:
     data: np.ndarray     # uint64: the payload's 8 bytes (little-endian), zero padded
 
 
+_PLANS: dict[Layout, _Plan] = {}
+
+
 def parse_fixed(lay: Layout, aligned: np.ndarray, base: np.ndarray, start: np.ndarray,
                 end: np.ndarray) -> Fixed:
     """Read the lines [start, end) (positions in ``base``, the padded buffer whose first
     ``len(aligned) * 8`` bytes ``aligned`` views as uint64) that have layout ``lay``."""
+    plan = _PLANS.get(lay)
+    if plan is None:
+        plan = _PLANS[lay] = _Plan(lay)
     lw = _LineWords(aligned, start)
-    tc, nc, i0 = lay.time_chars, lay.name_chars, lay.id_at
+    tc, i0 = lay.time_chars, lay.id_at
     err = np.zeros(len(start), np.uint64)
-    # fixed characters: ( ) and two spaces, the dot; grouped by the word they fall in
-    fixed = {0: 0x28, tc + 1: 0x29, tc + 2: 0x20, tc + 3 + nc: 0x20}
-    if lay.dot >= 0:
-        fixed[1 + lay.dot] = 0x2E
-    for j in sorted({o // 8 for o in fixed}):
-        mask = val = 0
-        for o, c in fixed.items():
-            if o // 8 == j:
-                mask |= 0xFF << (8 * (o % 8))
-                val |= c << (8 * (o % 8))
-        err |= (lw.word(j) & _U(mask)) ^ _U(val)
-    nval = _digit_words(lay, lw, err)
-    name = lw.field(tc + 3) & _U(_bytemask(0, nc))
+    for j, mask, val in plan.fixed:
+        e = lw.word(j) & mask
+        e ^= val
+        err |= e
+    nval = _digits(plan, lw, err)
+    name = lw.field(tc + 3) & plan.name_mask
     # identifier: 3 hex digits then '#', or 8 then '#'
     idw = lw.field(i0)
     c3 = ((idw >> _U(24)) & _U(0xFF)) == _U(0x23)
-    ext = ~c3 & (lw.byte(i0 + 8) == _U(0x23))
+    ext = lw.byte(i0 + 8) == _U(0x23)
+    ext &= ~c3
     any_ext = bool(ext.any())
     nib, valid = _hex_nibbles(idw)
     if any_ext:
@@ -254,7 +298,9 @@ def parse_fixed(lay: Layout, aligned: np.ndarray, base: np.ndarray, start: np.nd
     else:
         need = _U(0x808080)
         nib &= _U(0xFFFFFF)
-    err |= (valid & need) ^ need
+    valid &= need
+    valid ^= need
+    err |= valid
     idval = _pack_nibbles(nib).astype(np.uint32).byteswap()  # the digits' value, 8 digits
     if any_ext:
         idval = np.where(ext, idval, idval >> np.uint32(20))
@@ -264,24 +310,36 @@ def parse_fixed(lay: Layout, aligned: np.ndarray, base: np.ndarray, start: np.nd
         idval >>= np.uint32(20)
         id_ok = idval <= SFF_MAX
     # payload: 0..16 hex digits after '#' up to the end of the line
+    nchars = end - start
     if any_ext:
-        p_off = np.where(ext, i0 + 9, i0 + 4)
-        nchars = end - start - p_off
+        nchars -= np.where(ext, i0 + 9, i0 + 4)
         w0 = np.where(ext, lw.field(i0 + 9), lw.field(i0 + 4))
         w1 = np.where(ext, lw.field(i0 + 17), lw.field(i0 + 12))
     else:
-        nchars = end - start - (i0 + 4)
+        nchars -= i0 + 4
         w0, w1 = lw.field(i0 + 4), lw.field(i0 + 12)
     len_ok = (nchars >= 0) & (nchars <= MAX_PAYLOAD_CHARS) & ((nchars & 1) == 0)
-    nchars = np.where(len_ok, nchars, 0)
+    nchars[~len_ok] = 0
     lo_mask, hi_mask = _CHARS_LO.take(nchars), _CHARS_HI.take(nchars)
     n0, v0 = _hex_nibbles(w0)
     n1, v1 = _hex_nibbles(w1)
-    err |= ((v0 & lo_mask) ^ (lo_mask & _M80)) | ((v1 & hi_mask) ^ (hi_mask & _M80))
     n0 &= lo_mask
     n1 &= hi_mask
-    data = _pack_nibbles(n0) | (_pack_nibbles(n1) << _U(32))
-    ok = (err == 0) & (c3 | ext) & id_ok & len_ok
+    lo_mask &= _M80
+    hi_mask &= _M80
+    v0 &= lo_mask
+    v0 ^= lo_mask
+    v1 &= hi_mask
+    v1 ^= hi_mask
+    err |= v0
+    err |= v1
+    data = _pack_nibbles(n1)
+    data <<= _U(32)
+    data |= _pack_nibbles(n0)
+    ok = err == 0
+    ok &= c3 | ext
+    ok &= id_ok
+    ok &= len_ok
     nval[~ok] = 0  # garbage of malformed lines never reaches the division
     t = exact_quotient(nval, np.full(len(start), lay.decimals),
                        lambda i: base[start[i] + 1:start[i] + 1 + tc].tobytes().decode("ascii"))

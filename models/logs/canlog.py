@@ -208,56 +208,57 @@ _PAD = REACH
 _CAPACITY_MARGIN = 1.05
 
 
-def _reads(p: Path, gz: bool, chunk_bytes: int):
-    """The file's bytes in reads of ``chunk_bytes``, each read (and decompressed) in a worker
-    thread while the caller parses the one before."""
-    try:
-        with _open_bytes(p, gz) as fh, ThreadPoolExecutor(1) as pool:
-            ahead = pool.submit(fh.read, chunk_bytes)
-            while True:
-                block = ahead.result()
-                if not block:
-                    return
-                ahead = pool.submit(fh.read, chunk_bytes)
-                yield block
-    except (OSError, EOFError, zlib.error) as exc:
-        raise InputError(f"cannot read (corrupt or truncated file?): {exc}", str(p)) from None
-
-
 def _iter_blocks(p: Path, gz: bool, chunk_bytes: int):
     """Yield (base, nl, cut): blocks of whole lines at ``base[_PAD:_PAD + nl[-1] + 1]``, ``nl``
-    their line feeds (the last one's is added when the file lacks it), in one buffer reused
-    from block to block.
+    their line feeds (the last one's is added when the file lacks it).
 
+    The file is read ``chunk_bytes`` at a time into two buffers in turn: a worker thread reads
+    (and decompresses) the next chunk and finds its line feeds while the caller parses the
+    block before; the unfinished line at a block's end moves to the front of the other buffer.
     A newline-free run longer than :data:`MAX_LINE_BYTES` (binary garbage) is cut into
     pieces; ``cut`` is 1 when the block's final line break was added there, so the caller
     keeps counting lines as the file has them (the pieces share one line number).
     """
     room = max(chunk_bytes, MAX_LINE_BYTES) + chunk_bytes + 1
-    base = np.zeros(_PAD + room + _PAD, np.uint8)
-    is_lf = np.empty(room, bool)
-    held = 0  # bytes of an unfinished line at base[_PAD:_PAD + held]
-    for block in _reads(p, gz, chunk_bytes):
-        total = held + len(block)
-        base[_PAD + held:_PAD + total] = np.frombuffer(block, np.uint8)
-        del block
-        np.equal(base[_PAD:_PAD + total], 10, out=is_lf[:total])
-        nl = np.flatnonzero(is_lf[:total])
-        if len(nl) == 0:
-            if total <= MAX_LINE_BYTES:
-                held = total
-                continue
-            base[_PAD + total] = 10  # a giant newline-free blob: never valid, cut it
-            yield base, np.array([total]), 1
-            held = 0
-            continue
-        yield base, nl, 0
-        end = int(nl[-1]) + 1
-        held = total - end
-        base[_PAD:_PAD + held] = base[_PAD + end:_PAD + total]
+    bufs = [np.zeros(_PAD + room + _PAD, np.uint8) for _ in range(2)]
+    is_lf = [np.empty(chunk_bytes, bool) for _ in range(2)]
+    cur, held = 0, 0
+    try:
+        with _open_bytes(p, gz) as fh, ThreadPoolExecutor(1) as pool:
+            def fill(k: int, held: int):
+                """Read the next chunk into buffer k after its ``held`` bytes: (bytes read,
+                line feeds among all its bytes)."""
+                n = fh.readinto(memoryview(bufs[k])[_PAD + held:_PAD + held + chunk_bytes])
+                np.equal(bufs[k][_PAD + held:_PAD + held + n], 10, out=is_lf[k][:n])
+                return n, np.flatnonzero(is_lf[k][:n]) + held
+
+            job = pool.submit(fill, cur, held)
+            while True:
+                n, nl = job.result()
+                if n == 0:
+                    break
+                base, total = bufs[cur], held + n
+                if len(nl) == 0:
+                    if total <= MAX_LINE_BYTES:
+                        held = total
+                        job = pool.submit(fill, cur, held)
+                        continue
+                    base[_PAD + total] = 10  # a giant newline-free blob: never valid, cut it
+                    job = pool.submit(fill, 1 - cur, 0)
+                    yield base, np.array([total]), 1
+                    cur, held = 1 - cur, 0
+                    continue
+                end = int(nl[-1]) + 1
+                held = total - end
+                bufs[1 - cur][_PAD:_PAD + held] = base[_PAD + end:_PAD + total]
+                job = pool.submit(fill, 1 - cur, held)
+                yield base, nl, 0
+                cur = 1 - cur
+    except (OSError, EOFError, zlib.error) as exc:
+        raise InputError(f"cannot read (corrupt or truncated file?): {exc}", str(p)) from None
     if held:
-        base[_PAD + held] = 10
-        yield base, np.array([held]), 0
+        bufs[cur][_PAD + held] = 10
+        yield bufs[cur], np.array([held]), 0
 
 
 def _text_bytes(p: Path, gz: bool) -> int:
