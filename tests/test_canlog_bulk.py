@@ -140,9 +140,12 @@ def test_comma_minute_takes_the_bulk_path(comma_log, monkeypatch):
 
 # ----------------------------------------------------------------------------- reference reader
 def _random_line(r: random.Random, t: float, one_layout: bool) -> bytes:
-    layouts = ["%010d.%06d", "%d.%06d", "%d.%03d", "%d", "%d.", "%05d.%09d"]
-    lay = "%010d.%06d" if one_layout and r.random() < 0.97 else r.choice(layouts)
+    layouts = ["%010d.%06d", "%d.%06d", "%d.%03d", "%d", "%d.", "%05d.%09d", "%010d.%08d"]
+    lay = r.choice(["%010d.%06d", "%010d.%08d"]) if one_layout and r.random() < 0.97 \
+        else r.choice(layouts)  # 18 digits: past 2**53, the exact long-double division
     sec, frac = int(t), int((t % 1) * 1e6)
+    if "%08" in lay:
+        frac = frac * 100 + r.randrange(100)
     ts = (lay % (sec, frac % 1000 if "%03" in lay else frac)) if lay.count("%") == 2 else lay % sec
     name = "can0" if one_layout and r.random() < 0.9 else r.choice(
         ["can0", "can1", "vcan0", "can10", "slcan0", "x", "ab#c", "averyveryverylongname0",

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hmpc.models.logs.frames import CAN_ERR_FLAG, EFF_MASK, SFF_MAX
-from hmpc.models.logs.textscan import exact_quotient
+from hmpc.models.logs.textscan import POW10_F, TWO53, exact_quotient
 
 #: longest interface name read here (one 64-bit word); longer names take the general parser
 MAX_NAME = 8
@@ -341,6 +341,10 @@ def parse_fixed(lay: Layout, aligned: np.ndarray, base: np.ndarray, start: np.nd
     ok &= id_ok
     ok &= len_ok
     nval[~ok] = 0  # garbage of malformed lines never reaches the division
-    t = exact_quotient(nval, np.full(len(start), lay.decimals),
-                       lambda i: base[start[i] + 1:start[i] + 1 + tc].tobytes().decode("ascii"))
+    if len(nval) and nval.max() < TWO53:  # exact doubles: one correctly rounded division
+        t = nval.astype(np.float64)
+        t /= POW10_F[lay.decimals]
+    else:
+        t = exact_quotient(nval, np.full(len(start), lay.decimals),
+                           lambda i: base[start[i] + 1:start[i] + 1 + tc].tobytes().decode())
     return Fixed(ok, t, name, idval, ext, (nchars >> 1).astype(np.uint8), data)

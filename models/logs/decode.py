@@ -41,6 +41,8 @@ KIND_UNDECODABLE = "frame does not decode (cantools DecodeError; not decoded)"
 
 #: at most this many messages are selected by one boolean mask each; more -> one sort
 _MASK_MESSAGES = 12
+#: at most this many buses are selected by one comparison each; more -> np.isin
+_MASK_BUSES = 8
 _SFF_IDS = 0x800  # number of 11-bit identifiers
 _OFF_BUS = 0xFFFF  # message code of frames on buses not selected
 #: rows decoded per block: the gathered columns of a block (~12 MB) stay in a typical L3 cache
@@ -109,7 +111,13 @@ def message_index(frames: FrameTable, db) -> np.ndarray:
 def _bus_mask(frames: FrameTable, buses):
     if buses is None:
         return np.ones(len(frames), bool)
-    return np.isin(frames.bus, np.asarray(list(buses), dtype=np.int64))
+    wanted = np.asarray(list(buses), dtype=np.int64)
+    if len(wanted) > _MASK_BUSES:
+        return np.isin(frames.bus, wanted)
+    mask = np.zeros(len(frames), bool)
+    for b in wanted.tolist():  # a few buses: one comparison each, no sort
+        mask |= frames.bus == b
+    return mask
 
 
 def _message_codes(frames: FrameTable, db) -> np.ndarray:
