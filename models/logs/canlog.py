@@ -39,9 +39,9 @@ import numpy as np
 
 from hmpc.models.errors import InputError, Problems
 from hmpc.models.logs.candump import CandumpScanner
-from hmpc.models.logs.candump_fixed import REACH
 from hmpc.models.logs.frames import MAX_PAYLOAD, FrameTable
 from hmpc.models.logs.libpanda import LibpandaChunkParser
+from hmpc.models.logs.textblocks import PAD, FrameSink, iter_blocks, open_bytes, text_bytes
 from hmpc.models.logs.textscan import SKIP_ERROR_FRAME, SKIP_MALFORMED, SKIP_REMOTE
 
 #: formats read by hmpc's own vectorised text readers
@@ -66,8 +66,6 @@ DROPPED_KINDS = (KIND_MALFORMED, KIND_REMOTE, KIND_ERROR_FRAME, KIND_DUPLICATE)
 #: bytes read per chunk by the text readers: big enough to amortise numpy calls, small enough
 #: that the per-chunk index arrays (~60 int64 per line of the general parser) stay near 100 MB.
 CHUNK_BYTES = 8 * 1024 * 1024
-#: a "line" longer than this (binary garbage without newlines) is cut into pieces of this size
-MAX_LINE_BYTES = 1024 * 1024
 
 
 # ----------------------------------------------------------------------------- entry point
@@ -136,13 +134,9 @@ def _is_gzip(p: Path) -> bool:
         return fh.read(2) == b"\x1f\x8b"
 
 
-def _open_bytes(p: Path, gz: bool):
-    return gzip.open(p, "rb") if gz else open(p, "rb")
-
-
 def _head(p: Path, gz: bool, n: int = 4096) -> bytes:
     try:
-        with _open_bytes(p, gz) as fh:
+        with open_bytes(p, gz) as fh:
             return fh.read(n)
     except (OSError, EOFError, zlib.error) as exc:
         raise InputError(f"cannot read: {exc}", str(p)) from None
@@ -202,119 +196,8 @@ def _detect_format(p: Path, gz: bool, head: bytes) -> str:
 #: why a text parser skipped a line -> the problem kind reported
 _SKIP_KIND = {SKIP_MALFORMED: KIND_MALFORMED, SKIP_REMOTE: KIND_REMOTE,
               SKIP_ERROR_FRAME: KIND_ERROR_FRAME}
-#: zero bytes around each block in the reader's buffer (the bulk reader loads words past a line)
-_PAD = REACH
 #: the frame columns are first sized for this many times the lines the first block promises
 _CAPACITY_MARGIN = 1.05
-
-
-def _iter_blocks(p: Path, gz: bool, chunk_bytes: int):
-    """Yield (base, nl, cut): blocks of whole lines at ``base[_PAD:_PAD + nl[-1] + 1]``, ``nl``
-    their line feeds (the last one's is added when the file lacks it).
-
-    The file is read ``chunk_bytes`` at a time into two buffers in turn: a worker thread reads
-    (and decompresses) the next chunk and finds its line feeds while the caller parses the
-    block before; the unfinished line at a block's end moves to the front of the other buffer.
-    A newline-free run longer than :data:`MAX_LINE_BYTES` (binary garbage) is cut into
-    pieces; ``cut`` is 1 when the block's final line break was added there, so the caller
-    keeps counting lines as the file has them (the pieces share one line number).
-    """
-    room = max(chunk_bytes, MAX_LINE_BYTES) + chunk_bytes + 1
-    bufs = [np.zeros(_PAD + room + _PAD, np.uint8) for _ in range(2)]
-    is_lf = [np.empty(chunk_bytes, bool) for _ in range(2)]
-    cur, held = 0, 0
-    try:
-        with _open_bytes(p, gz) as fh, ThreadPoolExecutor(1) as pool:
-            def fill(k: int, held: int):
-                """Read the next chunk into buffer k after its ``held`` bytes: (bytes read,
-                line feeds among all its bytes)."""
-                n = fh.readinto(memoryview(bufs[k])[_PAD + held:_PAD + held + chunk_bytes])
-                np.equal(bufs[k][_PAD + held:_PAD + held + n], 10, out=is_lf[k][:n])
-                return n, np.flatnonzero(is_lf[k][:n]) + held
-
-            job = pool.submit(fill, cur, held)
-            while True:
-                n, nl = job.result()
-                if n == 0:
-                    break
-                base, total = bufs[cur], held + n
-                if len(nl) == 0:
-                    if total <= MAX_LINE_BYTES:
-                        held = total
-                        job = pool.submit(fill, cur, held)
-                        continue
-                    base[_PAD + total] = 10  # a giant newline-free blob: never valid, cut it
-                    job = pool.submit(fill, 1 - cur, 0)
-                    yield base, np.array([total]), 1
-                    cur, held = 1 - cur, 0
-                    continue
-                end = int(nl[-1]) + 1
-                held = total - end
-                bufs[1 - cur][_PAD:_PAD + held] = base[_PAD + end:_PAD + total]
-                job = pool.submit(fill, 1 - cur, held)
-                yield base, nl, 0
-                cur = 1 - cur
-    except (OSError, EOFError, zlib.error) as exc:
-        raise InputError(f"cannot read (corrupt or truncated file?): {exc}", str(p)) from None
-    if held:
-        bufs[cur][_PAD + held] = 10
-        yield bufs[cur], np.array([held]), 0
-
-
-def _text_bytes(p: Path, gz: bool) -> int:
-    """How many bytes of text the file holds: its size, or the size a gzip file's trailer
-    gives (modulo 4 GiB; only an estimate)."""
-    size = p.stat().st_size
-    if not gz or size < 18:
-        return size
-    with open(p, "rb") as fh:
-        fh.seek(-4, 2)
-        isize = int.from_bytes(fh.read(4), "little")
-    return isize if isize >= size else 8 * size
-
-
-class _FrameSink:
-    """Frames appended part by part to columns allocated once for the whole file (grown if
-    the estimate falls short), so no part is copied twice."""
-
-    def __init__(self, capacity: int):
-        self.n, self.cap, self.width = 0, 0, 8
-        self.cols: dict[str, np.ndarray] = {}
-        self._grow(max(capacity, 1024), 8)
-
-    def _grow(self, cap: int, width: int) -> None:
-        old, n = self.cols, self.n
-        self.cols = {"t_s": np.empty(cap), "bus": np.empty(cap, np.int16),
-                     "arb_id": np.empty(cap, np.uint32), "is_extended": np.empty(cap, bool),
-                     "dlc": np.empty(cap, np.uint8), "data": np.zeros((cap, width), np.uint8),
-                     "where": np.empty(cap, np.int64)}
-        for k, v in old.items():
-            if k == "data":
-                self.cols[k][:n, :v.shape[1]] = v[:n]
-            else:
-                self.cols[k][:n] = v[:n]
-        self.cap, self.width = cap, width
-
-    def append(self, ch, bus: np.ndarray) -> None:
-        k = len(ch.t)
-        w = ch.data.shape[1]
-        if self.n + k > self.cap or w > self.width:
-            cap = self.cap if self.n + k <= self.cap else max(self.n + k, self.cap * 3 // 2)
-            self._grow(cap, max(w, self.width))
-        a, b, c = self.n, self.n + k, self.cols
-        c["t_s"][a:b] = ch.t
-        c["bus"][a:b] = bus
-        c["arb_id"][a:b] = ch.arb_id
-        c["is_extended"][a:b] = ch.ext
-        c["dlc"][a:b] = ch.dlc
-        c["data"][a:b, :w] = ch.data
-        c["where"][a:b] = ch.where
-        self.n = b
-
-    def table(self, path: str) -> FrameTable:
-        n, c = self.n, self.cols
-        return FrameTable(c["t_s"][:n], c["bus"][:n], c["arb_id"][:n], c["is_extended"][:n],
-                          c["dlc"][:n], c["data"][:n], c["where"][:n], path)
 
 
 def _read_text(p: Path, gz: bool, problems: Problems, scan, *, first_line: int,
@@ -326,17 +209,23 @@ def _read_text(p: Path, gz: bool, problems: Problems, scan, *, first_line: int,
     sink = None
     skipped: dict[str, list] = {}
     line0 = 0
-    for base, nl, cut in _iter_blocks(p, gz, chunk_bytes):
-        if sink is None:
-            per_byte = len(nl) / (int(nl[-1]) + 1)
-            sink = _FrameSink(int(_text_bytes(p, gz) * per_byte * _CAPACITY_MARGIN))
-        for ch in scan(base, _PAD, nl, line0, first_line):
-            for why, lines in ch.skipped.items():
-                if len(lines):
-                    skipped.setdefault(_SKIP_KIND[why], []).append(lines)
-            bus = ch.bus.astype(np.int16) if ch.bus.ndim == 1 else mapper.map(ch.bus)
-            sink.append(ch, bus)
-        line0 += len(nl) - cut
+    with ThreadPoolExecutor(1) as pool:
+        try:
+            for base, nl, cut in iter_blocks(p, gz, chunk_bytes):
+                if sink is None:
+                    per_byte = len(nl) / (int(nl[-1]) + 1)
+                    sink = FrameSink(int(text_bytes(p, gz) * per_byte * _CAPACITY_MARGIN))
+                    pool.submit(sink.prefault)  # the columns' first-touch page faults, ahead
+                for ch in scan(base, PAD, nl, line0, first_line):
+                    for why, lines in ch.skipped.items():
+                        if len(lines):
+                            skipped.setdefault(_SKIP_KIND[why], []).append(lines)
+                    bus = ch.bus.astype(np.int16) if ch.bus.ndim == 1 else mapper.map(ch.bus)
+                    sink.append(ch, bus)
+                line0 += len(nl) - cut
+        finally:
+            if sink is not None:
+                sink.close()
     for kind in DROPPED_KINDS:
         if kind in skipped:
             lines = np.concatenate(skipped[kind])

@@ -19,11 +19,11 @@ import numpy as np
 from hmpc.models.errors import InputError, Problems
 from hmpc.models.logs.candump import parse_block
 from hmpc.models.logs.canlog import (_SKIP_KIND, CHUNK_BYTES, DROPPED_KINDS, KIND_BACKWARDS,
-                                     KIND_DUPLICATE, KIND_JUMP, KIND_MALFORMED, MAX_LINE_BYTES,
-                                     _BusMapper, _libpanda_columns, _open_bytes,
-                                     _read_python_can, _resolve)
+                                     KIND_DUPLICATE, KIND_JUMP, KIND_MALFORMED, _BusMapper,
+                                     _libpanda_columns, _read_python_can, _resolve)
 from hmpc.models.logs.frames import FrameTable
 from hmpc.models.logs.libpanda import LibpandaChunkParser
+from hmpc.models.logs.textblocks import MAX_LINE_BYTES, open_bytes
 
 
 def read_log_reference(path, problems: Problems, *, fmt: str | None = None,
@@ -52,7 +52,7 @@ def _iter_chunks(p: Path, gz: bool, chunk_bytes: int):
     """
     rest = b""
     try:
-        with _open_bytes(p, gz) as fh:
+        with open_bytes(p, gz) as fh:
             while True:
                 block = fh.read(chunk_bytes)
                 if not block:
