@@ -7,8 +7,8 @@
 searching the whole block and reads every field with masked, variable-width gathers, so it
 takes any line python-can's reader takes and says why it skips the others.
 :class:`CandumpScanner` first reads the lines that share one of a few fixed layouts with
-``models.logs.candump_fixed`` (the same frames, several times faster) and hands only the other
-lines to :func:`parse_lines`. Neither runs Python per line.
+``models.logs.candump_fixed`` (the same frames from far fewer numpy passes per line) and hands
+only the other lines to :func:`parse_lines`. Neither runs Python per line.
 
 Imports only numpy and ``models.logs.textscan``/``candump_fixed``/``frames``.
 """
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hmpc.models.logs.candump_fixed import REACH, Layout, learn_layout, parse_fixed
+from hmpc.models.logs.candump_fixed import REACH, Layout, learn_layout, parse_fixed, printable
 from hmpc.models.logs.frames import CAN_ERR_FLAG, EFF_MASK, MAX_PAYLOAD, SFF_MAX
 from hmpc.models.logs.textscan import (HEX, SKIP_ERROR_FRAME, SKIP_MALFORMED, SKIP_REMOTE, Buf,
                                        Chunk, dec_time, hex_int, line_bounds, payload, width_of)
@@ -29,6 +29,8 @@ GROUP_LINES = 12_000
 MAX_LAYOUTS = 4
 #: fewer lines than this left by the known layouts go straight to the general parser
 MIN_LINES_FOR_LAYOUT = 64
+#: lines left over that are tried for a new layout (a remote or malformed line has none)
+LAYOUT_CANDIDATES = 16
 #: distinct interface names per group checked for the bulk path (more: general parser)
 MAX_NAMES = 16
 
@@ -120,11 +122,8 @@ class CandumpScanner:
             if len(todo) < (1 if k < len(self.layouts) else MIN_LINES_FOR_LAYOUT):
                 break
             if k == len(self.layouts):
-                if k == MAX_LAYOUTS:
-                    break
-                i = int(todo[0])
-                lay = learn_layout(base[ls[i]:le[i]].tobytes())
-                if lay is None or lay in self.layouts:
+                lay = self._new_layout(base, ls, le, todo) if k < MAX_LAYOUTS else None
+                if lay is None:
                     break
                 self.layouts.append(lay)
             whole = len(todo) == len(ls)
@@ -145,6 +144,15 @@ class CandumpScanner:
         return _merge(fast, sub)
 
 
+    def _new_layout(self, base, ls, le, todo) -> Layout | None:
+        """A layout not yet known, from one of the first lines left over (None if none)."""
+        for i in todo[:LAYOUT_CANDIDATES].tolist():
+            lay = learn_layout(base[ls[i]:le[i]].tobytes())
+            if lay is not None and lay not in self.layouts:
+                return lay
+        return None
+
+
 def _check_names(f, name_chars: int) -> None:
     """Only printable names without spaces take the bulk path: others are left (not ok)."""
     todo = f.ok.copy()
@@ -153,8 +161,7 @@ def _check_names(f, name_chars: int) -> None:
             return
         i = int(np.argmax(todo))
         same = todo & (f.name == f.name[i])
-        name = int(f.name[i]).to_bytes(8, "little")[:name_chars]
-        if not all(0x21 <= c <= 0x7E for c in name):
+        if not printable(int(f.name[i]).to_bytes(8, "little")[:name_chars]):
             f.ok &= ~same
         todo &= ~same
     f.ok &= ~todo

@@ -13,8 +13,9 @@ the same frame: exactly the layout's digits and dot, ``)`` and the two spaces, a
 without spaces, 3 hex digits (at most 0x7FF) or 8 (no error-frame flag) before ``#``, and 0..16
 hex digits, an even number, up to the end of the line. Every other line (remote, error and CAN FD
 frames, direction flags, other layouts, anything malformed) is left to the general parser.
-Timestamps are the same integer of digits over the same power of ten, divided by
-``models.logs.textscan.exact_quotient``: bit-identical to Python's ``float`` of the text.
+Timestamps are the same integer of digits over the same power of ten, divided as
+``models.logs.textscan.exact_quotient`` divides them: bit-identical to Python's ``float`` of
+the text.
 
 Imports only numpy and ``models.logs.textscan``/``models.logs.frames``.
 """
@@ -103,12 +104,13 @@ def learn_layout(line: bytes) -> Layout | None:
         return None
     end = line.find(b" ", close + 2)
     name = line[close + 2:end]
-    if end < 0 or not 1 <= len(name) <= MAX_NAME or not _printable(name):
+    if end < 0 or not 1 <= len(name) <= MAX_NAME or not printable(name):
         return None
     return Layout(len(text), text.find(b"."), len(name))
 
 
-def _printable(name: bytes) -> bool:
+def printable(name: bytes) -> bool:
+    """An interface name this module reads: printable ASCII, no space."""
     return all(0x21 <= c <= 0x7E for c in name)
 
 

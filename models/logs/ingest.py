@@ -232,28 +232,28 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
     preference = _check_options(rate_hz, gap_s, prefer)
     problems = Problems() if problems is None else problems
     say = progress or (lambda _msg: None)
-    with ThreadPoolExecutor(1) as pool:
-        # the log, much the largest input, is hashed in a worker thread while it is parsed
-        log_sha256 = pool.submit(sha256_file, log_path)
-        can = read_can(log_path, dbc_path, signals_path, problems, say, dbc_lenient=dbc_lenient)
-        nav = NavStage(None, {}, 0.0, None, None, {})
-        if nav_path is not None:
-            nav = read_nav_stage(nav_path, can.channels, problems, say, columns=nav_columns,
-                                 offset_s=clock_offset_s, mount_correction=mount_correction,
-                                 max_lag_s=max_lag_s)
-        imu = ImuStage({}, None, None, {})
-        if imu_path is not None:
-            imu = read_imu_stage(imu_path, can.channels, nav, problems, say, columns=imu_columns,
-                                 offset_s=imu_offset_s, mount_correction=mount_correction,
-                                 max_lag_s=max_lag_s)
-        raw, origin = choose_sources(can, nav.channels, imu.channels, preference, nav_path,
-                                     imu_path)
-        say(f"resampling {len(raw)} channels at {rate_hz:g} Hz")
-        grid = grid_for(can, rate_hz, str(log_path))
-        _check_overlap(grid, (("nav", nav.channels, nav_path), ("IMU", imu.channels, imu_path)))
-        res = resample_channels(raw, origin, can.smap, grid, gap_s)
-        summary = _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz,
-                           can, nav, imu, res, problems, log_sha256.result())
+    # the log, much the largest input, is hashed in a worker thread while it is parsed
+    hasher = ThreadPoolExecutor(1)
+    log_sha256 = hasher.submit(sha256_file, log_path)
+    hasher.shutdown(wait=False)  # its thread ends with the hash
+    can = read_can(log_path, dbc_path, signals_path, problems, say, dbc_lenient=dbc_lenient)
+    nav = NavStage(None, {}, 0.0, None, None, {})
+    if nav_path is not None:
+        nav = read_nav_stage(nav_path, can.channels, problems, say, columns=nav_columns,
+                             offset_s=clock_offset_s, mount_correction=mount_correction,
+                             max_lag_s=max_lag_s)
+    imu = ImuStage({}, None, None, {})
+    if imu_path is not None:
+        imu = read_imu_stage(imu_path, can.channels, nav, problems, say, columns=imu_columns,
+                             offset_s=imu_offset_s, mount_correction=mount_correction,
+                             max_lag_s=max_lag_s)
+    raw, origin = choose_sources(can, nav.channels, imu.channels, preference, nav_path, imu_path)
+    say(f"resampling {len(raw)} channels at {rate_hz:g} Hz")
+    grid = grid_for(can, rate_hz, str(log_path))
+    _check_overlap(grid, (("nav", nav.channels, nav_path), ("IMU", imu.channels, imu_path)))
+    res = resample_channels(raw, origin, can.smap, grid, gap_s)
+    summary = _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz,
+                       can, nav, imu, res, problems, log_sha256.result())
     meta = dict(summary)
     meta["path"] = str(log_path)
     return IngestResult(Recording(res.channels, raw, meta), problems, summary)
