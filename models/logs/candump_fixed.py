@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hmpc.models.logs.frames import CAN_ERR_FLAG, EFF_MASK, SFF_MAX
-from hmpc.models.logs.textscan import POW10_F, TWO53, exact_quotient
+from hmpc.models.logs.textscan import HEX, HEX2, POW10_F, TWO53, exact_quotient
 
 #: longest interface name read here (one 64-bit word); longer names take the general parser
 MAX_NAME = 8
@@ -61,10 +61,13 @@ def _bytemask(first: int, count: int) -> int:
     return m
 
 
-#: payload characters -> mask of those characters in the first / second 8-character word
-_CHARS_LO = np.array([_bytemask(0, min(n, 8)) for n in range(MAX_PAYLOAD_CHARS + 1)], np.uint64)
-_CHARS_HI = np.array([_bytemask(0, max(n - 8, 0)) for n in range(MAX_PAYLOAD_CHARS + 1)],
+#: payload characters (0..16; 17 for any other count) -> mask of those characters in the
+#: first / second 8-character word, and nonzero where the count is no payload (odd, or 17)
+_CHARS_LO = np.array([_bytemask(0, min(n, 8)) for n in range(MAX_PAYLOAD_CHARS + 2)], np.uint64)
+_CHARS_HI = np.array([_bytemask(0, max(n - 8, 0)) for n in range(MAX_PAYLOAD_CHARS + 2)],
                      np.uint64)
+_CHARS_BAD = np.array([n % 2 or n > MAX_PAYLOAD_CHARS for n in range(MAX_PAYLOAD_CHARS + 2)],
+                      np.uint64)
 
 
 @dataclass(frozen=True)
@@ -154,6 +157,14 @@ class _LineWords:
     def byte(self, o: int) -> np.ndarray:
         return (self.word(o // 8) >> _U(8 * (o % 8))) & _U(0xFF)
 
+    def bytes_at(self, o: int, n: int) -> np.ndarray:
+        """The ``n`` (1..8) bytes at offset ``o``, zero padded above."""
+        j, s = o // 8, o % 8
+        if s + n <= 8:  # inside one word
+            w = self.word(j) >> _U(8 * s) if s else self.word(j)
+            return w if s + n == 8 else w & _U(_bytemask(0, n))
+        return self.field(o) & _U(_bytemask(0, n))
+
 
 class _Plan:
     """A layout's constants, worked out once: which bytes of which words are checked for a
@@ -186,13 +197,12 @@ class _Plan:
                 i = j + 1
             self.digit_words.append((parts, _U(_M30 & _U(_bytemask(0, fill))) if fill else None,
                                      np.int64(10 ** (len(cols) - hi))))
-        self.name_mask = _U(_bytemask(0, nc))
 
 
 def _digits(plan: _Plan, lw: _LineWords, err: np.ndarray) -> np.ndarray:
     """The timestamp's digits as one int64 per line; bytes that are not digits set bits of
     ``err``."""
-    value = None
+    value = bad = None
     for parts, fill, power in plan.digit_words:
         w = None
         for off, mask in parts:
@@ -205,8 +215,10 @@ def _digits(plan: _Plan, lw: _LineWords, err: np.ndarray) -> np.ndarray:
         x = w - _M30  # digits' values, one per byte, if all were digits
         y = x + _M76  # a byte over 9 sets its high bit here, one under '0' in x itself
         y |= x
-        y &= _M80
-        err |= y
+        if bad is None:
+            bad = y
+        else:
+            bad |= y
         # pairs, then quadruples, then all eight (most significant digit in the lowest byte)
         x = x * _U(10) + (x >> _U(8))
         x = ((((x & _U(0x000000FF000000FF)) * _U(100 + (1000000 << 32)))
@@ -217,6 +229,8 @@ def _digits(plan: _Plan, lw: _LineWords, err: np.ndarray) -> np.ndarray:
         else:
             x *= power
             value += x
+    bad &= _M80
+    err |= bad
     return value
 
 
@@ -286,30 +300,22 @@ def parse_fixed(lay: Layout, aligned: np.ndarray, base: np.ndarray, start: np.nd
         e ^= val
         err |= e
     nval = _digits(plan, lw, err)
-    name = lw.field(tc + 3) & plan.name_mask
+    name = lw.bytes_at(tc + 3, lay.name_chars)
     # identifier: 3 hex digits then '#', or 8 then '#'
     idw = lw.field(i0)
     c3 = ((idw >> _U(24)) & _U(0xFF)) == _U(0x23)
     ext = lw.byte(i0 + 8) == _U(0x23)
     ext &= ~c3
     any_ext = bool(ext.any())
-    nib, valid = _hex_nibbles(idw)
     if any_ext:
-        need = np.where(ext, _M80, _U(0x808080))
-        nib &= np.where(ext, _ALL, _U(0xFFFFFF))
-    else:
-        need = _U(0x808080)
-        nib &= _U(0xFFFFFF)
-    valid &= need
-    valid ^= need
-    err |= valid
-    idval = _pack_nibbles(nib).astype(np.uint32).byteswap()  # the digits' value, 8 digits
-    if any_ext:
-        idval = np.where(ext, idval, idval >> np.uint32(20))
-        id_ok = np.where(ext, (idval & np.uint32(CAN_ERR_FLAG)) == 0, idval <= SFF_MAX)
-        idval &= np.uint32(EFF_MASK)
-    else:
-        idval >>= np.uint32(20)
+        idval, id_ok = _ids(idw, ext, err)
+    else:  # 3 digits: two table look-ups (0xFFFF / 0xFF where not hex)
+        pair = HEX2.take((idw & _U(0xFFFF)).astype(np.intp))
+        last = HEX.take(((idw >> _U(16)) & _U(0xFF)).astype(np.intp))
+        err |= (pair >> np.uint16(8)) | (last >> np.uint8(4))
+        idval = pair.astype(np.uint32)
+        idval <<= np.uint32(4)
+        idval |= last
         id_ok = idval <= SFF_MAX
     # payload: 0..16 hex digits after '#' up to the end of the line
     nchars = end - start
@@ -320,9 +326,9 @@ def parse_fixed(lay: Layout, aligned: np.ndarray, base: np.ndarray, start: np.nd
     else:
         nchars -= i0 + 4
         w0, w1 = lw.field(i0 + 4), lw.field(i0 + 12)
-    len_ok = (nchars >= 0) & (nchars <= MAX_PAYLOAD_CHARS) & ((nchars & 1) == 0)
-    nchars[~len_ok] = 0
-    lo_mask, hi_mask = _CHARS_LO.take(nchars), _CHARS_HI.take(nchars)
+    count = np.minimum(nchars.view(np.uint64), _U(MAX_PAYLOAD_CHARS + 1)).astype(np.intp)
+    err |= _CHARS_BAD.take(count)  # negative counts wrapped past 16 above
+    lo_mask, hi_mask = _CHARS_LO.take(count), _CHARS_HI.take(count)
     n0, v0 = _hex_nibbles(w0)
     n1, v1 = _hex_nibbles(w1)
     n0 &= lo_mask
@@ -341,7 +347,6 @@ def parse_fixed(lay: Layout, aligned: np.ndarray, base: np.ndarray, start: np.nd
     ok = err == 0
     ok &= c3 | ext
     ok &= id_ok
-    ok &= len_ok
     nval[~ok] = 0  # garbage of malformed lines never reaches the division
     if len(nval) and nval.max() < TWO53:  # exact doubles: one correctly rounded division
         t = nval.astype(np.float64)
@@ -349,4 +354,20 @@ def parse_fixed(lay: Layout, aligned: np.ndarray, base: np.ndarray, start: np.nd
     else:
         t = exact_quotient(nval, np.full(len(start), lay.decimals),
                            lambda i: base[start[i] + 1:start[i] + 1 + tc].tobytes().decode())
-    return Fixed(ok, t, name, idval, ext, (nchars >> 1).astype(np.uint8), data)
+    return Fixed(ok, t, name, idval, ext, (count >> 1).astype(np.uint8), data)
+
+
+def _ids(idw: np.ndarray, ext: np.ndarray, err: np.ndarray):
+    """Identifiers of 3 hex digits, or 8 where ``ext``, at the start of ``idw``: (value,
+    whether it is one: at most 0x7FF, or no error-frame flag); bad digits set ``err``."""
+    nib, valid = _hex_nibbles(idw)
+    need = np.where(ext, _M80, _U(0x808080))
+    nib &= np.where(ext, _ALL, _U(0xFFFFFF))
+    valid &= need
+    valid ^= need
+    err |= valid
+    idval = _pack_nibbles(nib).astype(np.uint32).byteswap()  # the digits' value, 8 digits
+    idval = np.where(ext, idval, idval >> np.uint32(20))
+    id_ok = np.where(ext, (idval & np.uint32(CAN_ERR_FLAG)) == 0, idval <= SFF_MAX)
+    idval &= np.uint32(EFF_MASK)
+    return idval, id_ok
