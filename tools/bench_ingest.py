@@ -131,7 +131,8 @@ def run_child(cmd: list[str], cwd: Path, env: dict | None = None) -> dict:
         proc.returncode = os.waitstatus_to_exitcode(status)
         out.seek(0)
         err.seek(0)
-        return {"wall_s": wall, "peak_rss_b": usage.ru_maxrss * 1024,
+        return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
+                "peak_rss_b": usage.ru_maxrss * 1024,
                 "returncode": proc.returncode, "stdout": out.read().decode(errors="replace"),
                 "stderr": err.read().decode(errors="replace")}
 
@@ -147,7 +148,7 @@ def run_ingest(log: Path, dbc: Path, signals: Path, *, reference: bool = False,
             [str(code)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
     res = run_child([sys.executable, "-c", CHILD, log, dbc, signals]
                     + (["reference"] if reference else []), log.parent, env)
-    out = {k: res[k] for k in ("wall_s", "peak_rss_b", "returncode")}
+    out = {k: res[k] for k in ("wall_s", "cpu_s", "peak_rss_b", "returncode")}
     if res["returncode"] != 0:
         out["error"] = (res["stderr"].strip().splitlines() or ["?"])[-1]
         return out
@@ -225,11 +226,12 @@ def _report_ingest(runs: list[tuple[str, dict]], cli: dict, minutes: int) -> lis
     for name, r in runs:
         print(f"ingest, library call, {name}: wall {r['wall_s']:.2f} s (child process incl. "
               f"Python start-up; ingest_files() itself {r['ingest_s']:.2f} s, its imports "
-              f"{r['import_s']:.2f} s), peak memory {r['peak_rss_b'] / 1e6:.0f} MB; recording: "
-              f"{r.get('rows')} rows x {r.get('channels')} channels at 50 Hz")
+              f"{r['import_s']:.2f} s), CPU {r['cpu_s']:.2f} s (all threads), peak memory "
+              f"{r['peak_rss_b'] / 1e6:.0f} MB; recording: {r.get('rows')} rows x "
+              f"{r.get('channels')} channels at 50 Hz")
     for name, r in runs[1:]:
-        print(f"  {name} / now: {hour(r):.2f} s / {hour(ing):.2f} s = "
-              f"{hour(r) / hour(ing):.1f}x{note}")
+        print(f"  {name} / now: wall {hour(r):.2f} s / {hour(ing):.2f} s = "
+              f"{hour(r) / hour(ing):.1f}x{note}; CPU {r['cpu_s'] / ing['cpu_s']:.1f}x")
     print(f"ingest, `hmpc ingest` end to end (what the user runs): wall "
           f"{cli['wall_s']:.2f} s, peak memory {cli['peak_rss_b'] / 1e6:.0f} MB; "
           f"{cli['csv_mb']:.0f} MB CSV written; `hmpc --version` alone "
