@@ -349,8 +349,8 @@ def test_unknown_message_name_is_fatal(tmp_path, comma_log, comma_dbc):
 
 
 def test_huge_newline_free_garbage_keeps_line_numbers(tmp_path, real_lines):
-    import hmpc.models.logs.canlog as canlog
-    blob = bytes(np.random.default_rng(3).integers(0, 256, 3 * canlog.MAX_LINE_BYTES // 2,
+    from hmpc.models.logs.textblocks import MAX_LINE_BYTES
+    blob = bytes(np.random.default_rng(3).integers(0, 256, 3 * MAX_LINE_BYTES // 2,
                                                    dtype=np.uint8)).replace(b"\n", b"x")
     p = tmp_path / "blob.log"
     p.write_bytes(b"\n".join(real_lines[:10]) + b"\n" + blob + b"\n"
