@@ -30,7 +30,6 @@ a name without a number, or whose number another name already took, gets the nex
 """
 from __future__ import annotations
 
-import gzip
 import zlib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -41,7 +40,9 @@ from hmpc.models.errors import InputError, Problems
 from hmpc.models.logs.candump import CandumpScanner
 from hmpc.models.logs.frames import MAX_PAYLOAD, FrameTable
 from hmpc.models.logs.libpanda import LibpandaChunkParser
-from hmpc.models.logs.textblocks import PAD, FrameSink, iter_blocks, open_bytes, text_bytes
+from hmpc.models.logs.files import open_text
+from hmpc.models.logs.files import is_gzip, open_binary
+from hmpc.models.logs.textblocks import PAD, FrameSink, iter_blocks, text_bytes
 from hmpc.models.logs.textscan import SKIP_ERROR_FRAME, SKIP_MALFORMED, SKIP_REMOTE
 
 #: formats read by hmpc's own vectorised text readers
@@ -60,6 +61,7 @@ KIND_ERROR_FRAME = "error frame (dropped)"
 KIND_DUPLICATE = "duplicate frame (same time, bus, id and payload; dropped)"
 KIND_BACKWARDS = "timestamp earlier than the previous frame (frames re-sorted by time, kept)"
 KIND_JUMP = "clock jump forward (frames kept)"
+KIND_TRUNCATED = "the gzip stream ends early: the log is cut there (the frames before it are read)"
 #: kinds whose frames were dropped (the rest are kept and only reported)
 DROPPED_KINDS = (KIND_MALFORMED, KIND_REMOTE, KIND_ERROR_FRAME, KIND_DUPLICATE)
 
@@ -120,7 +122,7 @@ def _resolve(path, fmt):
         raise InputError("not a regular file", spath)
     if fmt is not None and fmt not in FORMATS:
         raise ValueError(f"unknown log format {fmt!r}; expected one of {', '.join(FORMATS)}")
-    gz = _is_gzip(p)
+    gz = is_gzip(p)
     head = _head(p, gz)
     if not head.strip():
         raise InputError("empty file (no CAN frame)", spath)
@@ -129,14 +131,9 @@ def _resolve(path, fmt):
     return p, gz, head, fmt
 
 
-def _is_gzip(p: Path) -> bool:
-    with open(p, "rb") as fh:
-        return fh.read(2) == b"\x1f\x8b"
-
-
 def _head(p: Path, gz: bool, n: int = 4096) -> bytes:
     try:
-        with open_bytes(p, gz) as fh:
+        with open_binary(p, gz) as fh:
             return fh.read(n)
     except (OSError, EOFError, zlib.error) as exc:
         raise InputError(f"cannot read: {exc}", str(p)) from None
@@ -209,9 +206,10 @@ def _read_text(p: Path, gz: bool, problems: Problems, scan, *, first_line: int,
     sink = None
     skipped: dict[str, list] = {}
     line0 = 0
+    cut_at: list[int] = []
     with ThreadPoolExecutor(1) as pool:
         try:
-            for base, nl, cut in iter_blocks(p, gz, chunk_bytes):
+            for base, nl, cut in iter_blocks(p, gz, chunk_bytes, on_truncated=cut_at.append):
                 if sink is None:
                     per_byte = len(nl) / (int(nl[-1]) + 1)
                     sink = FrameSink(int(text_bytes(p, gz) * per_byte * _CAPACITY_MARGIN))
@@ -231,6 +229,9 @@ def _read_text(p: Path, gz: bool, problems: Problems, scan, *, first_line: int,
             lines = np.concatenate(skipped[kind])
             problems.add(kind, spath, lines[:Problems.MAX_FIRST], count=len(lines),
                          detail=f"not a valid {what} line" if kind == KIND_MALFORMED else "")
+    if cut_at:
+        problems.add(KIND_TRUNCATED, spath, line0 + first_line - 1,
+                     detail=f"after {cut_at[0]} bytes of text, in line {line0 + first_line - 1}")
     table = sink.table(spath) if sink is not None else FrameTable.empty(spath)
     if len(table) == 0:
         bad = skipped.get(KIND_MALFORMED)
@@ -318,8 +319,7 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
             if fmt == "sqlite":
                 raise InputError("a gzip-compressed sqlite log cannot be read; decompress it",
                                  spath)
-            fh = gzip.open(p, "rb" if binary else "rt", encoding=None if binary else "utf-8",
-                           errors=None if binary else "replace")
+            fh = open_binary(p, True) if binary else open_text(p, errors="replace")
             reader = cls(fh, **kwargs)
         else:
             reader = cls(spath, **kwargs)
@@ -357,6 +357,10 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
     finally:
         if fh is not None:
             fh.close()
+    gzr = getattr(getattr(fh, "buffer", None), "raw", fh)
+    if getattr(gzr, "truncated", False):
+        problems.add(KIND_TRUNCATED, spath, frame_no,
+                     detail=f"after {gzr.text_bytes} bytes of text, after frame {frame_no}")
     problems.add(KIND_REMOTE, spath, remote[:Problems.MAX_FIRST], count=len(remote))
     problems.add(KIND_ERROR_FRAME, spath, errf[:Problems.MAX_FIRST], count=len(errf))
     if not t:

@@ -23,7 +23,8 @@ from hmpc.models.logs.canlog import (_SKIP_KIND, CHUNK_BYTES, DROPPED_KINDS, KIN
                                      _libpanda_columns, _read_python_can, _resolve)
 from hmpc.models.logs.frames import FrameTable
 from hmpc.models.logs.libpanda import LibpandaChunkParser
-from hmpc.models.logs.textblocks import MAX_LINE_BYTES, open_bytes
+from hmpc.models.logs.files import open_binary
+from hmpc.models.logs.textblocks import MAX_LINE_BYTES
 
 
 def read_log_reference(path, problems: Problems, *, fmt: str | None = None,
@@ -52,7 +53,7 @@ def _iter_chunks(p: Path, gz: bool, chunk_bytes: int):
     """
     rest = b""
     try:
-        with open_bytes(p, gz) as fh:
+        with open_binary(p, gz) as fh:
             while True:
                 block = fh.read(chunk_bytes)
                 if not block:

@@ -14,12 +14,14 @@ from __future__ import annotations
 import csv
 import gzip
 import io
+import zlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from hmpc.models.logs.files import open_text
 from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS, VALID_GEARS
 
 #: channels that are fractions 0..1 (CONVENTIONS), and how far past the ends a reading may be
@@ -231,11 +233,10 @@ def _read_parquet_text(path: Path) -> tuple[list[str], dict[str, list[str]], Non
 
 def _read_csv_text(path: Path) -> tuple[list[str], dict[str, list[str]], int]:
     """Header and columns as text of a CSV (or .gz) file, and the line of the first row (2)."""
-    opener = gzip.open if path.suffix == ".gz" else open
     try:
-        with opener(path, "rt", newline="") as fh:
+        with open_text(path, newline="") as fh:
             text = fh.read()
-    except (OSError, UnicodeDecodeError) as exc:
+    except (OSError, EOFError, UnicodeDecodeError, zlib.error) as exc:
         raise InputError(f"cannot read as text ({exc.__class__.__name__})", str(path)) from None
     reader = csv.reader(io.StringIO(text))
     try:

@@ -10,14 +10,15 @@ Imports only numpy, ``models.errors`` and ``models.logs.frames``/``candump_fixed
 """
 from __future__ import annotations
 
-import gzip
 import threading
 import zlib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
+from hmpc.models.logs.files import open_binary
 from hmpc.models.errors import InputError
 from hmpc.models.logs.candump_fixed import REACH
 from hmpc.models.logs.frames import FrameTable
@@ -33,12 +34,8 @@ PREFAULT_ROWS = 1 << 16
 PREFAULT_AHEAD = 1 << 21
 
 
-def open_bytes(p: Path, gz: bool):
-    """The file opened for reading bytes, decompressed when ``gz``."""
-    return gzip.open(p, "rb") if gz else open(p, "rb")
-
-
-def iter_blocks(p: Path, gz: bool, chunk_bytes: int):
+def iter_blocks(p: Path, gz: bool, chunk_bytes: int,
+                on_truncated: Callable[[int], None] | None = None):
     """Yield (base, nl, cut): blocks of whole lines at ``base[PAD:PAD + nl[-1] + 1]``, ``nl``
     their line feeds (the last one's is added when the file lacks it), ``base`` zero padded by
     at least :data:`PAD` bytes on both sides of the block.
@@ -49,13 +46,17 @@ def iter_blocks(p: Path, gz: bool, chunk_bytes: int):
     other buffer. A newline-free run longer than :data:`MAX_LINE_BYTES` (binary garbage) is cut
     into pieces; ``cut`` is 1 when the block's final line break was added there, so the caller
     keeps counting lines as the file has them (the pieces share one line number).
+
+    A gzip stream that ends early is read up to where it ends; then ``on_truncated`` is called
+    with the decompressed bytes read (the blocks before the cut are yielded as usual; a
+    partial last line is yielded too and its parser rejects it like any malformed line).
     """
     room = max(chunk_bytes, MAX_LINE_BYTES) + chunk_bytes + 1
     bufs = [np.zeros(PAD + room + PAD, np.uint8) for _ in range(2)]
     is_lf = [np.empty(chunk_bytes, bool) for _ in range(2)]
     cur, held = 0, 0
     try:
-        with open_bytes(p, gz) as fh, ThreadPoolExecutor(1) as pool:
+        with open_binary(p, gz) as fh, ThreadPoolExecutor(1) as pool:
             def fill(k: int, held: int):
                 """Read the next chunk into buffer k after its ``held`` bytes: (bytes read,
                 line feeds among all its bytes)."""
@@ -85,8 +86,12 @@ def iter_blocks(p: Path, gz: bool, chunk_bytes: int):
                 job = pool.submit(fill, 1 - cur, held)
                 yield base, nl, 0
                 cur = 1 - cur
+            truncated = bool(getattr(fh, "truncated", False))
+            text_read = int(getattr(fh, "text_bytes", 0))
     except (OSError, EOFError, zlib.error) as exc:
-        raise InputError(f"cannot read (corrupt or truncated file?): {exc}", str(p)) from None
+        raise InputError(f"cannot read (corrupt file?): {exc}", str(p)) from None
+    if truncated and on_truncated is not None:
+        on_truncated(text_read)
     if held:
         bufs[cur][PAD + held] = 10
         yield bufs[cur], np.array([held]), 0
