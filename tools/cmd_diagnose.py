@@ -53,11 +53,11 @@ def summary_lines(dg) -> list[str]:
         ps = ", ".join(show.value_with_interval(k, v, f["intervals"].get(k))
                        for k, v in f["parameters"].items() if isinstance(v, float))
         below = f" (on top of {', '.join(f['on_top_of'])})" if f.get("on_top_of") else ""
-        unit = show.CHANNEL_UNITS.get(f["channel"], "")
+        k, unit = show.shown(1.0, show.CHANNEL_UNITS.get(f["channel"], ""))
+        angle = f" {unit}" if k != 1.0 else ""  # the channel lines below give the SI units
         out.append(f"{i}. {f['effect']} ({f['subsystem']}){below}: {ps}")
-        out.append(f"   held-out {f['channel']} RMSE {show.number(f['heldout_rmse_before'], unit)}"
-                   f" -> {show.number(f['heldout_rmse_after'], unit)} "
-                   f"({100 * f['gain']:.0f} % better)")
+        out.append(f"   held-out {f['channel']} RMSE {k * f['heldout_rmse_before']:.4g} -> "
+                   f"{k * f['heldout_rmse_after']:.4g}{angle} ({100 * f['gain']:.0f} % better)")
         if f.get("chosen_because"):
             alt = ", ".join(f"{a['effect']} ({_values(a['parameters'])})"
                             for a in f.get("alternatives", []))
@@ -70,7 +70,7 @@ def summary_lines(dg) -> list[str]:
         out.append(f"  longitudinal input: {dg.longitudinal_input}")
     for name, c in dg.channels.items():
         base = c.get("heldout_rmse_baseline", c.get("rmse_baseline"))
-        out.append(f"  channel {name:18s} baseline RMSE {show.number(base, c['unit'])}  "
+        out.append(f"  channel {name:17s} baseline RMSE {show.number(base, c['unit'])}  "
                    f"noise floor {show.number(c.get('noise_floor'), c['unit'], '.3g')}")
     ss = dg.steering_samples
     if ss:
