@@ -2,8 +2,8 @@
 diagnosis's tests of what a recording supports and of its sensor pairs: a slalom or a straight
 run, with four wheel speeds (0.01 km/h steps), a gyro, an accelerometer and optionally pedals
 and an INS; each sensor error is set by a keyword (an IMU turned about the vertical, an
-accelerometer's filter lag, a per-side rolling radius, an effective track, a steering dead
-time).
+accelerometer's filter lag or its zero-phase smoothing, a per-side rolling radius, an effective
+track, a steering dead time).
 """
 from __future__ import annotations
 
@@ -19,9 +19,11 @@ KMH_STEP = 0.01 / 3.6       #: wheel-speed step [m/s]
 
 
 def drive(duration_s: float = 20.0, rate_hz: float = 50.0, *, speed_mps: float = 12.0,
-          speed_swing_mps: float = 3.0, sw_amp_rad: float = 1.2, sw_period_s: float = 4.0,
+          speed_swing_mps: float = 3.0, speed_ripple_mps: float = 0.0,
+          sw_amp_rad: float = 1.2, sw_period_s: float = 4.0,
           straight: bool = False, pedals: bool = False, ins: bool = False,
-          imu_yaw_rad: float = 0.0, accel_tau_s: float = 0.0, side_ratio: float = 0.0,
+          imu_yaw_rad: float = 0.0, accel_tau_s: float = 0.0, accel_smooth_s: float = 0.0,
+          side_ratio: float = 0.0,
           track_scale: float = 1.0, steer_delay_s: float = 0.0, seed: int = 0,
           path: str = "slalom.csv") -> Recording:
     """A recording of the car (see the module doc); ``straight``: no steering at all."""
@@ -29,7 +31,8 @@ def drive(duration_s: float = 20.0, rate_hz: float = 50.0, *, speed_mps: float =
     dt = 1.0 / rate_hz
     t = np.arange(0.0, duration_s, dt)
     v = speed_mps + speed_swing_mps * np.sin(2 * np.pi * t / 17.0) \
-        + 0.5 * speed_swing_mps * np.sin(2 * np.pi * t / 6.3 + 1.0)
+        + 0.5 * speed_swing_mps * np.sin(2 * np.pi * t / 6.3 + 1.0) \
+        + speed_ripple_mps * np.sin(2 * np.pi * 0.8 * t)  # surging at 0.8 Hz
     sw = np.zeros_like(t) if straight else sw_amp_rad * (
         np.sin(2 * np.pi * t / sw_period_s) + 0.3 * np.sin(2 * np.pi * t / (0.37 * sw_period_s)))
     k = int(round(steer_delay_s / dt))
@@ -55,6 +58,11 @@ def drive(duration_s: float = 20.0, rate_hz: float = 50.0, *, speed_mps: float =
         al = 1.0 - np.exp(-dt / accel_tau_s)
         ax_body = lfilter([al], [1.0, al - 1.0], a, zi=[(1.0 - al) * a[0]])[0]
         ay_body = lfilter([al], [1.0, al - 1.0], q, zi=[(1.0 - al) * q[0]])[0]
+    if accel_smooth_s > 0:  # the same lag forwards and backwards: smoother, not later
+        al = 1.0 - np.exp(-dt / accel_smooth_s)
+        for _ in range(2):
+            ax_body = lfilter([al], [1.0, al - 1.0], ax_body, zi=[(1.0 - al) * ax_body[0]])[0]
+            ax_body = ax_body[::-1]
     c, s = np.cos(imu_yaw_rad), np.sin(imu_yaw_rad)  # imu = R(-yaw) body
     ch["accel_x"] = c * ax_body + s * ay_body + 0.05 * rng.standard_normal(len(t))
     ch["accel_y"] = -s * ax_body + c * ay_body + 0.05 * rng.standard_normal(len(t))

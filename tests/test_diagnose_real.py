@@ -171,3 +171,20 @@ def test_the_split_verdict_says_what_the_likelihood_ratios_say():
     assert "the response is a dead time" in _split_verdict(0.2, 12.0)
     both = _split_verdict(0.7, 0.1)
     assert "cannot tell a dead time from a lag" in both and "fixes the total delay" in both
+
+
+def test_accelerometer_agrees_with_the_wheel_speeds_in_time(comma):
+    """The IMU's accel_x against the derivative of the rear wheels' speed, compared directly:
+    no filter lag beyond a sample or two (tau's interval ends by 0.05 s) and no mounting
+    rotation, so neither accelerometer_lag nor sensor_mounting is named. (Against the ACC
+    request, cross-correlation peaks of the two depend on how the signals are high-passed;
+    against each other the two sensors agree in time.)"""
+    _, _, dg = comma
+    named = {f["effect"] for f in dg.findings}
+    assert not named & {"accelerometer_lag", "sensor_mounting", "wheel_speed_scale"}
+    lag = next(h for h in dg.hypotheses if h["effect"] == "accelerometer_lag")
+    assert lag["intervals"]["tau_s"][1] <= 0.05 and not lag["finding"]
+    mount = next(h for h in dg.hypotheses if h["effect"] == "sensor_mounting")
+    lo, hi = mount["intervals"]["yaw_rad"]
+    assert lo <= 0.0 <= hi and not mount["finding"]
+    assert dg.verdict["model_describes_vehicle"] is True

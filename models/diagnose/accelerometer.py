@@ -15,6 +15,10 @@ its bias and, where the reading holds gravity, the mean grade).
   Needs a yaw rate.
 - ``accelerometer_lag``: ``m = k F[a] + c``, ``F = 1 / (tau s + 1)`` the sensor's own filter,
   tau in [0, ``TAU_MAX_S``]; on top of an accepted mounting both a and q go through ``F``.
+  A lag is a delay as well as a smoothing: it is named only when it fits better than the
+  zero-phase smoother of the best time constant (:func:`zero_phase`, F forwards and
+  backwards); otherwise the accelerometer only reads a smoother signal (its bandwidth), which
+  the comparison records, and no lag is named.
 
 Scores are the blocked held-out RMSE of the equation error [m/s^2] (a static relation between
 two sensors: nothing to free-run); a hypothesis is a finding by ``candidates.accept`` (held-out
@@ -120,28 +124,45 @@ class AccelFit:
         return float(np.hypot(self.coef[0], self.coef[1])) if self.mount else float(self.coef[0])
 
 
+def _lag(x: np.ndarray, dt: float, tau_s: float) -> np.ndarray:
+    """``x`` (one contiguous run) through 1 / (tau s + 1), started at its first value."""
+    al = 1.0 - np.exp(-dt / tau_s)
+    return lfilter([al], [1.0, al - 1.0], x, zi=[(1.0 - al) * x[0]])[0]
+
+
 def _lagged(d: AccelData, x: np.ndarray, tau_s: float) -> np.ndarray:
-    """``x`` through 1 / (tau s + 1), per segment, started at its first value (NaN outside)."""
+    """``x`` through 1 / (tau s + 1), per segment (NaN outside the segments)."""
     if tau_s <= 0:
         return x
-    al = 1.0 - np.exp(-d.dt / tau_s)
     out = np.full(d.n, np.nan)
     for s0, s1 in d.segs:
-        xs = x[s0:s1]
-        out[s0:s1] = lfilter([al], [1.0, al - 1.0], xs, zi=[(1.0 - al) * xs[0]])[0]
+        out[s0:s1] = _lag(x[s0:s1], d.dt, tau_s)
     return out
 
 
-def _design(d: AccelData, tau_s: float, mount: bool) -> np.ndarray:
-    cols = [_lagged(d, d.a, tau_s)]
+def _smoothed(d: AccelData, x: np.ndarray, tau_s: float) -> np.ndarray:
+    """``x`` through the lag forwards and backwards, per segment: a zero-phase smoother of the
+    same time constant (attenuation without delay)."""
+    if tau_s <= 0:
+        return x
+    out = np.full(d.n, np.nan)
+    for s0, s1 in d.segs:
+        out[s0:s1] = _lag(_lag(x[s0:s1], d.dt, tau_s)[::-1], d.dt, tau_s)[::-1]
+    return out
+
+
+def _design(d: AccelData, tau_s: float, mount: bool, zero_phase: bool = False) -> np.ndarray:
+    filt = _smoothed if zero_phase else _lagged
+    cols = [filt(d, d.a, tau_s)]
     if mount:
-        cols.append(_lagged(d, d.q, tau_s))
+        cols.append(filt(d, d.q, tau_s))
     cols.append(np.ones(d.n))
     return np.column_stack(cols)
 
 
-def fit(d: AccelData, tau_s: float, mount: bool, mask: np.ndarray) -> AccelFit:
-    X = _design(d, tau_s, mount)
+def fit(d: AccelData, tau_s: float, mount: bool, mask: np.ndarray,
+        zero_phase: bool = False) -> AccelFit:
+    X = _design(d, tau_s, mount, zero_phase)
     use = mask & d.ok & np.isfinite(X).all(axis=1)
     Xu, y = X[use], d.m[use]
     coef, *_ = np.linalg.lstsq(Xu, y, rcond=None)
@@ -233,6 +254,14 @@ def evaluate(d: AccelData, name: str | None, cfg: DiagnoseConfig, corr_len: floa
         params["offset_mps2"] = float(full.coef[-1])
     return AccelScore(name, full, rmse(err), err, bic(full.sse, full.n, full.k, corr_len),
                       params, intervals)
+
+
+def zero_phase(d: AccelData, mount: bool = False) -> tuple[float, float]:
+    """(time constant [s], SSE per sample) of the best zero-phase smoother of the speed's
+    derivative (:func:`_smoothed`): the alternative to a lag. When it fits as well as the lag,
+    the accelerometer reads a smoother signal (a narrower bandwidth), not a later one."""
+    m, grid, sse = grid_search(lambda g: fit(d, g, mount, d.ok, zero_phase=True), _tau_grid(d))
+    return m.tau_s, float(np.nanmin(sse))
 
 
 def excludes_null(name: str, s: AccelScore) -> bool:

@@ -83,6 +83,23 @@ def accelerometer(ch: dict, cfg: DiagnoseConfig) -> Comparison:
             _judge(c, s.params["tau_s"] >= acc.MIN_TAU_SAMPLES * d.dt,
                    f"a lag of {s.params['tau_s']:.3f} s is within {acc.MIN_TAU_SAMPLES} samples: "
                    "the resampling's own timing, not a filter")
+            zp_tau, zp_sse = acc.zero_phase(d, mounted)
+            lag_sse, base_sse = s.model.sse / s.model.n, below.model.sse / below.model.n
+            out.info["zero_phase_smoother"] = {"tau_s": zp_tau, "sse_per_sample": zp_sse,
+                                               "lag_sse_per_sample": lag_sse,
+                                               "baseline_sse_per_sample": base_sse}
+            if zp_sse <= lag_sse:
+                _judge(c, False, f"a zero-phase smoother (tau {zp_tau:.2f} s forwards and "
+                                 "backwards) fits at least as well: the accelerometer reads a "
+                                 "smoother signal than the speed's derivative (a narrower "
+                                 "bandwidth), not a later one")
+            if zp_sse <= lag_sse and np.sqrt(zp_sse / base_sse) <= 1.0 - cfg.min_gain:
+                out.notes.append(
+                    f"accel_x and the speed's derivative differ in bandwidth, not in time: "
+                    f"accel_x reads like d/dt of {d.speed_source} smoothed over {zp_tau:.2f} s "
+                    f"without delay (equation error {np.sqrt(base_sse):.3g} -> "
+                    f"{np.sqrt(zp_sse):.3g} m/s^2; a lag fits {np.sqrt(lag_sse):.3g}); no "
+                    "accelerometer_lag is named")
         if mounted:
             c["on_top_of"] = {"sensor_mounting": {"yaw_rad": below.params["yaw_rad"]}}
         if c["_ok"]:
