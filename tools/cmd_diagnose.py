@@ -16,7 +16,20 @@ from hmpc.models.params import load_params, parse_params
 
 
 
+EPILOG = """\
+what each part needs (channel names, units and signs: docs/conventions.md):
+  sensors       any pair of: speed + gps_speed; speed + accel_x (+ yaw_rate for the
+                mounting angle); left and right wheel speeds + yaw_rate or heading
+  steering      steering_wheel_angle, speed, yaw_rate or heading; 10 s moving
+  longitudinal  speed and an input (accel_pedal/brake_pedal or accel_cmd); 20 s moving
+A part the recording cannot support is named under not_diagnosed (JSON and terminal) and in
+the parameter file's not_identified:; the exit status is 0 when any part ran, 2 when none can.
+"""
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.epilog = EPILOG
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
 
     p.add_argument("recording", metavar="REC",
                    help="canonical recording (.csv, .csv.gz, .parquet), or a raw CAN log when "

@@ -97,9 +97,9 @@ def prepare(ch: dict, cfg: DiagnoseConfig = DiagnoseConfig()) -> tuple[AccelData
     ok = np.zeros(len(t), bool)
     for s0, s1 in segs:
         ok[s0:s1] = True
-    if ok.sum() < int(20.0 / dt):
+    if ok.sum() < int(cfg.min_pair_s / dt):
         return None, (f"too little moving data with accel_x ({ok.sum() * dt:.1f} s in runs of "
-                      f"{cfg.min_segment_s:g} s; needs 20 s)")
+                      f"{cfg.min_segment_s:g} s; needs {cfg.min_pair_s:g} s)")
     return AccelData(t, dt, a, q, m, segs, ok, src), ""
 
 

@@ -60,6 +60,10 @@ class DiagnoseConfig:
     #: free-run window): five folds of two 2-s windows each; identification asks as much
     #: trustworthy steering (``SteeringIdConfig.min_trustworthy_s``)
     min_steer_s: float = 10.0
+    #: least data for comparing two sensors of one quantity [s] (the accelerometer against the
+    #: speed's derivative, the wheel-speed difference against the yaw rate): a static relation,
+    #: scored on five held-out folds of 2 s, as much as the steering fit asks
+    min_pair_s: float = 10.0
     #: [m/s^2] lateral acceleration (97.5th percentile of |v r| on the steering fit's samples)
     #: before understeer and the steering ratio are judged separable at all: understeer's angle
     #: is K a_y, and a passenger car's K ~ 0.004 rad/(m/s^2) makes 0.008 rad at 2 m/s^2, several

@@ -1,9 +1,15 @@
 """``diagnose``: where the report's model and a recording differ, which physics is missing, and
 the held-out fit with it added.
 
+0. **Parts**: each part (``sensors``, ``steering``, ``longitudinal``) runs when the recording
+   supports it (its channels, enough moving data); one that cannot is named with the reason
+   under ``not_diagnosed``. Only a recording that supports no part is refused.
 1. **Replay and residuals** per channel, each with its noise floor: speed (free-run windows)
    and acceleration (equation error); heading (free-run windows), road-wheel angle and yaw
-   rate; position (free-run windows of eq. 1); the CAN speed against the GNSS speed.
+   rate; position (free-run windows of eq. 1); independent sensors of one quantity against
+   each other: the CAN speed against the GNSS speed (``sensors``), the accelerometer against
+   the speed's derivative and the wheel-speed difference against the yaw rate
+   (``agreement``).
 2. **Locate**: windows above the noise floor, change points, and the residual by regime.
 3. **Name**: every hypothesis of ``models.catalogue`` is refitted jointly with the
    baseline (the report's eq. 7 / eq. 8 structure on this recording) and scored by blocked
@@ -24,10 +30,15 @@ the held-out fit with it added.
    splits, and by at least ``change_min_reduction``) is reported with its windows and its
    share of the error, never named (``unexplained``).
 
+5. **Verdict**: whether the model with every finding describes the vehicle at all, against the
+   noise floors and the prediction that nothing changes (``verdict``).
+
 This module runs the steps in order and assembles the result; the extended and the baseline
 parameter files are written by ``params_out``. The result's ``to_json()`` is the
-``hmpc diagnose`` JSON contract (``findings``, ``unexplained``) plus the replay, the
-hypotheses tested and the baseline checks.
+``hmpc diagnose`` JSON contract (``verdict``, ``findings``, ``unexplained``,
+``not_diagnosed``) plus the replay, the hypotheses tested, the steering samples used and the
+baseline checks. The thresholds are ``DiagnoseConfig.for_vehicle`` (scaled to the vehicle's
+size).
 """
 from __future__ import annotations
 

@@ -101,9 +101,10 @@ def prepare(ch: dict, vehicle, cfg: DiagnoseConfig = DiagnoseConfig()
     ok = np.zeros(len(t), bool)
     for a, b in segs:
         ok[a:b] = True
-    if ok.sum() < int(20.0 / dt):
+    if ok.sum() < int(cfg.min_pair_s / dt):
         return None, (f"too little moving data with both wheel speeds and a yaw rate "
-                      f"({ok.sum() * dt:.1f} s in runs of {cfg.min_segment_s:g} s; needs 20 s)")
+                      f"({ok.sum() * dt:.1f} s in runs of {cfg.min_segment_s:g} s; needs "
+                      f"{cfg.min_pair_s:g} s)")
     # the noise the smoothing leaves in r: the raw noise times the kernel's noise gain
     k = int(round(w / dt)) | 1
     gain = float(np.sum(savgol_coeffs(max(k, 5), 2) ** 2))
