@@ -33,6 +33,19 @@ def parameter(name: str) -> tuple[str, str, float]:
     return name, "", 1.0
 
 
+#: unit suffixes of catalogue parameter names (``models.params``' convention)
+_SUFFIX_UNITS = (("_mps2", "m/s^2"), ("_mps", "m/s"), ("_per_m", "1/m"), ("_per_s", "1/s"),
+                 ("_s", "s"))
+
+
+def unit_of(name: str) -> str:
+    """The unit a catalogue parameter is shown in (its name's suffix; angles in deg)."""
+    nm, unit, _ = parameter(name)
+    if unit:
+        return unit
+    return next((u for suffix, u in _SUFFIX_UNITS if name.endswith(suffix)), "1")
+
+
 def value_with_interval(name: str, value: float, interval=None) -> str:
     """``name value [lo, hi] unit`` as shown to people (see :func:`parameter`)."""
     nm, unit, k = parameter(name)

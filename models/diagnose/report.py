@@ -184,7 +184,8 @@ def write_report(dg, out_dir, title: str = "", cfg: DiagnoseConfig = DiagnoseCon
     html = env.get_template("report.html.j2").render(
         d=dg, title=title, channel_rows=channel_rows, verdict_rows=verdict_rows,
         t0=float(t[0]), figures=figures, units=UNITS, hypothesis_unit=hypothesis_unit,
-        hypothesis_factor=hypothesis_factor, param=show.parameter, n_folds=cfg.n_folds,
+        hypothesis_factor=hypothesis_factor, param=show.parameter, unit_of=show.unit_of,
+        n_folds=cfg.n_folds,
         window_lon=dg.channels.get("speed", {}).get("window_s", cfg.window_lon_s),
         window_steer=cfg.window_steer_s, shown_unit=lambda u: show.shown(None, u)[1],
         shown_factor=lambda u: show.shown(1.0, u)[0])
