@@ -151,19 +151,22 @@ def _keep_status(p: Params, given: Params | None, steering_refit: bool, zones_re
     ``not_identified:`` entries for what ``p`` still lacks or still flags stay."""
     if given is None:
         return
+    def why(note: str | None) -> str:
+        note = (note or "no reason given").strip()
+        return note[len("NOT identifiable:"):].strip() if note.startswith(
+            "NOT identifiable:") else note
+
     gs = given.steering
     if steering_refit and gs is not None and gs.identifiable is False:
         p.steering.identifiable = False
         p.steering.note = ("refitted by hmpc diagnose on this recording; the given file flags "
-                           f"it not identifiable: {gs.note}" if gs.note else
-                           "refitted by hmpc diagnose; the given file flags it not identifiable")
+                           f"it not identifiable: {why(gs.note)}")
     if zones_refit and given.zones:
         for z, g in zip(p.zones, given.zones):
             if g.identifiable is False and z.identifiable is not False:
                 z.identifiable = False
-                z.note = "; ".join(x for x in (z.note, f"the given file flags it not "
-                                               f"identifiable: {g.note or 'no reason given'}")
-                                   if x)
+                z.note = "; ".join(x for x in (z.note, "the given file flags it not "
+                                               f"identifiable: {why(g.note)}") if x)
     flagged = {z.name for z in p.zones if z.identifiable is False}
     for k, why in given.not_identified.items():
         if k == "steering" and p.steering is None or k == "longitudinal" and not p.zones:
