@@ -9,7 +9,6 @@ from __future__ import annotations
 from hmpc.models.params import Params, check_identifiable, load_params
 
 from hmpc.controller.base import Controller
-from hmpc.controller.mpc import MpcConfig, MpcController
 
 #: the controllers :func:`make_controller` builds
 CONTROLLERS = ("mpc", "nmpc", "pid")
@@ -43,6 +42,9 @@ def make_controller(name: str, params: Params, *, dt_s: float = 0.2, horizon_s: 
     if name not in CONTROLLERS:
         raise ValueError(f"unknown controller {name!r} (known: {', '.join(CONTROLLERS)})")
     check_identifiable(params, accept=accept_unidentifiable)
+    # each controller's module (OSQP and scipy.sparse, CasADi) loads only when that controller
+    # is built: commands that never build one (ingest, identify) start without them
+    from hmpc.controller.mpc import MpcConfig, MpcController
     if name == "pid":
         from hmpc.controller.pid import PidController
         return PidController(params)

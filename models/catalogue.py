@@ -69,6 +69,30 @@ CATALOGUE: dict[str, dict] = {
         "equation": {"longitudinal": "speed_CAN(t) = gps_speed(t - c)"},
         "parameters": {"offset_s": "CAN clock minus INS clock c [s], -1..1"},
     },
+    "wheel_speed_scale": {
+        "physics": "per-side effective rolling radius, or the effective track width under load",
+        "equation": {"steering": "(v_right - v_left) / T = rho * (r - r0) + eps * v / T  "
+                                 "(r the gyro's yaw rate, r0 its bias, T the geometry's track)"},
+        "parameters": {"track_scale": "rho = effective track width / the geometry's track [1] "
+                                      "(the contact patches move under load), 0.8..1.2",
+                       "side_ratio": "eps = right / left wheel-speed reading at equal speed - "
+                                     "1 [1] (a per-side rolling-radius difference), -0.05..0.05"},
+    },
+    "accelerometer_lag": {
+        "physics": "an accelerometer's filter lag against the speed",
+        "equation": {"longitudinal": "tau d(a_m)/dt = k * dv/dt - a_m + c  (a_m: accel_x "
+                                     "as the sensor reports it)"},
+        "parameters": {"tau_s": "filter time constant tau [s], 0..1",
+                       "gain": "k [1] (accel_x per true acceleration)"},
+    },
+    "sensor_mounting": {
+        "physics": "an IMU or GNSS antenna mounted rotated or offset from where the geometry says",
+        "equation": {"longitudinal": "accel_x = k * (cos(psi) * dv/dt + sin(psi) * v * r) + c  "
+                                     "(the IMU turned by psi about the vertical axis)"},
+        "parameters": {"yaw_rad": "psi: the IMU's x axis from the body's x axis, counter-"
+                                  "clockwise seen from above [rad], -pi..pi",
+                       "gain": "k [1] (accel_x per true acceleration along its axis)"},
+    },
 }
 
 #: text keys an ``extensions:`` entry of a parameter file may carry beside the parameters

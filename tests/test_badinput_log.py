@@ -300,11 +300,23 @@ def test_missing_file_and_corrupt_gzip_are_fatal(tmp_path, comma_log, capsys):
     rc, out, err = _cli(capsys, tmp_path / "nope.log")
     assert rc == 2
     _one_line_error(err, "nope.log", "no such file")
-    cut = tmp_path / "cut.log.gz"
-    cut.write_bytes(comma_log.read_bytes()[:200000])  # gzip stream cut short
-    rc, out, err = _cli(capsys, cut)
+    raw = bytearray(comma_log.read_bytes())
+    raw[5000:5400] = bytes(400)            # the deflate data overwritten: corrupt, not cut
+    bad = tmp_path / "corrupt.log.gz"
+    bad.write_bytes(bytes(raw))
+    rc, out, err = _cli(capsys, bad)
     assert rc == 2
-    _one_line_error(err, str(cut))
+    _one_line_error(err, str(bad))
+
+
+def test_a_cut_gzip_log_is_read_up_to_the_cut(tmp_path, comma_log, capsys):
+    """A gzip stream cut short is not refused whole: the frames before the cut are ingested
+    and the cut is reported with its line (exit 0)."""
+    cut = tmp_path / "cut.log.gz"
+    cut.write_bytes(comma_log.read_bytes()[:200000])
+    rc, out, err = _cli(capsys, cut)
+    assert rc == 0
+    assert "the gzip stream ends early" in err and str(cut) in err
 
 
 def test_corrupt_binary_log_names_the_frame(tmp_path, comma_log, capsys):
@@ -349,8 +361,8 @@ def test_unknown_message_name_is_fatal(tmp_path, comma_log, comma_dbc):
 
 
 def test_huge_newline_free_garbage_keeps_line_numbers(tmp_path, real_lines):
-    import hmpc.models.logs.canlog as canlog
-    blob = bytes(np.random.default_rng(3).integers(0, 256, 3 * canlog.MAX_LINE_BYTES // 2,
+    from hmpc.models.logs.textblocks import MAX_LINE_BYTES
+    blob = bytes(np.random.default_rng(3).integers(0, 256, 3 * MAX_LINE_BYTES // 2,
                                                    dtype=np.uint8)).replace(b"\n", b"x")
     p = tmp_path / "blob.log"
     p.write_bytes(b"\n".join(real_lines[:10]) + b"\n" + blob + b"\n"

@@ -56,10 +56,16 @@ def _summary(dg):
             for f in dg.findings]
 
 
+#: catalogue ids whose evidence is two sensors of one quantity, not the generator's vehicle
+#: physics: tested on hand-built recordings and the bundled real ones
+#: (tests/test_diagnose_sensors.py)
+SENSOR_PAIR_IDS = {"wheel_speed_scale", "accelerometer_lag", "sensor_mounting"}
+
+
 def test_every_catalogue_effect_has_a_case():
     from hmpc.models.catalogue import CATALOGUE
     named = {dm.CASES[c][0] for c in EFFECT_CASES}
-    assert named == set(CATALOGUE)
+    assert named == set(CATALOGUE) - SENSOR_PAIR_IDS
     # both subsystems where the catalogue has both
     assert {(dm.CASES[c][0], dm.CASES[c][1]) for c in EFFECT_CASES} >= {
         ("actuator_delay", "steering"), ("actuator_delay", "longitudinal"),

@@ -67,8 +67,10 @@ def test_report_names_units_times_and_what_each_figure_compares(report_dir):
     assert "<th>unit</th>" in table
     rows = re.findall(r"<tr><td>([^<]+)</td><td>([^<]+)</td><td>([^<]+)</td><td>([^<]+)</td>",
                       table)
-    units = {"speed": "m/s", "heading": "rad", "accel": "m/s^2", "position": "m",
-             "speed_vs_gnss": "m/s", "road_wheel_angle": "rad"}
+    # angles are shown to people in degrees (the JSON keeps radians)
+    units = {"speed": "m/s", "heading": "deg", "accel": "m/s^2", "position": "m",
+             "speed_vs_gnss": "m/s", "road_wheel_angle": "deg", "accel_vs_speed": "m/s^2",
+             "yaw_rate_vs_wheels": "deg/s"}
     tested = [r for r in rows if r[2] != "-"]
     assert tested and all(r[3] == units[r[2]] for r in tested), rows
     # the page says which clock its times are in

@@ -35,8 +35,14 @@ class MissingSubcommandError(ImportError):
     """A subcommand in SUBCOMMANDS whose module cannot be found (an internal failure, exit 1)."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The ``hmpc`` parser with every subcommand in SUBCOMMANDS.
+
+    Args:
+        command: the subcommand about to run: only its module is imported and only its
+            options are added (the others are listed with their help text), so a command
+            does not pay for importing every other command's libraries at start-up. None
+            builds every subcommand's options (``hmpc COMMAND --help`` of any command).
 
     Raises:
         MissingSubcommandError: a subcommand's module is not installed.
@@ -48,6 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"hmpc {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (modname, helptext) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=helptext, description=helptext)
+        if command is not None and name != command:
+            continue
         try:
             mod = importlib.import_module(modname)
         except ModuleNotFoundError as exc:
@@ -57,10 +66,17 @@ def build_parser() -> argparse.ArgumentParser:
             # SUBCOMMANDS, never a subcommand to drop quietly from --help.
             raise MissingSubcommandError(
                 f"subcommand {name!r}: its module {modname} is missing") from exc
-        p = sub.add_parser(name, help=helptext, description=helptext)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run, _outputs=getattr(mod, "OUTPUTS", {}))
     return parser
+
+
+def _chosen(argv: list[str]) -> str | None:
+    """The subcommand ``argv`` names (its first word that is not an option), if any."""
+    for word in argv:
+        if not word.startswith("-"):
+            return word if word in SUBCOMMANDS else None
+    return None
 
 
 #: argparse destinations that name a file a subcommand writes, and a folder it fills, with
@@ -123,8 +139,11 @@ def check_outputs(args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = _chosen(argv)
     try:
-        parser = build_parser()
+        # no subcommand named (``hmpc``, ``hmpc --help``): the overview needs no module
+        parser = build_parser(command) if command is not None else build_parser("")
     except MissingSubcommandError as exc:
         traceback.print_exc()
         print(f"hmpc: internal error: {exc} (a bug in hmpc's install; please report it)",

@@ -7,7 +7,8 @@ the held-out fold) and scored by free-run replay inside the held-out fold only.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -51,6 +52,62 @@ class DiagnoseConfig:
     #: ... and the split's F test (effective samples, the parameters it adds) must reach this
     #: family-wise false-alarm probability, Bonferroni over the split points scanned
     change_alpha: float = 0.05
+    # ---- the steering and sensor comparisons (scaled to the vehicle by :meth:`for_vehicle`)
+    #: samples count as moving above this [m/s]: below it the yaw rate carries no angle and a
+    #: speed ratio is dominated by the wheel-speed step
+    v_move_min_mps: float = 1.0
+    #: least steering fit data [s] (samples above ``v_steer_min_mps`` in segments of at least a
+    #: free-run window): five folds of two 2-s windows each; identification asks as much
+    #: trustworthy steering (``SteeringIdConfig.min_trustworthy_s``)
+    min_steer_s: float = 10.0
+    #: least data for comparing two sensors of one quantity [s] (the accelerometer against the
+    #: speed's derivative, the wheel-speed difference against the yaw rate): a static relation,
+    #: scored on five held-out folds of 2 s, as much as the steering fit asks
+    min_pair_s: float = 10.0
+    #: [m/s^2] lateral acceleration (97.5th percentile of |v r| on the steering fit's samples)
+    #: before understeer and the steering ratio are judged separable at all: understeer's angle
+    #: is K a_y, and a passenger car's K ~ 0.004 rad/(m/s^2) makes 0.008 rad at 2 m/s^2, several
+    #: times the angle sensor's step; on a straight line it is not testable (the same bound as
+    #: identification's ``understeer_min_lat_accel_mps2``)
+    understeer_min_lat_accel_mps2: float = 2.0
+    #: [1] (v_high / v_low)^2 of the steered samples (10th and 90th speed percentiles where
+    #: |a_y| exceeds a quarter of ``understeer_min_lat_accel_mps2``): at one speed the factor
+    #: 1 / (1 + K v^2 / b) is a constant on the gain, not separable from it
+    understeer_min_speed_sq_ratio: float = 2.0
+
+    @classmethod
+    def for_vehicle(cls, vehicle, **overrides) -> "DiagnoseConfig":
+        """The defaults with the speed thresholds (:data:`SPEED_THRESHOLDS`) scaled to a vehicle
+        smaller than the reference (wheelbase ``REFERENCE_WHEELBASE_M``) by sqrt(f), f =
+        wheelbase / reference (<= 1): dynamic similarity (equal Froude number v^2 / (g b)), the
+        rule identification follows (``SteeringIdConfig.for_vehicle``). A vehicle at least as
+        long keeps the defaults: the reasons behind them (wheel-speed steps, gyro bias over
+        speed) do not grow with size. ``overrides``: field name -> value, applied last.
+
+        Raises:
+            ValueError: an override names no field.
+        """
+        known = {f.name for f in fields(cls)}
+        bad = [k for k in overrides if k not in known]
+        if bad:
+            raise ValueError(f"unknown diagnose threshold '{bad[0]}' (one of "
+                             f"{', '.join(sorted(known))})")
+        f = size_factor(vehicle)
+        base = cls()
+        scaled = ({k: getattr(base, k) * math.sqrt(f) for k in SPEED_THRESHOLDS}
+                  if f < 1.0 else {})
+        return replace(base, **{**scaled, **overrides})
+
+
+#: [m] the wheelbase the default thresholds were set for: the report's car (a passenger car)
+REFERENCE_WHEELBASE_M = 2.65
+#: the steering and sensor thresholds :meth:`DiagnoseConfig.for_vehicle` scales with size
+SPEED_THRESHOLDS = ("v_move_min_mps", "v_steer_min_mps")
+
+
+def size_factor(vehicle) -> float:
+    """f = wheelbase / ``REFERENCE_WHEELBASE_M``, at most 1 (see ``DiagnoseConfig.for_vehicle``)."""
+    return min(1.0, float(vehicle.wheelbase_m) / REFERENCE_WHEELBASE_M)
 
 
 def segments(valid: np.ndarray, min_len: int) -> list[tuple[int, int]]:

@@ -1,9 +1,15 @@
 """``diagnose``: where the report's model and a recording differ, which physics is missing, and
 the held-out fit with it added.
 
+0. **Parts**: each part (``sensors``, ``steering``, ``longitudinal``) runs when the recording
+   supports it (its channels, enough moving data); one that cannot is named with the reason
+   under ``not_diagnosed``. Only a recording that supports no part is refused.
 1. **Replay and residuals** per channel, each with its noise floor: speed (free-run windows)
    and acceleration (equation error); heading (free-run windows), road-wheel angle and yaw
-   rate; position (free-run windows of eq. 1); the CAN speed against the GNSS speed.
+   rate; position (free-run windows of eq. 1); independent sensors of one quantity against
+   each other: the CAN speed against the GNSS speed (``sensors``), the accelerometer against
+   the speed's derivative and the wheel-speed difference against the yaw rate
+   (``agreement``).
 2. **Locate**: windows above the noise floor, change points, and the residual by regime.
 3. **Name**: every hypothesis of ``models.catalogue`` is refitted jointly with the
    baseline (the report's eq. 7 / eq. 8 structure on this recording) and scored by blocked
@@ -24,10 +30,15 @@ the held-out fit with it added.
    splits, and by at least ``change_min_reduction``) is reported with its windows and its
    share of the error, never named (``unexplained``).
 
+5. **Verdict**: whether the model with every finding describes the vehicle at all, against the
+   noise floors and the prediction that nothing changes (``verdict``).
+
 This module runs the steps in order and assembles the result; the extended and the baseline
 parameter files are written by ``params_out``. The result's ``to_json()`` is the
-``hmpc diagnose`` JSON contract (``findings``, ``unexplained``) plus the replay, the
-hypotheses tested and the baseline checks.
+``hmpc diagnose`` JSON contract (``verdict``, ``findings``, ``unexplained``,
+``not_diagnosed``) plus the replay, the hypotheses tested, the steering samples used and the
+baseline checks. The thresholds are ``DiagnoseConfig.for_vehicle`` (scaled to the vehicle's
+size).
 """
 from __future__ import annotations
 
@@ -37,11 +48,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hmpc.models.catalogue import CATALOGUE
+from hmpc.models.diagnose import agreement as agr
 from hmpc.models.diagnose import longitudinal as lon
 from hmpc.models.diagnose import sensors as sen
 from hmpc.models.diagnose import steering as ste
 from hmpc.models.diagnose.candidates import Resolution, accept, candidate, fos_selects
-from hmpc.models.diagnose.common import DiagnoseConfig, corr_length, rmse
+from hmpc.models.diagnose.common import DiagnoseConfig, corr_length, rmse, size_factor
 from hmpc.models.diagnose.locate import (change_point, elevated_windows, improved_windows,
                                          noise_floor, regime_table, regime_variables,
                                          top_regimes)
@@ -49,6 +61,7 @@ from hmpc.models.diagnose.params_out import baseline_params, extended_params
 from hmpc.models.diagnose.stacking import (actuator_response, drop_alternatives,
                                            stack_dynamics_on_static, stack_on_dynamics)
 from hmpc.models.diagnose.unexplained import unexplained_change
+from hmpc.models.diagnose.verdict import model_verdict
 from hmpc.models.errors import InputError
 from hmpc.models.logs.recording import Recording
 from hmpc.models.params import Params, Vehicle
@@ -71,12 +84,20 @@ class Diagnosis:
     baseline_out: Params | None = None
     timing_s: float = 0.0
     notes: list = field(default_factory=list)
+    #: parts the recording could not support -> the reason (the JSON's ``not_diagnosed``)
+    not_diagnosed: dict = field(default_factory=dict)
+    #: the overall verdict (:func:`models.diagnose.verdict.model_verdict`)
+    verdict: dict = field(default_factory=dict)
+    #: the steering samples used and dropped by reason (``steering.support``)
+    steering_samples: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
-        return _clean({"findings": self.findings, "unexplained": self.unexplained,
+        return _clean({"verdict": self.verdict, "findings": self.findings,
+                       "unexplained": self.unexplained, "not_diagnosed": self.not_diagnosed,
                        "channels": self.channels, "hypotheses": self.hypotheses,
                        "baseline_checks": self.evidence,
                        "longitudinal_input": self.longitudinal_input,
+                       "steering_samples": self.steering_samples,
                        "notes": self.notes, "timing_s": self.timing_s})
 
 
@@ -112,60 +133,122 @@ class _Work:
     channels: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
     evidence: list = field(default_factory=list)
+    not_diagnosed: dict = field(default_factory=dict)
+    ran: list = field(default_factory=list)          #: the parts that ran
+    sensor_why: dict = field(default_factory=dict)   #: sensor pair -> why it was not compared
+    steering_samples: dict = field(default_factory=dict)
 
 
 def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
-             cfg: DiagnoseConfig = DiagnoseConfig(), res: Resolution = Resolution(),
+             cfg: DiagnoseConfig | None = None, res: Resolution = Resolution(),
              progress=None) -> Diagnosis:
     """Diagnose ``rec`` against the report's model (see the module doc).
+
+    Each part (``sensors``, ``steering``, ``longitudinal``) runs when the recording supports
+    it; one that cannot is named with the reason in ``Diagnosis.not_diagnosed``.
 
     Args:
         rec: canonical recording. vehicle: geometry (wheelbase). params: the model to replay
             (its zones are used; the baseline is refitted on the recording for the held-out
-            comparison, the given model is replayed as well).
+            comparison, the given model is replayed as well). cfg: thresholds (default:
+            ``DiagnoseConfig.for_vehicle(vehicle)``).
 
     Raises:
-        InputError: the recording has no speed channel or too little moving data.
+        InputError: the recording has no speed channel, or supports no part at all.
     """
     t_start = time.perf_counter()
     say = progress or (lambda m: None)
     rec.require("time", "speed")
     ch = dict(rec.channels)
     zones = _zones(params)
-    cfg = _fit_windows(cfg, ch)
+    cfg = _fit_windows(DiagnoseConfig.for_vehicle(vehicle) if cfg is None else cfg, ch)
     w = _Work(ch=ch, series={"t": np.asarray(ch["time"], float)})
+    if "x" in ch and "y" in ch and np.isfinite(np.asarray(ch["x"], float)).sum() > 1:
+        w.series["path"] = {"x": np.asarray(ch["x"], float), "y": np.asarray(ch["y"], float)}
 
     _sensor_step(w, vehicle, cfg, res, say)
+    _agreement_step(w, vehicle, cfg, say)
     regimes = regime_variables(w.ch, zones)
     steer_final = _steering_step(w, vehicle, cfg, res, say)
-    ld = lon.prepare(w.ch, zones, cfg)
-    if not ld.ok.any() or (ld.ok & (ld.vs > cfg.v_stop_mps)).sum() < int(20.0 / ld.dt):
-        raise InputError("too little moving data for the longitudinal model (needs 20 s)",
-                         rec.meta.get("path"), channel="speed")
-    say(f"longitudinal: eq. 8 zones driven by {', '.join(ld.input_names)}")
-    lon_scores, cl = _longitudinal_step(w, ld, cfg, res)
-    stack_on_dynamics(ld, w.cands, lon_scores, cfg, cl, res)
-    stack_dynamics_on_static(ld, w.cands, lon_scores, cfg, cl, res)
-    response = actuator_response(w.cands, w.ch, ld, lon_scores, cfg, cl)
-    if response is not None:
-        w.channels.setdefault("speed", {})["response"] = response
-        w.notes.append(response["verdict"])
+    ld = _longitudinal_data(w, zones, cfg)
+    lon_scores, response = {}, None
+    if ld is not None:
+        say(f"longitudinal: eq. 8 zones driven by {', '.join(ld.input_names)}")
+        lon_scores, cl = _longitudinal_step(w, ld, cfg, res)
+        w.series["speed"]["measured"] = ld.v  # for the verdict's persistence yardstick
+        stack_on_dynamics(ld, w.cands, lon_scores, cfg, cl, res)
+        stack_dynamics_on_static(ld, w.cands, lon_scores, cfg, cl, res)
+        response = actuator_response(w.cands, w.ch, ld, lon_scores, cfg, cl)
+        if response is not None:
+            w.channels.setdefault("speed", {})["response"] = response
+            w.notes.append(response["verdict"])
+    if not w.ran:
+        raise InputError("nothing to diagnose: " + "; ".join(
+            f"{k}: {v}" for k, v in w.not_diagnosed.items()), rec.meta.get("path"))
+    for part, why in w.not_diagnosed.items():
+        say(f"{part}: not diagnosed: {why}")
 
     drop_alternatives(w.cands, res, response)
     findings = _rank_findings(w, regimes)
     _locate_channels(w, regimes, cfg)
     t = w.series["t"]
     unexplained = []
-    u = unexplained_change(ld, _final_lon_spec(findings, lon_scores), cfg, t)
-    if u is not None:
-        unexplained.append(u)
+    if ld is not None:
+        u = unexplained_change(ld, _final_lon_spec(findings, lon_scores), cfg, t)
+        if u is not None:
+            unexplained.append(u)
+    verdict = model_verdict(w.channels, w.series, findings, cfg, size_factor(vehicle))
 
     params_out = extended_params(rec, vehicle, params, ld, lon_scores, steer_final, findings,
-                                 zones, cfg)
-    baseline_out = baseline_params(rec, vehicle, params, zones, cfg)
+                                 zones, cfg, w.not_diagnosed)
+    baseline_out = baseline_params(rec, vehicle, params, zones, cfg, w.not_diagnosed)
     return Diagnosis(findings, unexplained, _clean(w.channels), w.hyps, w.evidence,
-                     "+".join(ld.input_names), w.series, params_out, baseline_out,
-                     round(time.perf_counter() - t_start, 3), w.notes)
+                     None if ld is None else "+".join(ld.input_names), w.series, params_out,
+                     baseline_out, round(time.perf_counter() - t_start, 3), w.notes,
+                     w.not_diagnosed, _clean(verdict), w.steering_samples)
+
+
+# ---- which parts the recording supports, and the sensor pairs compared ----------------------
+
+def _longitudinal_data(w: _Work, zones, cfg: DiagnoseConfig) -> lon.LonData | None:
+    """The longitudinal part's data, or None with its reason in ``w.not_diagnosed`` (no input
+    the model can use, or too little moving data)."""
+    try:
+        ld = lon.prepare(w.ch, zones, cfg)
+    except InputError as exc:
+        w.not_diagnosed["longitudinal"] = exc.reason
+        return None
+    moving = (ld.ok & (ld.vs > cfg.v_stop_mps)).sum() if ld.ok.any() else 0
+    if moving < int(20.0 / ld.dt):
+        w.not_diagnosed["longitudinal"] = (
+            f"too little moving data for the longitudinal model ({moving * ld.dt:.1f} s; "
+            "needs 20 s)")
+        return None
+    w.ran.append("longitudinal")
+    return ld
+
+
+def _agreement_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, say) -> None:
+    """Independent sensors of one quantity compared (``agreement``): the accelerometer against
+    the speed's derivative, the wheel-speed difference against the yaw rate; each pair's
+    channel, series and candidates join the result. The sensors part ran when any pair (these
+    or the speed against the GNSS speed) was compared; else it is not diagnosed, each pair's
+    reason named."""
+    for label, c in (("accelerometer", agr.accelerometer(w.ch, cfg)),
+                     ("wheel speeds", agr.wheel_yaw(w.ch, vehicle, cfg))):
+        w.hyps += c.untested
+        if not c.ran:
+            w.sensor_why[label] = c.why
+            continue
+        say(f"sensors: {c.channel.replace('_vs_', ' against ').replace('_', ' ')}")
+        w.channels[c.channel] = c.info
+        w.series[c.channel] = c.series
+        w.cands += c.cands
+        w.notes += c.notes
+        if "sensors" not in w.ran:
+            w.ran.append("sensors")
+    if "sensors" not in w.ran:
+        w.not_diagnosed["sensors"] = "; ".join(f"{k}: {v}" for k, v in w.sensor_why.items())
 
 
 def _sensor_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolution, say) -> None:
@@ -174,7 +257,11 @@ def _sensor_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolutio
     sd = sen.prepare(w.ch, vehicle.wheelbase_m, cfg)
     if sd is None:
         w.notes.append("no gps_speed channel: wheel_radius_error and sensor_time_offset not tested")
+        w.sensor_why["speed against GNSS"] = (
+            "no gps_speed channel" if "gps_speed" not in w.ch else
+            "too little straight moving data with gps_speed (needs 20 s)")
         return
+    w.ran.append("sensors")
     say("sensors: CAN speed against GNSS speed")
     cl = corr_length(sen.residual(sd))
     b = sen.evaluate(sd, None, cfg, cl)
@@ -208,10 +295,11 @@ def _steering_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolut
                    say) -> dict | None:
     """Step 1-3 for steering: eq. 7 in eq. 1 against the yaw rate and heading, its channels'
     residuals and every steering hypothesis. Returns the scores by hypothesis (None: not tested)."""
-    sdt = ste.prepare(w.ch, vehicle.wheelbase_m, cfg)
+    sdt, why, w.steering_samples = ste.support(w.ch, vehicle.wheelbase_m, cfg)
     if sdt is None:
-        w.notes.append("no steering angle with yaw rate or heading: steering hypotheses not tested")
+        w.not_diagnosed["steering"] = why
         return None
+    w.ran.append("steering")
     channels, series = w.channels, w.series
     say("steering: eq. 7 in eq. 1 against the yaw rate and heading")
     base_m = ste.fit(sdt, None, 0.0, sdt.ok)
@@ -227,7 +315,7 @@ def _steering_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolut
     yr = np.where(sdt.ok, sdt.yaw - yaw_pred, np.nan)
     channels["yaw_rate"] = {"unit": "rad/s", "noise_floor": noise_floor(sdt.yaw),
                             "rmse_baseline": rmse(yr)}
-    series["heading"] = {"before": b.heldout_err}
+    series["heading"] = {"before": b.heldout_err, "measured": sdt.heading}
     series["road_wheel_angle"] = {"before": rr}
     pos = ste.position_errors(w.ch, sdt, b.model, cfg)
     if pos is not None:
@@ -243,7 +331,7 @@ def _steering_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolut
         w.cands.append(candidate(h, "steering", "heading", b, s, b.heldout_rmse_rad,
                                  s.heldout_rmse_rad, ok, why, cfg.window_steer_s))
     channels["heading"]["understeer_vs_ratio"] = ste.separability(
-        sdt, steer_scores["understeer"], b, vehicle, cl)
+        sdt, steer_scores["understeer"], b, vehicle, cl, cfg)
     w.notes.append(channels["heading"]["understeer_vs_ratio"]["verdict"])
     return steer_scores
 

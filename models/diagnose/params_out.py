@@ -41,35 +41,77 @@ def extensions_section(findings: list, longitudinal_input: str) -> dict:
     return out
 
 
-def baseline_params(rec, vehicle, params, zones, cfg) -> Params:
-    """The report's model fitted on the uncorrected recording (no finding, no sensor fix)."""
+def baseline_params(rec, vehicle, params, zones, cfg, not_diagnosed: dict | None = None
+                    ) -> Params:
+    """The report's model fitted on the uncorrected recording (no finding, no sensor fix); the
+    parts in ``not_diagnosed`` are left as the given file has them (or absent)."""
+    nd = not_diagnosed or {}
     ch = dict(rec.channels)
-    sdt = ste.prepare(ch, vehicle.wheelbase_m, cfg)
+    sdt = None if "steering" in nd else ste.prepare(ch, vehicle.wheelbase_m, cfg)
     steer = None if sdt is None else {None: SimpleNamespace(model=ste.fit(sdt, None, 0.0, sdt.ok))}
-    ld = lon.prepare(ch, zones, cfg)
-    lon_scores = {None: SimpleNamespace(model=lon.fit(ld, lon.LonSpec(), ld.ok))}
-    p = extended_params(rec, vehicle, params, ld, lon_scores, steer, [], zones, cfg)
+    ld, lon_scores = None, {}
+    if "longitudinal" not in nd:
+        ld = lon.prepare(ch, zones, cfg)
+        lon_scores = {None: SimpleNamespace(model=lon.fit(ld, lon.LonSpec(), ld.ok))}
+    p = extended_params(rec, vehicle, params, ld, lon_scores, steer, [], zones, cfg, nd)
     p.provenance["source"] = "hmpc diagnose (the report's baseline, no findings)"
     return p
 
 
-def extended_params(rec, vehicle, params, ld, lon_scores, steer_scores, findings, zones, cfg):
+def extended_params(rec, vehicle, params, ld, lon_scores, steer_scores, findings, zones, cfg,
+                    not_diagnosed: dict | None = None) -> Params:
     """The extended model: the findings in the parameter file's ``extensions:`` section
     (models.params), and the conventions' keys (steering map, zones, dead times) as a tool that
     ignores ``extensions:`` should use them: fitted with a dead time (which the keys hold) or
     with the road grade taken out (a disturbance of this road, not of the car: another road
     has another grade); for the car's own terms the keys cannot hold (lag, drag, creep, a
     steering-map shape) the baseline's fit, whose coefficients absorb them at the speeds and
-    angles driven (the jointly fitted coefficients without the term would be worse there)."""
+    angles driven (the jointly fitted coefficients without the term would be worse there).
+
+    The given file's status flags stay (:func:`_keep_status`): a value it flags
+    ``identifiable: false`` stays flagged, its ``not_identified:`` entries stay. A part this
+    recording could not diagnose (``not_diagnosed``, ``ld`` or ``steer_scores`` None) is the
+    given file's, or absent and named under ``not_identified:``."""
+    nd = not_diagnosed or {}
     fx = {(f["effect"], f["subsystem"]): f for f in findings}
     steering = params.steering if params is not None else None
     if steer_scores is not None:
         best = "actuator_delay" if ("actuator_delay", "steering") in fx else None
         m = steer_scores[best].model
-        steering = Steering(offset_rad=m.offset_rad, scale=m.scale,
+        steering = Steering(offset_rad=float(m.offset_rad), scale=float(m.scale),
                             method=f"hmpc diagnose ({best or 'baseline'})")
         if best == "actuator_delay":
-            steering.dead_time_s = m.delay_s
+            steering.dead_time_s = float(m.delay_s)
+    zs = params.zones if params is not None and ld is None else []
+    if ld is not None:
+        zs = _zones_out(rec, params, ld, lon_scores, findings, zones, cfg)
+    p = Params(vehicle=replace(vehicle), steering=steering, zones=zs,
+               provenance={"source": "hmpc diagnose",
+                           "recording": str(rec.meta.get("path", "?"))})
+    if ld is not None and ("actuator_delay", "longitudinal") in fx and "accel_cmd" not in \
+            ld.input_names:
+        p.longitudinal_dead_time_s = float(
+            fx[("actuator_delay", "longitudinal")]["parameters"]["delay_s"])
+    _keep_status(p, params, steer_scores is not None, ld is not None)
+    for part in ("steering", "longitudinal"):
+        if part in nd and (part == "steering" and p.steering is None
+                           or part == "longitudinal" and not p.zones):
+            p.not_identified[part] = f"not diagnosed: {nd[part]}"
+    p.extensions = extensions_section(findings, "" if ld is None else "+".join(ld.input_names))
+    for f in findings:  # each entry carries the coefficients it was fitted jointly with
+        e = p.extensions[f["effect"]][f["subsystem"]]
+        if (f["subsystem"] == "steering" and steer_scores is not None
+                and f["effect"] in steer_scores):
+            sm = steer_scores[f["effect"]].model
+            e["base"] = {"offset_rad": float(sm.offset_rad), "scale": float(sm.scale)}
+        elif f["channel"] == "speed":
+            sc = lon_scores.get(("on_top", f["effect"])) or lon_scores[f["effect"]]
+            e["base"] = {"zones": _base_zones(sc.model, ld.input_names, zones)}
+    return p
+
+
+def _zones_out(rec, params, ld, lon_scores, findings, zones, cfg) -> list[Zone]:
+    """The zones of eq. 8 as the conventions' keys hold them (see :func:`extended_params`)."""
     d_pedal = ld
     if "accel_cmd" in ld.input_names:  # the conventions' zones are pedal maps
         ch = {k: v for k, v in rec.channels.items() if k != "accel_cmd"}
@@ -99,21 +141,40 @@ def extended_params(rec, vehicle, params, ld, lon_scores, steer_scores, findings
         elif z.brake_scale_mps2 == 0.0:
             z.note = "brake not used in this recording: brake scale unknown (0 written)"
         zs.append(z)
-    p = Params(vehicle=replace(vehicle), steering=steering, zones=zs,
-               provenance={"source": "hmpc diagnose",
-                           "recording": str(rec.meta.get("path", "?"))})
-    if ("actuator_delay", "longitudinal") in fx and d_pedal is ld:
-        p.longitudinal_dead_time_s = fx[("actuator_delay", "longitudinal")]["parameters"]["delay_s"]
-    p.extensions = extensions_section(findings, "+".join(ld.input_names))
-    for f in findings:  # each entry carries the coefficients it was fitted jointly with
-        e = p.extensions[f["effect"]][f["subsystem"]]
-        if f["subsystem"] == "steering" and steer_scores is not None:
-            sm = steer_scores[f["effect"]].model
-            e["base"] = {"offset_rad": float(sm.offset_rad), "scale": float(sm.scale)}
-        elif f["channel"] == "speed":
-            sc = lon_scores.get(("on_top", f["effect"])) or lon_scores[f["effect"]]
-            e["base"] = {"zones": _base_zones(sc.model, ld.input_names, zones)}
-    return p
+    return zs
+
+
+def _keep_status(p: Params, given: Params | None, steering_refit: bool, zones_refit: bool
+                 ) -> None:
+    """The given file's status flags on ``p``: a refitted steering map or zone the given file
+    flags ``identifiable: false`` stays flagged (with the given note beside diagnose's), and its
+    ``not_identified:`` entries for what ``p`` still lacks or still flags stay."""
+    if given is None:
+        return
+    def why(note: str | None) -> str:
+        note = (note or "no reason given").strip()
+        return note[len("NOT identifiable:"):].strip() if note.startswith(
+            "NOT identifiable:") else note
+
+    gs = given.steering
+    if steering_refit and gs is not None and gs.identifiable is False:
+        p.steering.identifiable = False
+        p.steering.note = ("refitted by hmpc diagnose on this recording; the given file flags "
+                           f"it not identifiable: {why(gs.note)}")
+    if zones_refit and given.zones:
+        for z, g in zip(p.zones, given.zones):
+            if g.identifiable is False and z.identifiable is not False:
+                z.identifiable = False
+                z.note = "; ".join(x for x in (z.note, "the given file flags it not "
+                                               f"identifiable: {why(g.note)}") if x)
+    flagged = {z.name for z in p.zones if z.identifiable is False}
+    for k, why in given.not_identified.items():
+        if k == "steering" and p.steering is None or k == "longitudinal" and not p.zones:
+            p.not_identified[k] = why
+        elif k.startswith("longitudinal.zones."):
+            name = k[len("longitudinal.zones."):].rpartition(".")[0]
+            if name in flagged:
+                p.not_identified[k] = why
 
 
 def _base_zones(m: lon.LonModel, names: list, zones) -> list[dict]:

@@ -72,9 +72,23 @@ class SteerData:
 
 def prepare(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
             ) -> SteerData | None:
-    """Steering data, or None when the recording lacks steering angle, speed or yaw."""
-    if "steering_wheel_angle" not in ch or "speed" not in ch:
-        return None
+    """Steering data, or None when the recording lacks steering angle, speed or yaw, or holds
+    too little of them (:func:`support` says why)."""
+    return support(ch, wheelbase_m, cfg)[0]
+
+
+def support(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
+            ) -> tuple[SteerData | None, str | None, dict]:
+    """(steering data or None, the reason when None, the samples dropped by reason).
+
+    The dropped samples are counted in order, each sample under the first reason that drops
+    it: a channel missing (NaN), standing or slower than ``cfg.v_move_min_mps``, in a run too
+    short for a free-run window, slower than ``cfg.v_steer_min_mps`` (heading replay only,
+    not the angle fit)."""
+    if "steering_wheel_angle" not in ch:
+        return None, "no steering_wheel_angle channel", {}
+    if "speed" not in ch:
+        return None, "no speed channel", {}
     t = np.asarray(ch["time"], float)
     dt = float(np.median(np.diff(t)))
     if "wheel_speed_rl" in ch and "wheel_speed_rr" in ch:
@@ -87,14 +101,15 @@ def prepare(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
     yaw = ch.get("yaw_rate")
     head = ch.get("heading")
     if yaw is None and head is None:
-        return None
+        return None, "no yaw_rate or heading channel", {}
     if yaw is None or not np.isfinite(yaw).any():
         from hmpc.models.identify.stats import savgol_derivative
         yaw = savgol_derivative(np.unwrap(np.nan_to_num(head)), dt, cfg.deriv_window_s)
     yaw = np.asarray(yaw, float)
-    valid = np.isfinite(v) & np.isfinite(sw) & np.isfinite(yaw) & (v > 1.0)
+    finite = np.isfinite(v) & np.isfinite(sw) & np.isfinite(yaw)
     if head is not None and np.isfinite(head).mean() > 0.5:
-        valid &= np.isfinite(head)
+        finite &= np.isfinite(head)
+    valid = finite & (v > cfg.v_move_min_mps)
     segs = segments(valid, int(cfg.window_steer_s / dt))
     ok = np.zeros(len(t), bool)
     for a, b in segs:
@@ -104,8 +119,17 @@ def prepare(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
         dm = np.arctan(b * yaw / v)
     fit_ok = ok & (v > cfg.v_steer_min_mps) & np.isfinite(dm)
     vf = np.where(np.isfinite(dm), v / np.cos(np.nan_to_num(dm)), v)  # front point speed
-    if fit_ok.sum() < int(20.0 / dt):
-        return None
+    dropped = {"channel missing (NaN)": int((~finite).sum()),
+               f"speed at or below {cfg.v_move_min_mps:.2g} m/s": int((finite & ~valid).sum()),
+               f"moving runs shorter than {cfg.window_steer_s:g} s": int((valid & ~ok).sum()),
+               f"speed at or below {cfg.v_steer_min_mps:.2g} m/s (angle fit only)":
+                   int((ok & ~fit_ok).sum())}
+    samples = {"total": int(len(t)), "angle_fit": int(fit_ok.sum()), "replay": int(ok.sum()),
+               "dropped": {k: n for k, n in dropped.items() if n}}
+    if fit_ok.sum() < int(cfg.min_steer_s / dt):
+        return None, (f"too little moving steering data ({fit_ok.sum() * dt:.1f} s above "
+                      f"{cfg.v_steer_min_mps:.2g} m/s in runs of {cfg.window_steer_s:g} s; "
+                      f"needs {cfg.min_steer_s:g} s)"), samples
     if head is not None and np.isfinite(head).mean() > 0.5:
         href = np.full(len(t), np.nan)
         for a, b_ in segs:
@@ -116,7 +140,7 @@ def prepare(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
         for a, b_ in segs:
             href[a:b_] = np.cumsum(yaw[a:b_]) * dt
         src = "integrated yaw rate"
-    return SteerData(t, dt, v, sw, yaw, href, src, b, dm, segs, ok, fit_ok, vf)
+    return SteerData(t, dt, v, sw, yaw, href, src, b, dm, segs, ok, fit_ok, vf), None, samples
 
 
 @dataclass
@@ -352,18 +376,51 @@ def _sse_fixed_scale(d: SteerData, scale: float) -> float:
     return best
 
 
+def excitation(d: SteerData, cfg: DiagnoseConfig) -> dict:
+    """What the recording offers understeer: the lateral acceleration (97.5th percentile of
+    |v r| on the angle fit's samples) and the spread of speeds while steered ((v90 / v10)^2
+    where |v r| exceeds a quarter of ``cfg.understeer_min_lat_accel_mps2``), and whether both
+    reach their bounds (``testable``; the reason when not)."""
+    ay = np.abs(d.v * d.yaw)[d.fit_ok]
+    ay = ay[np.isfinite(ay)]
+    a97 = float(np.percentile(ay, 97.5)) if len(ay) else 0.0
+    steered = d.v[d.fit_ok][np.abs(d.v * d.yaw)[d.fit_ok] > 0.25 * cfg.understeer_min_lat_accel_mps2]
+    ratio = (float((np.percentile(steered, 90) / np.percentile(steered, 10)) ** 2)
+             if len(steered) >= 10 else 1.0)
+    out = {"lat_accel_p97_5_mps2": a97, "speed_sq_ratio": ratio, "testable": True}
+    if a97 < cfg.understeer_min_lat_accel_mps2:
+        out.update(testable=False, why=(
+            f"lateral acceleration reaches only {a97:.2f} m/s^2 (97.5th percentile; "
+            f"{cfg.understeer_min_lat_accel_mps2:g} m/s^2 needed): understeer's angle K a_y "
+            "is not excited"))
+    elif ratio < cfg.understeer_min_speed_sq_ratio:
+        out.update(testable=False, why=(
+            f"the steered samples span a speed-squared ratio of only {ratio:.2f} "
+            f"({cfg.understeer_min_speed_sq_ratio:g} needed): at one speed understeer is a "
+            "constant factor on the steering gain"))
+    return out
+
+
 def separability(d: SteerData, us: SteerScore, base: SteerScore, vehicle: Vehicle,
-                 corr_len: float) -> dict:
+                 corr_len: float, cfg: DiagnoseConfig = DiagnoseConfig()) -> dict:
     """Can this recording tell understeer (delta / (1 + K v^2 / b)) from the steering ratio?
 
-    Two explanations of the measured yaw response are compared: the kinematic one (scale
+    Only when it excites understeer (:func:`excitation`: lateral acceleration and a spread of
+    speeds while steered); otherwise the verdict is "not testable" and no likelihood ratio is
+    claimed. Two explanations of the measured yaw response are compared: the kinematic one (scale
     fitted, K = 0: the baseline) and the maker's ratio with understeer (scale = 1 /
     steering_ratio, K fitted). Separable when the likelihood ratio between them exceeds the
     95 % chi-square(1) point with the effective sample size; without a maker's ratio, when
     the understeer gradient's interval is narrower than the passenger-car range (0.003)."""
     lo, hi = us.intervals.get("gradient_rad_per_mps2", [0.0, K_MAX])
     ne = max(base.model.n / max(corr_len, 1.0), 3.0)
-    out = {"gradient_interval": [lo, hi]}
+    exc = excitation(d, cfg)
+    out = {"gradient_interval": [lo, hi], "excitation": exc}
+    if not exc["testable"]:
+        out.update(separable=False, testable=False,
+                   verdict=f"understeer against the steering ratio: not testable on this "
+                           f"recording ({exc['why']})")
+        return out
     ratio = vehicle.steering_ratio
     if ratio:
         sse_maker = _sse_fixed_scale(d, 1.0 / ratio)
@@ -382,5 +439,5 @@ def separability(d: SteerData, us: SteerScore, base: SteerScore, vehicle: Vehicl
         verdict = ("understeer and the steering ratio are separable on this recording"
                    if ok else "this recording cannot separate understeer from the steering ratio") \
             + f": understeer gradient in [{lo:.4f}, {hi:.4f}] rad/(m/s^2)"
-    out.update(separable=bool(ok), verdict=verdict)
+    out.update(separable=bool(ok), testable=True, verdict=verdict)
     return out

@@ -5,11 +5,12 @@ Formats (``fmt`` names):
 ``candump``
     ``candump -L`` text, ``(1533226488.434433) can0 2E4#BE000000A9`` (also ``ID##<flags><data>``
     CAN FD frames and ``ID#R`` remote frames, and a trailing ``R``/``T`` direction flag).
-    Parsed by hmpc's own vectorised reader (no Python loop per line).
+    Parsed by ``models.logs.candump``: the lines of a common layout in bulk, the rest by a
+    general vectorised parser (no Python loop per line either way).
 ``libpanda``
     The libpanda/strym CSV layout ``Time,Bus,MessageID,Message[,MessageLength][,...]``
     (decimal id, hex payload; columns found by header name, extra columns ignored).
-    Parsed by hmpc's own vectorised reader.
+    Parsed by ``models.logs.libpanda`` (vectorised).
 ``asc``, ``blf``, ``trc``, ``csv`` (python-can's CSV), ``mf4``, ``sqlite``
     Read through python-can's own readers.
 
@@ -29,15 +30,20 @@ a name without a number, or whose number another name already took, gets the nex
 """
 from __future__ import annotations
 
-import gzip
 import zlib
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from hmpc.models.errors import InputError, Problems
+from hmpc.models.logs.candump import CandumpScanner
 from hmpc.models.logs.frames import MAX_PAYLOAD, FrameTable
+from hmpc.models.logs.libpanda import LibpandaChunkParser
+from hmpc.models.logs.files import open_text
+from hmpc.models.logs.files import is_gzip, open_binary
+from hmpc.models.logs.textblocks import PAD, FrameSink, iter_blocks, text_bytes
+from hmpc.models.logs.textscan import SKIP_ERROR_FRAME, SKIP_MALFORMED, SKIP_REMOTE
 
 #: formats read by hmpc's own vectorised text readers
 TEXT_FORMATS = ("candump", "libpanda")
@@ -55,37 +61,13 @@ KIND_ERROR_FRAME = "error frame (dropped)"
 KIND_DUPLICATE = "duplicate frame (same time, bus, id and payload; dropped)"
 KIND_BACKWARDS = "timestamp earlier than the previous frame (frames re-sorted by time, kept)"
 KIND_JUMP = "clock jump forward (frames kept)"
+KIND_TRUNCATED = "the gzip stream ends early: the log is cut there (the frames before it are read)"
 #: kinds whose frames were dropped (the rest are kept and only reported)
 DROPPED_KINDS = (KIND_MALFORMED, KIND_REMOTE, KIND_ERROR_FRAME, KIND_DUPLICATE)
 
 #: bytes read per chunk by the text readers: big enough to amortise numpy calls, small enough
-#: that the per-chunk index arrays (~60 int64 per line) stay near 100 MB.
+#: that the per-chunk index arrays (~60 int64 per line of the general parser) stay near 100 MB.
 CHUNK_BYTES = 8 * 1024 * 1024
-#: a "line" longer than this (binary garbage without newlines) is cut into pieces of this size
-MAX_LINE_BYTES = 1024 * 1024
-
-_CAN_ERR_FLAG = 0x20000000  # SocketCAN error-frame flag in the 32-bit id
-_EFF_MASK = 0x1FFFFFFF      # 29-bit identifier
-_SFF_MAX = 0x7FF            # 11-bit identifier
-
-_HEX = np.full(256, 255, np.uint8)
-for _i, _c in enumerate(b"0123456789abcdef"):
-    _HEX[_c] = _i
-for _i, _c in enumerate(b"ABCDEF"):
-    _HEX[_c] = 10 + _i
-_DEC = np.full(256, 255, np.uint8)
-for _i, _c in enumerate(b"0123456789"):
-    _DEC[_c] = _i
-del _i, _c
-_POW10_I = 10 ** np.arange(19, dtype=np.int64)
-_POW10_F = 10.0 ** np.arange(25)
-_POW10_LD = np.longdouble(10) ** np.arange(25).astype(np.longdouble)
-#: two hex digits (as a little-endian uint16 of their bytes) -> byte value, 0xFFFF if not hex
-_HEX2 = np.where((_HEX[np.arange(65536) & 0xFF] < 16) & (_HEX[np.arange(65536) >> 8] < 16),
-                 _HEX[np.arange(65536) & 0xFF].astype(np.uint16) * 16 + _HEX[np.arange(65536) >> 8],
-                 0xFFFF).astype(np.uint16)
-_LONGDOUBLE_OK = np.finfo(np.longdouble).nmant >= 63  # x87 80-bit or IEEE quad
-_TWO53 = 2 ** 53
 
 
 # ----------------------------------------------------------------------------- entry point
@@ -110,13 +92,13 @@ def read_log(path, problems: Problems, *, fmt: str | None = None, jump_s: float 
     """
     p, gz, head, fmt = _resolve(path, fmt)
     if fmt == "candump":
-        table = _read_text(p, gz, problems, _parse_candump_chunk, first_line=1,
+        table = _read_text(p, gz, problems, CandumpScanner(), first_line=1,
                            chunk_bytes=chunk_bytes, what="candump -L")
     elif fmt == "libpanda":
         cols, header_lines = _libpanda_columns(p, head)
-        parser = _LibpandaChunkParser(cols)
-        table = _read_text(p, gz, problems, parser, first_line=1 + header_lines,
-                           chunk_bytes=chunk_bytes, what="libpanda CSV")
+        table = _read_text(p, gz, problems, LibpandaChunkParser(cols).scan,
+                           first_line=1 + header_lines, chunk_bytes=chunk_bytes,
+                           what="libpanda CSV")
     else:
         table = _read_python_can(p, gz, fmt, problems)
     return _clock_checks(table, problems, jump_s)
@@ -140,7 +122,7 @@ def _resolve(path, fmt):
         raise InputError("not a regular file", spath)
     if fmt is not None and fmt not in FORMATS:
         raise ValueError(f"unknown log format {fmt!r}; expected one of {', '.join(FORMATS)}")
-    gz = _is_gzip(p)
+    gz = is_gzip(p)
     head = _head(p, gz)
     if not head.strip():
         raise InputError("empty file (no CAN frame)", spath)
@@ -149,18 +131,9 @@ def _resolve(path, fmt):
     return p, gz, head, fmt
 
 
-def _is_gzip(p: Path) -> bool:
-    with open(p, "rb") as fh:
-        return fh.read(2) == b"\x1f\x8b"
-
-
-def _open_bytes(p: Path, gz: bool):
-    return gzip.open(p, "rb") if gz else open(p, "rb")
-
-
 def _head(p: Path, gz: bool, n: int = 4096) -> bytes:
     try:
-        with _open_bytes(p, gz) as fh:
+        with open_binary(p, gz) as fh:
             return fh.read(n)
     except (OSError, EOFError, zlib.error) as exc:
         raise InputError(f"cannot read: {exc}", str(p)) from None
@@ -217,274 +190,55 @@ def _detect_format(p: Path, gz: bool, head: bytes) -> str:
 
 
 # ----------------------------------------------------------------------------- text readers
-def _iter_chunks(p: Path, gz: bool, chunk_bytes: int):
-    """Yield (block, cut) with blocks that end at a line break (the last one gets one).
-
-    A newline-free run longer than :data:`MAX_LINE_BYTES` (binary garbage) is cut into
-    pieces; ``cut`` is 1 when the block's final line break was added there, so the caller
-    keeps counting lines as the file has them (the pieces share one line number).
-    """
-    rest = b""
-    try:
-        with _open_bytes(p, gz) as fh:
-            while True:
-                block = fh.read(chunk_bytes)
-                if not block:
-                    break
-                buf = rest + block if rest else block
-                cut = buf.rfind(b"\n")
-                if cut < 0:
-                    if len(buf) <= MAX_LINE_BYTES:
-                        rest = buf
-                        continue
-                    yield buf + b"\n", 1  # a giant newline-free blob: never valid, cut it
-                    rest = b""
-                    continue
-                yield buf[:cut + 1], 0
-                rest = buf[cut + 1:]
-    except (OSError, EOFError, zlib.error) as exc:
-        raise InputError(f"cannot read (corrupt or truncated file?): {exc}", str(p)) from None
-    if rest:
-        yield rest + b"\n", 0
+#: why a text parser skipped a line -> the problem kind reported
+_SKIP_KIND = {SKIP_MALFORMED: KIND_MALFORMED, SKIP_REMOTE: KIND_REMOTE,
+              SKIP_ERROR_FRAME: KIND_ERROR_FRAME}
+#: the frame columns are first sized for this many times the lines the first block promises
+_CAPACITY_MARGIN = 1.05
 
 
-def _line_bounds(b: np.ndarray):
-    """Start and end (exclusive, without CR) of every line in ``b`` (which ends with LF)."""
-    nl = np.flatnonzero(b == 10)
-    ls = np.empty_like(nl)
-    ls[:1] = 0
-    ls[1:] = nl[:-1] + 1
-    le = nl.copy()
-    cr = (le > ls) & (b[np.maximum(le - 1, 0)] == 13)
-    le -= cr
-    return ls, le
-
-
-class _Buf:
-    """A block of bytes, zero padded on both sides, with cheap fixed-width row gathers.
-
-    ``gather(start, w)`` returns ``b[start + j]`` for j < w as an (n, w) uint8 array by fancy
-    indexing a sliding-window *view* of the padded block: one index per row, not per byte.
-    Starts are clipped into the padding, so rows of malformed lines may hold junk but never
-    index outside the block.
-    """
-
-    PAD = 2 * MAX_PAYLOAD + 64
-
-    def __init__(self, b: np.ndarray):
-        self.b = b
-        self.n = len(b)
-        self.padded = np.zeros(self.n + 2 * self.PAD, np.uint8)
-        self.padded[self.PAD:self.PAD + self.n] = b
-        self._win: dict[int, np.ndarray] = {}
-
-    def gather(self, start: np.ndarray, width: int) -> np.ndarray:
-        width = max(int(width), 1)
-        if width > self.PAD:
-            raise ValueError("gather wider than the padding")
-        win = self._win.get(width)
-        if win is None:
-            win = self._win[width] = sliding_window_view(self.padded, width)
-        return win[np.clip(start + self.PAD, 0, self.n + self.PAD)]
-
-    def at(self, pos: np.ndarray) -> np.ndarray:
-        return self.padded[np.clip(pos + self.PAD, 0, len(self.padded) - 1)]
-
-    def positions_of(self, char: int, pad: int = 3) -> np.ndarray:
-        """Positions of ``char``, padded with sentinels far beyond the end."""
-        pos = np.flatnonzero(self.b == char)
-        return np.concatenate([pos, np.full(pad, self.n + 4 * self.PAD, pos.dtype)])
-
-
-def _width(length: np.ndarray, ok: np.ndarray, cap: int) -> int:
-    """Widest field among the good lines (at least 1, at most ``cap``)."""
-    return int(min(max(int(length[ok].max()) if ok.any() else 1, 1), cap))
-
-
-def _hex_int(buf: _Buf, start, length, ok, cap=8):
-    """Hex numbers of 1..cap digits in [start, start+length); -> (uint64, ok)."""
-    width = _width(length, ok, cap)
-    g = _HEX[buf.gather(start + length - width, width)]  # right-aligned
-    inside = np.arange(width) >= (width - length)[:, None]
-    ok = ok & (length >= 1) & (length <= width) & ~np.any(inside & (g == 255), axis=1)
-    nib = np.where(inside, g, 0).astype(np.uint64)
-    shifts = (4 * np.arange(width - 1, -1, -1)).astype(np.uint64)
-    return np.bitwise_or.reduce(nib << shifts, axis=1), ok
-
-
-def _dec_int(buf: _Buf, start, length, ok, cap):
-    """Decimal integers of 1..cap (<= 18) digits; -> (int64, ok)."""
-    width = _width(length, ok, cap)
-    g = _DEC[buf.gather(start + length - width, width)]
-    inside = np.arange(width) >= (width - length)[:, None]
-    ok = ok & (length >= 1) & (length <= width) & ~np.any(inside & (g == 255), axis=1)
-    d = np.where(inside, g, 0).astype(np.int64)
-    return d @ _POW10_I[width - 1::-1], ok
-
-
-def _exact_quotient(nval: np.ndarray, k: np.ndarray, text_of) -> np.ndarray:
-    """``nval / 10**k`` rounded once, i.e. exactly Python's ``float(text)`` of the decimal.
-
-    ``nval`` below 2**53 and ``10**k`` are exact doubles, so one IEEE division is correctly
-    rounded. Larger ``nval`` go through long double with a check for the rare tie where
-    rounding twice could differ; those, and platforms without a wide long double, use
-    ``float(text_of(i))``.
-    """
-    t = nval.astype(np.float64) / _POW10_F[k]
-    slow = np.flatnonzero(nval >= _TWO53)
-    if len(slow):
-        if _LONGDOUBLE_OK:
-            q = nval[slow].astype(np.longdouble) / _POW10_LD[k[slow]]
-            tf = q.astype(np.float64)
-            diff2 = 2 * np.abs(q - tf.astype(np.longdouble))
-            ulp_up = np.spacing(np.abs(tf)).astype(np.longdouble)
-            ulp_dn = np.abs(tf - np.nextafter(tf, 0)).astype(np.longdouble)
-            t[slow] = tf
-            slow = slow[(diff2 == ulp_up) | (diff2 == ulp_dn)]
-        for i in slow:
-            t[i] = float(text_of(i))
-    return t
-
-
-def _dec_time(buf: _Buf, start, length, ok):
-    """Decimal timestamps ``digits[.digits]`` -> (t_s float64 bit-identical to ``float``, ok).
-
-    Lines sharing the layout of the first good line (same length, dot at the same place, the
-    usual case) are read with one fixed-width gather; up to a few more layouts likewise;
-    the rest by the general masked reader.
-    """
-    n = len(start)
-    t = np.zeros(n)
-    tok = np.zeros(n, bool)
-    dots = buf.positions_of(46)
-    dotoff = dots[np.searchsorted(dots, start)] - start
-    dotoff = np.where(dotoff < length, dotoff, -1)  # -1: no dot
-    todo = ok & (length >= 1) & (length <= 24)
-    for _ in range(8):  # a few common layouts, each with one gather
-        if not todo.any():
-            break
-        i0 = int(np.argmax(todo))
-        L0, D0 = int(length[i0]), int(dotoff[i0])
-        rows = np.flatnonzero(todo & (length == L0) & (dotoff == D0))
-        todo[rows] = False
-        cols = np.flatnonzero(np.arange(L0) != D0)
-        if len(cols) == 0 or len(cols) > 18:
-            continue  # left not ok (a bare '.') or too many digits: general reader below
-        g = buf.gather(start[rows], L0)[:, cols] - np.uint8(48)
-        good = np.all(g < 10, axis=1)
-        rows, g = rows[good], g[good]
-        nval = g.astype(np.int64) @ _POW10_I[len(cols) - 1::-1]
-        k = np.full(len(rows), 0 if D0 < 0 else L0 - 1 - D0)
-        t[rows] = _exact_quotient(nval, k, lambda i, r=rows: _text(buf, start[r[i]], length[r[i]]))
-        tok[rows] = True
-    rest = np.flatnonzero(ok & ~tok & (length >= 1) & (length <= 24))
-    if len(rest):
-        tr, okr = _dec_time_general(buf, start[rest], length[rest])
-        t[rest] = tr
-        tok[rest] = okr
-    return t, tok
-
-
-def _text(buf: _Buf, start: int, length: int) -> str:
-    return buf.b[start:start + length].tobytes().decode("ascii")
-
-
-def _dec_time_general(buf: _Buf, start, length):
-    """Masked reader for timestamps of any layout (1..24 chars, at most one dot)."""
-    width = int(min(max(int(length.max()), 1), 24))
-    g = buf.gather(start + length - width, width)
-    j = np.arange(width)
-    inside = j >= (width - length)[:, None]
-    isdot = inside & (g == 46)
-    ndot = isdot.sum(axis=1)
-    d = _DEC[g]
-    isdigit = inside & (d != 255)
-    ndig = isdigit.sum(axis=1)
-    ok = ((length >= 1) & (length <= width) & (ndot <= 1) & (ndig >= 1) & (ndig <= 18)
-          & np.all(~inside | isdigit | isdot, axis=1))
-    r = width - 1 - j
-    k = np.where(ndot == 1, width - 1 - np.argmax(isdot, axis=1), 0)
-    power = r[None, :] - ((r[None, :] > k[:, None]) & (ndot == 1)[:, None])
-    dd = np.where(isdigit & ok[:, None], d, 0).astype(np.int64)
-    nval = np.sum(dd * _POW10_I[np.clip(power, 0, 18)], axis=1)
-    t = _exact_quotient(nval, k, lambda i: _text(buf, start[i], length[i]))
-    return t, ok
-
-
-def _payload(buf: _Buf, ds, nchars, ok, max_bytes):
-    """Hex payloads of ``nchars`` hex digits at ``ds``; -> (uint8 (n, w), dlc uint8, ok)."""
-    ok = ok & (nchars % 2 == 0) & (nchars >= 0) & (nchars <= 2 * max_bytes)
-    dlc = np.where(ok, nchars // 2, 0)
-    width = int(dlc.max()) if len(dlc) else 0
-    data = np.zeros((len(ds), max(width, 8)), np.uint8)  # at least a classic frame's 8 bytes
-    if width == 0:
-        return data, dlc.astype(np.uint8), ok
-    pairs = _HEX2[buf.gather(ds, 2 * width).view("<u2")]  # (n, width): byte or 0xFFFF
-    inside = np.arange(width) < dlc[:, None]
-    ok &= ~np.any(inside & (pairs == 0xFFFF), axis=1)
-    data[:, :width] = np.where(inside, pairs, 0)
-    return data, dlc.astype(np.uint8), ok
-
-
-class _Chunk:
-    """Frames parsed from one block, plus the line numbers of the lines it skipped.
-
-    ``bus`` is either int bus numbers or (n, 8|16) uint8 interface names for :class:`_BusMapper`.
-    """
-
-    def __init__(self, t, bus, arb_id, ext, dlc, data, where, skipped):
-        self.t, self.bus, self.arb_id, self.ext = t, bus, arb_id, ext
-        self.dlc, self.data, self.where, self.skipped = dlc, data, where, skipped
-
-
-def _parse_candump_chunk(b: np.ndarray, line0: int, first_line: int = 1) -> _Chunk:
-    """Parse one block of ``candump -L`` lines; ``line0`` = lines before the block."""
-    ls, le = _line_bounds(b)
-    lineno = line0 + 1 + np.arange(len(ls), dtype=np.int64)
-    keep = (le > ls) & (lineno >= first_line)  # blank lines carry nothing (python-can skips them too)
-    ls, le, lineno = ls[keep], le[keep], lineno[keep]
-    buf = _Buf(b)
-    sp = buf.positions_of(32)
-    hs = buf.positions_of(35)
-    isp = np.searchsorted(sp, ls)
-    nsp = np.searchsorted(sp, le) - isp
-    s0, s1, s2 = sp[isp], sp[isp + 1], sp[isp + 2]
-    flag3 = (nsp == 3) & (le - s2 == 2)
-    if flag3.any():
-        fc = buf.at(s2 + 1)
-        flag3 &= (fc == 82) | (fc == 84) | (fc == 114) | (fc == 116)  # R T r t
-    ok = (buf.at(ls) == 40) & ((nsp == 2) | flag3) & (buf.at(s0 - 1) == 41)
-    fe = np.where(nsp == 3, s2, le)  # end of the ID#DATA field
-    h = hs[np.searchsorted(hs, s1)]
-    ok &= h < fe
-    fd = ok & (buf.at(h + 1) == 35) & (h + 1 < fe)
-    ok &= ~fd | ((h + 2 < fe) & (_HEX[buf.at(h + 2)] != 255))
-    ds = np.where(fd, h + 3, h + 1)
-    remote = ok & (ds < fe) & ((buf.at(ds) | 32) == 114)  # 'r' or 'R'
-    # id
-    idval, ok = _hex_int(buf, s1 + 1, h - s1 - 1, ok, 8)
-    ext = (h - s1 - 1) > 3
-    errframe = ok & ext & ((idval & np.uint64(_CAN_ERR_FLAG)) != 0)
-    arb = (idval & np.uint64(_EFF_MASK)).astype(np.uint32)
-    ok &= ext | (arb <= _SFF_MAX)
-    # interface name
-    iflen = s1 - s0 - 1
-    ok &= (iflen >= 1) & (iflen <= 16)
-    # timestamp
-    t, ok = _dec_time(buf, ls + 1, s0 - ls - 2, ok)
-    # payload
-    good = ok & ~remote & ~errframe
-    data, dlc, pok = _payload(buf, ds, np.where(good, fe - ds, 0), good, MAX_PAYLOAD)
-    pok &= fd | (dlc <= 8)  # a classic frame holds at most 8 bytes
-    bad = ~ok | (good & ~pok)
-    good &= pok
-    nw = 8 if _width(iflen, good, 16) <= 8 else 16
-    names = buf.gather(s0[good] + 1, nw)
-    names[np.arange(nw) >= iflen[good][:, None]] = 0
-    skipped = {KIND_MALFORMED: lineno[bad], KIND_REMOTE: lineno[remote & ok],
-               KIND_ERROR_FRAME: lineno[errframe & ~remote]}
-    return _Chunk(t[good], names, arb[good], ext[good], dlc[good], data[good],
-                  lineno[good], skipped)
+def _read_text(p: Path, gz: bool, problems: Problems, scan, *, first_line: int,
+               chunk_bytes: int, what: str) -> FrameTable:
+    """Read a text log block by block; ``scan(base, pad, nl, line0, first_line)`` yields each
+    block's frames as parts in line order (``models.logs.candump``/``libpanda``)."""
+    spath = str(p)
+    mapper = _BusMapper()
+    sink = None
+    skipped: dict[str, list] = {}
+    line0 = 0
+    cut_at: list[int] = []
+    with ThreadPoolExecutor(1) as pool:
+        try:
+            for base, nl, cut in iter_blocks(p, gz, chunk_bytes, on_truncated=cut_at.append):
+                if sink is None:
+                    per_byte = len(nl) / (int(nl[-1]) + 1)
+                    sink = FrameSink(int(text_bytes(p, gz) * per_byte * _CAPACITY_MARGIN))
+                    pool.submit(sink.prefault)  # the columns' first-touch page faults, ahead
+                for ch in scan(base, PAD, nl, line0, first_line):
+                    for why, lines in ch.skipped.items():
+                        if len(lines):
+                            skipped.setdefault(_SKIP_KIND[why], []).append(lines)
+                    bus = ch.bus.astype(np.int16) if ch.bus.ndim == 1 else mapper.map(ch.bus)
+                    sink.append(ch, bus)
+                line0 += len(nl) - cut
+        finally:
+            if sink is not None:
+                sink.close()
+    for kind in DROPPED_KINDS:
+        if kind in skipped:
+            lines = np.concatenate(skipped[kind])
+            problems.add(kind, spath, lines[:Problems.MAX_FIRST], count=len(lines),
+                         detail=f"not a valid {what} line" if kind == KIND_MALFORMED else "")
+    if cut_at:
+        problems.add(KIND_TRUNCATED, spath, line0 + first_line - 1,
+                     detail=f"after {cut_at[0]} bytes of text, in line {line0 + first_line - 1}")
+    table = sink.table(spath) if sink is not None else FrameTable.empty(spath)
+    if len(table) == 0:
+        bad = skipped.get(KIND_MALFORMED)
+        first = int(np.concatenate(bad)[0]) if bad else None
+        raise InputError(f"no usable CAN frame: not a {what} log, or every line is malformed",
+                         spath, line=first)
+    return table
 
 
 def _libpanda_columns(p: Path, head: bytes):
@@ -503,41 +257,6 @@ def _libpanda_columns(p: Path, head: bytes):
     cols["MessageLength"] = names.index("MessageLength") if "MessageLength" in names else None
     cols["ncols"] = len(names)
     return cols, nblank + 1
-
-
-class _LibpandaChunkParser:
-    """Parse blocks of libpanda CSV lines whose columns are given by the header."""
-
-    def __init__(self, cols: dict):
-        self.cols = cols
-
-    def __call__(self, b: np.ndarray, line0: int, first_line: int) -> _Chunk:
-        c = self.cols
-        ls, le = _line_bounds(b)
-        lineno = line0 + 1 + np.arange(len(ls), dtype=np.int64)
-        keep = (le > ls) & (lineno >= first_line)  # blank lines and the header
-        ls, le, lineno = ls[keep], le[keep], lineno[keep]
-        buf = _Buf(b)
-        cp = buf.positions_of(44, pad=c["ncols"] + 1)
-        ic = np.searchsorted(cp, ls)
-        ok = (np.searchsorted(cp, le) - ic) == c["ncols"] - 1
-
-        def field(j):
-            start = ls if j == 0 else cp[ic + j - 1] + 1
-            end = le if j == c["ncols"] - 1 else cp[ic + j]
-            return start, np.where(ok, end - start, 0)
-
-        t, ok = _dec_time(buf, *field(c["Time"]), ok)
-        bus, ok = _dec_int(buf, *field(c["Bus"]), ok, 4)
-        mid, ok = _dec_int(buf, *field(c["MessageID"]), ok, 10)
-        ok &= mid <= _EFF_MASK
-        s, n = field(c["Message"])
-        data, dlc, ok = _payload(buf, s, np.where(ok, n, 0), ok, MAX_PAYLOAD)
-        if c["MessageLength"] is not None:
-            ml, ok = _dec_int(buf, *field(c["MessageLength"]), ok, 3)
-            ok &= ml == dlc
-        return _Chunk(t[ok], bus[ok], mid[ok].astype(np.uint32), mid[ok] > _SFF_MAX,
-                      dlc[ok], data[ok], lineno[ok], {KIND_MALFORMED: lineno[~ok]})
 
 
 class _BusMapper:
@@ -578,39 +297,6 @@ class _BusMapper:
         return out
 
 
-def _read_text(p: Path, gz: bool, problems: Problems, parser, *, first_line: int,
-               chunk_bytes: int, what: str) -> FrameTable:
-    spath = str(p)
-    mapper = _BusMapper()
-    parts = []
-    skipped: dict[str, list] = {}
-    line0 = 0
-    for block, cut in _iter_chunks(p, gz, chunk_bytes):
-        b = np.frombuffer(block, np.uint8)
-        nlines = int(np.count_nonzero(b == 10))
-        ch = parser(b, line0, first_line)
-        line0 += nlines - cut
-        for kind, lines in ch.skipped.items():
-            if len(lines):
-                skipped.setdefault(kind, []).append(lines)
-        bus = ch.bus.astype(np.int16) if ch.bus.ndim == 1 else mapper.map(ch.bus)
-        parts.append(FrameTable(ch.t, bus, ch.arb_id, ch.ext, ch.dlc, ch.data, ch.where, spath))
-        del ch, b, block
-    for kind in DROPPED_KINDS:
-        if kind in skipped:
-            lines = np.concatenate(skipped[kind])
-            problems.add(kind, spath, lines[:Problems.MAX_FIRST], count=len(lines),
-                         detail=f"not a valid {what} line" if kind == KIND_MALFORMED else "")
-    table = FrameTable.concat(parts) if parts else FrameTable.empty(spath)
-    table.path = spath
-    if len(table) == 0:
-        bad = skipped.get(KIND_MALFORMED)
-        first = int(np.concatenate(bad)[0]) if bad else None
-        raise InputError(f"no usable CAN frame: not a {what} log, or every line is malformed",
-                         spath, line=first)
-    return table
-
-
 # ----------------------------------------------------------------------------- python-can
 def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTable:
     import can  # python-can: imported here, only needed for these formats
@@ -633,8 +319,7 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
             if fmt == "sqlite":
                 raise InputError("a gzip-compressed sqlite log cannot be read; decompress it",
                                  spath)
-            fh = gzip.open(p, "rb" if binary else "rt", encoding=None if binary else "utf-8",
-                           errors=None if binary else "replace")
+            fh = open_binary(p, True) if binary else open_text(p, errors="replace")
             reader = cls(fh, **kwargs)
         else:
             reader = cls(spath, **kwargs)
@@ -672,6 +357,10 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
     finally:
         if fh is not None:
             fh.close()
+    gzr = getattr(getattr(fh, "buffer", None), "raw", fh)
+    if getattr(gzr, "truncated", False):
+        problems.add(KIND_TRUNCATED, spath, frame_no,
+                     detail=f"after {gzr.text_bytes} bytes of text, after frame {frame_no}")
     problems.add(KIND_REMOTE, spath, remote[:Problems.MAX_FIRST], count=len(remote))
     problems.add(KIND_ERROR_FRAME, spath, errf[:Problems.MAX_FIRST], count=len(errf))
     if not t:
@@ -695,6 +384,13 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
 
 
 # ----------------------------------------------------------------------------- clock checks
+#: rows per block of the clock checks: the block's temporaries stay in the CPU cache
+_CHECK_ROWS = 1 << 14
+#: runs of one timestamp longer than this compare whole rows, time bytes included (a sort),
+#: instead of each frame against the ones before it in its run
+_LONG_RUN = 32
+
+
 def _clock_checks(ft: FrameTable, problems: Problems, jump_s: float) -> FrameTable:
     """Sort by time (reporting steps backwards), drop exact duplicates, report forward jumps."""
     spath = ft.path
@@ -705,43 +401,129 @@ def _clock_checks(ft: FrameTable, problems: Problems, jump_s: float) -> FrameTab
         ft = ft.take(~bad)
         if len(ft) == 0:
             raise InputError("no frame with a finite timestamp", spath)
-    dt = np.diff(ft.t_s)
-    back = np.flatnonzero(dt < 0) + 1
-    if len(back):
-        problems.add(KIND_BACKWARDS, spath, ft.where[back[:Problems.MAX_FIRST]], count=len(back),
-                     detail=f"largest step back {-dt.min():.6g} s")
+    steps = _Steps(ft.t_s, jump_s)
+    if len(steps.back):
+        problems.add(KIND_BACKWARDS, spath, ft.where[steps.back[:Problems.MAX_FIRST]],
+                     count=len(steps.back), detail=f"largest step back {-steps.dt_min:.6g} s")
         order = np.argsort(ft.t_s, kind="stable")
         ft = ft.take(order)
-        dt = np.diff(ft.t_s)
+        steps = _Steps(ft.t_s, jump_s)
     # exact duplicates can only sit among frames that share a timestamp
-    same = np.flatnonzero(dt == 0)
-    if len(same):
-        drop = _duplicates(ft, same)
+    if len(steps.same):
+        drop = _duplicates(ft, steps.same)
         if len(drop):
             problems.add(KIND_DUPLICATE, spath, np.sort(ft.where[drop])[:Problems.MAX_FIRST],
                          count=len(drop))
             keep = np.ones(len(ft), bool)
             keep[drop] = False
             ft = ft.take(keep)
-            dt = np.diff(ft.t_s)
-    jumps = np.flatnonzero(dt > jump_s) + 1
-    if len(jumps):
-        problems.add(KIND_JUMP, spath, ft.where[jumps[:Problems.MAX_FIRST]], count=len(jumps),
-                     detail=f"gap between consecutive frames over {jump_s:g} s, "
-                            f"largest {dt.max():.6g} s")
+            steps = _Steps(ft.t_s, jump_s)
+    if len(steps.jumps):
+        problems.add(KIND_JUMP, spath, ft.where[steps.jumps[:Problems.MAX_FIRST]],
+                     count=len(steps.jumps), detail=f"gap between consecutive frames over "
+                                                    f"{jump_s:g} s, largest {steps.dt_max:.6g} s")
     return ft
+
+
+class _Steps:
+    """The steps ``dt = diff(t_s)``, block by block: rows after a step back (``back``), rows i
+    with t[i] == t[i+1] (``same``), rows after a step over ``jump_s`` (``jumps``), and the
+    smallest and largest step."""
+
+    def __init__(self, t: np.ndarray, jump_s: float):
+        back, same, jumps = [], [], []
+        self.dt_min = self.dt_max = None
+        n = len(t) - 1
+        buf = np.empty(min(max(n, 0), _CHECK_ROWS))
+        for a in range(0, n, _CHECK_ROWS):
+            b = min(a + _CHECK_ROWS, n)
+            d = np.subtract(t[a + 1:b + 1], t[a:b], out=buf[:b - a])
+            lo, hi = d.min(), d.max()
+            if lo < 0:
+                back.append(np.flatnonzero(d < 0) + (a + 1))
+            if lo <= 0:
+                same.append(np.flatnonzero(d == 0) + a)
+            if hi > jump_s:
+                jumps.append(np.flatnonzero(d > jump_s) + (a + 1))
+            self.dt_min = lo if self.dt_min is None else min(self.dt_min, lo)
+            self.dt_max = hi if self.dt_max is None else max(self.dt_max, hi)
+        empty = np.zeros(0, np.int64)
+        self.back, self.same, self.jumps = (np.concatenate(x) if x else empty
+                                            for x in (back, same, jumps))
 
 
 def _duplicates(ft: FrameTable, same: np.ndarray) -> np.ndarray:
     """Rows that repeat an earlier row exactly (time, bus, id, flags, payload).
 
-    ``same``: rows i with t[i] == t[i+1] (the table is sorted by time). Each frame is
-    compared with the frames before it in its run of equal timestamps, exactly (no hashing).
+    ``same``: rows i with t[i] == t[i+1] (the table is sorted by time); a streak of consecutive
+    i is one run of frames sharing a timestamp. Block by block, a 64-bit hash of each frame
+    (bus, id, flags, length, payload) screens the runs: two equal frames hash alike, so only
+    the runs where two frames share a hash can hold duplicates, and only those are compared
+    exactly (:func:`_duplicates_exact`).
     """
-    mark = np.zeros(len(ft), bool)
-    mark[same] = True
-    mark[same + 1] = True
-    cand = np.flatnonzero(mark)
+    suspects, longest = [], 0
+    pos, m = 0, len(same)
+    while pos < m:
+        end = _streak_end(same, min(pos + _CHECK_ROWS, m))
+        s = same[pos:end]
+        brk = np.flatnonzero(s[1:] != s[:-1] + 1)  # last element of each streak but the final
+        last = np.append(brk, len(s) - 1)
+        longest = max(longest, int(np.diff(np.append(-1, last)).max()))
+        sid = np.zeros(len(s), np.int64)
+        sid[brk + 1] = 1
+        np.cumsum(sid, out=sid)
+        rows = np.concatenate([s, s[last] + 1])
+        rid = np.concatenate([sid, np.arange(len(last))])
+        key = (rid.astype(np.uint64) << np.uint64(32)) | (_frame_hash(ft, rows) >> np.uint64(32))
+        key.sort(kind="stable")
+        twice = key[1:][key[1:] == key[:-1]]
+        if len(twice):
+            suspects.append(rows[np.isin(rid, np.unique(twice >> np.uint64(32)))])
+        pos = end
+    if not suspects:
+        return np.zeros(0, np.int64)
+    return _duplicates_exact(ft, np.unique(np.concatenate(suspects)), longest + 1 > _LONG_RUN)
+
+
+def _streak_end(same: np.ndarray, end: int) -> int:
+    """The first index at or after ``end`` that starts a new streak of ``same`` (or its end)."""
+    m = len(same)
+    while end < m:
+        w = same[end - 1:end + 1023]
+        brk = np.flatnonzero(w[1:] != w[:-1] + 1)
+        if len(brk):
+            return end + int(brk[0])
+        end += len(w) - 1
+    return m
+
+
+def _frame_hash(ft: FrameTable, rows: np.ndarray) -> np.ndarray:
+    """A 64-bit hash of each row's bus, id, flags, length and payload (not its time)."""
+    h = (ft.arb_id.take(rows).astype(np.uint64)
+         | (ft.is_extended.take(rows).astype(np.uint64) << np.uint64(29))
+         | (ft.dlc.take(rows).astype(np.uint64) << np.uint64(32))
+         | (ft.bus.take(rows).astype(np.uint16).astype(np.uint64) << np.uint64(40)))
+    data = ft.data
+    if data.shape[1] == 8 and data.flags.c_contiguous:
+        words = data.view("<u8")[:, 0].take(rows)[:, None]
+    else:
+        padded = np.zeros((len(rows), -(-data.shape[1] // 8) * 8), np.uint8)
+        padded[:, :data.shape[1]] = data[rows]
+        words = padded.view("<u8")
+    for j in range(words.shape[1]):
+        h *= np.uint64(0x9E3779B97F4A7C15)
+        h ^= words[:, j]
+        h ^= h >> np.uint64(29)
+    h *= np.uint64(0xBF58476D1CE4E5B9)
+    h ^= h >> np.uint64(32)
+    return h
+
+
+def _duplicates_exact(ft: FrameTable, cand: np.ndarray, long_runs: bool) -> np.ndarray:
+    """Rows of ``cand`` (whole runs of one timestamp, sorted) that repeat an earlier row
+    exactly. With ``long_runs`` (some run of the table over :data:`_LONG_RUN` frames) whole
+    rows are sorted, time bytes included; otherwise each frame is compared with the frames
+    before it in its run (no hashing either way)."""
     t = ft.t_s[cand]
     meta = (ft.arb_id[cand].astype(np.uint64) | (ft.is_extended[cand].astype(np.uint64) << 29)
             | (ft.dlc[cand].astype(np.uint64) << 32)
@@ -756,7 +538,7 @@ def _duplicates(ft: FrameTable, same: np.ndarray) -> np.ndarray:
     runid = np.cumsum(newrun)
     runlen = np.bincount(runid)
     dup = np.zeros(len(cand), bool)
-    if runlen.max() > 32:  # long runs of one timestamp: sort whole rows instead
+    if long_runs:  # long runs of one timestamp: sort whole rows instead
         key = np.concatenate([t.view(np.uint8).reshape(-1, 8), meta.view(np.uint8).reshape(-1, 8),
                               padded], axis=1)
         _, first = np.unique(key.view(np.dtype((np.void, key.shape[1]))).ravel(),

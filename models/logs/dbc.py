@@ -7,11 +7,11 @@ the data README prescribes ``strict=False``).
 """
 from __future__ import annotations
 
-import gzip
 import re
 import zlib
 from pathlib import Path
 
+from hmpc.models.logs.files import read_bytes
 from hmpc.models.errors import InputError
 
 
@@ -48,9 +48,7 @@ def load_dbc(path, *, strict: bool = False, lenient: bool = False, problems=None
     if not p.is_file():
         raise InputError("no such DBC file" if not p.exists() else "not a regular file", spath)
     try:
-        raw = p.read_bytes()
-        if raw[:2] == b"\x1f\x8b":
-            raw = gzip.decompress(raw)
+        raw = read_bytes(p)
     except (OSError, EOFError, zlib.error) as exc:
         raise InputError(f"cannot read DBC: {exc}", spath) from None
     if not raw.strip():

@@ -41,6 +41,8 @@ KIND_UNDECODABLE = "frame does not decode (cantools DecodeError; not decoded)"
 
 #: at most this many messages are selected by one boolean mask each; more -> one sort
 _MASK_MESSAGES = 12
+#: at most this many buses are selected by one comparison each; more -> np.isin
+_MASK_BUSES = 8
 _SFF_IDS = 0x800  # number of 11-bit identifiers
 _OFF_BUS = 0xFFFF  # message code of frames on buses not selected
 #: rows decoded per block: the gathered columns of a block (~12 MB) stay in a typical L3 cache
@@ -109,7 +111,13 @@ def message_index(frames: FrameTable, db) -> np.ndarray:
 def _bus_mask(frames: FrameTable, buses):
     if buses is None:
         return np.ones(len(frames), bool)
-    return np.isin(frames.bus, np.asarray(list(buses), dtype=np.int64))
+    wanted = np.asarray(list(buses), dtype=np.int64)
+    if len(wanted) > _MASK_BUSES:
+        return np.isin(frames.bus, wanted)
+    mask = np.zeros(len(frames), bool)
+    for b in wanted.tolist():  # a few buses: one comparison each, no sort
+        mask |= frames.bus == b
+    return mask
 
 
 def _message_codes(frames: FrameTable, db) -> np.ndarray:
@@ -156,9 +164,11 @@ def _decode(frames, db, problems, names, buses, dbc_path, fast):
         code[~_bus_mask(frames, buses)] = _OFF_BUS
     _report_unknown(frames, code, problems)
     # Work through the log in blocks of rows small enough that a block's columns stay in the
-    # CPU cache while they are gathered per message; each message's pieces are joined at the end.
+    # CPU cache while they are gathered per message; each message's pieces are copied into
+    # columns sized for all its frames.
     plans = {i: (_fast_plan(db.messages[i]) if fast else None) for i in wanted}
-    pieces: dict[int, list] = {i: [] for i in wanted}
+    counts = np.bincount(code, minlength=_OFF_BUS + 1)
+    pieces = {i: _Pieces(int(counts[i + 1])) for i in wanted}
     n = len(frames)
     for lo in range(0, max(n, 1), _BLOCK_ROWS):
         hi = min(n, lo + _BLOCK_ROWS)
@@ -185,24 +195,50 @@ def _decode(frames, db, problems, names, buses, dbc_path, fast):
     out: dict[str, DecodedMessage] = {}
     for i in wanted:
         msg = db.messages[i]
-        if not pieces[i]:
+        if not pieces[i].n_pieces:
             if names is None:
                 continue
             pieces[i].append(_decode_message(_Rows.take(frames, np.zeros(0, np.int64)), msg,
                                              problems, plans[i]))
-        out[msg.name] = _join(pieces[i])
+        out[msg.name] = pieces[i].joined()
     return out
 
 
-def _join(pieces: list) -> DecodedMessage:
-    if len(pieces) == 1:
-        return pieces[0]
-    first = pieces[0]
-    return DecodedMessage(first.name, first.frame_id,
-                          np.concatenate([p.t_s for p in pieces]),
-                          np.concatenate([p.bus for p in pieces]),
-                          np.concatenate([p.where for p in pieces]),
-                          {k: np.concatenate([p.signals[k] for p in pieces]) for k in first.signals})
+class _Pieces:
+    """One message's decoded pieces, block by block, joined into columns allocated once for
+    ``capacity`` frames (the message's frames in the log; fewer when some are refused)."""
+
+    def __init__(self, capacity: int):
+        self.capacity, self.n, self.n_pieces = capacity, 0, 0
+        self.first: DecodedMessage | None = None
+        self.cols: dict | None = None
+
+    def append(self, piece: DecodedMessage) -> None:
+        self.n_pieces += 1
+        if self.first is None:
+            self.first = piece
+            return
+        if self.cols is None:  # a second piece: start the joined columns with the first
+            f = self.first
+            self.cols = {k: np.empty(self.capacity, v.dtype) for k, v in
+                         [("t_s", f.t_s), ("bus", f.bus), ("where", f.where)]
+                         + [(("s", name), v) for name, v in f.signals.items()]}
+            self._put(f)
+        self._put(piece)
+
+    def _put(self, p: DecodedMessage) -> None:
+        a, b = self.n, self.n + len(p)
+        for k, v in [("t_s", p.t_s), ("bus", p.bus), ("where", p.where)] \
+                + [(("s", name), v) for name, v in p.signals.items()]:
+            self.cols[k][a:b] = v
+        self.n = b
+
+    def joined(self) -> DecodedMessage:
+        if self.cols is None:
+            return self.first
+        f, c, n = self.first, self.cols, self.n
+        return DecodedMessage(f.name, f.frame_id, c["t_s"][:n], c["bus"][:n], c["where"][:n],
+                              {name: c[("s", name)][:n] for name in f.signals})
 
 
 def _first_true(mask: np.ndarray, n: int) -> np.ndarray:

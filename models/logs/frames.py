@@ -12,6 +12,9 @@ import numpy as np
 
 #: bytes stored per frame; CAN FD payloads of up to 64 bytes fit.
 MAX_PAYLOAD = 64
+CAN_ERR_FLAG = 0x20000000  # SocketCAN error-frame flag in the 32-bit id
+EFF_MASK = 0x1FFFFFFF      # 29-bit identifier
+SFF_MAX = 0x7FF            # 11-bit identifier
 
 
 @dataclass

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -96,10 +97,10 @@ def sha256_file(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def _source(path) -> dict | None:
+def _source(path, sha256: str | None = None) -> dict | None:
     if path is None:
         return None
-    return {"path": str(path), "sha256": sha256_file(path)}
+    return {"path": str(path), "sha256": sha256_file(path) if sha256 is None else sha256}
 
 
 def _wrap(a):
@@ -231,6 +232,10 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
     preference = _check_options(rate_hz, gap_s, prefer)
     problems = Problems() if problems is None else problems
     say = progress or (lambda _msg: None)
+    # the log, much the largest input, is hashed in a worker thread while it is parsed
+    hasher = ThreadPoolExecutor(1)
+    log_sha256 = hasher.submit(sha256_file, log_path)
+    hasher.shutdown(wait=False)  # its thread ends with the hash
     can = read_can(log_path, dbc_path, signals_path, problems, say, dbc_lenient=dbc_lenient)
     nav = NavStage(None, {}, 0.0, None, None, {})
     if nav_path is not None:
@@ -248,7 +253,7 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
     _check_overlap(grid, (("nav", nav.channels, nav_path), ("IMU", imu.channels, imu_path)))
     res = resample_channels(raw, origin, can.smap, grid, gap_s)
     summary = _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz,
-                       can, nav, imu, res, problems)
+                       can, nav, imu, res, problems, log_sha256.result())
     meta = dict(summary)
     meta["path"] = str(log_path)
     return IngestResult(Recording(res.channels, raw, meta), problems, summary)
@@ -534,7 +539,7 @@ def speed_vs_gps(channels: dict[str, np.ndarray]) -> dict | None:
 
 def _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz: float,
              can: CanStage, nav: NavStage, imu: ImuStage, res: Resampled,
-             problems: Problems) -> dict:
+             problems: Problems, log_sha256: str | None = None) -> dict:
     """Step 7: the summary with the stable keys listed in :func:`ingest_files`."""
     smap, grid, navd = can.smap, res.channels["time"], nav.nav
     speed_source = smap.channels["speed"].describe() if "speed" in smap.channels else None
@@ -542,7 +547,7 @@ def _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz: floa
         "hmpc_version": __version__,
         "vehicle": smap.vehicle,
         "log_format": can.log_format,  # as detected from the content, whatever the extension
-        "sources": {"log": _source(log_path), "dbc": _source(dbc_path),
+        "sources": {"log": _source(log_path, log_sha256), "dbc": _source(dbc_path),
                     "signals": _source(signals_path), "nav": _source(nav_path),
                     "imu": _source(imu_path)},
         "start_s": float(grid[0]),

@@ -35,7 +35,6 @@ a missing column or no usable row raises :class:`InputError` naming the file (an
 """
 from __future__ import annotations
 
-import gzip
 import math
 import zlib
 from dataclasses import dataclass, fields
@@ -43,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hmpc.models.logs.files import read_bytes
 from hmpc.models.errors import InputError, ParamError, Problems
 
 G_MPS2 = 9.80665  # standard gravity [m/s^2]
@@ -195,9 +195,7 @@ def read_table(path: str | Path, problems: Problems, wanted: list[str], *,
     if not p.is_file():
         raise InputError("no such file" if not p.exists() else "not a regular file", spath)
     try:
-        raw = p.read_bytes()
-        if raw[:2] == b"\x1f\x8b":
-            raw = gzip.decompress(raw)
+        raw = read_bytes(p)
     except (OSError, EOFError, zlib.error) as exc:
         raise InputError(f"cannot read {what} ({exc.__class__.__name__})", spath) from None
     if not raw.strip():

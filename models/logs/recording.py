@@ -14,13 +14,14 @@ from __future__ import annotations
 import csv
 import gzip
 import io
-import math
+import zlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from hmpc.models.logs.files import open_text
 from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS, VALID_GEARS
 
 #: channels that are fractions 0..1 (CONVENTIONS), and how far past the ends a reading may be
@@ -104,19 +105,16 @@ class Recording:
 
 # ---------------------------------------------------------------------- writing
 def write_csv(channels: dict[str, np.ndarray], path: str | Path) -> None:
-    """Write the canonical CSV (columns in CONVENTIONS order, unknown extras last)."""
+    """Write the canonical CSV (columns in CONVENTIONS order, unknown extras last).
+
+    Cells: ``time`` as ``f"{x:.6f}"``, numbers as ``repr(float(x))`` (empty for NaN), strings
+    as they are, in ``csv.writer``'s dialect (``\r\n`` line ends, minimal quoting). Each column
+    is turned to text in one pass and the rows are joined in bulk.
+    """
     names = [c for c in CHANNELS if c in channels]
     names += [c for c in channels if c not in CHANNELS]
     path = Path(path)
-    cols = []
-    for n in names:
-        v = channels[n]
-        if n in STRING_CHANNELS:
-            cols.append([str(s) for s in v])
-        elif n == "time":
-            cols.append([f"{x:.6f}" for x in v])
-        else:
-            cols.append([("" if math.isnan(x) else repr(float(x))) for x in v.astype(float)])
+    cols = [_csv_cells(n, channels[n]) for n in names]
     # written beside the target and renamed over it: a failed write (full disk, interrupt)
     # never leaves a half-written recording under the name the user gave
     regular = path.is_file() or not path.exists()
@@ -126,12 +124,58 @@ def write_csv(channels: dict[str, np.ndarray], path: str | Path) -> None:
         with opener(tmp, "wt", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(names)
-            w.writerows(zip(*cols))
+            if len(names) == 1:  # a one-cell row: csv quotes an empty cell, let it
+                w.writerows(zip(*cols))
+            else:
+                rows = list(zip(*cols))
+                for i in range(0, len(rows), CSV_ROWS_PER_WRITE):
+                    fh.write("".join([",".join(r) + "\r\n"
+                                      for r in rows[i:i + CSV_ROWS_PER_WRITE]]))
         if tmp != path:
             os.replace(tmp, path)
     finally:
         if tmp != path and tmp.exists():
             tmp.unlink()
+
+
+#: rows joined into one string per write of :func:`write_csv`
+CSV_ROWS_PER_WRITE = 1 << 14
+
+
+def _csv_cells(name: str, v: np.ndarray) -> list[str]:
+    """One column's cells as ``csv.writer`` would write them in a row of several cells."""
+    if name in STRING_CHANNELS:
+        text = [str(s) for s in v]
+        return [_csv_quoted(s) for s in text] if any(_CSV_SPECIAL & set(s) for s in set(text)) \
+            else text
+    if name == "time":
+        return list(map("{:.6f}".format, v.tolist()))
+    x = v.astype(float)
+    bits = x.view(np.int64)  # bit patterns: 0.0 and -0.0 differ, as their text does
+    starts = np.flatnonzero(bits[1:] != bits[:-1]) + 1
+    if len(starts) < len(x) // 2:  # a held value: one text per run of equal values
+        starts = np.concatenate([[0], starts])
+        texts = np.array(_float_cells(x[starts]), dtype=object)
+        return np.repeat(texts, np.diff(np.append(starts, len(x)))).tolist()
+    return _float_cells(x)
+
+
+def _float_cells(x: np.ndarray) -> list[str]:
+    """``repr(float(v))`` of each value, empty for NaN."""
+    cells = list(map(float.__repr__, x.tolist()))
+    for i in np.flatnonzero(np.isnan(x)).tolist():
+        cells[i] = ""
+    return cells
+
+
+#: characters that make ``csv.writer`` quote a cell (its default dialect)
+_CSV_SPECIAL = frozenset(',"\r\n')
+
+
+def _csv_quoted(cell: str) -> str:
+    buf = io.StringIO()
+    csv.writer(buf).writerow([cell, ""])
+    return buf.getvalue()[:-3]  # without the empty second cell and the line end
 
 
 def write_parquet(channels: dict[str, np.ndarray], path: str | Path) -> None:
@@ -189,11 +233,10 @@ def _read_parquet_text(path: Path) -> tuple[list[str], dict[str, list[str]], Non
 
 def _read_csv_text(path: Path) -> tuple[list[str], dict[str, list[str]], int]:
     """Header and columns as text of a CSV (or .gz) file, and the line of the first row (2)."""
-    opener = gzip.open if path.suffix == ".gz" else open
     try:
-        with opener(path, "rt", newline="") as fh:
+        with open_text(path, newline="") as fh:
             text = fh.read()
-    except (OSError, UnicodeDecodeError) as exc:
+    except (OSError, EOFError, UnicodeDecodeError, zlib.error) as exc:
         raise InputError(f"cannot read as text ({exc.__class__.__name__})", str(path)) from None
     reader = csv.reader(io.StringIO(text))
     try:

@@ -24,7 +24,6 @@ is reported once per file as information; empty and ``nan`` cells are no value.
 from __future__ import annotations
 
 import csv
-import gzip
 import io
 import math
 import zlib
@@ -32,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hmpc.models.logs.files import open_text
 from hmpc.models.errors import InputError, Problems
 from hmpc.models.logs.topicmap import LOG_TIME, TopicData, TopicMap, TopicSpec
 
@@ -125,10 +125,12 @@ def read_export(files: dict[str, Path], tmap: TopicMap, problems: Problems
 
 
 def _read_text(path: Path) -> str:
-    opener = gzip.open if path.suffix == ".gz" else open
     try:
-        with opener(path, "rt", newline="", encoding="utf-8") as fh:
-            return fh.read()
+        with open_text(path, newline="") as fh:
+            text = fh.read()
+            if getattr(fh.buffer.raw, "truncated", False):
+                raise EOFError("the gzip stream ends early")
+            return text
     except (OSError, EOFError, UnicodeDecodeError, zlib.error) as exc:
         raise InputError(f"cannot read as CSV text ({exc.__class__.__name__})", str(path)) \
             from None
