@@ -1,13 +1,13 @@
 """``identify``: the report's steering map (eq. 7) and zone accelerator models (eq. 8) from a
 recording, as a parameter set the controller loads, plus a report of every figure.
 
-Steps: :func:`models.steering_id.identify_steering` (wheel-speed and yaw-rate fits, eq. 1
+Steps: :func:`models.identify.steering.identify_steering` (wheel-speed and yaw-rate fits, eq. 1
 position replay, dead time, intervals, identifiability) and
-:func:`models.longitudinal_id.identify_longitudinal` (per-zone eq. 8 with brake, FOS term
+:func:`models.identify.longitudinal.identify_longitudinal` (per-zone eq. 8 with brake, FOS term
 selection, NMSE%, speed RMSE, intervals). The geometry (wheelbase, track) comes from the
 vehicle file and is copied to the result unchanged.
 
-The result's ``params`` holds the keys of ``../shared/CONVENTIONS.md`` and the optional keys of
+The result's ``params`` holds the keys of ``docs/conventions.md`` and the optional keys of
 ``models.params`` (delays, intervals, fit metrics, identifiability flags and notes,
 provenance); ``report`` holds the same figures and more, JSON-ready, with stable keys.
 """
@@ -113,7 +113,7 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
     """Identify eq. 7 and eq. 8 (+ brake) per zone from ``recording``.
 
     Args:
-        recording: a canonical recording (``models.recording``).
+        recording: a canonical recording (``models.logs.recording``).
         vehicle: the measured geometry (``load_params(path).vehicle``).
         zones: speed zones as ``[(name, v_min_mps, v_max_mps), ...]`` (default idle [0, 2],
             low (2, 5], high (5, 20] m/s); overrides ``longitudinal_config.zones``.
