@@ -31,7 +31,10 @@ def make_controller(name: str, params: Params, *, dt_s: float = 0.2, horizon_s: 
     """The controller ``name`` (one of :data:`CONTROLLERS`) for ``params``.
 
     Args:
-        dt_s: MPC stage length [s]. horizon_s: MPC horizon [s].
+        name: the controller's name (a key of :data:`CONTROLLERS`).
+        params: the model the controller is built for.
+        dt_s: MPC stage length [s].
+        horizon_s: MPC horizon [s].
         transition_penalty: keep the MPC's zone-transition penalty (off: its weight is 0).
         accept_unidentifiable: use values flagged ``identifiable: false`` (refused otherwise,
             ParamError naming key and flag).

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -162,9 +162,10 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
         control_period_s: controller period [s] (commands held in between).
         plant_dt_s: plant integration step and recording period [s].
         seed: seed of the sensors' noise (printed in the metrics).
-        speed_noise_mps, position_noise_m: when given, replace ``sensors``' speed noise
-            (wheel speeds and GNSS speed) [m/s] and GNSS position noise [m]; None keeps
-            the sensor configuration's (default 0.05 m/s, 0.02 m).
+        speed_noise_mps: when given, replaces ``sensors``' speed noise (wheel speeds and GNSS
+            speed) [m/s]; None keeps the sensor configuration's (default 0.05 m/s).
+        position_noise_m: when given, replaces ``sensors``' GNSS position noise [m]; None
+            keeps the sensor configuration's (default 0.02 m).
         extra_time_s: run this long past the reference's end [s].
         limits: limits applied at the actuation boundary (default from ``params``).
         progress: called as ``progress(fraction_done, t_s)`` (t_s since the start [s])
@@ -255,7 +256,8 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
     if progress is not None and last_report != 10:   # the last control step came before the end
         progress(1.0, float(cols["time"][-1]) - t0)
     cols["heading"] = (cols["heading"] + np.pi) % (2 * np.pi) - np.pi
-    rec = Recording(cols, {}, {"source": "hmpc closed loop", "controller": getattr(controller, "name", "?"),
+    rec = Recording(cols, {}, {"source": "hmpc closed loop",
+                               "controller": getattr(controller, "name", "?"),
                                "reference": reference.name, "seed": seed,
                                "rate_hz": 1.0 / plant_dt_s})
     v_ref = reference.speed_at(cols["time"])
@@ -397,7 +399,8 @@ def sensor_config(sensors: SensorConfig | None = None, speed_noise_mps: float | 
     cfg = sensors or SensorConfig()
     kw = {}
     if speed_noise_mps is not None:
-        kw.update(speed_noise_mps=float(speed_noise_mps), gnss_speed_noise_mps=float(speed_noise_mps))
+        kw.update(speed_noise_mps=float(speed_noise_mps),
+                  gnss_speed_noise_mps=float(speed_noise_mps))
     if position_noise_m is not None:
         kw["position_noise_m"] = float(position_noise_m)
     return replace(cfg, **kw) if kw else cfg
@@ -455,7 +458,7 @@ class _StepLog:
         self.true_state.extend(float(q) for q in truth[:4])
 
 
-def _estimator_figures(res: "ClosedLoopResult", fb: SensorFeedback) -> dict:
+def _estimator_figures(res: ClosedLoopResult, fb: SensorFeedback) -> dict:
     """How well the controller's view matched the truth, and the sensors' message counts."""
     e = res.estimated_state - res.true_state
     st = fb.estimator.stats

@@ -95,7 +95,7 @@ class ActuatorLimits:
             raise ValueError("ActuatorLimits: need 0 <= pedal_min < pedal_max <= 1")
 
     @classmethod
-    def from_params(cls, params: Params | None) -> "ActuatorLimits":
+    def from_params(cls, params: Params | None) -> ActuatorLimits:
         """Defaults overridden by ``params.limits`` and the vehicle's steering range/rate.
 
         ``limits:`` keys win over the ``vehicle:`` keys of the same meaning.

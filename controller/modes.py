@@ -91,6 +91,8 @@ def desired_accel(v_ref_mps: np.ndarray, v_mps: np.ndarray, dt_s: float,
     Args:
         v_ref_mps: reference speed at stages 0..N [m/s].
         v_mps: nominal (predicted) speed at stages 0..N-1 or 0..N [m/s].
+        dt_s: stage length [s].
+        tau_s: time constant of the speed-error correction [s].
     """
     vr = np.asarray(v_ref_mps, dtype=float)
     n = len(vr) - 1

@@ -25,7 +25,7 @@ from __future__ import annotations
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -151,9 +151,11 @@ def reference_replay(rec: Recording, params: Params, controller, *,
         rec: the canonical recording of the drive.
         params: the controller's model (and the plant's unless ``plant_params``).
         controller: a ``controller.base.Controller``.
+        plant_params: a different plant than the controller's model (model mismatch).
         control_period_s: controller period [s].
         seed: the simulated sensors' seed.
         reference_source: ``auto``, ``nav`` or ``can`` (see :func:`recording_reference`).
+        config: the replay's settings (:class:`ReplayConfig`).
         progress: ``progress(fraction, t_s)`` (``run_closed_loop``'s).
         adapter: an online model estimator (``controller.adapt.ModelAdapter``) for the run;
             its ``adaptation`` goes into the summary.
@@ -306,6 +308,7 @@ def log_replay(frames: FrameTable, profile, params: Params, controller, referenc
         controller: the controller the loop runs.
         reference: the drive as a reference, on the log's clock (0 = the log's first frame).
         candump: where the loop writes its candump (default: a temporary file).
+        config: the replay's settings (:class:`ReplayConfig`).
         progress: ``progress(fraction, t_s)`` as the simulated clock advances.
         adapter: an online model estimator for the drive loop (its ``adaptation`` in the
             summary): what the logged car's feedback teaches the model.
@@ -411,7 +414,8 @@ def _first_accepting(frames: FrameTable, profile) -> float:
 
 
 class _ProgressClock:
-    """The replay's simulated clock (``controller.simclock.SimClock``) reporting progress every tenth."""
+    """The replay's simulated clock (``controller.simclock.SimClock``) reporting progress
+    every tenth."""
 
     def __init__(self, t0_s: float, span_s: float, progress):
         from hmpc.controller.simclock import SimClock

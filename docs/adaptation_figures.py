@@ -46,9 +46,11 @@ def main(argv):
             ad_rep = a["adaptation"]
             z1, z2 = truth.zones[1], truth.zones[2]
             learned = {
-                "offset_mrad": 1e3 * (ad_rep[KEY_STEER_OFFSET]["final"] - truth.steering.offset_rad),
+                "offset_mrad": 1e3 * (ad_rep[KEY_STEER_OFFSET]["final"]
+                                      - truth.steering.offset_rad),
                 "scale_pct": 100 * (ad_rep[KEY_STEER_SCALE]["final"] / truth.steering.scale - 1),
-                "low_pct": 100 * (ad_rep[zone_key("low", "scale_mps2")]["final"] / z1.scale_mps2 - 1),
+                "low_pct": 100 * (ad_rep[zone_key("low", "scale_mps2")]["final"]
+                                  / z1.scale_mps2 - 1),
                 "high_pct": 100 * (ad_rep[zone_key("high", "scale_mps2")]["final"] / z2.scale_mps2
                                    - 1)}
             rows[sc].append((seed, {k: v[0] for k, v in m.items()}, learned,

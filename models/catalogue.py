@@ -16,13 +16,15 @@ CATALOGUE: dict[str, dict] = {
     "actuator_lag": {
         "physics": "first-order lag",
         "equation": {"steering": "tau d(sw_eff)/dt = sw - sw_eff,  delta = offset + scale * sw_eff",
-                     "longitudinal": "tau d(u_eff)/dt = u - u_eff,  dv/dt = offset_z + gain_z * u_eff"},
+                     "longitudinal": "tau d(u_eff)/dt = u - u_eff,  "
+                                     "dv/dt = offset_z + gain_z * u_eff"},
         "parameters": {"tau_s": "time constant tau [s], 0..1"},
     },
     "steering_nonlinearity": {
         "physics": "rack saturation at large angles",
         "equation": {"steering": "delta = offset + scale * (sw + k3 * sw^3)"},
-        "parameters": {"cubic_per_rad2": "k3 [1/rad^2] (negative: the rack saturates), -0.02..0.02"},
+        "parameters": {"cubic_per_rad2": "k3 [1/rad^2] (negative: the rack saturates), "
+                                         "-0.02..0.02"},
     },
     "understeer": {
         "physics": "speed- or lateral-acceleration-dependent steering gain",
@@ -55,7 +57,8 @@ CATALOGUE: dict[str, dict] = {
     },
     "idle_creep": {
         "physics": "speed-regulating idle torque",
-        "equation": {"longitudinal": "dv/dt = eq. 8 + a0 * max(0, 1 - v / v_c) with the throttle released"},
+        "equation": {"longitudinal": "dv/dt = eq. 8 + a0 * max(0, 1 - v / v_c) "
+                                     "with the throttle released"},
         "parameters": {"accel_mps2": "creep acceleration at rest a0 [m/s^2], 0..2",
                        "creep_speed_mps": "creep speed v_c [m/s], 0.5..5"},
     },

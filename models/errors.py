@@ -8,7 +8,7 @@ collector, which the CLI prints on stderr and writes to ``--json``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Iterable
+from collections.abc import Iterable
 
 
 class HmpcError(Exception):
@@ -55,7 +55,10 @@ class ParamError(InputError):
 
 
 class SolverError(HmpcError):
-    """An optimiser could not be set up (bad problem data). Solve failures are statuses, not this."""
+    """An optimiser could not be set up (bad problem data).
+
+    Solve failures are statuses, not this.
+    """
 
 
 @dataclass
@@ -116,7 +119,7 @@ class Problems:
         """Occurrences of real problems (information items not counted)."""
         return sum(p.count for p in self._items.values() if not p.info)
 
-    def merge(self, other: "Problems") -> None:
+    def merge(self, other: Problems) -> None:
         for p in other:
             self.add(p.kind, p.path, p.first, count=p.count, detail=p.detail, info=p.info)
 

@@ -177,7 +177,10 @@ class Steering:
 @_typed
 @dataclass
 class Zone:
-    """Eq. 8 with brake: accel [m/s^2] = offset + scale * accel_pedal - brake_scale * brake_pedal."""
+    """Eq. 8 with brake.
+
+    accel [m/s^2] = offset + scale * accel_pedal - brake_scale * brake_pedal.
+    """
 
     name: str
     v_min_mps: float
@@ -197,7 +200,8 @@ class Zone:
                     "brake_scale_mps2")
 
     def accel_mps2(self, accel_pedal: float, brake_pedal: float) -> float:
-        return self.offset_mps2 + self.scale_mps2 * accel_pedal - self.brake_scale_mps2 * brake_pedal
+        return (self.offset_mps2 + self.scale_mps2 * accel_pedal
+                - self.brake_scale_mps2 * brake_pedal)
 
 
 @_typed
@@ -324,7 +328,7 @@ def _unit_hint(value: float, lo: float, hi: float, ratio_to: float | None = None
                                   ", ".join(fits[:-1]) + " or " + fits[-1])
 
 
-def _check_geometry(path: str, vehicle: "Vehicle") -> None:
+def _check_geometry(path: str, vehicle: Vehicle) -> None:
     """Refuse a geometry no road vehicle has (:data:`GEOMETRY_RANGES_M`,
     :data:`TRACK_WHEELBASE_RATIO`), naming the key and the likely unit mistake."""
     def in_range(k):
@@ -382,7 +386,7 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
         lon = data["longitudinal"]
         if not isinstance(lon, dict):
             raise ParamError("section 'longitudinal' must be a mapping", path, key="longitudinal")
-        for k, v in lon.items():
+        for k in lon:
             if k not in _LONG:
                 raise ParamError("unknown key", path, key=f"longitudinal.{k}")
         zones = lon.get("zones")
@@ -501,7 +505,7 @@ def _parse_extensions(path: str, data: Any) -> dict:
                     if not isinstance(v, dict):
                         raise ParamError("expected {parameter: [low, high]}", path,
                                          key=f"{key}.intervals")
-                    for pk, pv in v.items():
+                    for pk in v:
                         if pk not in names:
                             raise unknown("parameter", f"{key}.intervals.{pk}", names)
                     clean[k] = {pk: list(_pair(path, f"{key}.intervals.{pk}", pv))
@@ -564,7 +568,8 @@ def load_params(path: str | Path, *, require_model: bool = False) -> Params:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = None if mark is None else mark.line + 1
-        raise ParamError(f"not valid YAML ({getattr(exc, 'problem', exc)})", path, line=line) from None
+        raise ParamError(f"not valid YAML ({getattr(exc, 'problem', exc)})", path,
+                         line=line) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ParamError(f"cannot read ({exc.__class__.__name__})", path) from None
     return parse_params(data, path, require_model=require_model)

@@ -1,4 +1,4 @@
-"""The report's hybrid plant: kinematic bicycle (eq. 1) + steering map (eq. 7) + zone models (eq. 8).
+"""The report's hybrid plant: kinematic bicycle (eq. 1), steering map (eq. 7), zone models (eq. 8).
 
 State ``s = [x_m, y_m, psi_rad, v_mps]`` in local ENU (x east, y north, psi from east,
 counter-clockwise), with (x, y) the front-wheel point as in eq. 1. Input
@@ -112,7 +112,7 @@ def zone_accel(offset_mps2, scale_mps2, brake_scale_mps2, accel_pedal, brake_ped
     return offset_mps2 + scale_mps2 * accel_pedal - brake_scale_mps2 * brake_pedal
 
 
-def derivative_batch(plant: "HybridPlant", X: np.ndarray, U: np.ndarray,
+def derivative_batch(plant: HybridPlant, X: np.ndarray, U: np.ndarray,
                      zones: np.ndarray) -> np.ndarray:
     """Continuous-time ds/dt for many (state, input, zone) rows at once: (n, 4)."""
     delta = road_wheel_angle(U[:, ISW], plant.offset_rad, plant.scale)
@@ -133,7 +133,7 @@ def derivative_batch(plant: "HybridPlant", X: np.ndarray, U: np.ndarray,
     return out
 
 
-def jacobians_batch(plant: "HybridPlant", X: np.ndarray, U: np.ndarray, zones: np.ndarray
+def jacobians_batch(plant: HybridPlant, X: np.ndarray, U: np.ndarray, zones: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Continuous-time Jacobians for many rows at once: A = df/ds (n, 4, 4),
     B = df/du (n, 4, 3)."""
@@ -153,7 +153,7 @@ def jacobians_batch(plant: "HybridPlant", X: np.ndarray, U: np.ndarray, zones: n
     return A, B
 
 
-def _extension_jacobians(plant: "HybridPlant", X: np.ndarray, U: np.ndarray, A: np.ndarray,
+def _extension_jacobians(plant: HybridPlant, X: np.ndarray, U: np.ndarray, A: np.ndarray,
                          B: np.ndarray) -> None:
     """The Jacobian entries the opt-in extensions change, in place: the steering shape
     (d delta / d sw and, with understeer, d delta / d v through eq. 1) and the speed

@@ -144,7 +144,8 @@ class Reference:
         tt = np.clip(((x_m - ax) * ex + (y_m - ay) * ey) / np.maximum(L2, 1e-12), 0.0, 1.0)
         # past the ends: extend straight
         if i1 - 1 == len(ps) - 1:
-            tt[-1] = max(((x_m - ax[-1]) * ex[-1] + (y_m - ay[-1]) * ey[-1]) / max(L2[-1], 1e-12), 0.0)
+            tt[-1] = max(((x_m - ax[-1]) * ex[-1] + (y_m - ay[-1]) * ey[-1]) / max(L2[-1], 1e-12),
+                         0.0)
         if i0 == 0:
             tt[0] = min(((x_m - ax[0]) * ex[0] + (y_m - ay[0]) * ey[0]) / max(L2[0], 1e-12), 1.0)
         cx, cy = ax + tt * ex, ay + tt * ey
@@ -298,7 +299,8 @@ def recording_reference(rec: Recording, params: Params, *, source: str = "auto",
     if "steering_wheel_angle" not in ch:
         raise InputError("a replay needs the steering-wheel angle", path,
                          channel="steering_wheel_angle")
-    sw = _finite_fill(t, np.asarray(ch["steering_wheel_angle"], float), "steering_wheel_angle", path)
+    sw = _finite_fill(t, np.asarray(ch["steering_wheel_angle"], float), "steering_wheel_angle",
+                      path)
     delta = np.asarray(plant.road_wheel_angle(sw), dtype=float)
     has_nav = all(k in ch and np.isfinite(ch[k]).sum() >= 2 for k in ("x", "y", "heading"))
     if source == "nav" and not has_nav:
@@ -310,8 +312,12 @@ def recording_reference(rec: Recording, params: Params, *, source: str = "auto",
         psi = np.unwrap(_finite_fill(t, np.asarray(ch["heading"], float), "heading", path))
         # the path tangent is the front wheel's direction of motion: yaw + road-wheel angle
         return Reference(t - t[0], x, y, psi + delta, v, name=name)
-    x0 = float(ch["x"][np.isfinite(ch["x"])][0]) if "x" in ch and np.isfinite(ch["x"]).any() else 0.0
-    y0 = float(ch["y"][np.isfinite(ch["y"])][0]) if "y" in ch and np.isfinite(ch["y"]).any() else 0.0
+    def first_finite(name: str) -> float:
+        if name not in ch or not np.isfinite(ch[name]).any():
+            return 0.0
+        return float(ch[name][np.isfinite(ch[name])][0])
+
+    x0, y0 = first_finite("x"), first_finite("y")
     hd = ch.get("heading")
     psi0 = float(hd[np.isfinite(hd)][0]) if hd is not None and np.isfinite(hd).any() else 0.0
     x, y, psi = dead_reckon(t, v, delta, params.vehicle.wheelbase_m, (x0, y0, psi0))

@@ -14,7 +14,7 @@ identification all select zones here. Imports numpy only.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

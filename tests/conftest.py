@@ -1,4 +1,7 @@
-"""Shared fixtures: paths of the real data bundled under tools/data (gzip copies of ../shared/data)."""
+"""Shared fixtures: paths of the real data bundled under tools/data.
+
+The bundled files are gzip copies of ../shared/data's.
+"""
 from pathlib import Path
 
 import pytest

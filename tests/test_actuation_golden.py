@@ -57,7 +57,8 @@ def test_steering_lka_rebuilt_byte_for_byte(sent):
                                     bool(d.signals["STEER_REQUEST"][i]),
                                     int(d.signals["COUNTER"][i]))
         assert msg.arbitration_id == 0x2E4 and msg.dlc == 5
-        assert bytes(msg.data) == want, f"frame {i}: built {bytes(msg.data).hex()} want {want.hex()}"
+        assert bytes(msg.data) == want, (f"frame {i}: built {bytes(msg.data).hex()} "
+                                         f"want {want.hex()}")
 
 
 def test_acc_control_rebuilt_byte_for_byte(sent):
@@ -69,7 +70,8 @@ def test_acc_control_rebuilt_byte_for_byte(sent):
     assert d.signals["ACCEL_CMD"].min() < -0.5 < 0.5 < d.signals["ACCEL_CMD"].max()
     for i, want in enumerate(pays):
         msg = builders.acc_control(spec, d.signals["ACCEL_CMD"][i])
-        assert bytes(msg.data) == want, f"frame {i}: built {bytes(msg.data).hex()} want {want.hex()}"
+        assert bytes(msg.data) == want, (f"frame {i}: built {bytes(msg.data).hex()} "
+                                         f"want {want.hex()}")
 
 
 def test_profile_rates_match_the_log(sent):

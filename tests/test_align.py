@@ -135,7 +135,8 @@ def test_gaps_are_nan_not_interpolated():
 
 def test_hold_and_string_hold_previous_sample():
     t = np.array([0.0, 0.5, 1.0])
-    out, _ = resample(t, np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.2, 0.5, 0.7, 1.0, 1.2]), "hold")
+    out, _ = resample(t, np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.2, 0.5, 0.7, 1.0, 1.2]),
+                      "hold")
     np.testing.assert_array_equal(out[:5], [0.0, 0.0, 1.0, 1.0, 0.0])
     assert np.isnan(out[5])
     gear, _ = resample(t, np.array(["P", "R", "D"], dtype=object), np.array([-0.1, 0.1, 0.6, 1.0]),

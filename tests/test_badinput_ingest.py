@@ -21,9 +21,12 @@ IMU = bundled("rav4-comma2k19/imu.csv.gz")
 SMALL_MAP = """\
 vehicle: test
 channels:
-  steering_wheel_angle: {message: STEER_ANGLE_SENSOR, expr: STEER_ANGLE + STEER_FRACTION, unit: deg, bus: 0, required: true}
+  steering_wheel_angle: {message: STEER_ANGLE_SENSOR, expr: STEER_ANGLE + STEER_FRACTION,
+                         unit: deg, bus: 0, required: true}
   wheel_speed_fl: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: km/h, bus: 0, required: true}
-  speed: {message: WHEEL_SPEEDS, expr: (WHEEL_SPEED_FL + WHEEL_SPEED_FR + WHEEL_SPEED_RL + WHEEL_SPEED_RR) / 4, unit: km/h, bus: 0, required: true}
+  speed: {message: WHEEL_SPEEDS,
+          expr: (WHEEL_SPEED_FL + WHEEL_SPEED_FR + WHEEL_SPEED_RL + WHEEL_SPEED_RR) / 4,
+          unit: km/h, bus: 0, required: true}
   gear: {message: GEAR_PACKET, expr: GEAR, gear: {0: D, 32: P}, bus: 0}
 """
 
@@ -66,10 +69,12 @@ BAD_MAPS = {
         "channels:\n  speed: {message: WHEEL_SPEED_X, expr: WHEEL_SPEED_FL, unit: km/h}\n",
         ":2: key 'channels.speed.message'", "WHEEL_SPEED_X"),
     "signal not in the DBC": (
-        "channels:\n  speed:\n    message: WHEEL_SPEEDS\n    expr: WHEEL_SPEED_FX / 2\n    unit: km/h\n",
+        "channels:\n  speed:\n    message: WHEEL_SPEEDS\n    expr: WHEEL_SPEED_FX / 2\n"
+        "    unit: km/h\n",
         ":4: key 'channels.speed.expr'", "WHEEL_SPEED_FX"),
     "unknown key in an entry": (
-        "channels:\n  speed:\n    message: WHEEL_SPEEDS\n    expr: WHEEL_SPEED_FL\n    units: km/h\n",
+        "channels:\n  speed:\n    message: WHEEL_SPEEDS\n    expr: WHEEL_SPEED_FL\n"
+        "    units: km/h\n",
         ":5: key 'channels.speed.units'", "unknown key"),
     "unknown top-level key": (
         "vehicle: x\nsignals:\n  speed: {}\n", ":2: key 'signals'", "unknown key"),
@@ -136,7 +141,8 @@ def test_optional_channel_absent_is_listed_not_zero_filled(tmp_path, short_log, 
 def test_expression_nan_is_recoverable(tmp_path, short_log, comma_dbc, capsys):
     # GAS_PEDAL reads 29 % in some frames of this stretch: 0/0 there, 1 elsewhere
     m = write(tmp_path, "m.yaml", SMALL_MAP + "  accel_pedal: {message: GAS_PEDAL, "
-                                              "expr: (GAS_PEDAL - 29) / (GAS_PEDAL - 29), unit: fraction, bus: 0}\n")
+                                              "expr: (GAS_PEDAL - 29) / (GAS_PEDAL - 29), "
+                                              "unit: fraction, bus: 0}\n")
     p = Problems()
     res = ingest_files(short_log["full"], comma_dbc, m, problems=p)
     item = [i for i in p.to_list() if "expression" in i["kind"]][0]
@@ -172,11 +178,13 @@ def test_nan_inf_in_nav_is_recoverable(tmp_path, comma_log, comma_dbc, capsys):
 
 NAV_BAD = {
     "empty": (b"", "empty file"),
-    "header only": (b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,vel_down,roll_rad,pitch_rad,heading_rad\n",
+    "header only": (b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,vel_down,roll_rad,pitch_rad,"
+                    b"heading_rad\n",
                     "no nav CSV data rows"),
     "garbage": (bytes(range(256)) * 8, "binary"),
     "missing column": (b"time,lat_deg,lon_deg\n1,37,-122\n", "no column 'alt_m'"),
-    "all rows bad": (b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,roll_rad,pitch_rad,heading_rad\n"
+    "all rows bad": (b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,roll_rad,pitch_rad,"
+                     b"heading_rad\n"
                      b"1,nan,1,1,1,1,1,1,1\n2,x,1,1,1,1,1,1,1\n", "no usable nav CSV row"),
 }
 

@@ -92,8 +92,8 @@ def test_payload_shorter_and_longer_than_dbc(tmp_path, real_lines, comma_dbc, ca
     db = load_dbc(comma_dbc)
     lines = list(real_lines)
     # 0x2C1 GAS_PEDAL is 8 bytes in the DBC; 0x25 STEER_ANGLE_SENSOR 8 bytes
-    short_at = [i for i, l in enumerate(lines) if b" 2C1#" in l][:3]
-    long_at = [i for i, l in enumerate(lines) if b" 025#" in l][:2]
+    short_at = [i for i, ln in enumerate(lines) if b" 2C1#" in ln][:3]
+    long_at = [i for i, ln in enumerate(lines) if b" 025#" in ln][:2]
     for i in short_at:
         lines[i] = lines[i][:-4]             # 6 bytes: a truncated payload, still valid hex
     for i in long_at:
@@ -114,7 +114,7 @@ def test_payload_shorter_and_longer_than_dbc(tmp_path, real_lines, comma_dbc, ca
     assert short.count == 3 and short.first == [i + 1 for i in short_at]
     long_ = _problem(problems, KIND_LONG)
     assert long_.count == 2 and long_.first == [i + 1 for i in long_at]
-    n_gas = sum(b" 2C1#" in l for l in real_lines)
+    n_gas = sum(b" 2C1#" in ln for ln in real_lines)
     assert len(out["GAS_PEDAL"]) == n_gas - 3
     assert not set(out["GAS_PEDAL"].where) & {i + 1 for i in short_at}
     # the longer frames decode their first 8 bytes exactly as the unmodified frames would
@@ -339,7 +339,8 @@ def test_corrupt_binary_log_names_the_frame(tmp_path, comma_log, capsys):
 
 def test_bad_dbc_is_fatal_naming_the_line(tmp_path, comma_log, capsys):
     dbc = tmp_path / "bad.dbc"
-    dbc.write_text('VERSION ""\n\nBO_ 705 GAS_PEDAL: 8 XXX\n SG_ GAS : 7|8@0+ (0.5,0) [0|1] "" XXX\n'
+    dbc.write_text('VERSION ""\n\nBO_ 705 GAS_PEDAL: 8 XXX\n'
+                   ' SG_ GAS : 7|8@0+ (0.5,0) [0|1] "" XXX\n'
                    "this is not dbc\n")
     with pytest.raises(InputError) as exc:
         load_dbc(dbc)

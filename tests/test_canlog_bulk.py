@@ -53,10 +53,10 @@ def _same(path, **kw):
 def _good_line(r: random.Random, t: float) -> str:
     name = r.choice(["can0", "can0", "can0", "can1", "vcan2"])
     if r.random() < 0.75:
-        ident = "%03X" % r.randrange(0x800)
+        ident = f"{r.randrange(0x800):03X}"
     else:
-        ident = "%08X" % r.randrange(1 << 29)
-    data = "".join("%02X" % r.randrange(256) for _ in range(r.choice([0, 1, 2, 5, 7, 8, 8, 8])))
+        ident = f"{r.randrange(1 << 29):08X}"
+    data = "".join(f"{r.randrange(256):02X}" for _ in range(r.choice([0, 1, 2, 5, 7, 8, 8, 8])))
     if r.random() < 0.2:
         data, ident = data.lower(), ident.lower()
     flag = r.choice(["", "", "", "", " R", " T"])
@@ -152,19 +152,19 @@ def _random_line(r: random.Random, t: float, one_layout: bool) -> bytes:
          "c\x01n0", "can\xff"])
     roll = r.random()
     if roll < 0.6:
-        ident = "%03X" % r.randrange(0x800) if r.random() < 0.9 else "%03x" % r.randrange(0x1000)
+        ident = f"{r.randrange(0x800):03X}" if r.random() < 0.9 else f"{r.randrange(0x1000):03x}"
     elif roll < 0.85:
-        ident = "%08X" % r.choice([r.randrange(1 << 29), r.randrange(1 << 32)])
+        ident = f"{r.choice([r.randrange(1 << 29), r.randrange(1 << 32)]):08X}"
     else:
-        ident = "%X" % r.randrange(1 << 20)
-    data = "".join("%02X" % r.randrange(256) for _ in range(r.choice([0, 3, 8, 8, 8, 9, 12])))
+        ident = f"{r.randrange(1 << 20):X}"
+    data = "".join(f"{r.randrange(256):02X}" for _ in range(r.choice([0, 3, 8, 8, 8, 9, 12])))
     if r.random() < 0.2:
         data = data.lower()
     sep, roll = "#", r.random()
     if roll < 0.04:
         data = "R"
     elif roll < 0.07:
-        sep, data = "##", "%X" % r.randrange(16) + data
+        sep, data = "##", f"{r.randrange(16):X}" + data
     elif roll < 0.09:
         data = data[:-1]
     line = f"({ts}) {name} {ident}{sep}{data}{r.choice(['', '', '', ' R', ' T', ' x'])}"

@@ -1,7 +1,8 @@
 """Closed loop on the hybrid plant: the acceptance for the MPC.
 
 The controller sees the plant through simulated sensors and the EKF, with seeded
-wheel-speed noise (0.05 m/s) and GNSS position noise (0.02 m); seeds are fixed and printed. The figures are printed (pytest -s) so the closing note can quote them.
+wheel-speed noise (0.05 m/s) and GNSS position noise (0.02 m); seeds are fixed and printed.
+The figures are printed (pytest -s).
 """
 from __future__ import annotations
 
@@ -42,7 +43,8 @@ def run_closed_loop(*args, **kwargs):
 
 def _fig(m):
     return (f"speed RMS {m['speed_error_rms_mps']:.3f} m/s, lateral RMS "
-            f"{m['lateral_error_rms_m']:.3f} m, pedal switches {m['pedal_switches_per_min']:.1f}/min, "
+            f"{m['lateral_error_rms_m']:.3f} m, "
+            f"pedal switches {m['pedal_switches_per_min']:.1f}/min, "
             f"zone transitions {m['zone_transitions_per_min']:.1f}/min, failures {m['failures']}, "
             f"solve p50/p99 {m['solve_time_ms']['p50']:.2f}/{m['solve_time_ms']['p99']:.2f} ms")
 
@@ -97,7 +99,8 @@ def test_transition_penalty_reduces_zone_transitions(params):
     print(f"\nboundary swing seed {SEED}: zone transitions with penalty "
           f"{with_p['zone_transitions']} ({with_p['zone_transitions_per_min']:.1f}/min), without "
           f"{without['zone_transitions']} ({without['zone_transitions_per_min']:.1f}/min); "
-          f"speed RMS {with_p['speed_error_rms_mps']:.3f} vs {without['speed_error_rms_mps']:.3f} m/s")
+          f"speed RMS {with_p['speed_error_rms_mps']:.3f} vs "
+          f"{without['speed_error_rms_mps']:.3f} m/s")
     assert without["zone_transitions"] >= 6
     assert with_p["zone_transitions"] <= without["zone_transitions"] // 2
     # the ramps of ramp_sequence ask for transitions at steady acceleration: still allowed

@@ -55,7 +55,8 @@ def test_cli_writes_a_strict_params_file_json_and_figures(sim_csv, tmp_path, cap
     # the evidence behind each choice is in the file too: every steering method's
     # held-out score, the chosen one the best of the trusted; every acceleration source's
     sel = rep["steering"]["selection"]
-    assert set(p.steering.method_scores) == set(sel["scores"]) and p.steering.method == sel["chosen"]
+    assert set(p.steering.method_scores) == set(sel["scores"])
+    assert p.steering.method == sel["chosen"]
     trusted = {k: v for k, v in p.steering.method_scores.items() if k not in sel["untrusted"]}
     assert p.steering.method_scores[p.steering.method] == min(trusted.values())
     assert p.accel_source_chosen in p.accel_source_scores_mps2

@@ -64,7 +64,8 @@ def test_ingest_with_the_flag_equals_the_clean_dbc_and_names_the_format(broken_d
     out = {}
     for name, dbc, extra in (("lenient", path, ["--dbc-lenient"]), ("clean", DBC, [])):
         rc = main(["ingest", str(log), "--dbc", str(dbc), "--signals", sig, *extra,
-                   "--out", str(tmp_path / f"{name}.csv"), "--json", str(tmp_path / f"{name}.json")])
+                   "--out", str(tmp_path / f"{name}.csv"), "--json",
+                   str(tmp_path / f"{name}.json")])
         assert rc == 0
         out[name] = (Recording.load(tmp_path / f"{name}.csv"),
                      json.loads((tmp_path / f"{name}.json").read_text()))

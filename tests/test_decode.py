@@ -74,8 +74,10 @@ def _table(rows, path="synthetic"):
     data = np.zeros((len(rows), width), np.uint8)
     for i, r in enumerate(rows):
         data[i, :len(r[4])] = np.frombuffer(r[4], np.uint8)
-    return FrameTable(np.array([r[0] for r in rows], float), np.array([r[1] for r in rows], np.int16),
-                      np.array([r[2] for r in rows], np.uint32), np.array([r[3] for r in rows], bool),
+    return FrameTable(np.array([r[0] for r in rows], float),
+                      np.array([r[1] for r in rows], np.int16),
+                      np.array([r[2] for r in rows], np.uint32),
+                      np.array([r[3] for r in rows], bool),
                       np.array([len(r[4]) for r in rows], np.uint8), data,
                       np.arange(1, len(rows) + 1, dtype=np.int64), path)
 

@@ -3,8 +3,8 @@
 baseline model and once with the extended model ``diagnose`` writes (``--params-out``), both
 fitted on that case's recording. A dead time reaches the MPC through the conventions' keys, a
 lag, drag or creep through ``extensions:`` (the MPC's ``HybridPlant(params, extensions=True)``
-and its lag handling), and tracking improves, never worsens, as far as the MPC on the true model with the effect
-(``ideal``) tracks. The MPC is fed as a car is (simulated sensors through
+and its lag handling), and tracking improves, never worsens, as far as the MPC on the true
+model with the effect (``ideal``) tracks. The MPC is fed as a car is (simulated sensors through
 the EKF, ``run_closed_loop(effects=)``). Seed 1; ``tools/bench_diagnose.py --closed-loop`` runs
 every case."""
 from __future__ import annotations

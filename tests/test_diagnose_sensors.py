@@ -80,7 +80,8 @@ def test_wheel_speed_difference_against_yaw_rate_is_wheel_speed_scale(kw, key, t
     assert set(f) & SENSOR_IDS == {"wheel_speed_scale"}
     w = f["wheel_speed_scale"]
     assert w["subsystem"] == "steering" and key in w["beyond_interval"]
-    assert w["parameters"][key] == pytest.approx(truth, abs=0.1 * abs(truth - (key == "track_scale")))
+    assert w["parameters"][key] == pytest.approx(truth,
+                                                 abs=0.1 * abs(truth - (key == "track_scale")))
     assert dg.channels["yaw_rate_vs_wheels"]["track_scale_tested"]
 
 
@@ -121,8 +122,8 @@ def test_f1tenth_imu_mounting_is_named_not_the_tyre_radius(ds5):
     f = _found(dg)
     assert "wheel_radius_error" not in f and "sensor_mounting" in f
     lo, hi = (math.degrees(x) for x in f["sensor_mounting"]["intervals"]["yaw_rad"])
-    print(f"F1TENTH DS5 IMU turned {math.degrees(f['sensor_mounting']['parameters']['yaw_rad']):.1f}"
-          f" deg [{lo:.1f}, {hi:.1f}]")
+    yaw_deg = math.degrees(f["sensor_mounting"]["parameters"]["yaw_rad"])
+    print(f"F1TENTH DS5 IMU turned {yaw_deg:.1f} deg [{lo:.1f}, {hi:.1f}]")
     assert 80.0 <= lo and hi <= 100.0
     from hmpc.models.identify.stats import savgol_derivative
     a = savgol_derivative(rec["speed"], 0.02, 0.5)

@@ -28,7 +28,8 @@ COMMA_MAP = PARAMS_DIR / "toyota_rav4_2017.signals.yaml"
 
 
 def _comma_ingest(signals=COMMA_MAP):
-    return ingest_files(bundled("rav4-comma2k19/can.log.gz"), bundled("dbc/toyota_rav4_2017.dbc.gz"),
+    return ingest_files(bundled("rav4-comma2k19/can.log.gz"),
+                        bundled("dbc/toyota_rav4_2017.dbc.gz"),
                         signals, nav_path=bundled("rav4-comma2k19/nav.csv.gz"),
                         imu_path=bundled("rav4-comma2k19/imu.csv.gz"))
 

@@ -62,7 +62,8 @@ def test_cli_drive_json_and_ingest_reads_the_run(tmp_path):
     assert set(j["loop_period_ms"]) == {"p50", "p99", "max"}
     assert j["limit_violations"] == 0 and j["frames_sent"]["STEERING_LKA"] > 150
     rec = tmp_path / "rec.csv"
-    rc = main(["ingest", str(log), "--dbc", str(PARAMS_DIR.parent / "tools/data/dbc/toyota_rav4_2017.dbc.gz"),
+    rc = main(["ingest", str(log), "--dbc",
+               str(PARAMS_DIR.parent / "tools/data/dbc/toyota_rav4_2017.dbc.gz"),
                "--signals", str(PARAMS_DIR / "toyota_rav4_2017.signals.yaml"), "--out", str(rec)])
     assert rc == 0
     head = rec.read_text().splitlines()[0].split(",")
@@ -72,7 +73,8 @@ def test_cli_drive_json_and_ingest_reads_the_run(tmp_path):
 def test_cli_bad_fault_is_exit_2(tmp_path, capsys):
     rc = main(["drive", "--params", str(PARAMS_DIR / "report_2008.yaml"),
                "--actuation", str(PARAMS_DIR / "bywire.actuation.yaml"), "--vehicle-sim",
-               "--scenario", "figure8", "--fault", "meteor@1", "--candump", str(tmp_path / "x.log")])
+               "--scenario", "figure8", "--fault", "meteor@1", "--candump",
+               str(tmp_path / "x.log")])
     assert rc == 2
     err = capsys.readouterr().err
     assert "meteor@1" in err and len(err.strip().splitlines()) == 1  # one line, no traceback

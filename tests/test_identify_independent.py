@@ -67,7 +67,8 @@ def _case(truth, ref, model="ks", marks=()):
 
 #: KS: three truth sets x three reference points; ST: positions at the front axle (its
 #: steering figures include 1-2 % of understeer: tyre slip is physics the report's map lacks)
-STEER_CASES = [_case(t, r) for t in "ABC" for r in ct.REF_POINTS] + [_case(t, "front", "st") for t in "ABC"]
+STEER_CASES = [_case(t, r) for t in "ABC" for r in ct.REF_POINTS] + \
+              [_case(t, "front", "st") for t in "ABC"]
 ALL_CASES = [_case(t, r) for t in "ABC" for r in ct.REF_POINTS] + \
             [_case(t, "front", "st") for t in "ABC"]
 #: ST cases use a gentler lateral acceleration (tyres nearer their linear range)
@@ -260,7 +261,7 @@ def test_geometry_lever_arm_makes_the_rear_axle_replay_right(identified):
 def test_the_geometry_file_with_a_lever_arm_loads(tmp_path):
     geo = ct.write_geometry(tmp_path / "g.yaml", ref_point="cog")
     v = load_params(geo).vehicle
-    assert list(getattr(v, "nav_lever_arm_m")) == pytest.approx([ct.vehicle_params().b, 0.0])
+    assert list(v.nav_lever_arm_m) == pytest.approx([ct.vehicle_params().b, 0.0])
     # round trip: the writer keeps it, as [x, y]
     dump_params(load_params(geo), tmp_path / "g2.yaml")
     again = yaml.safe_load((tmp_path / "g2.yaml").read_text())["vehicle"]["nav_lever_arm_m"]

@@ -25,7 +25,8 @@ RATES_HZ = (10.0, 100.0)
 def _args(name: str) -> list[str]:
     if name == "comma":
         d = "rav4-comma2k19/"
-        return [str(bundled(d + "can.log.gz")), "--dbc", str(bundled("dbc/toyota_rav4_2017.dbc.gz")),
+        return [str(bundled(d + "can.log.gz")), "--dbc",
+                str(bundled("dbc/toyota_rav4_2017.dbc.gz")),
                 "--signals", str(PARAMS_DIR / "toyota_rav4_2017.signals.yaml"),
                 "--nav", str(bundled(d + "nav.csv.gz")), "--imu", str(bundled(d + "imu.csv.gz")),
                 "--vehicle", str(PARAMS_DIR / "toyota_rav4_2017.yaml")]

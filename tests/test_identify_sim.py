@@ -126,7 +126,8 @@ def test_every_interval_covers_the_truth(identified, request):
     known = KNOWN_INTERVAL_MISSES.get(which, set())
     assert set(misses) <= known, f"new interval misses: {sorted(set(misses) - known)}"
     if known:
-        assert set(misses) == known, f"fixed, remove from KNOWN_INTERVAL_MISSES: {known - set(misses)}"
+        assert set(misses) == known, \
+            f"fixed, remove from KNOWN_INTERVAL_MISSES: {known - set(misses)}"
         pytest.xfail(f"95% intervals too narrow: {'; '.join(sorted(misses))}")
 
 

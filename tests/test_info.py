@@ -58,10 +58,10 @@ def test_counts_rates_and_gaps_against_python_can(comma_log, comma_dbc, pycan_ms
 def test_a_gap_cut_into_one_id_is_found(comma_log, tmp_path):
     with gzip.open(comma_log, "rb") as fh:
         lines = fh.read().split(b"\n")[:-1]
-    ts = [float(l[1:l.index(b")")]) for l in lines]
+    ts = [float(ln[1:ln.index(b")")]) for ln in lines]
     t0 = ts[0]
     # drop GAS_PEDAL (0x2C1) frames between 20 s and 22.5 s: a 2.5 s hole in a ~32 ms stream
-    keep = [l for l, t in zip(lines, ts) if not (b" 2C1#" in l and 20.0 <= t - t0 < 22.5)]
+    keep = [ln for ln, t in zip(lines, ts) if not (b" 2C1#" in ln and 20.0 <= t - t0 < 22.5)]
     p = tmp_path / "gap.log"
     p.write_bytes(b"\n".join(keep) + b"\n")
     info = log_info(p, Problems())

@@ -89,7 +89,8 @@ def test_wheel_speeds_equal_comma_decoding_to_the_resolution(lib, run, resolutio
     rec, _ = run
     m = (rec.time >= ref["time"][0]) & (rec.time <= ref["time"][-1])
     want = np.interp(rec.time[m], ref["time"], ref[f"wheel_speed_{wheel}_mps"])
-    assert np.nanmax(np.abs(rec[f"wheel_speed_{wheel}"][m] - want)) <= resolution["wheel_speed_mps"] / 2
+    err = np.abs(rec[f"wheel_speed_{wheel}"][m] - want)
+    assert np.nanmax(err) <= resolution["wheel_speed_mps"] / 2
 
 
 def test_steering_equals_comma_decoding_to_the_resolution(lib, run, resolution):
@@ -103,7 +104,8 @@ def test_steering_equals_comma_decoding_to_the_resolution(lib, run, resolution):
     rec, _ = run
     m = (rec.time >= ref["time"][0]) & (rec.time <= ref["time"][-1])
     want = np.radians(np.interp(rec.time[m], ref["time"], ref["steering_wheel_angle_deg"]))
-    assert np.nanmax(np.abs(rec["steering_wheel_angle"][m] - want)) <= resolution["steering_rad"] / 2
+    err = np.abs(rec["steering_wheel_angle"][m] - want)
+    assert np.nanmax(err) <= resolution["steering_rad"] / 2
 
 
 def test_speed_is_the_wheel_speed_mean_the_map_names(lib, run):
@@ -127,7 +129,8 @@ def test_heading_agrees_with_course_over_ground(run, lib):
     nav = csv_columns(NAV)
     off = summary["clock"]["nav"]["offset_s"]
     t_nav = nav["time"] + off
-    course = np.unwrap(np.arctan2(nav["vel_north"], nav["vel_east"]))  # ENU, from the NED velocities
+    # ENU, from the NED velocities
+    course = np.unwrap(np.arctan2(nav["vel_north"], nav["vel_east"]))
     speed = np.hypot(nav["vel_north"], nav["vel_east"])
     g = rec.time
     m = (g >= t_nav[0]) & (g <= t_nav[-1]) & np.isfinite(rec["heading"])

@@ -74,7 +74,8 @@ def truth():
 def _quaternion(roll, pitch_noseup, yaw):
     """ZYX quaternion (x, y, z, w) with ROS signs: the rotation about y is nose-down."""
     r, p, y = roll / 2, -pitch_noseup / 2, yaw / 2
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    cr, sr, cp, sp = math.cos(r), math.sin(r), math.cos(p), math.sin(p)
+    cy, sy = math.cos(y), math.sin(y)
     return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
             cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
 

@@ -127,7 +127,8 @@ def test_wheel_imports_hmpc_and_leaves_the_other_projects_names_alone(installed)
     # the other project's top-level names are its own
     assert Path(out["models"]) == purelib / "models" / "__init__.py"
     assert Path(out["tools"]) == purelib / "tools" / "__init__.py"
-    assert out["models_who"] == "someone else's models" and out["tools_who"] == "someone else's tools"
+    assert out["models_who"] == "someone else's models"
+    assert out["tools_who"] == "someone else's tools"
     # every sub-package of the tree is in the wheel
     assert out["missing"] == [], "not in the wheel (pyproject.toml packages):\n" + "\n".join(
         out["missing"])

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 
 import pytest
@@ -35,7 +36,7 @@ def test_limits_come_from_the_parameter_file(params):
 
 def test_limits_are_frozen_and_validated():
     lim = ActuatorLimits()
-    with pytest.raises(Exception):
+    with pytest.raises(dataclasses.FrozenInstanceError):
         lim.accel_max_mps2 = 5.0  # frozen
     with pytest.raises(ValueError):
         ActuatorLimits(jerk_max_mps3=-1.0)

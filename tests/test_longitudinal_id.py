@@ -5,8 +5,8 @@ import pytest
 
 from hmpc.models.sim.effects import parse_effect
 from hmpc.models.identify.pipeline import concat_recordings
-from hmpc.models.identify.longitudinal import (LongitudinalIdConfig, assign_zones, identify_longitudinal,
-                                    speed_rmse)
+from hmpc.models.identify.longitudinal import (LongitudinalIdConfig, assign_zones,
+                                               identify_longitudinal, speed_rmse)
 from hmpc.models.params import load_params
 from hmpc.models.sim.simulator import simulate_experiment
 from hmpc.models.identify.stats import apply_kernel, matched_kernels

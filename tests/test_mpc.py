@@ -138,7 +138,8 @@ def test_one_pedal_per_stage_and_hysteresis():
     assert logic.first(-1.0, 0.3, 1.4) == PedalMode.BRAKE     # urgent braking skips the dwell
     logic2 = PedalModeLogic(ModeConfig())
     logic2.first(1.0, 0.0, 0.0)
-    assert logic2.first(-0.5, 0.0, 5.0, exhausted=False) == PedalMode.THROTTLE  # throttle not yet released
+    # the throttle is not yet released
+    assert logic2.first(-0.5, 0.0, 5.0, exhausted=False) == PedalMode.THROTTLE
     sched = logic.schedule(PedalMode.BRAKE, np.array([0, 0, 1, 1, 1, 1, 1, 1]), np.zeros(8),
                            0.2, since_switch_s=0.0)
     assert list(sched[:5]) == [1, 1, 1, 1, 1] and sched[-1] == PedalMode.THROTTLE

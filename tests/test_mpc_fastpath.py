@@ -105,7 +105,8 @@ def test_pedal_schedule_is_the_plain_loop():
 
 
 def test_pedal_bounds_table_is_the_per_stage_formula(params):
-    """QpConstraints.input_bounds with zones: the acceleration limits as bounds on the free pedal."""
+    """QpConstraints.input_bounds with zones: the acceleration limits as bounds on the free
+    pedal."""
     ctl = MpcController(params, MpcConfig())
     pl, lim, N = ctl.plant, ctl.limits, ctl.N
     rng = np.random.default_rng(SEED)

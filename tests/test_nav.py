@@ -51,7 +51,8 @@ def test_enu_positions_follow_the_ned_velocities(nav):
     # track length against a flat-earth haversine of the same fixes (independent formula)
     lat, lon = np.radians(ref["lat_deg"]), np.radians(ref["lon_deg"])
     r_earth = 6371008.8
-    a = np.sin(np.diff(lat) / 2) ** 2 + np.cos(lat[:-1]) * np.cos(lat[1:]) * np.sin(np.diff(lon) / 2) ** 2
+    a = (np.sin(np.diff(lat) / 2) ** 2
+         + np.cos(lat[:-1]) * np.cos(lat[1:]) * np.sin(np.diff(lon) / 2) ** 2)
     hav = np.sum(2 * r_earth * np.arcsin(np.sqrt(a)))
     enu = np.sum(np.hypot(np.diff(nav["x"][1]), np.diff(nav["y"][1])))
     assert enu == pytest.approx(hav, rel=5e-3)
@@ -211,7 +212,8 @@ def test_imu_flu_frame_and_units(tmp_path):
     frd.write_text(head + "".join(f"{a},{b},{c},{d},{e},{f},{g}\n"
                                   for a, b, c, d, e, f, g in zip(t, p_, q_, r_, fx, fy, fz)))
     flu.write_text("ts,wx,wy,wz,ax,ay,az\n" + "".join(
-        f"{a},{math.degrees(b)},{-math.degrees(c)},{-math.degrees(d)},{e / 9.80665},{-f / 9.80665},{-g / 9.80665}\n"
+        f"{a},{math.degrees(b)},{-math.degrees(c)},{-math.degrees(d)},"
+        f"{e / 9.80665},{-f / 9.80665},{-g / 9.80665}\n"
         for a, b, c, d, e, f, g in zip(t, p_, q_, r_, fx, fy, fz)))
     cols = ImuColumns(time="ts", gyro_x="wx", gyro_y="wy", gyro_z="wz", accel_x="ax",
                       accel_y="ay", accel_z="az", frame="flu", gyro_unit="deg/s", accel_unit="g")
@@ -290,5 +292,5 @@ def test_corrupted_nav_files_only_raise_inputerror(edits):
             return
         t = out["x"][0]
         assert len(t) >= 1 and np.all(np.diff(t) > 0)
-        for ch, (tt, v) in out.items():
+        for ch, (_t, v) in out.items():
             assert np.all(np.isfinite(v)), ch

@@ -41,7 +41,8 @@ def test_nmpc_and_mpc_agree_on_a_simple_case(params):
     dsw = np.abs(ra["steering_cmd"] - rb["steering_cmd"])[late].max()
     dap = np.abs(ra["accel_pedal_cmd"] - rb["accel_pedal_cmd"])[late].max()
     print(f"\nMPC vs NMPC: max |dv| {dv:.4f} m/s, max |d lateral| {dlat:.4f} m, after 1 s max "
-          f"|d sw| {dsw:.4f} rad, |d accel pedal| {dap:.4f}; NMPC solve p50 {b.metrics['solve_time_ms']['p50']:.1f} ms, MPC "
+          f"|d sw| {dsw:.4f} rad, |d accel pedal| {dap:.4f}; "
+          f"NMPC solve p50 {b.metrics['solve_time_ms']['p50']:.1f} ms, MPC "
           f"{a.metrics['solve_time_ms']['p50']:.2f} ms")
     assert a.metrics["failures"] == 0 and b.metrics["failures"] == 0
     assert a.metrics["internal_errors"] == 0 and b.metrics["internal_errors"] == 0

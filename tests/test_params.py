@@ -1,4 +1,5 @@
-"""The strict parameter-file loader: the CONVENTIONS keys load; typos and unit-less keys fail loudly."""
+"""The strict parameter-file loader: the docs/conventions.md keys load; typos and unit-less
+keys fail loudly."""
 import pytest
 import yaml
 
@@ -15,8 +16,8 @@ MINIMAL = {
          "brake_scale_mps2": 4.0},
         {"name": "low", "v_min_mps": 2.0, "v_max_mps": 5.0, "offset_mps2": -0.1, "scale_mps2": 2.5,
          "brake_scale_mps2": 5.0},
-        {"name": "high", "v_min_mps": 5.0, "v_max_mps": 20.0, "offset_mps2": -0.2, "scale_mps2": 3.0,
-         "brake_scale_mps2": 6.0}]},
+        {"name": "high", "v_min_mps": 5.0, "v_max_mps": 20.0, "offset_mps2": -0.2,
+         "scale_mps2": 3.0, "brake_scale_mps2": 6.0}]},
 }
 
 

@@ -105,7 +105,8 @@ def test_jacobians_match_finite_differences(params):
     plant = HybridPlant(params)
     rng = np.random.default_rng(SEED)
     for _ in range(20):
-        s = np.array([rng.normal(0, 10), rng.normal(0, 10), rng.uniform(-3, 3), rng.uniform(0.5, 15)])
+        s = np.array([rng.normal(0, 10), rng.normal(0, 10), rng.uniform(-3, 3),
+                      rng.uniform(0.5, 15)])
         u = np.array([rng.uniform(-6, 6), rng.uniform(0, 1), rng.uniform(0, 1)])
         zone = plant.zone_by_speed(s[IV])
         A, B = plant.jacobians(s, u, zone)

@@ -73,7 +73,7 @@ def test_zone_axis_holds_only_the_zone_samples(result):
     lo = result.longitudinal
     t = np.asarray(lo.series["time"], float)
     t = t - t[0]
-    for i, z in enumerate(lo.zones):
+    for i in range(len(lo.zones)):
         used = np.asarray(lo.series["used"], bool) & (np.asarray(lo.series["zone"]) == i)
         if not used.any():
             continue

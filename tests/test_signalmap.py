@@ -50,7 +50,8 @@ def test_shipped_maps_load_against_their_dbc(path, dbname, request):
     np.testing.assert_allclose(v, [10.0, 20.0])
     # steering: 1.5 deg coarse + 0.1 deg fraction, + = left, deg -> rad
     sw = smap.channels["steering_wheel_angle"]
-    out = sw.evaluate({"STEER_ANGLE": np.array([-4.5, 3.0]), "STEER_FRACTION": np.array([0.7, -0.3])})
+    out = sw.evaluate({"STEER_ANGLE": np.array([-4.5, 3.0]),
+                       "STEER_FRACTION": np.array([0.7, -0.3])})
     np.testing.assert_allclose(out, np.radians([-3.8, 2.7]))
     assert smap.buses() == {0}
 
@@ -59,7 +60,8 @@ def test_2017_accelerations_are_sign_flipped_2019_not(db17, db19):
     m17 = load_signal_map(MAP17, db17)
     m19 = load_signal_map(MAP19, db19)
     assert m17.channels["accel_x"].sign == -1 and m19.channels["accel_x"].sign == 1
-    np.testing.assert_allclose(m17.channels["accel_x"].evaluate({"ACCEL_X": np.array([1.5])}), [-1.5])
+    np.testing.assert_allclose(m17.channels["accel_x"].evaluate({"ACCEL_X": np.array([1.5])}),
+                               [-1.5])
 
 
 def test_gear_table(db17):
@@ -145,29 +147,40 @@ def test_unit_conversion(tmp_path, db17, unit, raw, si):
 # ----------------------------------------------------------------------------- strict validation
 BAD_MAPS = [
     ("unknown top-level key", "vehicle: x\nchanels: {}\n", "key 'chanels'", 2),
-    ("unknown channel", "channels:\n  steer_angle: {message: STEER_ANGLE_SENSOR, expr: STEER_ANGLE, unit: deg}\n",
+    ("unknown channel",
+     "channels:\n  steer_angle: {message: STEER_ANGLE_SENSOR, expr: STEER_ANGLE, unit: deg}\n",
      "key 'channels.steer_angle'", 2),
-    ("unknown per-channel key", "channels:\n  speed:\n    message: WHEEL_SPEEDS\n    expr: WHEEL_SPEED_FL\n"
+    ("unknown per-channel key",
+     "channels:\n  speed:\n    message: WHEEL_SPEEDS\n    expr: WHEEL_SPEED_FL\n"
      "    unit: km/h\n    scale: 2\n", "key 'channels.speed.scale'", 6),
-    ("message not in the DBC", "channels:\n  speed: {message: WHEEL_SPEED, expr: WHEEL_SPEED_FL, unit: km/h}\n",
+    ("message not in the DBC",
+     "channels:\n  speed: {message: WHEEL_SPEED, expr: WHEEL_SPEED_FL, unit: km/h}\n",
      "key 'channels.speed.message'", 2),
-    ("signal not in the message", "channels:\n  speed:\n    message: WHEEL_SPEEDS\n    expr: WHEEL_SPEED_FL + SPEED\n"
+    ("signal not in the message",
+     "channels:\n  speed:\n    message: WHEEL_SPEEDS\n    expr: WHEEL_SPEED_FL + SPEED\n"
      "    unit: km/h\n", "signal 'SPEED' is not in the message 'WHEEL_SPEEDS'", 4),
-    ("unknown unit", "channels:\n  speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: kmhr}\n",
+    ("unknown unit",
+     "channels:\n  speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: kmhr}\n",
      "unknown unit 'kmhr'", 2),
-    ("unit of the wrong dimension", "channels:\n  steering_wheel_angle: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: km/h}\n",
+    ("unit of the wrong dimension",
+     "channels:\n  steering_wheel_angle: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, "
+     "unit: km/h}\n",
      "converts to m/s", 2),
     ("missing unit", "channels:\n  speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL}\n",
      "key 'channels.speed.unit'", 2),
-    ("bad sign", "channels:\n  speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: km/h, sign: 2}\n",
+    ("bad sign",
+     "channels:\n  speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: km/h, sign: 2}\n",
      "sign must be 1 or -1", 2),
-    ("bad bus", "channels:\n  speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: km/h, bus: can0}\n",
+    ("bad bus",
+     "channels:\n  speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: km/h, bus: can0}\n",
      "bus must be", 2),
-    ("bad gear letter", "channels:\n  gear:\n    message: GEAR_PACKET\n    expr: GEAR\n    gear: {0: Drive}\n",
+    ("bad gear letter",
+     "channels:\n  gear:\n    message: GEAR_PACKET\n    expr: GEAR\n    gear: {0: Drive}\n",
      "key 'channels.gear.gear.0'", 5),
     ("gear without a table", "channels:\n  gear: {message: GEAR_PACKET, expr: GEAR}\n",
      "key 'channels.gear.gear'", 2),
-    ("eval attempt", "channels:\n  speed: {message: WHEEL_SPEEDS, expr: \"__import__('os')\", unit: km/h}\n",
+    ("eval attempt",
+     "channels:\n  speed: {message: WHEEL_SPEEDS, expr: \"__import__('os')\", unit: km/h}\n",
      "key 'channels.speed.expr'", 2),
     ("not YAML", "channels: [\n", "not valid YAML", None),
     ("no channels", "vehicle: x\n", "'channels' section is missing", None),
@@ -204,6 +217,7 @@ def test_a_map_written_in_kph_decodes_like_km_h(tmp_path, db17):
     got = {}
     for unit in ("km/h", "kph"):
         p = tmp_path / f"{unit.replace('/', '_')}.yaml"
-        p.write_text(f"channels:\n  speed: {{message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: {unit}}}\n")
+        p.write_text("channels:\n  speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, "
+                     f"unit: {unit}}}\n")
         got[unit] = load_signal_map(p, db17).channels["speed"]
     assert got["kph"].factor == pytest.approx(1 / 3.6) == got["km/h"].factor

@@ -149,8 +149,9 @@ def _run(params_name: str, scenario: str, robust: bool = False):
 def _fig(m) -> str:
     rv = m["steering_reversals_per_min"]
     return (f"rev>=1deg {rv['1deg']:.1f}/min rev>=5deg {rv['5deg']:.1f}/min, steering rate "
-            f"{m['steering_rate_rms_radps']:.3f} rad/s, brake rate {m['brake_pedal_rate_rms_ps']:.3f}"
-            f" /s, speed RMS {m['speed_error_rms_mps']:.3f} m/s, lateral RMS "
+            f"{m['steering_rate_rms_radps']:.3f} rad/s, brake rate "
+            f"{m['brake_pedal_rate_rms_ps']:.3f} /s, speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
+            "lateral RMS "
             f"{m['lateral_error_rms_m']:.3f} m, pedal switches {m['pedal_switches_per_min']:.1f}"
             f"/min, failures {m['failures']}")
 

@@ -112,7 +112,7 @@ class _pair:
 @pytest.fixture(scope="module")
 def security_rows():
     rows = run_security_cases(KEY, seed=SEED, n_random=10_000)
-    print("security cases (seed %d):" % SEED)
+    print(f"security cases (seed {SEED}):")
     for r in rows:
         print(f"  {r['case']:40s} sent {r['sent']:6d} rejected {r['rejected']:6d} "
               f"delivered {r['delivered']} {r['reasons']}")
@@ -273,7 +273,7 @@ def test_burst_beyond_the_budget_bounds_each_poll_and_ends_safe():
             junk.sendto(bytes([i % 256]) * 76, p.rx.address)
         junk.close()
         reads = []
-        for k in range(30):
+        for _ in range(30):
             p.clock.advance(PERIOD_S)
             p.op.send(L.TeleopCommand.pedals(0.0, 0.1, 0.0))
             select.select([p.rx], [], [], 1.0)

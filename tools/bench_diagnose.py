@@ -54,7 +54,8 @@ def run_cases(seeds) -> list[dict]:
                                 for f in dg.findings],
                    "unexplained": dg.unexplained}
             if effect is not None:
-                row["detected"] = bool(top and (top["effect"], top["subsystem"]) == (effect, subsystem))
+                row["detected"] = bool(top and (top["effect"], top["subsystem"])
+                                       == (effect, subsystem))
                 row["gain"] = top["gain"] if row["detected"] else 0.0
                 if row["detected"]:
                     row["param_err"] = _recovered(param[0], param[1], top["parameters"][param[0]])
@@ -114,8 +115,8 @@ def baseline_sysidentpy(d, train, idx):
     step = max(int(round(0.1 / d.dt)), 1)  # 10 Hz: a one-step NARX at 50 Hz is near identity
     sel = np.flatnonzero(train)[::step]
     U = np.nan_to_num(d.U)
-    m = FROLS(order_selection=True, n_info_values=8, ylag=1, xlag=[[1]] * U.shape[1], info_criteria="bic",
-              estimator=LeastSquares(), basis_function=Polynomial(degree=2))
+    m = FROLS(order_selection=True, n_info_values=8, ylag=1, xlag=[[1]] * U.shape[1],
+              info_criteria="bic", estimator=LeastSquares(), basis_function=Polynomial(degree=2))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         m.fit(X=U[sel], y=d.v[sel][:, None])
@@ -174,7 +175,8 @@ def ten_minutes(seed: int) -> dict:
     truth = random_params(seed)
     recs, dur, i = [], 0.0, 0
     while dur < 600.0:
-        r = run_experiment(ALL_EXPERIMENTS[i % len(ALL_EXPERIMENTS)], truth, seed=seed + i).recording
+        r = run_experiment(ALL_EXPERIMENTS[i % len(ALL_EXPERIMENTS)], truth,
+                           seed=seed + i).recording
         recs.append(r)
         dur += float(r.time[-1])
         i += 1
@@ -322,7 +324,8 @@ def closed_loop(seed: int, cases=None, lag_methods=()) -> list[dict]:
         b, e = row["baseline"][key], row["extended"][key]
         row.update(metric=key, change=(e - b) / b if b > 0 else 0.0)
         rows.append(row)
-        print(f"  {case:28s} {scn:9s} {key:15s} true model without the effect {row['truth'][key]:.4f}  "
+        print(f"  {case:28s} {scn:9s} {key:15s} true model without the effect "
+              f"{row['truth'][key]:.4f}  "
               f"baseline {b:.4f}  extended {e:.4f}  ({100 * row['change']:+.1f} %)"
               + (f"  ideal (true model with the effect) {row['ideal'][key]:.4f}"
                  if "ideal" in row else "")
@@ -354,7 +357,8 @@ def main(argv=None) -> int:
                  else ""))
         return 0
     if args.closed_loop:
-        print("=== closed loop: MPC tracking RMSE on the ground-truth plant (sensors -> EKF -> MPC)")
+        print("=== closed loop: MPC tracking RMSE on the ground-truth plant "
+              "(sensors -> EKF -> MPC)")
         cl = closed_loop(args.seeds[0], lag_methods=args.lag_methods)
         if args.json:
             with open(args.json, "w") as fh:
@@ -382,7 +386,8 @@ def main(argv=None) -> int:
         where = "not reported" if loc is None else f"{loc:.1f} s off the change"
         print(f"out-of-catalogue mass change (seed {r['seed']}): unexplained {where}, "
               f"share of error {'-' if share is None else f'{share:.2f}'}")
-    print("\n=== held-out free-run speed RMSE on the last 20 % (10-s windows), same candidate terms")
+    print("\n=== held-out free-run speed RMSE on the last 20 % (10-s windows), "
+          "same candidate terms")
     sbs = side_by_side(args.seeds[0])
     print("\n=== speed")
     tm = ten_minutes(args.seeds[0])

@@ -105,7 +105,8 @@ def effects_run(profile_name: str, seconds: float, tmp: Path) -> list[dict]:
     runs = []
     for scenario in ("figure8", "idle_hold"):  # each scenario's effect-free run first
         runs += [("none", scenario)] + [(e, scenario) for e in EFFECTS
-                                        if SCENARIO_OF.get(e.partition(":")[0], "figure8") == scenario]
+                                        if SCENARIO_OF.get(e.partition(":")[0], "figure8")
+                                        == scenario]
     for i, (text, scenario) in enumerate(runs):
         ref = make_scenario(scenario, params)
         kw = {"interface": "virtual", "channel": f"bench-eff-{os.getpid()}-{i}"}
@@ -114,10 +115,12 @@ def effects_run(profile_name: str, seconds: float, tmp: Path) -> list[dict]:
         loop = DriveLoop(prof, params, make_controller("mpc", params), ref, kw,
                          tmp / f"eff{i}.log", duration_s=seconds, node=node)
         s = loop.run().summary
-        rows.append({"effect": text, "scenario": scenario, "speed_error_rms_mps": s["speed_error_rms_mps"],
+        rows.append({"effect": text, "scenario": scenario,
+                     "speed_error_rms_mps": s["speed_error_rms_mps"],
                      "lateral_error_rms_m": s["lateral_error_rms_m"], "failures": s["failures"],
                      "stop": s["stop"]["reason"], "rejected": s["frames_rejected_by_vehicle"]})
-        print(f"  {text:45s} {scenario:9s} speed RMS {s['speed_error_rms_mps']:.3f} m/s, lateral RMS "
+        print(f"  {text:45s} {scenario:9s} speed RMS {s['speed_error_rms_mps']:.3f} m/s, "
+              "lateral RMS "
               f"{s['lateral_error_rms_m']:.3f} m, failures {s['failures']}, stop "
               f"{s['stop']['reason']}", file=sys.stderr, flush=True)
     return rows
@@ -129,7 +132,8 @@ def main(argv=None) -> int:
     ap.add_argument("--profile", choices=sorted(PROFILES), default="toyota")
     ap.add_argument("--json", metavar="FILE")
     ap.add_argument("--effects", type=float, metavar="S",
-                    help="instead: robustness runs, S seconds per concealed effect (figure8; idle_hold for idle creep)")
+                    help="instead: robustness runs, S seconds per concealed effect (figure8; "
+                         "idle_hold for idle creep)")
     args = ap.parse_args(argv)
     if args.effects:
         with tempfile.TemporaryDirectory() as d:

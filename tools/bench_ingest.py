@@ -75,7 +75,7 @@ def build_log(out: Path, minutes: int) -> tuple[int, float]:
     ls = np.concatenate([[0], nl[:-1] + 1])
     close = np.array([raw.index(b")", s) for s in ls[:1]])  # layout check on the first line
     width = int(close[0] - ls[0] - 1)
-    fields = np.frombuffer(b"".join(raw[s + 1:s + 1 + width] for s in ls[:3]), "S%d" % width)
+    fields = np.frombuffer(b"".join(raw[s + 1:s + 1 + width] for s in ls[:3]), f"S{width}")
     if width != 17 or not all(f[10:11] == b"." for f in fields):
         raise SystemExit("unexpected timestamp layout in the bundled minute")
     # every line's timestamp as integer microseconds (digits at fixed columns 1..17)

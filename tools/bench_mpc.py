@@ -95,7 +95,9 @@ def run(scenario: str, params_path: str, skip_nmpc: bool = False) -> dict:
     for dt in (0.2, 0.1):
         cfg = MpcConfig(horizon_s=10.0, dt_s=dt)
         row = {}
-        kinds = [("osqp_mpc", MpcController)] + ([] if skip_nmpc else [("casadi_nmpc", NmpcController)])
+        kinds = [("osqp_mpc", MpcController)]
+        if not skip_nmpc:
+            kinds.append(("casadi_nmpc", NmpcController))
         for name, cls in kinds:
             print(f"  {name}, dt {dt} s ({cfg.n_stages} stages) on {scenario} "
                   f"({ref.duration_s:.0f} s) ...", file=sys.stderr, flush=True)
@@ -149,8 +151,8 @@ def report(out: dict) -> str:
                          f" | speed RMS {row[name]['speed_error_rms_mps']:.3f} m/s, failures "
                          f"{row[name]['failures']}")
         up = row["osqp_mpc"]["qp_update_ms"]
-        lines.append(f"    (OSQP data update in place incl. KKT refactorisation, before each solve: "
-                     f"p50 {up['p50']:.3f} p99 {up['p99']:.3f} ms)")
+        lines.append("    (OSQP data update in place incl. KKT refactorisation, before each "
+                     f"solve: p50 {up['p50']:.3f} p99 {up['p99']:.3f} ms)")
         if "ratio_nmpc_over_osqp" in row:
             r = row["ratio_nmpc_over_osqp"]
             lines.append(f"    ratio NMPC/OSQP   p50 {r['p50']:8.1f}x p99 {r['p99']:8.1f}x max "

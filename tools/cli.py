@@ -19,15 +19,22 @@ from hmpc.models.errors import HmpcError, InputError
 
 #: subcommand -> module under tools/ that provides ``add_arguments(p)`` and ``run(args) -> int``.
 SUBCOMMANDS = {
-    "info": ("hmpc.tools.cmd_info", "what a CAN log holds: frames and rates per bus/ID, gaps, clock problems"),
+    "info": ("hmpc.tools.cmd_info",
+             "what a CAN log holds: frames and rates per bus/ID, gaps, clock problems"),
     "ingest": ("hmpc.tools.cmd_ingest", "raw CAN/nav/IMU logs to one canonical recording"),
     "identify": ("hmpc.tools.cmd_identify", "recover the report's steering and accelerator models"),
     "simulate": ("hmpc.tools.cmd_simulate", "simulate an experiment or run the closed loop"),
     "drive": ("hmpc.tools.cmd_drive", "the real-time actuation loop on a CAN bus"),
-    "diagnose": ("hmpc.tools.cmd_diagnose", "where model and recording differ, the missing physics named"),
-    "teleop": ("hmpc.tools.cmd_teleop", "the vehicle side of tele-operation: the drive loop fed by the authenticated operator link"),
-    "operator": ("hmpc.tools.cmd_operator", "the tele-operation station: scripted, experiment, keyboard or gamepad operator"),
-    "replay": ("hmpc.tools.cmd_replay", "offline closed-loop replay of a recorded drive: on the plant, or its log through the drive loop"),
+    "diagnose": ("hmpc.tools.cmd_diagnose",
+                 "where model and recording differ, the missing physics named"),
+    "teleop": ("hmpc.tools.cmd_teleop",
+               "the vehicle side of tele-operation: the drive loop fed by the authenticated "
+               "operator link"),
+    "operator": ("hmpc.tools.cmd_operator",
+                 "the tele-operation station: scripted, experiment, keyboard or gamepad operator"),
+    "replay": ("hmpc.tools.cmd_replay",
+               "offline closed-loop replay of a recorded drive: on the plant, or its log through "
+               "the drive loop"),
 }
 
 

@@ -32,8 +32,10 @@ def add_arguments(p) -> None:
                    help="actuation profile (params/*.actuation.yaml)")
     add_bus_arguments(p)
     what = p.add_mutually_exclusive_group(required=True)
-    what.add_argument("--scenario", metavar="NAME", help="a named reference (figure8, ramp_sequence, ...)")
-    what.add_argument("--reference", metavar="REF.csv", help="a reference CSV (time, x, y, speed[, heading]) or a canonical "
+    what.add_argument("--scenario", metavar="NAME",
+                      help="a named reference (figure8, ramp_sequence, ...)")
+    what.add_argument("--reference", metavar="REF.csv",
+                      help="a reference CSV (time, x, y, speed[, heading]) or a canonical "
                       "recording, whose driven path and speed are followed")
     p.add_argument("--controller", choices=CONTROLLERS, default="mpc",
                    help="the controller (default mpc: the hybrid MPC, OSQP; nmpc: CasADi/IPOPT; "
@@ -103,8 +105,8 @@ def run(args) -> int:
               f"{out['lateral_error_rms_m']:.3f} m")
     if st["reason"] not in ("duration", "interrupted", "no_feedback", "car_not_accepting"):
         # the run stopped the car by itself: the figures above cover a shorter run
-        print(f"hmpc drive: warning: the run stopped the car by itself ({st['reason']}"
-              f"{' at ' + format(st['detected_t_s'], '.2f') + ' s' if st['detected_t_s'] is not None else ''}"
+        at = "" if st["detected_t_s"] is None else f" at {st['detected_t_s']:.2f} s"
+        print(f"hmpc drive: warning: the run stopped the car by itself ({st['reason']}{at}"
               f" of {duration:.1f} s asked; {STOP_WHY.get(st['reason'], 'see stop in the JSON')})",
               file=sys.stderr)
     finish_adapter(args, adapter, "drive", float(out["engaged_s"]))

@@ -195,10 +195,12 @@ def _print_summary(out: dict) -> None:
     if out["mode"] == "reference":
         c, car = out["kpis"]["controller"], out["kpis"]["car"]
         print(f"reference replay, {out['controller']}: speed error RMS "
-              f"{c['speed_error_rms_mps']:.3f} m/s, lateral error RMS {c['lateral_error_rms_m']:.3f} m, "
+              f"{c['speed_error_rms_mps']:.3f} m/s, lateral error RMS "
+              f"{c['lateral_error_rms_m']:.3f} m, "
               f"pedal switches {c['pedal_switches_per_min']:.1f}/min (car "
               f"{car['pedal_switches_per_min']:.1f}), zone transitions "
-              f"{c['zone_transitions_per_min']:.1f}/min (car {car['zone_transitions_per_min']:.1f}), "
+              f"{c['zone_transitions_per_min']:.1f}/min "
+              f"(car {car['zone_transitions_per_min']:.1f}), "
               f"{c['failures']} failures")
     else:
         h = out["hash"]
@@ -208,7 +210,8 @@ def _print_summary(out: dict) -> None:
         if not isinstance(d, dict) or d.get("rms_difference") is None:
             continue
         corr = "n/a" if d["correlation"] is None else f"{d['correlation']:+.3f}"
-        print(f"  {name}: RMS difference {d['rms_difference']:.4g}, max {d['max_abs_difference']:.4g}, "
+        print(f"  {name}: RMS difference {d['rms_difference']:.4g}, "
+              f"max {d['max_abs_difference']:.4g}, "
               f"correlation {corr} ({d['samples']} samples)")
     for name, ws in out["windows"].items():
         if ws:

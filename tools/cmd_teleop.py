@@ -53,7 +53,8 @@ def add_arguments(p) -> None:
     what = p.add_mutually_exclusive_group()
     what.add_argument("--scenario", metavar="NAME",
                       help="the reference a handover follows (figure8, ramp_sequence, ...)")
-    what.add_argument("--reference", metavar="REF.csv", help="a reference CSV or a canonical recording, for handovers")
+    what.add_argument("--reference", metavar="REF.csv",
+                      help="a reference CSV or a canonical recording, for handovers")
     p.add_argument("--duration", type=float, metavar="S",
                    help="end the run after S seconds of run time (default: until interrupted)")
     p.add_argument("--candump", required=True, metavar="RUN.log",

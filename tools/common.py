@@ -11,7 +11,7 @@ import json
 import math
 import os
 import sys
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -98,7 +98,8 @@ def add_ingest_options(p: argparse.ArgumentParser, *, log_required: bool = True)
                    help="topic map (params/*.topics.yaml): the log is a ROS recording -- a ROS 1 "
                         ".bag, a ROS 2 bag folder, an .mcap file or a folder of per-topic CSV "
                         "exports (bagpy, pandas) -- instead of a CAN log")
-    p.add_argument("--nav", metavar="NAV.csv", help="GPS/INS CSV (lat/lon or x/y, velocities, attitude)")
+    p.add_argument("--nav", metavar="NAV.csv",
+                   help="GPS/INS CSV (lat/lon or x/y, velocities, attitude)")
     p.add_argument("--imu", metavar="IMU.csv", help="IMU CSV (gyro + accelerometer)")
     p.add_argument("--columns", metavar="COLS.yaml",
                    help="column names of the nav/IMU CSVs (sections nav:, imu:); "
@@ -312,9 +313,9 @@ def finish_adapter(args, adapter, command: str, run_s: float) -> None:
             ci = e.get("ci95")
             ci_s = f" [{ci[0]:.4g}, {ci[1]:.4g}]" if ci else ""
             conv = e["converged_t_s"]
+            unused = "" if e.get("valid") else f" (not used: {e.get('reason', 'not valid')})"
             print(f"  adaptation {key}: {e['initial']:.4g} -> {e['final']:.4g}{ci_s}"
-                  f"{'' if conv is None else f', converged at {conv:.1f} s'}"
-                  f"{'' if e.get('valid') else ' (not used: ' + e.get('reason', 'not valid') + ')'}",
+                  f"{'' if conv is None else f', converged at {conv:.1f} s'}{unused}",
                   file=sys.stderr)
     if getattr(args, "learned", None):
         save_learned(learned_params(adapter, run_s=run_s), args.learned)

@@ -221,7 +221,8 @@ class DriveLoop:
         node: the vehicle simulator node (for truth-based tracking figures and node-side faults).
         config: timing and stop behaviour.
         clock: ``monotonic()``, ``time()`` and ``sleep(s)`` of the loop (default
-            :class:`SystemClock`, the real clocks; ``controller/replay.py`` injects a simulated one).
+            :class:`SystemClock`, the real clocks; ``controller/replay.py`` injects a simulated
+            one).
         adapter: an online model estimator (module docstring), or None.
     """
 
@@ -337,7 +338,8 @@ class DriveLoop:
             from hmpc.controller.estimator import Estimator, EstimatorConfig
             # CAN resolution, not a phone-grade sensor: the wheel speeds are quantised to
             # 0.01 km/h (Toyota) / 1 mm/s (kit) and carry no other noise on the node
-            ekf = Estimator(self.params, EstimatorConfig(can_speed_mps=0.005, init_wheel_scale=0.002))
+            ekf = Estimator(self.params,
+                            EstimatorConfig(can_speed_mps=0.005, init_wheel_scale=0.002))
             ekf.reset(0.0, x0)
         r = _Run(
             fb=Feedback(prof), wd=Watchdog(cfg.watchdog), act=act, bus=bus, writer=writer,
@@ -376,7 +378,8 @@ class DriveLoop:
         r.stop_bp = r.bp_cmd
 
     def _tick_clock(self, r: _Run) -> _Tick:
-        """Step 1: wait for the tick, read the loop clock (fault: frozen), run the clock watchdog."""
+        """Step 1: wait for the tick, read the loop clock (fault: frozen), run the clock
+        watchdog."""
         cfg = self.config
         target = r.mono0 + r.k * cfg.tick_s
         delay = target - self.clock.monotonic()

@@ -32,7 +32,8 @@ def parse_fault(text: str) -> Fault:
     """``NAME@T_S`` -> Fault. Raises InputError naming the text."""
     name, sep, t = str(text).partition("@")
     if not sep or name not in FAULTS:
-        raise InputError(f"--fault '{text}': expected NAME@T_S with NAME one of {', '.join(FAULTS)}")
+        raise InputError(f"--fault '{text}': expected NAME@T_S with NAME one of "
+                         f"{', '.join(FAULTS)}")
     try:
         ts = float(t)
     except ValueError:

@@ -4,11 +4,11 @@ A profile is data only::
 
     profile: toyota_rav4_2017          # text (required)
     note: ...                          # text (optional)
-    dbc: toyota_rav4_2017.dbc.gz       # the CAN database: next to this file, else hmpc's tools/data/dbc/
-    signals: toyota_rav4_2017.signals.yaml   # ingest's signal map for the feedback (next to this file)
+    dbc: toyota_rav4_2017.dbc.gz       # CAN database: next to this file, else tools/data/dbc/
+    signals: toyota_rav4_2017.signals.yaml   # the feedback's signal map (next to this file)
     bus: 0                             # the bus the commands go out on
     steering: torque | angle           # how the car takes steering
-    limits: toyota_panda | bywire_iso11270   # the frozen safety limits (controller/actuation/safety.py)
+    limits: toyota_panda | bywire_iso11270   # frozen safety limits (safety.py)
     commands:                          # role -> outgoing message
       steer_torque:                    # roles: steer_torque, accel, steer_angle, pedals, heartbeat
         message: STEERING_LKA          # DBC message
@@ -21,7 +21,7 @@ A profile is data only::
     feedback:                          # what the drive loop reads besides the signal map's channels
       driver_torque: {signal: STEER_TORQUE_SENSOR.STEER_TORQUE_DRIVER}
       accepts_steer: {signal: EPS_STATUS.LKA_STATE, active: [1, 5]}
-    driver_torque_threshold: 100       # |driver torque| above this disengages [the signal's DBC unit]
+    driver_torque_threshold: 100       # |driver torque| above it disengages [DBC unit]
 
 Every key is checked: an unknown key, a missing one, a message or signal the DBC lacks, a
 counter or checksum that does not fit its signal raises :class:`ParamError` naming the file,

@@ -88,7 +88,8 @@ class ReplayBus(can.BusABC):
 
     def __init__(self, channel=None, *, source: ReplaySource, clock: SimClock, **kwargs):
         if not isinstance(source, ReplaySource) or clock is None:
-            raise can.CanInitializationError("hmpc_replay needs source=ReplaySource and clock=SimClock")
+            raise can.CanInitializationError(
+                "hmpc_replay needs source=ReplaySource and clock=SimClock")
         self.source = source
         self.clock = clock
         self.channel_info = f"hmpc replay {channel or ''}".strip()

@@ -105,7 +105,8 @@ class ToyotaTorqueLimiter:
         if lo <= hi:
             out = int(min(max(round(desired), math.ceil(lo)), math.floor(hi)))
         else:  # no room (cannot happen from a state this limiter made): step towards 0
-            out = int(max(last - lim.max_rate_down, 0) if last > 0 else min(last + lim.max_rate_down, 0))
+            out = int(max(last - lim.max_rate_down, 0) if last > 0
+                      else min(last + lim.max_rate_down, 0))
         if t_s - self.rt_t0_s >= lim.rt_interval_s:  # panda's window: checked, then moved
             self.rt_ref, self.rt_t0_s = out, t_s
         self.last = out
@@ -251,7 +252,7 @@ class AngleLimits:
     pedal_deadband: float = 1e-3
 
     @classmethod
-    def from_params(cls, params: Params, **kw) -> "AngleLimits":
+    def from_params(cls, params: Params, **kw) -> AngleLimits:
         lock = params.vehicle.steering_wheel_angle_max_rad
         if lock is not None:
             kw.setdefault("lock_rad", float(lock))

@@ -53,8 +53,8 @@ class Watchdog:
     def feedback(self, now_s: float, last_wheel_speed_s: float | None, period_s: float) -> str:
         if last_wheel_speed_s is None:
             return "feedback_loss"
-        return "feedback_loss" if now_s - last_wheel_speed_s > self.config.stale_periods * period_s \
-            else ""
+        stale = now_s - last_wheel_speed_s > self.config.stale_periods * period_s
+        return "feedback_loss" if stale else ""
 
     def deadline(self, late: bool) -> str:
         self.consecutive_misses = self.consecutive_misses + 1 if late else 0

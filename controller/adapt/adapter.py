@@ -107,7 +107,8 @@ class ModelAdapter:
         veh = params.vehicle
         self.signals = PeriodSignals(c, float(veh.track_rear_m or veh.track_front_m))
         self.steering = SteeringLearner(params, c, yaw_rate_noise_radps or c.yaw_rate_noise_radps)
-        self.zones = ZoneLearner(params, c, period_s, inputs, accel_noise_mps2 or c.accel_noise_mps2)
+        self.zones = ZoneLearner(params, c, period_s, inputs,
+                                 accel_noise_mps2 or c.accel_noise_mps2)
         self.inputs = inputs
         # the response fits of the two channels (0 steering, 1 longitudinal), every
         # ``_fit_every`` control periods (the fit's period: about TIMING_PERIOD_S)
@@ -150,7 +151,8 @@ class ModelAdapter:
         nz = len(params.zones)
         self._push_tol = ([(c.push_offset_rad, 0.0), (0.0, c.push_scale_rel)]
                           + [(c.push_zone_offset_mps2, 0.0)] * nz
-                          + [(0.0, c.push_gain_rel)] * (2 * nz) + [(0.5 * c.push_timing_s, 0.0)] * 4)
+                          + [(0.0, c.push_gain_rel)] * (2 * nz)
+                          + [(0.5 * c.push_timing_s, 0.0)] * 4)
         self.history = History(len(self.keys), c.history_period_s)
         self.cost_s: list = []   # not filled here: the loop times learn() and use_model()
 
@@ -329,7 +331,7 @@ class ModelAdapter:
             if ident[j]:
                 lim *= VALID_HYSTERESIS
             ident[j] = (f.updates[i] > 0 or f.restored) and 3.8416 * f.P[i][i] <= lim * lim
-        for g, (f, js) in enumerate(self._groups):
+        for f, js in self._groups:
             ok = ((f.restored or max(f.updates) >= MIN_UPDATES) and not any(f.at_bound)
                   and f.rejects_run < f.widen_after // 2)
             for j in js:

@@ -50,7 +50,8 @@ class SteeringLearner:
         self.b = float(params.vehicle.wheelbase_m)
         self.filter = ParamFilter(
             [off0, sc0], [c.steer_offset_prior_rad, c.steer_scale_prior_rel * sc0],
-            [c.steer_offset_walk_rad_rth / _S_PER_RTH, c.steer_scale_walk_rel_rth * sc0 / _S_PER_RTH],
+            [c.steer_offset_walk_rad_rth / _S_PER_RTH,
+             c.steer_scale_walk_rel_rth * sc0 / _S_PER_RTH],
             [off0 - c.steer_offset_bound_rad, sc0 * (1.0 - c.steer_scale_bound_rel)],
             [off0 + c.steer_offset_bound_rad, sc0 * (1.0 + c.steer_scale_bound_rel)],
             gate_chi2=c.gate_chi2, widen_after=c.reject_widen_after)

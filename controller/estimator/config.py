@@ -98,7 +98,7 @@ class EstimatorConfig:
             raise ValueError("max_step_s must be positive")
 
     @classmethod
-    def matching(cls, sensors, **overrides) -> "EstimatorConfig":
+    def matching(cls, sensors, **overrides) -> EstimatorConfig:
         """Measurement noise matched to a ``live_sensors.SensorConfig`` (noise_scale applied)."""
         k = sensors.noise_scale
         quant = 0.01 / 3.6 / math.sqrt(12.0)  # WHEEL_SPEEDS 0.01 km/h step

@@ -103,7 +103,8 @@ class MpcConfig:
 
     def __post_init__(self):
         n = self.horizon_s / self.dt_s
-        if not (self.dt_s > 0 and self.horizon_s > 0 and abs(n - round(n)) < 1e-6 and round(n) >= 2):
+        if not (self.dt_s > 0 and self.horizon_s > 0 and abs(n - round(n)) < 1e-6
+                and round(n) >= 2):
             raise ValueError("MpcConfig: horizon_s must be a whole number (>= 2) of dt_s steps")
         if not self.w_speed_effort > self.w_steer_effort:
             raise ValueError("MpcConfig: the report (section VI) weights velocity effort above "

@@ -47,19 +47,24 @@ class QpLayout:
         pr, pc = [], []
         for k in range(1, N + 1):
             for a, b in UT4:
-                pr.append(ix(k, a)); pc.append(ix(k, b))
+                pr.append(ix(k, a))
+                pc.append(ix(k, b))
         for k in range(N):
             for i in range(NU):
-                pr.append(iu(k, i)); pc.append(iu(k, i))
+                pr.append(iu(k, i))
+                pc.append(iu(k, i))
         for k in range(1, N):
             for i in range(NU):
-                pr.append(iu(k - 1, i)); pc.append(iu(k, i))
+                pr.append(iu(k - 1, i))
+                pc.append(iu(k, i))
         for k in range(2, N):  # second differences (rate changes) couple k-2 and k
             for i in range(NU):
-                pr.append(iu(k - 2, i)); pc.append(iu(k, i))
+                pr.append(iu(k - 2, i))
+                pc.append(iu(k, i))
         for k in range(N):
             for i in range(NS):
-                pr.append(isl(k, i)); pc.append(isl(k, i))
+                pr.append(isl(k, i))
+                pc.append(isl(k, i))
         self.p_seg = np.cumsum([0, 10 * N, NU * N, NU * (N - 1), NU * (N - 2), NS * N])
         self.P, self.P_perm = _pattern(pr, pc, self.n, self.n)
 
@@ -68,7 +73,9 @@ class QpLayout:
         row = 0
 
         def put(r, c, v):
-            ar.append(r); ac.append(c); av.append(v)
+            ar.append(r)
+            ac.append(c)
+            av.append(v)
         # dynamics: x_0 = x_init; x_{k+1} - Ad x_k - Bd u_k = c_k
         for i in range(NX):
             put(i, ix(0, i), 1.0)

@@ -91,7 +91,7 @@ import struct
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -228,13 +228,13 @@ class TeleopCommand:
 
     @classmethod
     def pedals(cls, steering_wheel_angle_rad: float, accel_pedal: float, brake_pedal: float,
-               dead_man: bool = True) -> "TeleopCommand":
+               dead_man: bool = True) -> TeleopCommand:
         return cls(Mode.PEDALS, (float(steering_wheel_angle_rad), float(accel_pedal),
                                  float(brake_pedal)), dead_man)
 
     @classmethod
     def references(cls, speed_mps: float, curvature_1pm: float,
-                   dead_man: bool = True) -> "TeleopCommand":
+                   dead_man: bool = True) -> TeleopCommand:
         return cls(Mode.REFERENCES, (float(speed_mps), float(curvature_1pm), 0.0), dead_man)
 
 

@@ -40,7 +40,8 @@ import struct
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Protocol
+from collections.abc import Callable
 
 import numpy as np
 
@@ -195,9 +196,12 @@ def inputs_script(time_s, steering_wheel_angle_rad, accel_pedal, brake_pedal, *,
 
     Args:
         time_s: sample times [s], uniform at ``rate_hz`` [Hz].
-        steering_wheel_angle_rad, accel_pedal, brake_pedal: the inputs at those times.
-        name: the script's name. meta: what the script holds (echoed in its ``meta``, with
-            its ``duration_s`` added).
+        steering_wheel_angle_rad: steering-wheel angle at those times [rad].
+        accel_pedal: accelerator pedal at those times [0..1].
+        brake_pedal: brake pedal at those times [0..1].
+        name: the script's name.
+        meta: what the script holds (echoed in its ``meta``, with its ``duration_s`` added).
+        rate_hz: the script's rate [Hz].
     """
     t = np.asarray(time_s, dtype=float)
     cmds = [TeleopCommand(Mode.ENGAGE)]

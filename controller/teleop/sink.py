@@ -14,7 +14,7 @@ from __future__ import annotations
 import select
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

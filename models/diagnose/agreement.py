@@ -128,7 +128,8 @@ def wheel_yaw(ch: dict, vehicle, cfg: DiagnoseConfig) -> Comparison:
     name = "yaw_rate_vs_wheels"
     out = Comparison(True, channel=name)
     out.info = {"unit": "rad/s", "noise_floor": noise_floor(d.y),
-                "rmse_baseline": b.heldout_rmse_radps, "heldout_rmse_baseline": b.heldout_rmse_radps,
+                "rmse_baseline": b.heldout_rmse_radps,
+                "heldout_rmse_baseline": b.heldout_rmse_radps,
                 "wheels": d.pair, "track_m": d.track_m, "yaw_source": d.yaw_source,
                 "track_scale_tested": d.fit_rho, "yaw_noise_share": d.attenuation,
                 "yaw_explains": d.r2}

@@ -76,7 +76,7 @@ class DiagnoseConfig:
     understeer_min_speed_sq_ratio: float = 2.0
 
     @classmethod
-    def for_vehicle(cls, vehicle, **overrides) -> "DiagnoseConfig":
+    def for_vehicle(cls, vehicle, **overrides) -> DiagnoseConfig:
         """The defaults with the speed thresholds (:data:`SPEED_THRESHOLDS`) scaled to a vehicle
         smaller than the reference (wheelbase ``REFERENCE_WHEELBASE_M``) by sqrt(f), f =
         wheelbase / reference (<= 1): dynamic similarity (equal Froude number v^2 / (g b)), the

@@ -148,10 +148,13 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
     it; one that cannot is named with the reason in ``Diagnosis.not_diagnosed``.
 
     Args:
-        rec: canonical recording. vehicle: geometry (wheelbase). params: the model to replay
-            (its zones are used; the baseline is refitted on the recording for the held-out
-            comparison, the given model is replayed as well). cfg: thresholds (default:
-            ``DiagnoseConfig.for_vehicle(vehicle)``).
+        rec: canonical recording.
+        vehicle: geometry (wheelbase).
+        params: the model to replay (its zones are used; the baseline is refitted on the
+            recording for the held-out comparison, the given model is replayed as well).
+        cfg: thresholds (default: ``DiagnoseConfig.for_vehicle(vehicle)``).
+        res: smallest held-out improvement that counts, per channel (:class:`Resolution`).
+        progress: callable receiving progress lines, or None.
 
     Raises:
         InputError: the recording has no speed channel, or supports no part at all.

@@ -94,7 +94,8 @@ def support(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
     if "wheel_speed_rl" in ch and "wheel_speed_rr" in ch:
         # the rear-axle centre's speed (unsteered wheels: exactly their mean); eq. 1's yaw
         # rate v sin(delta) / b of the front point is v_rear tan(delta) / b
-        v = 0.5 * (np.asarray(ch["wheel_speed_rl"], float) + np.asarray(ch["wheel_speed_rr"], float))
+        v = 0.5 * (np.asarray(ch["wheel_speed_rl"], float)
+                   + np.asarray(ch["wheel_speed_rr"], float))
     else:
         v = np.asarray(ch["speed"], float)
     sw = np.asarray(ch["steering_wheel_angle"], float)
@@ -384,7 +385,8 @@ def excitation(d: SteerData, cfg: DiagnoseConfig) -> dict:
     ay = np.abs(d.v * d.yaw)[d.fit_ok]
     ay = ay[np.isfinite(ay)]
     a97 = float(np.percentile(ay, 97.5)) if len(ay) else 0.0
-    steered = d.v[d.fit_ok][np.abs(d.v * d.yaw)[d.fit_ok] > 0.25 * cfg.understeer_min_lat_accel_mps2]
+    lat_accel_mps2 = np.abs(d.v * d.yaw)[d.fit_ok]
+    steered = d.v[d.fit_ok][lat_accel_mps2 > 0.25 * cfg.understeer_min_lat_accel_mps2]
     ratio = (float((np.percentile(steered, 90) / np.percentile(steered, 10)) ** 2)
              if len(steered) >= 10 else 1.0)
     out = {"lat_accel_p97_5_mps2": a97, "speed_sq_ratio": ratio, "testable": True}

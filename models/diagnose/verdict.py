@@ -9,10 +9,10 @@ channel, else the baseline's) is set against two yardsticks:
 
 A model misses a channel when its error is far above what the sensor can resolve
 (``factor >= MIN_FACTOR``), it predicts the channel hardly better than holding its first value
-(``skill < MIN_SKILL``) and the error is material (:data:`MATERIAL`): then nothing in the catalogue explains what the vehicle does,
-and the verdict is "this model does not describe this vehicle", naming the channels and
-factors. A model that tracks a channel but not to its noise floor (a real car is never exactly
-the report's model) keeps a high skill and passes.
+(``skill < MIN_SKILL``) and the error is material (:data:`MATERIAL`): then nothing in the
+catalogue explains what the vehicle does, and the verdict is "this model does not describe this
+vehicle", naming the channels and factors. A model that tracks a channel but not to its noise
+floor (a real car is never exactly the report's model) keeps a high skill and passes.
 """
 from __future__ import annotations
 

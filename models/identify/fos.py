@@ -125,6 +125,8 @@ def fos(P: np.ndarray, y: np.ndarray, names: list[str] | None = None, *,
         holdout: boolean mask [N] of held-out samples, ``"blocks"`` for
             :func:`block_holdout` (``holdout_fraction``, ``block_len``), or None for no
             hold-out (all samples fit; the held-out rule is then off).
+        holdout_fraction: fraction of the samples :func:`block_holdout` holds out.
+        block_len: length of :func:`block_holdout`'s blocks [samples].
         max_terms: at most this many terms (default: all candidates).
         min_reduction: smallest error reduction accepted, as a fraction of mean(y^2).
         noise_threshold: apply Korenberg's 4/(N+1) rule.
@@ -259,7 +261,7 @@ class _Search:
     sel: list[int]
 
     @classmethod
-    def start(cls, G: np.ndarray, c0: np.ndarray, max_terms: int) -> "_Search":
+    def start(cls, G: np.ndarray, c0: np.ndarray, max_terms: int) -> _Search:
         m = G.shape[0]
         diagG = np.diag(G).copy()
         return cls(G, diagG, np.zeros((max_terms, m)), np.zeros((max_terms, max_terms)),

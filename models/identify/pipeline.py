@@ -22,7 +22,8 @@ from hmpc import __version__
 from hmpc.models.logs.channels import STRING_CHANNELS
 from hmpc.models.errors import InputError
 from hmpc.models.logs.ingest import sha256_file
-from hmpc.models.identify.longitudinal import LongitudinalIdConfig, LongitudinalResult, identify_longitudinal
+from hmpc.models.identify.longitudinal import (LongitudinalIdConfig, LongitudinalResult,
+                                               identify_longitudinal)
 from hmpc.models.params import Params, Steering, Vehicle
 from hmpc.models.logs.recording import Recording
 from hmpc.models.identify.steering import SteeringIdConfig, SteeringResult, identify_steering
@@ -117,7 +118,8 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
         vehicle: the measured geometry (``load_params(path).vehicle``).
         zones: speed zones as ``[(name, v_min_mps, v_max_mps), ...]`` (default idle [0, 2],
             low (2, 5], high (5, 20] m/s); overrides ``longitudinal_config.zones``.
-        steering_config, longitudinal_config: thresholds (defaults documented there).
+        steering_config: steering thresholds (defaults documented there).
+        longitudinal_config: longitudinal thresholds (defaults documented there).
         sources: provenance of the input files, ``{role: path}``; hashed into the result.
         progress: callable receiving progress lines (the CLI prints them on stderr).
 

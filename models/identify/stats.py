@@ -326,6 +326,7 @@ def block_bootstrap_ci(stat, n: int, *, block_len: int, reps: int = 200, seed: i
         block_len: block length [samples]; choose several correlation times.
         reps: bootstrap replicates.
         seed: seed of the generator (intervals are reproducible).
+        level: coverage of the interval (0.95: the 2.5 % and 97.5 % percentiles).
 
     Returns:
         (low, high) arrays.

@@ -1,3 +1,4 @@
 """Reading and decoding logs: CAN readers, DBC decoding, signal maps, GNSS/INS, alignment,
-resampling, the canonical Recording, ingest and info. Imports only hmpc.models.errors and numpy/cantools/python-can.
+resampling, the canonical Recording, ingest and info. Imports only hmpc.models.errors and
+numpy/cantools/python-can.
 """

@@ -62,8 +62,10 @@ def estimate_offset(t_ref, v_ref, t_src, v_src, *, max_lag_s: float = 5.0,
     """Estimate the offset of a source clock relative to a reference clock.
 
     Args:
-        t_ref, v_ref: reference samples (e.g. CAN speed) [s], [any unit].
-        t_src, v_src: the same quantity from the source to align (e.g. GNSS speed).
+        t_ref: reference sample times (e.g. CAN speed's) [s].
+        v_ref: reference samples [any unit].
+        t_src: the source's sample times [s].
+        v_src: the same quantity from the source to align (e.g. GNSS speed).
         max_lag_s: search window [s] (+-).
         rate_hz: grid rate of the correlation [Hz]; the result has sub-sample resolution.
         derivative: correlate the time derivatives (sharper peak for slowly varying signals).

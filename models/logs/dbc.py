@@ -66,7 +66,8 @@ def load_dbc(path, *, strict: bool = False, lenient: bool = False, problems=None
             db = cantools.database.load_string("\n".join(lines), database_format="dbc",
                                                strict=strict)
             break
-        except Exception as exc:  # cantools raises ParseError, ValueError, KeyError, ... on bad DBCs
+        # cantools raises ParseError, ValueError, KeyError, ... on bad DBCs
+        except Exception as exc:
             msg = " ".join(str(exc).split())
             m = re.search(r"line (\d+)", msg)
             line = int(m.group(1)) if m else None

@@ -185,7 +185,8 @@ def _decode(frames, db, problems, names, buses, dbc_path, fast):
         rows = np.flatnonzero((block != 0) & (block != _OFF_BUS))
         kcode = block[rows]
         order = np.argsort(kcode, kind="stable")
-        bounds = np.concatenate([[0], np.cumsum(np.bincount(kcode, minlength=len(db.messages) + 1)[1:])])
+        bounds = np.concatenate([[0],
+                                 np.cumsum(np.bincount(kcode, minlength=len(db.messages) + 1)[1:])])
         known = _Rows.take(frames, rows[order] + lo)
         for i in wanted:
             a, b = int(bounds[i]), int(bounds[i + 1])
@@ -288,7 +289,7 @@ class _Rows:
         return int(self.t_s.shape[0])
 
     @classmethod
-    def take(cls, frames: FrameTable, rows: np.ndarray) -> "_Rows":
+    def take(cls, frames: FrameTable, rows: np.ndarray) -> _Rows:
         """Gather rows; 8-byte payloads travel as one uint64 each (much faster)."""
         if frames.data.shape[1] == 8 and frames.data.flags.c_contiguous:
             data = frames.data.view("<u8")[:, 0][rows].view(np.uint8).reshape(-1, 8)
@@ -297,11 +298,11 @@ class _Rows:
         return cls(frames.t_s[rows], frames.bus[rows], frames.where[rows], frames.dlc[rows],
                    data, frames.path)
 
-    def slice(self, lo: int, hi: int) -> "_Rows":
+    def slice(self, lo: int, hi: int) -> _Rows:
         return _Rows(self.t_s[lo:hi], self.bus[lo:hi], self.where[lo:hi], self.dlc[lo:hi],
                      self.data[lo:hi], self.path)
 
-    def mask(self, keep: np.ndarray) -> "_Rows":
+    def mask(self, keep: np.ndarray) -> _Rows:
         return _Rows(self.t_s[keep], self.bus[keep], self.where[keep], self.dlc[keep],
                      self.data[keep], self.path)
 
@@ -445,7 +446,8 @@ def _words(data: np.ndarray, window: int):
     return le, be
 
 
-def _decode_fast(data: np.ndarray | None, plans, words: dict | None = None) -> dict[str, np.ndarray]:
+def _decode_fast(data: np.ndarray | None, plans,
+                 words: dict | None = None) -> dict[str, np.ndarray]:
     """Signals from payload bytes ``data`` (n, length), or from prepared 8-byte ``words``.
 
     A signal occupies bits [shift, shift + length) of its 64-bit window word; shifting it

@@ -45,18 +45,18 @@ class FrameTable:
         return int(self.t_s.shape[0])
 
     @classmethod
-    def empty(cls, path: str = "", width: int = 8) -> "FrameTable":
+    def empty(cls, path: str = "", width: int = 8) -> FrameTable:
         return cls(np.zeros(0), np.zeros(0, np.int16), np.zeros(0, np.uint32),
                    np.zeros(0, bool), np.zeros(0, np.uint8), np.zeros((0, width), np.uint8),
                    np.zeros(0, np.int64), path)
 
-    def take(self, idx) -> "FrameTable":
+    def take(self, idx) -> FrameTable:
         """Rows selected by a boolean mask or an index array."""
         return FrameTable(self.t_s[idx], self.bus[idx], self.arb_id[idx], self.is_extended[idx],
                           self.dlc[idx], self.data[idx], self.where[idx], self.path)
 
     @classmethod
-    def concat(cls, parts: list["FrameTable"]) -> "FrameTable":
+    def concat(cls, parts: list[FrameTable]) -> FrameTable:
         if not parts:
             return cls.empty()
         width = max(p.data.shape[1] for p in parts)

@@ -68,14 +68,16 @@ def summarise(frames: FrameTable, problems: Problems, *, fmt: str = "", db=None,
     buses = []
     for b in np.unique(frames.bus):
         cnt = int(np.count_nonzero(frames.bus == b))
-        buses.append({"bus": int(b), "frames": cnt, "rate_hz": cnt / duration if duration > 0 else 0.0})
+        buses.append({"bus": int(b), "frames": cnt,
+                      "rate_hz": cnt / duration if duration > 0 else 0.0})
 
     # one group per (bus, extended, id), in first-seen order of (bus, id)
     key = (frames.bus.astype(np.int64) << 33) | (frames.is_extended.astype(np.int64) << 32) \
         | frames.arb_id.astype(np.int64)
     order = np.argsort(key, kind="stable")
     skey = key[order]
-    starts = np.flatnonzero(np.concatenate([[True], skey[1:] != skey[:-1]])) if n else np.zeros(0, int)
+    starts = (np.flatnonzero(np.concatenate([[True], skey[1:] != skey[:-1]])) if n
+              else np.zeros(0, int))
     ends = np.concatenate([starts[1:], [n]])
     ids = []
     for s, e in zip(starts, ends):
@@ -144,8 +146,10 @@ def summarise(frames: FrameTable, problems: Problems, *, fmt: str = "", db=None,
                       "frames_unknown_id": int((~known).sum()),
                       "unknown_ids": int(len({(e["bus"], e["id"], e["extended"]) for e in ids
                                               if e.get("message") is None})),
-                      "frames_shorter_than_dbc": int(np.sum(known & (frames.dlc < lengths[msg_index]))),
-                      "frames_longer_than_dbc": int(np.sum(known & (frames.dlc > lengths[msg_index])))}
+                      "frames_shorter_than_dbc":
+                          int(np.sum(known & (frames.dlc < lengths[msg_index]))),
+                      "frames_longer_than_dbc":
+                          int(np.sum(known & (frames.dlc > lengths[msg_index])))}
     out["problems"] = problems.to_list()
     out["information"] = problems.info_list()
     return out
@@ -166,7 +170,8 @@ def format_info(info: dict) -> str:
     has_dbc = "dbc" in info
     head = f"{'bus':>3} {'id':>10} {'ext':>3} "
     head += f"{'message':<24} " if has_dbc else ""
-    head += f"{'frames':>8} {'rate_Hz':>8} {'period_ms':>9} {'max_gap_ms':>10} {'gap/per':>7} {'gaps':>5}"
+    head += (f"{'frames':>8} {'rate_Hz':>8} {'period_ms':>9} {'max_gap_ms':>10} {'gap/per':>7} "
+             f"{'gaps':>5}")
     lines.append("")
     lines.append(head)
     for e in info["ids"]:
@@ -185,12 +190,14 @@ def format_info(info: dict) -> str:
     lines.append(f"malformed lines skipped: {info['malformed_lines']}"
                  + (f" (first at {', '.join(map(str, info['malformed_where']))})"
                     if info["malformed_where"] else "")
-                 + f"; remote frames: {info['remote_frames']}; error frames: {info['error_frames']}")
+                 + f"; remote frames: {info['remote_frames']}; "
+                   f"error frames: {info['error_frames']}")
     if has_dbc:
         d = info["dbc"]
         lines.append(f"DBC {d['file']}: {len(d['messages_present'])} of {d['messages']} messages "
                      f"present; {d['frames_known_id']} frames with a DBC id, "
-                     f"{d['frames_unknown_id']} on {d['unknown_ids']} bus/id pair(s) not in the DBC; "
+                     f"{d['frames_unknown_id']} on {d['unknown_ids']} bus/id pair(s) not in the "
+                     f"DBC; "
                      f"{d['frames_shorter_than_dbc']} shorter, {d['frames_longer_than_dbc']} "
                      f"longer than the DBC length")
     lines.append(f"gaps: intervals over {GAP_FACTOR:g} x the id's median period")

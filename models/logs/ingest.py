@@ -32,7 +32,7 @@ import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -114,7 +114,8 @@ def estimate_heading_mount(t_s, heading_rad, vel_east, vel_north, *,
     Args:
         t_s: sample times [s] (same rows for all arrays).
         heading_rad: ENU heading [rad].
-        vel_east, vel_north: ground velocity [m/s].
+        vel_east: ground velocity east [m/s].
+        vel_north: ground velocity north [m/s].
         min_speed_mps: only samples faster than this are used.
 
     Returns:
@@ -202,7 +203,8 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
             estimates it by cross-correlating CAN speed with GNSS speed.
         imu_offset_s: IMU clock offset [s] to the CAN clock; None: the nav offset (same device)
             when there is a nav file, else estimated from yaw rate against CAN.
-        nav_columns, imu_columns: column layouts (default: the comma2k19 files).
+        nav_columns: the nav file's column layout (default: the comma2k19 files).
+        imu_columns: the IMU file's column layout (default: the comma2k19 files).
         gap_s: gap threshold [s] for every channel; None: per channel, see ``models.logs.resample``.
         problems: collector to add to (a new one by default).
         mount_correction: subtract the estimated heading mount offset from ``heading`` and rotate
@@ -269,7 +271,8 @@ def _check_options(rate_hz, gap_s, prefer) -> dict[str, tuple[str, ...]]:
     for ch, src in (prefer or {}).items():
         if ch not in DEFAULT_PREFERENCE or src not in DEFAULT_PREFERENCE[ch]:
             raise ValueError(f"cannot prefer {src!r} for {ch!r}; choices: "
-                             + ", ".join(f"{c}: {'/'.join(s)}" for c, s in DEFAULT_PREFERENCE.items()))
+                             + ", ".join(f"{c}: {'/'.join(s)}"
+                                         for c, s in DEFAULT_PREFERENCE.items()))
         preference[ch] = (src,) + tuple(s for s in DEFAULT_PREFERENCE[ch] if s != src)
     return preference
 
@@ -491,7 +494,8 @@ def _check_overlap(grid: np.ndarray, others) -> None:
             if t[-1] < t_start or t[0] > t_end:
                 raise InputError(
                     f"the {src} file does not overlap the CAN log in time ({src} "
-                    f"{t[0]:.3f}..{t[-1]:.3f} s, CAN {t_start:.3f}..{t_end:.3f} s on the CAN clock); "
+                    f"{t[0]:.3f}..{t[-1]:.3f} s, CAN {t_start:.3f}..{t_end:.3f} s on the CAN "
+                    "clock); "
                     "give the clock offset (--clock-offset / --imu-offset)", str(path))
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from hmpc.models.logs.files import open_text
+from hmpc.models.errors import InputError
 from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS, VALID_GEARS
 
 #: channels that are fractions 0..1 (CONVENTIONS), and how far past the ends a reading may be
@@ -31,7 +32,6 @@ FRACTION_SLACK = 0.05
 #: how far one time step may differ from the grid's median step (factor) before the file is
 #: refused as not on a uniform grid: rounding and logger jitter pass, a clock jump does not
 GRID_TOLERANCE = 1.5
-from hmpc.models.errors import InputError
 
 
 @dataclass
@@ -77,7 +77,7 @@ class Recording:
         t = self.time
         return float(1.0 / np.median(np.diff(t))) if len(t) > 1 else float("nan")
 
-    def slice(self, mask) -> "Recording":
+    def slice(self, mask) -> Recording:
         """A new recording holding the rows in ``mask`` (raw samples are not sliced)."""
         return Recording({k: v[mask] for k, v in self.channels.items()}, self.raw, dict(self.meta))
 
@@ -98,14 +98,14 @@ class Recording:
             self.to_csv(path)
 
     @classmethod
-    def load(cls, path: str | Path, *, allow_extra: bool = False) -> "Recording":
+    def load(cls, path: str | Path, *, allow_extra: bool = False) -> Recording:
         """Read a canonical recording (CSV, CSV.gz or Parquet); see :func:`read_channels`."""
         return cls(read_channels(path, allow_extra=allow_extra), {}, {"path": str(Path(path))})
 
 
 # ---------------------------------------------------------------------- writing
 def write_csv(channels: dict[str, np.ndarray], path: str | Path) -> None:
-    """Write the canonical CSV (columns in CONVENTIONS order, unknown extras last).
+    r"""Write the canonical CSV (columns in CONVENTIONS order, unknown extras last).
 
     Cells: ``time`` as ``f"{x:.6f}"``, numbers as ``repr(float(x))`` (empty for NaN), strings
     as they are, in ``csv.writer``'s dialect (``\r\n`` line ends, minimal quoting). Each column

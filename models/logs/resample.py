@@ -113,7 +113,8 @@ def resample(t_s: np.ndarray, values: np.ndarray, grid_s: np.ndarray, kind: str 
     if len(t) and np.any(np.diff(t) < 0):
         order = np.argsort(t, kind="stable")
         t, v = t[order], v[order]
-    empty = np.full(grid.shape, "", dtype=object) if kind == "string" else np.full(grid.shape, np.nan)
+    empty = (np.full(grid.shape, "", dtype=object) if kind == "string"
+             else np.full(grid.shape, np.nan))
     if len(t) == 0:
         return empty, []
     thr = gap_threshold_s(t, gap_s)

@@ -92,7 +92,8 @@ class _Collector:
         t = np.asarray(self.t, float)
         vals = np.asarray(self.rows, float).reshape(len(self.rows), len(self.fields))
         order = np.argsort(t, kind="stable")
-        return TopicData(self.topic, t[order], {f: vals[order, i] for i, f in enumerate(self.fields)},
+        return TopicData(self.topic, t[order],
+                         {f: vals[order, i] for i, f in enumerate(self.fields)},
                          self.where, self.msgtype, source)
 
 
@@ -189,8 +190,8 @@ def _read_mcap(path: Path, tmap: TopicMap, problems: Problems) -> dict[str, Topi
             if summary is not None:
                 _missing_topics(tmap, {c.topic for c in summary.channels.values()}, where)
             seen: set[str] = set()
-            for i, (schema, channel, message, decoded) in enumerate(
-                    reader.iter_decoded_messages(topics=list(cols))):
+            for schema, channel, message, decoded in reader.iter_decoded_messages(
+                    topics=list(cols)):
                 seen.add(channel.topic)
                 cols[channel.topic].add(message.log_time, decoded,
                                         schema.name if schema is not None else None)

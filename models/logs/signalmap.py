@@ -42,7 +42,8 @@ import operator
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 import yaml
@@ -331,7 +332,8 @@ def load_signal_map(path: str | Path, db=None) -> SignalMap:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
-        raise ParamError(f"not valid YAML ({getattr(exc, 'problem', None) or exc.__class__.__name__})",
+        problem = getattr(exc, "problem", None) or exc.__class__.__name__
+        raise ParamError(f"not valid YAML ({problem})",
                          str(path), line=None if mark is None else mark.line + 1) from None
     return parse_signal_map(data, str(path), db, _key_lines(text))
 

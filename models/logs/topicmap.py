@@ -62,7 +62,8 @@ import yaml
 
 from hmpc.models.errors import InputError, ParamError
 from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS
-from hmpc.models.logs.signalmap import HOLD_CHANNELS, RESAMPLE_KINDS, UNITS, _key_lines, canonical_unit
+from hmpc.models.logs.signalmap import (HOLD_CHANNELS, RESAMPLE_KINDS, UNITS, _key_lines,
+                                        canonical_unit)
 from hmpc.models.logs.utm import UtmZone, parse_zone
 
 TOP_KEYS = ("vehicle", "note", "topics", "channels")
@@ -213,7 +214,8 @@ def load_topic_map(path: str | Path) -> TopicMap:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
-        raise ParamError(f"not valid YAML ({getattr(exc, 'problem', None) or exc.__class__.__name__})",
+        problem = getattr(exc, "problem", None) or exc.__class__.__name__
+        raise ParamError(f"not valid YAML ({problem})",
                          str(path), line=None if mark is None else mark.line + 1) from None
     return parse_topic_map(data, str(path), _key_lines(text))
 

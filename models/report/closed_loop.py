@@ -50,7 +50,9 @@ def plot_closed_loop(res, ref, out_dir: str | Path, controller: str, zones, upda
     Args:
         res: the run (``controller.closed_loop.ClosedLoopResult``: its recording, speed
             reference, lateral error, zones and metrics).
-        ref: the reference it followed. controller: its name, for the titles.
+        ref: the reference it followed.
+        out_dir: folder the PNGs are written to.
+        controller: the controller's name, for the titles.
         zones: (name, v_min [m/s], v_max [m/s]) per zone index, the zone axis's ticks.
         updates: indices of the recording's samples at the control updates.
     """

@@ -1,6 +1,7 @@
 """The simulated driver of the experiments: it follows an experiment's plan
 (``models.sim.plans``) and drives the truth plant (``models.sim.truth_plant``) on the internal
-grid, inputs held over each step; the result is the truth (:class:`~hmpc.models.sim.truth_plant.Truth`).
+grid, inputs held over each step; the result is the truth
+(:class:`~hmpc.models.sim.truth_plant.Truth`).
 
 - Steering: the steering wheel follows a reference (a scripted profile, or a human lane-keeper
   holding the road's direction with small random corrections) through a first-order lag of

@@ -125,7 +125,8 @@ class Understeer(Effect):
     name = "understeer"
 
     def __init__(self, gradient_rad_per_mps2: float):
-        self.gradient_rad_per_mps2 = finite_param("gradient_rad_per_mps2", gradient_rad_per_mps2, lo=0.0)
+        self.gradient_rad_per_mps2 = finite_param("gradient_rad_per_mps2", gradient_rad_per_mps2,
+                                                  lo=0.0)
         self._map = None
 
     def start(self, dt_s: float, params=None) -> None:

@@ -31,7 +31,8 @@ class IdleCreep(Effect):
 
     def __init__(self, accel_mps2: float, creep_speed_mps: float):
         self.accel_mps2 = finite_param("accel_mps2", accel_mps2, lo=0.0)
-        self.creep_speed_mps = finite_param("creep_speed_mps", creep_speed_mps, lo=0.0, lo_open=True)
+        self.creep_speed_mps = finite_param("creep_speed_mps", creep_speed_mps, lo=0.0,
+                                            lo_open=True)
 
     def accel_extra_mps2(self, state, u) -> float:
         if u[1] >= 0.01:

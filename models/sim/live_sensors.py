@@ -198,6 +198,7 @@ class LiveSensors:
             accel_mps2: true longitudinal acceleration [m/s^2] (what the IMU reads, before noise).
             delta_rad: true road-wheel angle [rad]; default eq. 7 of the steering-wheel angle
                 (pass it when the truth's steering map differs from ``params``).
+
         Returns:
             arrived messages in order of arrival (then of measurement time).
         """
@@ -287,9 +288,14 @@ def measure_trajectory(params: Params, t_s, states, steering_wheel_angle_rad, ac
     """Every message of a whole true trajectory, in order of arrival.
 
     Args:
-        t_s: truth times [s] (n,); states: (n, 4) plant states; steering_wheel_angle_rad: (n,);
-        accel_mps2: (n,) true longitudinal acceleration (default zeros);
-        delta_rad: (n,) true road-wheel angle (default eq. 7).
+        params: the car (geometry and steering map).
+        t_s: truth times [s] (n,).
+        states: (n, 4) plant states.
+        steering_wheel_angle_rad: (n,) steering-wheel angle [rad].
+        accel_mps2: (n,) true longitudinal acceleration [m/s^2] (default zeros).
+        delta_rad: (n,) true road-wheel angle [rad] (default eq. 7).
+        config: sensor rates, latencies and noise (default ``SensorConfig()``).
+        seed: seed of the noise streams.
     """
     t = np.asarray(t_s, dtype=float)
     s = np.asarray(states, dtype=float)

@@ -174,6 +174,9 @@ def wheel_speeds(v_mps, delta_rad, wheelbase_m: float, track_front_m: float,
     Args:
         v_mps: speed of the front-axle centre (eq. 1's v) [m/s].
         delta_rad: road-wheel angle of the virtual middle tyre [rad].
+        wheelbase_m: wheelbase [m].
+        track_front_m: front track width [m].
+        track_rear_m: rear track width [m].
     """
     v = np.asarray(v_mps, dtype=float)
     d = np.asarray(delta_rad, dtype=float)
@@ -211,7 +214,8 @@ def engine_rpm(v_mps, accel_pedal, vehicle, low_gear_only=None, *,
     """A plausible engine speed [1/min]: idle plus throttle flare, or wheel speed through the gear.
 
     Args:
-        v_mps: speed [m/s]; accel_pedal: pedal [0..1].
+        v_mps: speed [m/s].
+        accel_pedal: accelerator pedal [0..1].
         vehicle: ``params.Vehicle`` (its ``wheel_radius_m``, see :func:`wheel_radius_m`).
         low_gear_only: bool array restricting to gears 1-2 (the report's "Low" gear).
         drivetrain: engine and gearbox (the RAV4's by default, see :class:`Drivetrain`).

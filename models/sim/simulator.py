@@ -67,7 +67,8 @@ def random_params(seed: int, vehicle: Vehicle | None = None) -> Params:
     zones = [Zone(name=n, v_min_mps=lo, v_max_mps=hi, offset_mps2=u(*o), scale_mps2=u(*s),
                   brake_scale_mps2=u(*b)) for n, lo, hi, o, s, b in table]
     return Params(vehicle=veh, steering=steering, zones=zones,
-                  provenance={"source": "hmpc.models.sim.simulator.random_params", "seed": int(seed)})
+                  provenance={"source": "hmpc.models.sim.simulator.random_params",
+                              "seed": int(seed)})
 
 
 @dataclass

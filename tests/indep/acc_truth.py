@@ -304,10 +304,10 @@ def simulate(sc: Scenario) -> Run:
 
     def rhs(X, u, dl):
         """X = [v, s, x, y, psi, lag, I, a_ecu]; u: delayed request held over the step."""
-        v, s, _, _, psi, lag, I, a_f = X
+        v, s, _, _, psi, lag, integ, a_f = X
         r_eff = lag if tau > 0 else u
         th = road.grade_scalar(s)
-        vdot = K * (r_eff + I) + res_ecu(v) - res_true(v) - G_MPS2 * math.sin(th)
+        vdot = K * (r_eff + integ) + res_ecu(v) - res_true(v) - G_MPS2 * math.sin(th)
         vh = v * math.cos(th)           # horizontal speed
         return (vdot, v, vh * math.cos(psi), vh * math.sin(psi), v * math.tan(dl) / WHEELBASE_M,
                 (u - lag) / tau if tau > 0 else 0.0, (r_eff - a_f) / Tc, (vdot - a_f) / Tf)

@@ -260,13 +260,13 @@ def _st_rhs(x, u, p, C_Sf, C_Sr):
     if abs(x[3]) < 0.1:
         return vehicle_dynamics_st(x, u, p)
     g, mu = G_MPS2, p.tire.p_dy1
-    lf, lr, h, m, I = p.a, p.b, p.h_s, p.m, p.I_z
+    lf, lr, h, m, I_z = p.a, p.b, p.h_s, p.m, p.I_z
     u1, u2 = u
     Ff, Fr = C_Sf * (g * lr - u2 * h), C_Sr * (g * lf + u2 * h)
     L = lr + lf
     return [x[3] * math.cos(x[6] + x[4]), x[3] * math.sin(x[6] + x[4]), u1, u2, x[5],
-            -mu * m / (x[3] * I * L) * (lf ** 2 * Ff + lr ** 2 * Fr) * x[5]
-            + mu * m / (I * L) * (lr * Fr - lf * Ff) * x[6] + mu * m / (I * L) * lf * Ff * x[2],
+            -mu * m / (x[3] * I_z * L) * (lf ** 2 * Ff + lr ** 2 * Fr) * x[5]
+            + mu * m / (I_z * L) * (lr * Fr - lf * Ff) * x[6] + mu * m / (I_z * L) * lf * Ff * x[2],
             (mu / (x[3] ** 2 * L) * (Fr * lr - Ff * lf) - 1) * x[5]
             - mu / (x[3] * L) * (Fr + Ff) * x[6] + mu / (x[3] * L) * Ff * x[2]]
 
@@ -596,13 +596,13 @@ def simulate(sc: Scenario) -> Run:
         u1 = float(steer_eff(i + 1, x[3]) - delta[i]) / dt
         d_rate[i] = u1
         if sc.model == "ks" and sc.accel_point == "rear":
-            def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf):
+            def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf, s_now=s_now):
                 u2 = law(xs[3], ape, bpe, zi, gf, s_now)
                 if xs[3] <= 0.0 and u2 < 0.0:
                     u2 = 0.0
                 return vehicle_dynamics_ks(xs, [u1, u2], p)
         elif sc.model == "ks":
-            def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf):
+            def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf, s_now=s_now):
                 vf = xs[3] / math.cos(xs[2])
                 a = law(vf, ape, bpe, zi, gf, s_now)
                 u2 = a * math.cos(xs[2]) - vf * math.sin(xs[2]) * u1
@@ -610,7 +610,7 @@ def simulate(sc: Scenario) -> Run:
                     u2 = 0.0
                 return vehicle_dynamics_ks(xs, [u1, u2], p)
         else:
-            def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf):
+            def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf, s_now=s_now):
                 a = law(xs[3], ape, bpe, zi, gf, s_now)
                 if xs[3] <= 0.0 and a < 0.0:
                     a = 0.0

@@ -138,7 +138,8 @@ def main(argv=None) -> int:
                      f"gain={r.get('gain', 0):.2f}")
         elif "max_gain" in r:
             extra = f"max_gain={r['max_gain']:.3f}"
-        print(f"{r['case']:20s} {r['truth']}{r['seed']} {r['over'] or ''} top={r['top']} {extra} unexpl={r['unexplained']} "
+        print(f"{r['case']:20s} {r['truth']}{r['seed']} {r['over'] or ''} top={r['top']} {extra} "
+              f"unexpl={r['unexplained']} "
               f"({r['t_gen_s']}+{r['t_diag_s']} s)")
         print(f"{'':22s}findings={r['findings']}")
     if a.json:

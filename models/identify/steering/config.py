@@ -118,7 +118,7 @@ class SteeringIdConfig:
     understeer_min_speed_sq_ratio: float = 2.0
 
     @classmethod
-    def for_vehicle(cls, vehicle, **overrides) -> "SteeringIdConfig":
+    def for_vehicle(cls, vehicle, **overrides) -> SteeringIdConfig:
         """The defaults scaled to a vehicle smaller than the reference (:data:`SPEED_THRESHOLDS`,
         :data:`RATE_THRESHOLDS`, :data:`LENGTH_THRESHOLDS`, :data:`TIME_THRESHOLDS`), then
         ``overrides`` (field name ->

@@ -100,7 +100,9 @@ class DeadTime:
     cv: dict | None = None
 
     def to_dict(self, smooth_s: float) -> dict:
-        fin = (lambda v: float(v) if np.isfinite(v) else None)
+        def fin(v):
+            return float(v) if np.isfinite(v) else None
+
         return {"estimate_s": fin(self.estimate_s), "interval_s": [fin(v) for v in self.interval_s],
                 "used": self.used, "determined": self.used,
                 "note": (f"dead time {self.tau_s:.3f} s" if self.used else
