@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench clean sysdeps
+.PHONY: demo test lint typecheck bench clean sysdeps
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -25,9 +25,19 @@ sysdeps:
 	    (apt-get update -qq && apt-get install -y -qq tmux chromium >/dev/null) || \
 	    echo "note: tmux/chromium not installed; their tests will skip"; }
 
+# Static checks, also run by `make test` before the tests. mypy checks the package hmpc, whose
+# directory is this one: it is linked as $(VENV)/mypy-root/hmpc (pyproject.toml, [tool.mypy]).
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+typecheck: $(STAMP)
+	@mkdir -p $(VENV)/mypy-root && ln -sfn "$(CURDIR)" $(VENV)/mypy-root/hmpc
+	$(BIN)/mypy
+
 # The real-time tests run after the CPU-bound ones, three at a time: each keeps a 50-100 Hz
 # loop and uses about a quarter of a core (measured: 106 s CPU in 155 s wall for all 31).
-test: $(STAMP) sysdeps
+test: $(STAMP) sysdeps lint typecheck
 	$(BIN)/python -m pytest -q -n 2 -m 'not realtime' tests
 	$(BIN)/python -m pytest -q -n 3 -m realtime tests
 

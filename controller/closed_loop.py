@@ -19,6 +19,7 @@ import math
 import time
 from dataclasses import dataclass, field, replace
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -189,6 +190,7 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
     truth = TruthPlant(pp, list(effects), dt_s=plant_dt_s) if effects else None
     lim = limits or ActuatorLimits.from_params(params)
     sensor_cfg = sensor_config(sensors, speed_noise_mps, position_noise_m)
+    assert pp.steering is not None  # HybridPlant(pp) took it as a model
     d_steer = DelayLine(float(pp.steering.dead_time_s or 0.0), plant_dt_s)
     d_acc = DelayLine(float(pp.longitudinal_dead_time_s or 0.0), plant_dt_s)
     d_brk = DelayLine(float(pp.longitudinal_dead_time_s or 0.0), plant_dt_s)
@@ -397,7 +399,7 @@ def sensor_config(sensors: SensorConfig | None = None, speed_noise_mps: float | 
     ``speed_noise_mps`` sets the wheel-speed and GNSS speed noise [m/s], ``position_noise_m``
     the GNSS position noise [m]."""
     cfg = sensors or SensorConfig()
-    kw = {}
+    kw: dict[str, Any] = {}
     if speed_noise_mps is not None:
         kw.update(speed_noise_mps=float(speed_noise_mps),
                   gnss_speed_noise_mps=float(speed_noise_mps))

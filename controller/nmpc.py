@@ -25,6 +25,7 @@ functions the plant and the fast path call, evaluated on CasADi symbols (``ops=c
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -36,6 +37,9 @@ from hmpc.controller.limits import ActuatorLimits
 from hmpc.controller.modes import ModeConfig
 from hmpc.controller.mpc import MpcConfig, MpcController
 from hmpc.controller.mpc.qp import NS, NU, NX
+
+if TYPE_CHECKING:
+    import casadi as ca
 
 
 class NmpcController(MpcController):
@@ -54,7 +58,7 @@ class NmpcController(MpcController):
             from dataclasses import replace
             cfg = replace(cfg, cold_start_iterations=1)
         self.ipopt_max_iter = int(ipopt_max_iter)
-        self._opti = None
+        self._opti: ca.Opti | None = None
         super().__init__(params, cfg, limits, mode_config)
         # the NLP is written on eq. 1, 7, 8 alone: the report's model, without the physics of
         # ``extensions:`` the fast path adds (models.plant.plant_extensions), in the delay
@@ -93,6 +97,8 @@ class NmpcController(MpcController):
             "a_prev": o.parameter(), "v_lo": o.parameter(N),
             "v_hi": o.parameter(N), "w_lo": o.parameter(N), "w_hi": o.parameter(N),
         }
+        off: float | ca.MX
+        sc: float | ca.MX
         b, off, sc = pl.wheelbase_m, pl.offset_rad, pl.scale
         if self._map_as_parameters:
             p["sw_off"], p["sw_scale"] = o.parameter(), o.parameter()
@@ -104,7 +110,7 @@ class NmpcController(MpcController):
                               zone_accel(p["z_off"][k], p["z_scale"][k], p["z_brake"][k], u[1],
                                          u[2]))
 
-        J = 0
+        J: ca.MX | int = 0
         wl, wh, wv = cfg.w_lateral * dt, cfg.w_heading * dt, cfg.w_speed * dt
         o.subject_to(X[:, 0] == p["x0"])
         for k in range(N):
@@ -168,6 +174,7 @@ class NmpcController(MpcController):
         if self._opti is None:
             self._build()
         o = self._opti
+        assert o is not None  # built above
         self._set_parameters(stage)
         o.set_initial(self._X, stage.states.T)
         o.set_initial(self._U, stage.inputs.T)
@@ -195,6 +202,7 @@ class NmpcController(MpcController):
         """The NLP's per-step parameters: reference, terminal cost, zone models, bounds."""
         N, pl = self.N, self.plant
         o, p = self._opti, self._p
+        assert o is not None  # _solve builds the NLP first
         path, band, zones = stage.path, stage.band, stage.zones
         xr, yr, th, psi_r, v_r = path.x_m, path.y_m, path.heading_rad, path.psi_rad, \
             stage.v_ref_mps

@@ -112,6 +112,7 @@ class PidController:
     def use_model(self, model) -> None:
         """New model values (``controller.adapt.LearnedModel``): the PID uses only eq. 7's
         offset and scale, for its steering feed-forward."""
+        assert self.params.steering is not None
         self.params = replace(self.params, steering=replace(
             self.params.steering, offset_rad=float(model.offset_rad), scale=float(model.scale)))
 
@@ -189,6 +190,7 @@ class PidController:
         delta = self._pure_pursuit(x, ref, t)
         self._delta_f = _lowpass(self._delta_f, delta, c.steer_filter_tau_s, dt)
         p = self.params.steering
+        assert p is not None
         sw = steering_wheel_angle_for(self._delta_f, p.offset_rad, p.scale)
         prev_sw = None if self._last is None else self._last.steering_wheel_angle_rad
         sw = _toward(prev_sw, sw, c.steering_rate_max_radps * dt)

@@ -227,7 +227,7 @@ def _decode_commands(times, ids, datas, spec) -> dict:
     """Raw-scaled values of a command message's value and enable signals: name -> array."""
     m = spec.message
     names = list(spec.values.values()) + list(spec.enable)
-    out = {n: [] for n in names}
+    out: dict[str, list[float]] = {n: [] for n in names}
     tt = []
     for t, fid, data in zip(times, ids, datas):
         if fid != m.frame_id:

@@ -321,11 +321,11 @@ def _unit_hint(value: float, lo: float, hi: float, ratio_to: float | None = None
         r_lo, r_hi = TRACK_WHEELBASE_RATIO
         both = [(n, x) for n, x in fits if r_lo <= min(x, ratio_to) / max(x, ratio_to) <= r_hi]
         fits = both or fits
-    fits = [f"{name} ({x:.4g} m)" for name, x in fits]
-    if not fits:
+    named = [f"{name} ({x:.4g} m)" for name, x in fits]
+    if not named:
         return ""
-    return "; likely given in " + (fits[0] if len(fits) == 1 else
-                                  ", ".join(fits[:-1]) + " or " + fits[-1])
+    return "; likely given in " + (named[0] if len(named) == 1 else
+                                  ", ".join(named[:-1]) + " or " + named[-1])
 
 
 def _check_geometry(path: str, vehicle: Vehicle) -> None:
@@ -353,8 +353,9 @@ def _check_geometry(path: str, vehicle: Vehicle) -> None:
                              f"have {lo:g}-{hi:g}): the two are likely in different units or "
                              "swapped", path, key=f"vehicle.{k}")
 
-_LONG = {"zones": None, "dead_time_s": _num, "hysteresis_mps": _num, "accel_source": _text,
-         "accel_source_chosen": _text, "accel_source_scores_mps2": _scores}
+_LONG: dict[str, Any] = {"zones": None, "dead_time_s": _num, "hysteresis_mps": _num,
+                         "accel_source": _text, "accel_source_chosen": _text,
+                         "accel_source_scores_mps2": _scores}
 
 
 def parse_params(data: Any, path: str = "<params>", *, require_model: bool = False) -> Params:

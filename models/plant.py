@@ -36,7 +36,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -85,16 +86,17 @@ def bicycle_rates(psi_rad, v_mps, delta_rad, wheelbase_m, ops=np):
 
 class BicycleJacobian(NamedTuple):
     """The non-zero partial derivatives of eq. 1's (x', y', psi') with respect to the heading
-    psi, the speed v and the steering input u (``delta = offset + scale * u``)."""
+    psi, the speed v and the steering input u (``delta = offset + scale * u``): floats, arrays
+    or CasADi expressions, as ``ops`` computes them."""
 
-    dx_dpsi: object
-    dx_dv: object
-    dy_dpsi: object
-    dy_dv: object
-    dpsi_dv: object
-    dx_du: object
-    dy_du: object
-    dpsi_du: object
+    dx_dpsi: Any
+    dx_dv: Any
+    dy_dpsi: Any
+    dy_dv: Any
+    dpsi_dv: Any
+    dx_du: Any
+    dy_du: Any
+    dpsi_du: Any
 
 
 def bicycle_jacobian(psi_rad, v_mps, delta_rad, wheelbase_m, scale=1.0,
@@ -159,6 +161,7 @@ def _extension_jacobians(plant: HybridPlant, X: np.ndarray, U: np.ndarray, A: np
     (d delta / d sw and, with understeer, d delta / d v through eq. 1) and the speed
     dependence of the resistances and the creep (the (v, v) entry)."""
     ext = plant.ext
+    assert ext is not None  # called only for a plant with extensions
     v = X[:, IV]
     if ext.steering:
         b = plant.wheelbase_m
@@ -380,6 +383,7 @@ class HybridPlant:
             raise ValueError("HybridPlant needs a parameter file with steering and zones")
         self.params = params
         self.wheelbase_m = float(params.vehicle.wheelbase_m)
+        assert params.steering is not None  # is_model
         self.offset_rad = float(params.steering.offset_rad)
         self.scale = float(params.steering.scale)
         h = hysteresis_mps if hysteresis_mps is not None else params.hysteresis_mps
@@ -450,7 +454,8 @@ class HybridPlant:
         return derivative_batch(self, np.atleast_2d(np.asarray(s, dtype=float)),
                                 np.atleast_2d(np.asarray(u, dtype=float)), np.array([zone]))[0]
 
-    def step(self, s: np.ndarray, u: np.ndarray, dt_s: float, zone: int | None = None,
+    def step(self, s: np.ndarray, u: np.ndarray | Sequence[float], dt_s: float,
+             zone: int | None = None,
              accel_extra_mps2: float = 0.0) -> StepResult:
         """Advance ``dt_s`` with inputs held, zone chosen with hysteresis from ``zone``.
 
@@ -489,6 +494,7 @@ class HybridPlant:
         (one predictor pass: the resistances change little over a step), the steering shape
         at that speed; the same standstill rule and midpoint position update."""
         ext = self.ext
+        assert ext is not None  # called only with extensions
         v0 = max(vs, 0.0)
         ap = float(u[IAP])
         if ext.longitudinal:

@@ -160,8 +160,9 @@ class Reference:
                        window_m: float = 10.0) -> np.ndarray:
         """Signed distance of a driven trajectory to the path [m], lap by lap."""
         out = np.empty(len(x_m))
-        s = float(self.project(float(x_m[0]), float(y_m[0]), self.s_at_time(t_s[0]), 1e9)[0]) \
-            if self.length_m < 2 * window_m else float(self.s_at_time(t_s[0]))
+        s0 = float(self.s_at_time(t_s[0]))
+        s = float(self.project(float(x_m[0]), float(y_m[0]), s0, 1e9)[0]) \
+            if self.length_m < 2 * window_m else s0
         for i in range(len(x_m)):
             s, out[i] = self.project(float(x_m[i]), float(y_m[i]), s, window_m)
         return out

@@ -67,6 +67,7 @@ def encode_command(spec: CommandSpec, quantities: dict[str, float], enabled: boo
         raw[spec.counter] = int(counter) % spec.counter_modulo
     data = bytearray(msg.encode(raw, scaling=False, padding=False, strict=False))
     if spec.checksum is not None:
+        assert spec.scheme is not None  # the profile loader sets both or neither
         data[-1] = SCHEMES[spec.scheme](msg.frame_id, data, len(data))
     return can.Message(arbitration_id=msg.frame_id, data=bytes(data), dlc=len(data),
                        is_extended_id=msg.is_extended_frame)

@@ -102,6 +102,7 @@ def audit_candump(profile: ActuationProfile, params: Params, path: str | Path) -
                 why = accel_ok(a, allowed or a == 0.0, tl)
             elif spec.role == "steer_angle":
                 s = m.get_signal_by_name(spec.values["steering_wheel_angle_rad"])
+                assert chk_a is not None  # the profile has a steer_angle command
                 why = chk_a.check(raw[spec.values["steering_wheel_angle_rad"]] * s.scale, v)
             elif spec.role == "pedals":
                 sa = m.get_signal_by_name(spec.values["accel_pedal"]).scale

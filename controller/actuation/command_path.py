@@ -152,6 +152,7 @@ class CommandPath:
         a = self.lim_a.clip(ang, vv, spec.period_s)
         if steer_active and abs(a - ang) > 1e-3:
             self.clips["steer"] += 1
+        assert self.chk_a is not None  # the profile has a steer_angle command
         why = self.chk_a.check(a, vv)
         if why:
             self._block(why)

@@ -54,6 +54,7 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import can
 import numpy as np
@@ -76,6 +77,9 @@ from hmpc.controller.actuation.faults import (Fault, check_node_faults, fault_ac
 from hmpc.controller.actuation.feedback import Feedback
 from hmpc.controller.actuation.profiles import ActuationProfile
 from hmpc.controller.actuation.watchdog import Watchdog, WatchdogConfig
+
+if TYPE_CHECKING:
+    from hmpc.controller.estimator import Estimator
 
 
 @dataclass(frozen=True)
@@ -151,7 +155,7 @@ class _Run:
     sent: dict
     trace: dict
     est: np.ndarray
-    ekf: object
+    ekf: Estimator | None
     mono0: float
     epoch0: float
     periods: list = field(default_factory=list)
@@ -197,7 +201,7 @@ class _Tick:
 
     t: float
     t_mono: float
-    seen: object = ()
+    seen: list[str] | tuple[()] = ()
     v_meas: float = math.nan
     sw_meas: float = math.nan
     period_ws: float | None = None
@@ -228,8 +232,8 @@ class DriveLoop:
 
     def __init__(self, profile: ActuationProfile, params: Params, controller, reference: Reference,
                  bus_kwargs: dict, candump: str | Path, *, duration_s: float,
-                 faults: list[Fault] = (), node=None, config: DriveConfig = DriveConfig(),
-                 clock=None, adapter=None):
+                 faults: list[Fault] | tuple[()] = (), node=None,
+                 config: DriveConfig = DriveConfig(), clock=None, adapter=None):
         self.adapter = adapter
         self.adapt_cpu_s: list = []   # the adapter's CPU time per control step [s]
         self._adapt_pending_s = 0.0
@@ -419,7 +423,7 @@ class DriveLoop:
     def _drain(self, r: _Run, tk: _Tick) -> list:
         """Every frame waiting on the bus, logged as received (none while the
         ``feedback_loss`` fault is active: lost on the way, never seen, never logged)."""
-        rx = []
+        rx: list[can.Message] = []
         while True:
             m = r.bus.recv(timeout=0.0)
             if m is None:
@@ -530,7 +534,7 @@ class DriveLoop:
             why = r.stop_reason_pending or self._stop_request or why
             if why:
                 self._begin_stop(r, why, tk)
-            elif t - r.engaged_at >= self.duration_s:
+            elif r.engaged_at is not None and t - r.engaged_at >= self.duration_s:
                 self._begin_stop(r, "duration", tk)
         elif r.state == "disengaged" and self._stop_request:
             r.stop["reason"] = self._stop_request  # never engaged: nothing to stop
@@ -643,7 +647,7 @@ class DriveLoop:
     def _run_over(self, r: _Run, tk: _Tick) -> bool:
         """Step 7: the hold has lasted ``hold_s``, or the stop has timed out."""
         cfg, t = self.config, tk.t
-        if r.state == "holding" and t - r.hold_from >= cfg.hold_s:
+        if r.state == "holding" and r.hold_from is not None and t - r.hold_from >= cfg.hold_s:
             return True
         return r.state == "stopping" and r.stop["detected_t_s"] is not None \
             and t - r.stop["detected_t_s"] > cfg.stop_timeout_s

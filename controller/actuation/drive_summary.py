@@ -56,7 +56,7 @@ def summarize(trace, periods, late_steps, solve_ms, statuses, failures, sent, bl
     per = np.asarray(periods) * 1e3
     tr = {k: np.asarray(v, dtype=float) for k, v in trace.items()}
     eng = tr["engaged"] > 0.5 if len(tr["t_s"]) else np.zeros(0, bool)
-    kpi = {"speed_error_rms_mps": None, "lateral_error_rms_m": None,
+    kpi: dict[str, object] = {"speed_error_rms_mps": None, "lateral_error_rms_m": None,
            "pedal_switches_per_min": None, "zone_transitions_per_min": None,
            "steering_reversals_per_min": None, "steering_rate_rms_radps": None,
            "accel_pedal_rate_rms_ps": None, "brake_pedal_rate_rms_ps": None}

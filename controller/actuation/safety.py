@@ -94,8 +94,8 @@ class ToyotaTorqueLimiter:
             self.reset(t_s)
             return 0
         last = self.last
-        hi = max(last, 0) + lim.max_rate_up
-        lo = min(last, 0) - lim.max_rate_up
+        hi: float = max(last, 0) + lim.max_rate_up
+        lo: float = min(last, 0) - lim.max_rate_up
         hi = min(hi, max(last - lim.max_rate_down, max(eps_max, 0) + lim.max_torque_error - 2))
         lo = max(lo, min(last + lim.max_rate_down, min(eps_min, 0) - lim.max_torque_error + 2))
         # panda's rt_rate_limit_check: within max_rt_delta of the window's reference, but
@@ -256,6 +256,7 @@ class AngleLimits:
         lock = params.vehicle.steering_wheel_angle_max_rad
         if lock is not None:
             kw.setdefault("lock_rad", float(lock))
+        assert params.steering is not None
         return cls(float(params.vehicle.wheelbase_m), float(params.steering.offset_rad),
                    float(params.steering.scale), **kw)
 

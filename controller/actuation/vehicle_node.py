@@ -124,7 +124,7 @@ class VehicleNode:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self.t0 = None
+        self.t0: float | None = None
         # actuator state
         self.sw_rad = 0.0        # steering-wheel angle
         self.sw_rate = 0.0
@@ -150,7 +150,7 @@ class VehicleNode:
     # ------------------------------------------------------------------ control
     def start(self, t0: float | None = None) -> None:
         self.t0 = time.monotonic() if t0 is None else t0
-        self._bus = can.Bus(**self.bus_kwargs)
+        self._bus: can.BusABC | None = can.Bus(**self.bus_kwargs)
         self._thread = threading.Thread(target=self._run, name="vehicle-node", daemon=True)
         self._thread.start()
 
@@ -159,10 +159,12 @@ class VehicleNode:
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         if getattr(self, "_bus", None) is not None:
+            assert self._bus is not None
             self._bus.shutdown()
             self._bus = None
 
     def now(self) -> float:
+        assert self.t0 is not None  # started
         return time.monotonic() - self.t0
 
     def reject_commands(self, t_s: float, duration_s: float = 0.3) -> None:
@@ -197,6 +199,7 @@ class VehicleNode:
             t = self.now()
             if t - nxt > 0.1:  # we were descheduled for long: do not try to catch up
                 nxt = t
+            assert self._bus is not None  # open until the thread has stopped
             while True:
                 msg = self._bus.recv(timeout=0.0)
                 if msg is None:
@@ -231,7 +234,8 @@ class VehicleNode:
         data = bytes(msg.data)
         if len(data) != m.length:
             return self._reject("length")
-        if spec.checksum is not None and SCHEMES[spec.scheme](m.frame_id, data) != data[-1]:
+        if spec.checksum is not None and spec.scheme is not None \
+                and SCHEMES[spec.scheme](m.frame_id, data) != data[-1]:
             return self._reject("checksum")
         raw = m.decode(data, decode_choices=False, scaling=False)
         if spec.counter is not None:
@@ -240,7 +244,7 @@ class VehicleNode:
             fresh = last is None or t - self._last_rx_s.get(m.frame_id, -1e9) > 0.5
             self._last_counter[m.frame_id] = c
             self._last_rx_s[m.frame_id] = t
-            if not fresh and c != (last + 1) % spec.counter_modulo:
+            if not fresh and last is not None and c != (last + 1) % spec.counter_modulo:
                 return self._reject("counter")
         with self._lock:
             if self._rejecting(t):

@@ -35,7 +35,7 @@ class Watchdog:
     def __init__(self, config: WatchdogConfig = WatchdogConfig()):
         self.config = config
         self.consecutive_misses = 0
-        self._prev = None  # (loop clock, monotonic) of the previous tick
+        self._prev: tuple[float, float] | None = None  # (loop clock, monotonic), previous tick
 
     def clock(self, loop_t_s: float, mono_s: float) -> str:
         c = self.config

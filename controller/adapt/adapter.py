@@ -77,6 +77,7 @@ def file_timing(params: Params) -> tuple[float, float, float, float]:
     """(steering dead time, longitudinal dead time, steering lag, longitudinal lag) [s] of a
     parameter file, as the controller reads them."""
     ext, _st, _lon = plant_extensions(params)
+    assert params.steering is not None
     return (float(params.steering.dead_time_s or 0.0),
             float(params.longitudinal_dead_time_s or 0.0),
             ext.lag_steer_s if ext is not None else 0.0,
@@ -123,10 +124,10 @@ class ModelAdapter:
         self._cmd2 = [0.0, 0.0]
         self.timing_file = file_timing(params)
         self.timing_used = list(self.timing_file)
-        self.timing_est = {"steering": None, "longitudinal": None}
+        self.timing_est: dict[str, dict | None] = {"steering": None, "longitudinal": None}
         self.zones.use_timing(self.timing_used[1], self.timing_used[3])
         self._v_max = [z.v_max_mps for z in params.zones]
-        self._t_prev = None
+        self._t_prev: float | None = None
         self.t0_s: float | None = None   # time of the first learning step [s]
         self._v_prev = math.nan
         self._sw_prev = math.nan

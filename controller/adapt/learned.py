@@ -70,6 +70,7 @@ def restore(adapter: ModelAdapter, learned: Params, path: str) -> list[str]:
     f = adapter.steering.filter
     st = learned.steering
     prior = [math.sqrt(c) for c in f.cap]
+    assert st is not None
     f.restore([st.offset_rad, st.scale],
               [_sigma(st.offset_ci95_rad, st.offset_rad, prior[OFFSET]),
                _sigma(st.scale_ci95, st.scale, prior[SCALE])])
@@ -130,6 +131,7 @@ def learned_params(adapter: ModelAdapter, *, run_s: float = 0.0) -> Params:
     def ci(filt, i, value):
         s = 1.96 * filt.sigma(i)
         return (value - s, value + s)
+    assert p.steering is not None
     steering = replace(p.steering, offset_rad=u[0], scale=u[1],
                        offset_ci95_rad=ci(f, OFFSET, u[0]), scale_ci95=ci(f, SCALE, u[1]),
                        dead_time_s=_timing_value(adapter, 0, p.steering.dead_time_s),

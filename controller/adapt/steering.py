@@ -45,6 +45,7 @@ class SteeringLearner:
     def __init__(self, params: Params, config: AdaptConfig, yaw_rate_noise_radps: float):
         c = config
         self.cfg = c
+        assert params.steering is not None
         off0, sc0 = float(params.steering.offset_rad), float(params.steering.scale)
         self.file = (off0, sc0)
         self.b = float(params.vehicle.wheelbase_m)

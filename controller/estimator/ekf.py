@@ -55,6 +55,7 @@ by Cholesky (LAPACK ``dposv``); what it still allocates is its few small product
 from __future__ import annotations
 
 import math
+from typing import Any, cast
 
 import numpy as np
 from scipy.linalg.blas import daxpy, ddot, dger
@@ -67,6 +68,15 @@ from hmpc.models.zones import zone_with_hysteresis
 
 from hmpc.controller.estimator.config import IBR, IDOFF, IKWS, IPSI, IV, IX, IY, NXE, SENSORS, \
     EstimatorConfig
+
+
+def float_view(a: np.ndarray) -> memoryview[float]:
+    """A flat memoryview of a float64 array, whose items are Python floats: element access
+    without numpy scalars. The casts say what the type stubs cannot (numpy declares the buffer
+    protocol for Python >= 3.12 only; a memoryview's items are int unless its format is a
+    float one)."""
+    return cast("memoryview[float]", memoryview(cast(Any, a)))
+
 
 #: event kinds (:meth:`Ekf._apply`; the event log's first field)
 EVENT_TICK, EVENT_CAN, EVENT_IMU, EVENT_GNSS = 0, 1, 2, 3
@@ -102,6 +112,7 @@ class Ekf:
         self._b = float(veh.wheelbase_m)
         self._track_r = float(veh.track_rear_m if veh.track_rear_m is not None
                               else veh.track_front_m)
+        assert params.steering is not None  # is_model
         self._off = float(params.steering.offset_rad)
         self._scale = float(params.steering.scale)
         self._lever = (float(cfg.gnss_offset_m[0]), float(cfg.gnss_offset_m[1]))
@@ -124,9 +135,9 @@ class Ekf:
         self._PT = self._P.T  # a view: P in Fortran order, for BLAS's in-place rank-one update
         self._Pflat = self._P.reshape(-1)  # a view: its diagonal is every NXE + 1-th element
         # flat float views of x, P, F: element access on Python floats, without numpy scalars
-        self._xm = memoryview(self._x)
-        self._Pm = memoryview(self._Pflat)
-        self._Fm = memoryview(self._F.reshape(-1))
+        self._xm = float_view(self._x)
+        self._Pm = float_view(self._Pflat)
+        self._Fm = float_view(self._F.reshape(-1))
         self._geometry = (self._off, self._scale, self._b)  # eq. 7 offset, scale; wheelbase
         self._tmp = np.zeros((NXE, NXE))
         self._u4 = np.zeros(3)
@@ -151,20 +162,21 @@ class Ekf:
         self._half = np.full((), 0.5)  # a 0-d array: a Python float in a ufunc costs more
         self._y = {m: np.zeros(m) for m in range(1, 5)}
         self._R = {m: np.zeros(m) for m in range(1, 5)}
-        self._Hm = {m: memoryview(self._H[m].reshape(-1)) for m in range(1, 5)}
-        self._ym = {m: memoryview(self._y[m]) for m in range(1, 5)}
-        self._Rm = {m: memoryview(self._R[m]) for m in range(1, 5)}
+        self._Hm = {m: float_view(self._H[m].reshape(-1)) for m in range(1, 5)}
+        self._ym = {m: float_view(self._y[m]) for m in range(1, 5)}
+        self._Rm = {m: float_view(self._R[m]) for m in range(1, 5)}
         # one-value updates: a row H per measurement (its zeros never change; its other
         # elements written through a memoryview) and P H'
         self._h_speed = np.zeros(NXE)                  # IV, IKWS, IDOFF
         self._h_yaw = np.zeros(NXE)                    # IV, IDOFF; IBR = 1
         self._h_yaw[IBR] = 1.0
         self._h_wyaw = np.zeros(NXE)                   # IV, IDOFF, IKWS
-        self._hm_speed, self._hm_yaw, self._hm_wyaw = (memoryview(h) for h in (
+        self._hm_speed, self._hm_yaw, self._hm_wyaw = (float_view(h) for h in (
             self._h_speed, self._h_yaw, self._h_wyaw))
         self._ph1 = np.zeros(NXE)
         self._r_speed = cfg.can_speed_mps ** 2
-        self.stats = {s: {"accepted": 0, "rejected": 0} for s in SENSORS}
+        self.stats: dict[str, dict[str, float]] = {s: {"accepted": 0, "rejected": 0}
+                                                  for s in SENSORS}
         self.stats["gnss"].update(too_old=0, replays=0, reinit=0, latency_max_s=0.0)
         self._counting = True
         self._clear_held()

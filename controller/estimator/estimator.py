@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import bisect
 import math
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +45,8 @@ from hmpc.models.plant import IAP, IBP, ISW
 
 from hmpc.controller.estimator.config import IBR, IDOFF, IKWS, IV, NXE, STATE_NAMES, \
     EstimatorConfig
-from hmpc.controller.estimator.ekf import EVENT_CAN, EVENT_GNSS, EVENT_IMU, EVENT_TICK, Ekf
+from hmpc.controller.estimator.ekf import (EVENT_CAN, EVENT_GNSS, EVENT_IMU, EVENT_TICK, Ekf,
+                                          float_view)
 
 
 def _value(v) -> float:
@@ -81,13 +83,13 @@ class Estimator(Ekf):
         # after it as tuples in fixed-length lists; state and covariance after it in arrays.
         n = cfg.history_events
         self._ev_n, self._ev_cap = 0, n
-        self._ev = [None] * n
+        self._ev: list[Any] = [None] * n  # (kind, t, p0, p1, p2, p3) per event
         self._ev_t = [0.0] * n
-        self._ev_aux = [None] * n
+        self._ev_aux: list[Any] = [None] * n  # the held inputs after each event
         self._ev_x = np.zeros((n, NXE))
         self._ev_P = np.zeros((n, NXE, NXE))
-        self._ev_xm = memoryview(self._ev_x.reshape(-1))
-        self._ev_Pm = memoryview(self._ev_P.reshape(-1))
+        self._ev_xm = float_view(self._ev_x.reshape(-1))
+        self._ev_Pm = float_view(self._ev_P.reshape(-1))
         self.initialized = False
         self._last_speed = math.nan
 
@@ -321,6 +323,7 @@ class Estimator(Ekf):
             return
         h = cap // 2
         m = n - h
+        a: Any
         for a in (self._ev, self._ev_t, self._ev_aux, self._ev_x, self._ev_P):
             a[:m] = a[h:n]
         self._ev_n = m

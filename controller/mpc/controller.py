@@ -158,9 +158,11 @@ class MpcController:
                               model.long_lag_s)
         if not getattr(self, "_own_model", False):  # the caller's file is never written to
             p = self.params
+            assert p.steering is not None
             self.params = replace(p, steering=replace(p.steering),
                                   zones=[replace(z) for z in p.zones])
             self._own_model = True
+        assert self.params.steering is not None
         self.params.steering.offset_rad, self.params.steering.scale = pl.offset_rad, pl.scale
         for z, o, s, b in zip(self.params.zones, model.zone_offset_mps2, model.zone_scale_mps2,
                               model.zone_brake_mps2):

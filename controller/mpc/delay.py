@@ -76,14 +76,16 @@ class DelayCompensation:
     lag_method = "inverse"
 
     def __init__(self, params: Params, plant: HybridPlant, dt_s: float, n_stages: int):
+        assert params.steering is not None
         self.dead_time_steer_s = float(params.steering.dead_time_s or 0.0)
         self.dead_time_long_s = float(params.longitudinal_dead_time_s or 0.0)
         ext = plant.ext
         #: actuator_lag time constants [s] (steering, pedals): see :meth:`command`
         self.lag_s = (0.0, 0.0) if ext is None else (ext.lag_steer_s, ext.lag_long_s)
         self.dt, self.N = dt_s, n_stages
-        self.lag_act = None  # lag outputs (sw, ap, bp) where this step's command starts to act
-        self._lag = None  # the simulated lag states: _LagState, set on the first step
+        #: lag outputs (sw, ap, bp) where this step's command starts to act
+        self.lag_act: np.ndarray | None = None
+        self._lag: _LagState | None = None  # the simulated lag states, set on the first step
         self.reset()
 
     def reset(self) -> None:
@@ -233,8 +235,10 @@ class DelayCompensation:
         (ts, tl), e, pl, N = self.lag_s, self.lag_act, plant, self.N
         sw, ap, bp = cmd.steering_wheel_angle_rad, cmd.accel_pedal, cmd.brake_pedal
         if ts > 0 and k_s + 1 < N:
+            assert e is not None  # set by _predict_through_lag, which a lag makes predict run
             sw = self._inverse_lag(sw, float(U[k_s + 1, 0]), float(e[0]), ts)
         if tl > 0 and k_l + 1 < N:
+            assert e is not None  # set by _predict_through_lag, which a lag makes predict run
             sc, br = max(float(pl.z_scale[zone]), 1e-6), max(float(pl.z_brake[zone]), 1e-6)
             g = self._inverse_lag(sc * ap - br * bp, sc * float(U[k_l + 1, 1])
                                   - br * float(U[k_l + 1, 2]), sc * e[1] - br * e[2], tl)

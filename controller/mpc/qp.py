@@ -13,6 +13,7 @@ by the stages elapsed (:class:`_Shift`).
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -31,6 +32,10 @@ BPAT_FLAT = np.array([NU * i + j for i, j in BPAT])  # BPAT in a flattened 4x3 b
 class QpLayout:
     """Index bookkeeping of the QP. Variables z = [x_0..x_N | u_0..u_{N-1} | s_0..s_{N-1}],
     slack s_k = (jerk limit, speed low, speed high) of the transition k -> k+1."""
+
+    #: constraint rows of the jerk limit, low and high (set in ``__init__`` by name)
+    r_jl: slice
+    r_jh: slice
 
     def __init__(self, n_stages: int, dt_s: float):
         N = self.N = n_stages
@@ -218,13 +223,14 @@ class QpSolver:
     def __init__(self, layout: QpLayout, config: MpcConfig):
         self.layout = layout
         self.config = config
-        self.solver = None
+        self.solver: Any = None  # osqp.OSQP once set up (osqp has no type information)
         self._update_s = 0.0
         self.forget()
 
     def forget(self) -> None:
         """Drop the warm start (a new run); the solver and its pattern stay."""
-        self.warm = None
+        #: the previous solution (primal, dual) to warm-start from, or None
+        self.warm: tuple[np.ndarray, np.ndarray | None] | None = None
         self.last_y: np.ndarray | None = None
 
     def solve(self, Pdata: np.ndarray, q: np.ndarray, Adata: np.ndarray, lo: np.ndarray,
@@ -282,6 +288,7 @@ class QpSolver:
         dual is None when the previous solution has none. Every block moves by the same
         shift, so slacks and all row blocks are shifted at once (:class:`_Shift`)."""
         L = self.layout
+        assert self.warm is not None  # called only with a previous solution
         x_prev, y_prev = self.warm
         sh = shift_stages
         z = np.empty(L.n)

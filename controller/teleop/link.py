@@ -199,7 +199,7 @@ def parse_address(text: str, default_port: int = DEFAULT_PORT) -> tuple[str, int
 
 
 # --------------------------------------------------------------------------- packets
-def _mac(key: bytes, body: bytes) -> bytes:
+def _mac(key: bytes, body: bytes | bytearray | memoryview) -> bytes:
     return hmac.digest(key, body, hashlib.sha256)
 
 
@@ -614,9 +614,10 @@ class LinkReceiver:
         n = min(self._n_lat, len(self._lat))
         if n:
             p50, p99 = np.percentile(self._lat[:n], [50, 99]) * 1e3
-            lat = {"p50": round(float(p50), 4), "p99": round(float(p99), 4)}
+            lat: dict[str, float | None] = {"p50": round(float(p50), 4),
+                                            "p99": round(float(p99), 4)}
         else:
-            lat = {"p50": None, "p99": None}
+            lat = {"p50": None, "p99": None}  # no packet: no latency
         return {
             "received": self.received, "accepted": self.accepted, "delivered": self.delivered,
             "ignored_not_engaged": self.ignored_not_engaged,

@@ -40,7 +40,7 @@ import struct
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, cast
 from collections.abc import Callable
 
 import numpy as np
@@ -134,7 +134,8 @@ def load_script(path: str | Path) -> Script:
             raise InputError(f"missing column '{c}'", p, line=header_line)
     if len(set(cols)) != len(cols):
         raise InputError("a column appears twice", p, line=header_line)
-    times, cmds = [], []
+    times: list[float] = []
+    cmds: list[TeleopCommand] = []
     for lineno, text in lines[1:]:
         cells = [c.strip() for c in next(csv.reader([text]))]
         if len(cells) != len(cols):
@@ -159,7 +160,8 @@ def load_script(path: str | Path) -> Script:
         if not times and t != 0.0:
             raise InputError(f"the first row must be at t_s 0, got {t:g}", p, line=lineno)
         times.append(t)
-        cmds.append(TeleopCommand(mode, tuple(vals), row["dead_man"] == "1"))
+        three = cast("tuple[float, float, float]", tuple(vals))  # padded to three above
+        cmds.append(TeleopCommand(mode, three, row["dead_man"] == "1"))
     if not times:
         raise InputError("script has a header but no rows", p)
     return Script(np.array(times), cmds, name=os.path.basename(p))

@@ -18,7 +18,8 @@ import struct
 from hmpc.controller.simclock import SimClock
 from hmpc.controller.teleop.link import (COMMAND_SIZE, FLAG_DEAD_MAN, KIND_COMMAND,
                                          PROTOCOL_VERSION, LinkConfig, LinkReceiver, Mode,
-                                         OperatorLink, TeleopCommand, _CMD, _mac, _us)
+                                         OperatorLink, StopRequest, TeleopCommand, _CMD, _mac,
+                                         _us)
 
 
 class LoopbackPair:
@@ -30,7 +31,7 @@ class LoopbackPair:
         self.rx = LinkReceiver(key, ("127.0.0.1", 0), config, clock=self.clock)
         self.op = OperatorLink(key, self.rx.address, clock=self.clock, seq_start=1000)
         self.commands: list[TeleopCommand] = []
-        self.stops = []
+        self.stops: list[StopRequest | None] = []
 
     def pump(self, n_datagrams: int, timeout_s: float = 2.0) -> None:
         """Poll until ``n_datagrams`` more datagrams have been read (lock step)."""

@@ -14,7 +14,7 @@ import select
 import sys
 import time
 
-from rich.console import Console, Group
+from rich.console import Console, Group, RenderableType
 from rich.live import Live
 from rich.panel import Panel
 from rich.table import Table
@@ -131,7 +131,7 @@ def render(t_s: float, cmd: TeleopCommand | None, tel: Telemetry | None, *, sour
     if last_key:
         g.add_row("last key", last_key)
     title = f"hmpc operator  {source} -> {target}  t {t_s:7.2f} s"
-    parts = [g]
+    parts: list[RenderableType] = [g]
     if source == "keyboard":
         parts.append(Text(KEY_HELP, style="dim"))
     return Panel(Group(*parts), title=title, title_align="left")

@@ -155,6 +155,7 @@ def _design(d: AccelData, tau_s: float, mount: bool, zero_phase: bool = False) -
     filt = _smoothed if zero_phase else _lagged
     cols = [filt(d, d.a, tau_s)]
     if mount:
+        assert d.q is not None  # a mounting hypothesis needs the lateral accelerometer
         cols.append(filt(d, d.q, tau_s))
     cols.append(np.ones(d.n))
     return np.column_stack(cols)

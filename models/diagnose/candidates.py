@@ -76,8 +76,8 @@ def fos_selects(d: lon.LonData, name: str, base: dict | None = None,
     # tiny fraction of mean(a^2)); Korenberg's 4/(N+1) rule and the blocked hold-out stay as
     # they are
     if len(y) > Xs.shape[1]:
-        base = Xs[:, :-1]
-        resid = y - base @ np.linalg.lstsq(base, y, rcond=None)[0]
+        X_base = Xs[:, :-1]
+        resid = y - X_base @ np.linalg.lstsq(X_base, y, rcond=None)[0]
         frac = float(np.mean(resid ** 2) / max(np.mean(y ** 2), 1e-300))
     else:
         frac = 1.0

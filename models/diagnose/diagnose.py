@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -76,7 +77,7 @@ class Diagnosis:
     channels: dict
     hypotheses: list
     evidence: list
-    longitudinal_input: str
+    longitudinal_input: str | None
     series: dict = field(repr=False, default_factory=dict)
     params_out: Params | None = None
     #: the report's baseline (eq. 7, eq. 8) fitted on the recording as it came, without any
@@ -174,7 +175,8 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
     regimes = regime_variables(w.ch, zones)
     steer_final = _steering_step(w, vehicle, cfg, res, say)
     ld = _longitudinal_data(w, zones, cfg)
-    lon_scores, response = {}, None
+    lon_scores: dict[str | None, Any] = {}
+    response = None
     if ld is not None:
         say(f"longitudinal: eq. 8 zones driven by {', '.join(ld.input_names)}")
         lon_scores, cl = _longitudinal_step(w, ld, cfg, res)
@@ -325,7 +327,7 @@ def _steering_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolut
         channels["position"] = {"unit": "m", "window_s": cfg.window_steer_s,
                                 "rmse_baseline": rmse(pos)}
         series["position"] = {"before": pos}
-    steer_scores = {None: b}
+    steer_scores: dict[str | None, Any] = {None: b}
     for h in ste.HYPOTHESES:
         s = ste.evaluate(sdt, h, cfg, cl)
         steer_scores[h] = s
@@ -362,7 +364,7 @@ def _longitudinal_step(w: _Work, ld: lon.LonData, cfg: DiagnoseConfig,
                            "rmse_baseline": rmse(ra)}
     w.series["speed"] = {"before": b.heldout_err}
     w.series["accel"] = {"before": ra}
-    lon_scores = {None: b}
+    lon_scores: dict[str | None, Any] = {None: b}
     for h in lon.HYPOTHESES:
         if h == "road_grade" and ld.grade is None:
             w.hyps.append({"effect": h, "tested": False, "why": "no altitude or pitch channel"})

@@ -12,7 +12,7 @@
 """
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, TypeVar
 from collections.abc import Callable
 
 import numpy as np
@@ -42,9 +42,12 @@ def sse_per_sample(m: FittedModel) -> float:
     return m.sse / max(m.n, 1)
 
 
-def grid_search(fit_at: Callable[[float], FittedModel], grid: np.ndarray,
+_Model = TypeVar("_Model", bound=FittedModel)
+
+
+def grid_search(fit_at: Callable[[float], _Model], grid: np.ndarray,
                 fine_step: float | None = None, *, end_pad: float = 0.0, rtol: float = 0.0,
-                atol: float = 0.0) -> tuple[FittedModel, np.ndarray, np.ndarray]:
+                atol: float = 0.0) -> tuple[_Model, np.ndarray, np.ndarray]:
     """The fit of ``fit_at`` with the smallest SSE per sample over ``grid``.
 
     With ``fine_step``: refined by a fine grid of that step from one coarse step below the best

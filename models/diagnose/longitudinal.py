@@ -52,8 +52,9 @@ LINEAR_EXT = {
     "road_grade": ("gain", (0.0, 2.0)),
     "idle_creep": ("accel_mps2", (0.0, 2.0)),
 }
-NONLINEAR = {"actuator_delay": "delay_s", "actuator_lag": "tau_s", "idle_creep": "creep_speed_mps",
-             "road_grade": "comp_rate_per_s"}
+NONLINEAR: dict[str | None, str] = {
+    "actuator_delay": "delay_s", "actuator_lag": "tau_s", "idle_creep": "creep_speed_mps",
+    "road_grade": "comp_rate_per_s"}
 #: an input whose magnitude never exceeds this in the training samples is not used there
 #: (pedal fractions, m/s^2 requests: 0.01 is below any deliberate actuation)
 INPUT_USED = 0.01
@@ -93,6 +94,7 @@ class LonData:
         segment, starting compensated)."""
         key = round(float(rate_per_s), 6)
         if key not in self._grade_cache:
+            assert self.grade is not None  # asked for only with a grade
             gs = G_MPS2 * np.sin(self.grade)
             if key > 0:
                 al = 1.0 - np.exp(-self.dt * key)
@@ -120,14 +122,14 @@ def prepare(ch: dict, zones=None, cfg: DiagnoseConfig = DiagnoseConfig()) -> Lon
                and np.nanstd(cmd) > 0.1)
     if use_cmd:
         # an ACC request drives the car while engaged; the driver's pedal before and between
-        U = [np.nan_to_num(np.asarray(cmd, float), nan=0.0)]
+        inputs = [np.nan_to_num(np.asarray(cmd, float), nan=0.0)]
         names = ["accel_cmd"]
         for nm, sign in (("accel_pedal", 1.0), ("brake_pedal", -1.0)):
             x = ch.get(nm)
             if x is not None and np.nanmax(np.abs(np.nan_to_num(x))) > 0.01:
-                U.append(sign * np.nan_to_num(np.asarray(x, float), nan=0.0))
+                inputs.append(sign * np.nan_to_num(np.asarray(x, float), nan=0.0))
                 names.append(nm)
-        U = np.column_stack(U)
+        U = np.column_stack(inputs)
         idle = np.zeros(n, bool)
     else:
         ap = np.asarray(ch.get("accel_pedal", np.zeros(n)), float)
@@ -183,15 +185,15 @@ def input_alignment(d: LonData) -> float:
         return 0.0
     U0 = d.U
     shifts = ALIGN_STEPS * d.dt
-    sse = []
+    per_shift = []
     try:
         for sh in shifts:
             d.U = shift_inputs(d, U0, float(sh))
             m = fit(d, LonSpec(), d.ok)
-            sse.append(sse_per_sample(m))
+            per_shift.append(sse_per_sample(m))
     finally:
         d.U = U0
-    sse = np.asarray(sse)
+    sse = np.asarray(per_shift)
     if not np.isfinite(sse).all():
         return 0.0
     i = int(np.argmin(sse))
@@ -439,6 +441,7 @@ def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None
     Xs = Xs[:, keep]
     bounds = {}
     if ext and cols[-1] == X.shape[1] - 1:
+        assert spec.term is not None  # ext: the model carries a linear term
         bounds[len(cols) - 1] = LINEAR_EXT[spec.term][1]
     coef, sse = lstsq_bounded(Xs, d.a[use], bounds)
     C = np.zeros((nz, 1 + m))
@@ -566,6 +569,7 @@ def evaluate(d: LonData, name: str | None, cfg: DiagnoseConfig, corr_len: float,
         local = None if d.commanded else np.zeros(1)  # a handful of rates: each fold tries all
     elif name in NONLINEAR:  # each fold searches near the full-data optimum, on its own data
         g0 = _param_value(full)
+        assert name is not None  # a key of NONLINEAR
         step = {"actuator_delay": 0.05, "actuator_lag": 0.05, "idle_creep": 0.25}[name]
         lo = 0.5 if name == "idle_creep" else 0.0
         local = np.unique(np.maximum(g0 + step * np.arange(-2, 3), lo))
@@ -615,6 +619,7 @@ def _params(d: LonData, m: LonModel, grid, sse_grid, corr_len, cfg) -> tuple[dic
         params[key] = m.ext
         intervals[key] = list(_ext_interval(d, m, corr_len, lo, hi))
     if name == "road_grade":
+        assert d.grade is not None  # the grade hypothesis runs only with a grade
         g = d.grade[d.ok]
         params["grade_rms_rad"] = float(np.sqrt(np.mean(g * g)))
         params["grade_mean_rad"] = float(np.mean(g))

@@ -7,6 +7,7 @@ came (:func:`baseline_params`).
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 from types import SimpleNamespace
 
 from hmpc.models.catalogue import CATALOGUE
@@ -25,7 +26,7 @@ def extensions_section(findings: list, longitudinal_input: str) -> dict:
     out: dict = {}
     for f in findings:
         names = CATALOGUE[f["effect"]]["parameters"]
-        e = {k: float(v) for k, v in f["parameters"].items() if k in names}
+        e: dict[str, Any] = {k: float(v) for k, v in f["parameters"].items() if k in names}
         iv = {k: [float(a), float(b)] for k, (a, b) in f["intervals"].items() if k in names}
         if iv:
             e["intervals"] = iv
@@ -158,6 +159,7 @@ def _keep_status(p: Params, given: Params | None, steering_refit: bool, zones_re
 
     gs = given.steering
     if steering_refit and gs is not None and gs.identifiable is False:
+        assert p.steering is not None
         p.steering.identifiable = False
         p.steering.note = ("refitted by hmpc diagnose on this recording; the given file flags "
                            f"it not identifiable: {why(gs.note)}")

@@ -12,6 +12,7 @@ names the start time that separates the two."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -123,7 +124,7 @@ def hypothesis_unit(h: dict) -> str:
 
 def hypothesis_factor(h: dict) -> float:
     """The factor from a hypothesis's held-out RMSE to its shown unit (deg for rad)."""
-    return show.shown(1.0, UNITS.get(h.get("channel") or "", ""))[0]
+    return cast(float, show.shown(1.0, UNITS.get(h.get("channel") or "", ""))[0])  # given 1.0
 
 
 def write_report(dg, out_dir, title: str = "", cfg: DiagnoseConfig = DiagnoseConfig()) -> str:
@@ -150,11 +151,11 @@ def write_report(dg, out_dir, title: str = "", cfg: DiagnoseConfig = DiagnoseCon
         figures.append({"file": Path(f).name,
                         "title": f"{LABELS.get(name, name)} over time, {which}"})
         rows = dg.channels[name].get("regime") or []
-        f = _regime_figure(rows, name, out / f"residual_regime_{name}.png")
-        if f:
+        rf = _regime_figure(rows, name, out / f"residual_regime_{name}.png")
+        if rf:
             which = ("before and after the finding" if all("rmse_after" in r for r in rows)
                      else "baseline only (no finding on this channel)")
-            figures.append({"file": Path(f).name,
+            figures.append({"file": Path(rf).name,
                             "title": f"{LABELS.get(name, name)} by regime, {which}"})
     xy = dg.series.get("path")
     if xy is not None:

@@ -86,11 +86,11 @@ def _fit(d: SensorData, name, mask, c=None):
 
 
 def _best_offset(d: SensorData, mask, grid):
-    sse = []
+    per_sample = []
     for c in grid:
         _, s, n = _fit(d, "sensor_time_offset", mask, c)
-        sse.append(s / max(n, 1))
-    sse = np.array(sse)
+        per_sample.append(s / max(n, 1))
+    sse = np.array(per_sample)
     return float(grid[int(np.nanargmin(sse))]), sse
 
 
@@ -147,6 +147,7 @@ def evaluate(d: SensorData, name, cfg: DiagnoseConfig, corr_len: float) -> Senso
         intervals["scale"] = [val - 1.96 * se, val + 1.96 * se]
     elif name == "sensor_time_offset":
         params["offset_s"] = val
+        assert grid is not None and sse_grid is not None  # searched for this hypothesis
         lo, hi = profile_interval(grid, sse_grid * n, n, corr_len)
         intervals["offset_s"] = [lo - 0.5 * d.dt, hi + 0.5 * d.dt]
     return SensorScore(name, val, rmse(err), err, bic(sse, n, k, corr_len), params, intervals)

@@ -25,6 +25,7 @@ and steering over each window, against the INS heading (or the bias-corrected gy
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.signal import lfilter
@@ -105,6 +106,7 @@ def support(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
         return None, "no yaw_rate or heading channel", {}
     if yaw is None or not np.isfinite(yaw).any():
         from hmpc.models.identify.stats import savgol_derivative
+        assert head is not None  # a recording with no usable yaw rate has a heading here
         yaw = savgol_derivative(np.unwrap(np.nan_to_num(head)), dt, cfg.deriv_window_s)
     yaw = np.asarray(yaw, float)
     finite = np.isfinite(v) & np.isfinite(sw) & np.isfinite(yaw)
@@ -113,8 +115,8 @@ def support(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
     valid = finite & (v > cfg.v_move_min_mps)
     segs = segments(valid, int(cfg.window_steer_s / dt))
     ok = np.zeros(len(t), bool)
-    for a, b in segs:
-        ok[a:b] = True
+    for a, b_ in segs:
+        ok[a:b_] = True
     b = float(wheelbase_m)
     with np.errstate(invalid="ignore", divide="ignore"):
         dm = np.arctan(b * yaw / v)
@@ -164,6 +166,7 @@ class SteerModel:
 
 def searched(m: SteerModel) -> float:
     """The value of the parameter grid-searched for ``m.name`` (:data:`SEARCHED_FIELD`)."""
+    assert m.name is not None  # the baseline searches nothing
     return getattr(m, SEARCHED_FIELD[m.name])
 
 
@@ -262,11 +265,11 @@ def fit_best(d: SteerData, name, mask, grid=None):
         return m, np.zeros(1), np.array([sse_per_sample(m)])
     refine = grid is None
     grid = _grid(name) if grid is None else np.asarray(grid, float)
-    fine_step = None
+    fine_step: float | None = None
     if refine:
         fine_step = max(d.dt, 0.01) if name != "understeer" else (grid[1] - grid[0]) / 10
     return grid_search(lambda g: fit(d, name, g, mask), grid, fine_step, end_pad=1e-12,
-                       rtol=0.0, atol=fine_step / 10 if refine else 0.0)
+                       rtol=0.0, atol=fine_step / 10 if fine_step is not None else 0.0)
 
 
 def residual(d: SteerData, m: SteerModel) -> np.ndarray:
@@ -389,7 +392,8 @@ def excitation(d: SteerData, cfg: DiagnoseConfig) -> dict:
     steered = d.v[d.fit_ok][lat_accel_mps2 > 0.25 * cfg.understeer_min_lat_accel_mps2]
     ratio = (float((np.percentile(steered, 90) / np.percentile(steered, 10)) ** 2)
              if len(steered) >= 10 else 1.0)
-    out = {"lat_accel_p97_5_mps2": a97, "speed_sq_ratio": ratio, "testable": True}
+    out: dict[str, Any] = {"lat_accel_p97_5_mps2": a97, "speed_sq_ratio": ratio,
+                           "testable": True}
     if a97 < cfg.understeer_min_lat_accel_mps2:
         out.update(testable=False, why=(
             f"lateral acceleration reaches only {a97:.2f} m/s^2 (97.5th percentile; "
@@ -417,7 +421,7 @@ def separability(d: SteerData, us: SteerScore, base: SteerScore, vehicle: Vehicl
     lo, hi = us.intervals.get("gradient_rad_per_mps2", [0.0, K_MAX])
     ne = max(base.model.n / max(corr_len, 1.0), 3.0)
     exc = excitation(d, cfg)
-    out = {"gradient_interval": [lo, hi], "excitation": exc}
+    out: dict[str, Any] = {"gradient_interval": [lo, hi], "excitation": exc}
     if not exc["testable"]:
         out.update(separable=False, testable=False,
                    verdict=f"understeer against the steering ratio: not testable on this "

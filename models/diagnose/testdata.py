@@ -13,6 +13,8 @@ truth's speed and the profile's grade, the pitch gets the grade added.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from hmpc.models.identify.pipeline import concat_recordings
@@ -26,7 +28,7 @@ STEER_EXPERIMENTS = ("arcs", "figure8", "circles", "arcs", "figure8", "circles")
 ALL_EXPERIMENTS = ("arcs", "ramps", "figure8", "ramp_sequence", "circles", "open_loop")
 
 #: case -> (expected id, subsystem, effect factory, (parameter, truth value), experiments)
-CASES = {
+CASES: dict[str, tuple[Any, ...]] = {
     "actuator_delay_steering": ("actuator_delay", "steering",
                                 lambda: [fx.SteeringDeadTime(0.25)], ("delay_s", 0.25),
                                 STEER_EXPERIMENTS),
@@ -88,7 +90,7 @@ def make_case(case: str, seed: int = 0, params_seed: int | None = None
         recs.append(run.recording)
     rec = concat_recordings(recs)
     rec.meta["path"] = f"<benchmark {case} seed {seed}>"
-    info = {"case": case, "effect": expect, "subsystem": subsystem, "params": truth,
+    info: dict[str, Any] = {"case": case, "effect": expect, "subsystem": subsystem, "params": truth,
             "parameter": param, "seed": seed}
     if case == "mass_change":
         n_first = sum(len(r) for r in recs[: len(recs) // 2])

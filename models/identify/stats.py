@@ -476,7 +476,7 @@ def heldout_sse(X: np.ndarray, Y: np.ndarray, fold: np.ndarray, k: int,
     ordered = bool(np.all(np.diff(fold) >= 0))   # contiguous folds: slices, no copies
     edges = np.searchsorted(fold, np.arange(k + 1)) if ordered else None
     for g in range(k):
-        sel = slice(edges[g], edges[g + 1]) if ordered else fold == g
+        sel = slice(edges[g], edges[g + 1]) if edges is not None else fold == g
         Xg, Yg = X[sel], Y[sel]
         S[g], B[g], YY[g] = Xg.T @ Xg, Xg.T @ Yg, np.sum(Yg * Yg, axis=0)
     St, Bt = S.sum(axis=0), B.sum(axis=0)

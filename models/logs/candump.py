@@ -176,8 +176,9 @@ def _join_fixed(fx, n: int, ok: np.ndarray, lineno: np.ndarray) -> Chunk:
         else:
             cols = tuple(c[ok] for c in (f.t_s, f.name, f.arb_id, f.ext, f.dlc, f.data, lineno))
     else:
-        full = (np.zeros(n), np.zeros(n, np.uint64), np.zeros(n, np.uint32), np.zeros(n, bool),
-                np.zeros(n, np.uint8), np.zeros(n, np.uint64))
+        full: tuple[np.ndarray, ...] = (np.zeros(n), np.zeros(n, np.uint64), np.zeros(n, np.uint32),
+                                        np.zeros(n, bool), np.zeros(n, np.uint8),
+                                        np.zeros(n, np.uint64))
         for rows, f in fx:
             idx = np.arange(n)[rows][f.ok]
             for dst, src in zip(full, (f.t_s, f.name, f.arb_id, f.ext, f.dlc, f.data)):

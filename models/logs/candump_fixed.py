@@ -202,9 +202,10 @@ class _Plan:
 def _digits(plan: _Plan, lw: _LineWords, err: np.ndarray) -> np.ndarray:
     """The timestamp's digits as one int64 per line; bytes that are not digits set bits of
     ``err``."""
-    value = bad = None
+    value: np.ndarray | None = None
+    bad: np.ndarray | None = None
     for parts, fill, power in plan.digit_words:
-        w = None
+        w: np.ndarray | None = None
         for off, mask in parts:
             part = lw.field(off)
             if mask is not None:
@@ -212,6 +213,7 @@ def _digits(plan: _Plan, lw: _LineWords, err: np.ndarray) -> np.ndarray:
             w = part if w is None else w | part
         if fill is not None:
             w = w | fill
+        assert w is not None  # every digit word has a part
         x = w - _M30  # digits' values, one per byte, if all were digits
         y = x + _M76  # a byte over 9 sets its high bit here, one under '0' in x itself
         y |= x
@@ -229,6 +231,7 @@ def _digits(plan: _Plan, lw: _LineWords, err: np.ndarray) -> np.ndarray:
         else:
             x *= power
             value += x
+    assert value is not None and bad is not None  # a timestamp has at least one digit word
     bad &= _M80
     err |= bad
     return value
@@ -243,7 +246,7 @@ def _hex_nibbles(x: np.ndarray):
     digit = x7 + _M50                                       # '0'..'9'
     digit &= ~(x7 + _M46)
     x7 |= _M20
-    alpha = x7 + _M1F                                       # 'a'..'f' or 'A'..'F'
+    alpha: np.ndarray = x7 + _M1F                           # 'a'..'f' or 'A'..'F'
     alpha &= ~(x7 + _M19)
     alpha &= ascii_
     digit |= alpha

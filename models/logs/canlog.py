@@ -253,7 +253,8 @@ def _libpanda_columns(p: Path, head: bytes):
     if missing:
         raise InputError(f"libpanda CSV header lacks column(s) {', '.join(missing)}", str(p),
                          line=nblank + 1)
-    cols = {c: names.index(c) for c in ("Time", "Bus", "MessageID", "Message")}
+    cols: dict[str, int | None] = {c: names.index(c)
+                                   for c in ("Time", "Bus", "MessageID", "Message")}
     cols["MessageLength"] = names.index("MessageLength") if "MessageLength" in names else None
     cols["ncols"] = len(names)
     return cols, nblank + 1
@@ -359,6 +360,7 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
             fh.close()
     gzr = getattr(getattr(fh, "buffer", None), "raw", fh)
     if getattr(gzr, "truncated", False):
+        assert gzr is not None
         problems.add(KIND_TRUNCATED, spath, frame_no,
                      detail=f"after {gzr.text_bytes} bytes of text, after frame {frame_no}")
     problems.add(KIND_REMOTE, spath, remote[:Problems.MAX_FIRST], count=len(remote))
@@ -375,12 +377,12 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
         if ch not in busmap:
             busmap[ch] = mapper.number_of(str(ch).encode("utf-8"))
     width = max(8, max(len(d) for d in payloads))
-    data = np.zeros((len(payloads), width), np.uint8)
+    table = np.zeros((len(payloads), width), np.uint8)
     for i, d in enumerate(payloads):
-        data[i, :len(d)] = np.frombuffer(d, np.uint8)
+        table[i, :len(d)] = np.frombuffer(d, np.uint8)
     return FrameTable(np.asarray(t, np.float64), np.asarray([busmap[c] for c in bus], np.int16),
                       np.asarray(arb, np.uint32), np.asarray(ext, bool),
-                      np.asarray(dlc, np.uint8), data, np.asarray(where, np.int64), spath)
+                      np.asarray(dlc, np.uint8), table, np.asarray(where, np.int64), spath)
 
 
 # ----------------------------------------------------------------------------- clock checks
@@ -403,6 +405,7 @@ def _clock_checks(ft: FrameTable, problems: Problems, jump_s: float) -> FrameTab
             raise InputError("no frame with a finite timestamp", spath)
     steps = _Steps(ft.t_s, jump_s)
     if len(steps.back):
+        assert steps.dt_min is not None  # a step back is a negative step
         problems.add(KIND_BACKWARDS, spath, ft.where[steps.back[:Problems.MAX_FIRST]],
                      count=len(steps.back), detail=f"largest step back {-steps.dt_min:.6g} s")
         order = np.argsort(ft.t_s, kind="stable")
@@ -432,7 +435,8 @@ class _Steps:
 
     def __init__(self, t: np.ndarray, jump_s: float):
         back, same, jumps = [], [], []
-        self.dt_min = self.dt_max = None
+        self.dt_min: float | None = None
+        self.dt_max: float | None = None
         n = len(t) - 1
         buf = np.empty(min(max(n, 0), _CHECK_ROWS))
         for a in range(0, n, _CHECK_ROWS):

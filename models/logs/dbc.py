@@ -10,6 +10,7 @@ from __future__ import annotations
 import re
 import zlib
 from pathlib import Path
+from typing import cast
 
 from hmpc.models.logs.files import read_bytes
 from hmpc.models.errors import InputError
@@ -63,8 +64,10 @@ def load_dbc(path, *, strict: bool = False, lenient: bool = False, problems=None
     skipped = 0
     while True:
         try:
-            db = cantools.database.load_string("\n".join(lines), database_format="dbc",
-                                               strict=strict)
+            # a DBC loads as a CAN database (load_string's other result type is for CDD files)
+            db = cast(cantools.database.can.Database,
+                      cantools.database.load_string("\n".join(lines), database_format="dbc",
+                                                    strict=strict))
             break
         # cantools raises ParseError, ValueError, KeyError, ... on bad DBCs
         except Exception as exc:

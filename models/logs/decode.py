@@ -229,12 +229,14 @@ class _Pieces:
 
     def _put(self, p: DecodedMessage) -> None:
         a, b = self.n, self.n + len(p)
+        assert self.cols is not None  # allocated by append
         for k, v in [("t_s", p.t_s), ("bus", p.bus), ("where", p.where)] \
                 + [(("s", name), v) for name, v in p.signals.items()]:
             self.cols[k][a:b] = v
         self.n = b
 
     def joined(self) -> DecodedMessage:
+        assert self.first is not None  # every message gets at least one piece
         if self.cols is None:
             return self.first
         f, c, n = self.first, self.cols, self.n
@@ -458,6 +460,7 @@ def _decode_fast(data: np.ndarray | None, plans,
     out = {}
     for p in plans:
         if p.window not in words:
+            assert data is not None  # without payload bytes, every window's words are given
             words[p.window] = _words(data, p.window)
         le, be = words[p.window]
         word = le if p.little else be

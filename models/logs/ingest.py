@@ -43,10 +43,11 @@ from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS
 from hmpc.models.logs.dbc import load_dbc
 from hmpc.models.logs.decode import decode_frames
 from hmpc.models.errors import InputError, Problems
-from hmpc.models.logs.nav import ImuColumns, NavColumns, imu_to_body, read_imu_raw, read_nav
+from hmpc.models.logs.nav import (ImuColumns, NavColumns, NavData, imu_to_body, read_imu_raw,
+                                  read_nav)
 from hmpc.models.logs.recording import Recording
 from hmpc.models.logs.resample import gap_threshold_s, make_grid, resample
-from hmpc.models.logs.signalmap import load_signal_map
+from hmpc.models.logs.signalmap import SignalMap, load_signal_map
 
 #: samples above this ground speed [m/s] estimate the heading mount offset (course over ground
 #: is meaningless when nearly stopped; 5 m/s is the acceptance criterion's threshold).
@@ -144,7 +145,7 @@ Series = tuple[np.ndarray, np.ndarray]  # (t_s on the CAN clock, values)
 class CanStage:
     """Step 2's result: the signal map and each CAN channel's samples (before resampling)."""
 
-    smap: object                 # models.logs.signalmap.SignalMap
+    smap: SignalMap
     channels: dict[str, Series]  # channel -> (t_s, values), dropped samples removed
     describe: dict[str, str]     # channel -> "can: <message.signal expression>"
     absent: list[str]            # optional channels of the map without a usable sample
@@ -155,7 +156,7 @@ class CanStage:
 class NavStage:
     """Step 3-4's result: nav channels on the CAN clock (heading mount-corrected if asked)."""
 
-    nav: object | None           # models.logs.nav.NavData as read, on its own clock
+    nav: NavData | None          # as read, on its own clock
     channels: dict[str, Series]
     offset_s: float              # added to nav times to reach the CAN clock [s]
     clock: dict | None           # OffsetEstimate.to_dict() of the nav clock
@@ -410,6 +411,7 @@ def read_imu_stage(imu_path, can: dict[str, Series], nav: NavStage, problems: Pr
     if offset_s is not None:
         est = OffsetEstimate(float(offset_s), method="given")
     elif nav.nav is not None:
+        assert nav.clock is not None  # a nav file has its clock estimate
         est = OffsetEstimate(nav.offset_s, nav.clock["correlation_peak"] or float("nan"),
                              method="same device as nav", ok=True)
     elif "yaw_rate" in can:

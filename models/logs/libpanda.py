@@ -31,7 +31,7 @@ class LibpandaChunkParser:
         ic = np.searchsorted(cp, ls)
         ok = (np.searchsorted(cp, le) - ic) == c["ncols"] - 1
 
-        def field(j):
+        def field(j: int) -> tuple[np.ndarray, np.ndarray]:
             start = ls if j == 0 else cp[ic + j - 1] + 1
             end = le if j == c["ncols"] - 1 else cp[ic + j]
             return start, np.where(ok, end - start, 0)

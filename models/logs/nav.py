@@ -39,6 +39,7 @@ import math
 import zlib
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -175,7 +176,7 @@ def load_columns(path: str | Path) -> tuple[NavColumns, ImuColumns]:
         cols = cls(**sec)
         cols.check(str(path))
         out.append(cols)
-    return out[0], out[1]
+    return cast(NavColumns, out[0]), cast(ImuColumns, out[1])
 
 
 # --------------------------------------------------------------------------- CSV table
@@ -321,6 +322,7 @@ def read_nav(path: str | Path, problems: Problems, columns: NavColumns | None = 
     out = NavData()
     out.path = spath
     if geo:
+        assert cols.lat is not None and cols.lon is not None  # cols.check: lat with lon
         lat, lon = data[cols.lat], data[cols.lon]
         ok = (np.abs(lat) <= 90.0) & (lon >= -180.0) & (lon <= 360.0)
         if not ok.all():
@@ -342,11 +344,13 @@ def read_nav(path: str | Path, problems: Problems, columns: NavColumns | None = 
         if cols.alt is not None:
             out["z"] = (t, np.asarray(u, float))
     else:
+        assert cols.x is not None and cols.y is not None  # cols.check: x and y without lat
         out["x"] = (t, data[cols.x])
         out["y"] = (t, data[cols.y])
         if cols.z is not None:
             out["z"] = (t, data[cols.z])
     if cols.vel_north is not None:
+        assert cols.vel_east is not None  # cols.check: both velocities or neither
         vn, ve = data[cols.vel_north], data[cols.vel_east]
         out.velocity = (t, ve, vn)
         out["gps_speed"] = (t, np.hypot(vn, ve))

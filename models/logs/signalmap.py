@@ -107,7 +107,7 @@ _FUNCS: dict[str, tuple[Callable, int, int]] = {
 }
 _BINOPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
            ast.Div: operator.truediv}
-_UNOPS = {ast.USub: operator.neg, ast.UAdd: operator.pos}
+_UNOPS: dict[type, Callable[..., Any]] = {ast.USub: operator.neg, ast.UAdd: operator.pos}
 #: an expression longer than this (characters or AST nodes) is refused: no map needs more
 MAX_EXPR_CHARS = 400
 MAX_EXPR_NODES = 64
@@ -278,7 +278,7 @@ class SignalMap:
         """Buses the map reads, or None when some channel takes any bus."""
         if any(c.bus is None for c in self.channels.values()):
             return None
-        return {c.bus for c in self.channels.values()}
+        return {c.bus for c in self.channels.values() if c.bus is not None}
 
     def required(self) -> list[str]:
         return [c.channel for c in self.channels.values() if c.required]

@@ -14,6 +14,7 @@ import threading
 import zlib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any, cast
 from collections.abc import Callable
 
 import numpy as np
@@ -60,7 +61,8 @@ def iter_blocks(p: Path, gz: bool, chunk_bytes: int,
             def fill(k: int, held: int):
                 """Read the next chunk into buffer k after its ``held`` bytes: (bytes read,
                 line feeds among all its bytes)."""
-                n = fh.readinto(memoryview(bufs[k])[PAD + held:PAD + held + chunk_bytes])
+                view = memoryview(cast(Any, bufs[k]))  # numpy's stubs: no buffer before 3.12
+                n = fh.readinto(view[PAD + held:PAD + held + chunk_bytes])
                 np.equal(bufs[k][PAD + held:PAD + held + n], 10, out=is_lf[k][:n])
                 return n, np.flatnonzero(is_lf[k][:n]) + held
 

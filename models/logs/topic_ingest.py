@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any, cast
 from collections.abc import Callable
 
 import numpy as np
@@ -31,7 +32,7 @@ import numpy as np
 from hmpc import __version__
 from hmpc.models.errors import InputError, Problems
 from hmpc.models.logs.channels import CHANNELS
-from hmpc.models.logs.ingest import IngestResult, grid_for, sha256_file, speed_vs_gps
+from hmpc.models.logs.ingest import CanStage, IngestResult, grid_for, sha256_file, speed_vs_gps
 from hmpc.models.logs.recording import Recording
 from hmpc.models.logs.resample import gap_threshold_s, resample
 from hmpc.models.logs.rosbag import bag_kind, read_bag
@@ -84,9 +85,10 @@ def ingest_topics(path, topics_path, rate_hz: float = 50.0, gap_s: float | None 
         data = read_bag(path, tmap, problems)
     raw, origin, absent = make_channels(tmap, data, str(path))
     say(f"resampling {len(raw)} channels at {rate_hz:g} Hz")
-    grid = grid_for(SimpleNamespace(smap=tmap, channels=raw), rate_hz, str(path))
+    # grid_for reads only a stage's .smap and .channels
+    grid = grid_for(cast(CanStage, SimpleNamespace(smap=tmap, channels=raw)), rate_hz, str(path))
     chans, gaps, info = resample_topics(raw, tmap, grid, gap_s)
-    summary = {
+    summary: dict[str, Any] = {
         "hmpc_version": __version__,
         "vehicle": tmap.vehicle,
         "log_format": kind,

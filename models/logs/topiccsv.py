@@ -38,8 +38,8 @@ from hmpc.models.logs.topicmap import LOG_TIME, TopicData, TopicMap, TopicSpec
 #: more malformed rows than this fraction of a file: the file is not the layout the map says
 MAX_MALFORMED_FRACTION = 0.5
 #: time columns tried, in order, when the map gives none: (columns, description)
-AUTO_TIME = ((("Time",), "Time column"), (("s", "ns"), "s + ns columns"),
-             (("time",), "time column"))
+AUTO_TIME: tuple[tuple[tuple[str, ...], str], ...] = (
+    (("Time",), "Time column"), (("s", "ns"), "s + ns columns"), (("time",), "time column"))
 
 KIND_MALFORMED = "malformed row (skipped)"
 KIND_SHORT_ROWS = "rows with fewer cells than the header (missing trailing cells: no value)"
@@ -110,6 +110,7 @@ def _only_prefix(folder: Path, specs: list[TopicSpec]) -> str:
         if not found:
             return ""   # that topic's file is missing: resolve_export names it
         common = found if common is None else common & found
+    assert common is not None  # a topic map has at least one topic
     if len(common) > 1:
         listed = ", ".join(sorted(common))
         raise InputError(f"the folder holds several recordings (file-name prefixes {listed}); "
@@ -201,6 +202,7 @@ def read_topic_csv(path: Path, spec: TopicSpec, fields: set[str], problems: Prob
     if not t:
         raise InputError(f"topic '{spec.topic}': no data row", where)
     if bad:
+        assert first_bad is not None  # recorded with the first bad row
         problems.add(KIND_MALFORMED, where, bad[:Problems.MAX_FIRST], count=len(bad),
                      detail=f"topic '{spec.topic}': {first_bad[1]}")
     if short:

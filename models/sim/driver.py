@@ -114,7 +114,7 @@ def _drive_refs(plan: Plan, dt: float, rng, driver: DriverConfig) -> _DriveRefs:
     """The references of ``plan`` and the driver's noise (drawn from ``rng`` in this order:
     dither, then lane-keeping noise)."""
     open_loop = plan.program is not None
-    if open_loop:
+    if plan.program is not None:  # open loop
         n_max = int(round(sum(ph.longest_s for ph in plan.program) / dt)) + 1
         v_ref = a_ref = np.zeros(0)
         sw_ref = np.full(n_max, np.nan)
@@ -190,6 +190,7 @@ def _programme_pedals(plan: Plan, d: _DriverState, t: float,
     """The open-loop programme's pedal targets (throttle, brake) at time ``t`` [s] and speed
     ``v`` [m/s], advancing ``d``'s phase (and ``plan.segments``) as phases end; None when the
     programme has finished."""
+    assert plan.program is not None  # called for an open-loop plan
     while True:
         ph = plan.program[d.phase_i]
         el = t - d.phase_t0

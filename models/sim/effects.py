@@ -127,7 +127,7 @@ class Understeer(Effect):
     def __init__(self, gradient_rad_per_mps2: float):
         self.gradient_rad_per_mps2 = finite_param("gradient_rad_per_mps2", gradient_rad_per_mps2,
                                                   lo=0.0)
-        self._map = None
+        self._map: tuple[float, float, float] | None = None  # offset, scale, wheelbase
 
     def start(self, dt_s: float, params=None) -> None:
         if params is None or params.steering is None:
@@ -135,6 +135,7 @@ class Understeer(Effect):
         self._map = (params.steering.offset_rad, params.steering.scale, params.vehicle.wheelbase_m)
 
     def steering(self, sw_rad: float, v_mps: float) -> float:
+        assert self._map is not None  # started
         off, scale, b = self._map
         delta = (off + scale * sw_rad) * b / (b + self.gradient_rad_per_mps2 * v_mps * v_mps)
         return (delta - off) / scale

@@ -112,6 +112,7 @@ def _lin(a: float, b: float, dur_s: float):
 
 def _sw_for(delta_rad: float, p: Params) -> float:
     """Steering-wheel angle [rad] that gives road-wheel angle ``delta_rad`` (eq. 7 inverted)."""
+    assert p.steering is not None
     return (delta_rad - p.steering.offset_rad) / p.steering.scale
 
 
@@ -151,6 +152,7 @@ def _plan_circles(p: Params, dt: float, rng) -> Plan:
         pl.add(f"settle {v} m/s", 2.0, sw=0.0)
         for name, sign in (("cw", -1.0), ("ccw", +1.0)):
             lock = sign * sw_max
+            assert p.steering is not None
             delta = abs(p.steering.offset_rad + p.steering.scale * lock)
             hold = 2.0 * math.pi * b / (v * math.sin(min(delta, 1.2)))  # one full circle
             pl.add(f"circle {name} {v} m/s ramp to lock", 4.0, sw=_lin(0.0, lock, 4.0))

@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +45,7 @@ from hmpc.models.sim.plans import EXPERIMENTS, PLANNERS
 from hmpc.models.sim.truth_plant import Truth
 
 #: default geometry for random_params: the report's values (params/report_2008.yaml).
-DEFAULT_VEHICLE = {"wheelbase_m": 2.65, "track_front_m": 1.6}
+DEFAULT_VEHICLE: dict[str, Any] = {"wheelbase_m": 2.65, "track_front_m": 1.6}
 MIN_INTERNAL_RATE_HZ = 100.0
 
 
@@ -100,6 +101,7 @@ def _check_args(name: str, params: Params, rate_hz: float, noise: str, effects) 
     if not isinstance(params, Params) or not params.is_model:
         raise ParamError("the simulator needs a complete model (steering and longitudinal zones)",
                          getattr(params, "path", None), key="steering")
+    assert params.steering is not None  # is_model
     if params.steering.scale <= 0:
         raise ParamError("steering scale must be positive", params.path, key="steering.scale")
     if not (isinstance(rate_hz, numbers.Real) and math.isfinite(rate_hz)

@@ -85,6 +85,7 @@ def pedal_dead_time_cv(a_meas: np.ndarray, ok: np.ndarray, zid: np.ndarray, n_zo
         if den > 0:
             best += 0.5 * (mean[jb - 1] - mean[jb + 1]) / den
     gain = float(1.0 - mean[jb] / mean[0]) if mean[0] > 0 else 0.0
+    interval: tuple[float, float] | None
     interval = ((lo - 0.5) * dt_s, (hi + 0.5) * dt_s)
     cv = {"folds": int(E.shape[1]), "samples": int(ok.sum()), "t_critical": crit,
           "heldout_rms_at_zero_mps2": float(np.sqrt(E[0].sum() / max(ok.sum(), 1))),

@@ -105,6 +105,7 @@ def zone_from_fit(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig,
     rep.setdefault("not_identified", {})
     if not f.fitted:
         j = _nearest(i, fitted)
+        assert j is not None  # at least one zone is fitted (checked by the caller)
         off = fits[j].report["offset_mps2"]
         why = f"{rep['not_fitted_because']}: copied from zone '{zones[j][0]}'"
         rep["not_identified"]["offset_mps2"] = why

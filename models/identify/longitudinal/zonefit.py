@@ -37,10 +37,10 @@ from hmpc.models.identify.longitudinal.signals import LongitudinalSignals, Pedal
 class ZoneFit:
     """Eq. 8 fit of one zone, its metrics and term selection."""
 
-    zone: Zone
+    zone: Zone | None  # set by longitudinal.identifiable once the zone's values are decided
     fitted: bool
     report: dict
-    a_model: np.ndarray = field(repr=False, default=None)
+    a_model: np.ndarray | None = field(repr=False, default=None)
 
 
 def _runs(mask: np.ndarray, max_len: int):

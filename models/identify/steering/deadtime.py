@@ -57,21 +57,21 @@ def xcorr_dead_time(u: np.ndarray, y: np.ndarray, mask: np.ndarray, dt_s: float,
     a2 = np.fft.irfft(np.fft.rfft(a * a, nfft) * np.conj(np.fft.rfft(m.astype(float), nfft)), nfft)
     c2 = np.fft.irfft(np.fft.rfft(c * c, nfft) * np.conj(np.fft.rfft(m.astype(float), nfft)), nfft)
     # energy of u over samples t-l with t in mask and of y over t with t-l in mask
-    vals = []
-    for lag in lags:
-        num = cc[lag % nfft]
-        ea = a2[(-lag) % nfft]   # sum_t a[t-l]^2 m[t]
-        ec = c2[lag % nfft]      # sum_t c[t]^2 m[t-l]
+    vals: list[float] = []
+    for lag_i in lags:
+        num = cc[lag_i % nfft]
+        ea = a2[(-lag_i) % nfft]   # sum_t a[t-l]^2 m[t]
+        ec = c2[lag_i % nfft]      # sum_t c[t]^2 m[t-l]
         vals.append(num / np.sqrt(ea * ec) if ea > 0 and ec > 0 else 0.0)
-    vals = np.array(vals)
-    k = int(np.argmax(vals))
+    scores = np.array(vals)
+    k = int(np.argmax(scores))
     lag = float(lags[k])
-    if 0 < k < len(vals) - 1:
-        y0, y1, y2 = vals[k - 1], vals[k], vals[k + 1]
+    if 0 < k < len(scores) - 1:
+        y0, y1, y2 = scores[k - 1], scores[k], scores[k + 1]
         den = y0 - 2 * y1 + y2
         if den < 0:
             lag += 0.5 * (y0 - y2) / den
-    return lag * dt_s, float(vals[k])
+    return lag * dt_s, float(scores[k])
 
 
 @dataclass

@@ -89,6 +89,7 @@ def _fit_yaw(yaw, v, sw_d, steady, b, x0, k_max: float | None = None) -> MapFit:
         return r - th[2] - vv * t / (b * np.sqrt(1.0 + k * t * t))
 
     if fit_k:
+        assert k_max is not None
         sol = least_squares(res, np.array([x0[0], x0[1], 0.0, 0.25 * k_max]), method="trf",
                             bounds=([-np.inf, -np.inf, -np.inf, 0.0],
                                     [np.inf, np.inf, np.inf, k_max]),
@@ -118,6 +119,7 @@ def _fit_yaw(yaw, v, sw_d, steady, b, x0, k_max: float | None = None) -> MapFit:
                                           float(th[2] + crit * se[2])],
              "offset_bias_correlation": float(corr[0, 2])}
     if fit_k:
+        assert k_max is not None
         k, hk = float(th[3]), float(crit * se[3])
         extra.update({"speed_point_k": k, "speed_point_k_ci95": [k - hk, k + hk],
                       "speed_point_x_m": float(b * np.sqrt(k)),
@@ -156,6 +158,7 @@ def _fit_direct(sig: SteeringSignals, sw_d: np.ndarray, mask: np.ndarray, cfg: S
         x0 = fits.get("wheel_speed_difference") or start
         try:
             if x0 is None:
+                assert sig.v_src is not None  # the yaw-rate method needs a speed
                 x0 = _fit_front(road_wheel_angle_from_yaw(sig.yaw, sig.v_src, sig.b), sw_d,
                                 mask & np.isfinite(sig.v_src) & (np.nan_to_num(sig.v_src) > 0))
             k_max = cfg.speed_point_k_max if sig.speed_point_unknown else None

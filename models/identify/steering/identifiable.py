@@ -56,7 +56,7 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
     # fit); for the others it is not run, and not counted, by name below
     bias_corr = fit.extra.get("offset_bias_correlation")
     bias_applies = bias_corr is not None
-    if bias_applies:
+    if bias_corr is not None:
         add("offset_gyro_bias_correlation", abs(bias_corr), cfg.max_param_corr,
             abs(bias_corr) <= cfg.max_param_corr,
             f"|corr(offset, yaw-rate bias)| = {abs(bias_corr):.3f}")
@@ -84,6 +84,7 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
     if not bias_ok:
         # the offset's yaw rate is v tan(offset)/b, the bias a constant: only the spread of
         # the speeds tells them apart; say which speeds there were and what that left
+        assert bias_corr is not None  # bias_ok is False only when the check ran
         vs = np.asarray(v_steady, dtype=float)
         vs = vs[np.isfinite(vs)]
         span = (f"{np.percentile(vs, 2.5):.1f}-{np.percentile(vs, 97.5):.1f} m/s, "

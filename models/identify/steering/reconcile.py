@@ -167,7 +167,7 @@ def disagreement(fits: dict[str, MapFit], cfg: SteeringIdConfig | None = None,
     names = [k for k in ("wheel_speed_difference", "yaw_rate", "position_replay") if k in fits
              and fits[k].extra.get("trusted", True)]
     reconciled = (explained or {}).get("verdict") == "reconciled"
-    pairs = []
+    pairs: list[dict[str, list[str]]] = []
     for i, a in enumerate(names):
         for b_ in names[i + 1:]:
             fa, fb = fits[a], fits[b_]

@@ -54,6 +54,7 @@ def cross_validate(rec: Recording, sig: SteeringSignals, fits: dict[str, MapFit]
             continue
         chans = {}
         if "wheel_speed_difference" in maps:
+            assert sig.delta_a is not None  # the method ran
             chans["wheel_speeds"] = sig.delta_a[test]
         if "yaw_rate" in maps:
             chans["yaw_rate"] = _yaw_angle(sig, maps["yaw_rate"])[test]
@@ -129,6 +130,7 @@ def agreement_a_b(sig: SteeringSignals, fits: dict[str, MapFit],
     if "wheel_speed_difference" not in fits:
         return None, delta_b
     delta_a = sig.delta_a
+    assert delta_a is not None  # the wheel-speed fit ran
     dd = (delta_a - delta_b)[steady]
     fa, fb = fits["wheel_speed_difference"], fits["yaw_rate"]
     agreement = {

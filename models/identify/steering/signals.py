@@ -141,6 +141,11 @@ def steering_signals(rec: Recording, vehicle: Vehicle) -> SteeringSignals:
     missing_pos = next((c for c in ("x", "y", "heading") if c not in rec), None)
     skipped: dict[str, str] = {}
     kw: dict = {}
+    fl: np.ndarray | None
+    fr: np.ndarray | None
+    rl: np.ndarray | None
+    rr: np.ndarray | None
+    delta_a: np.ndarray | None
     if missing_ws is None:
         fl, fr, rl, rr = (np.asarray(rec[c], dtype=float) for c in WHEEL_SPEEDS)
         delta_a, v_front = road_wheel_angle_from_front(fl, fr, b, T)
