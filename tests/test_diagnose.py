@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,7 +117,7 @@ def test_cli_contract_json_and_params_out(delay_csv, tmp_path):
 def test_params_extensions_section_is_validated_against_the_catalogue(tmp_path):
     """An unknown catalogue id, subsystem or parameter is refused in one line naming the key
     (exit 2 through any command that loads the file)."""
-    good = yaml.safe_load(open(REPORT).read())
+    good = yaml.safe_load(Path(REPORT).read_text())
     good["extensions"] = {"aero_drag": {"longitudinal": {
         "coeff_per_m": 1.5e-3, "intervals": {"coeff_per_m": [1.2e-3, 1.8e-3]}}}}
     f = tmp_path / "p2.yaml"

@@ -19,6 +19,8 @@ closed loop on the wheel speeds, the ECU's own loop against the grade, one minut
 half second reads as half a second (tests/test_diagnose_acc_indep.py)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from hmpc.models.diagnose.diagnose import diagnose
@@ -137,7 +139,7 @@ def test_wheel_radius_and_separability_verdict(comma, tmp_path):
     assert sep["excitation"]["lat_accel_p97_5_mps2"] < 1.0
     assert sep["verdict"].startswith("understeer against the steering ratio: not testable")
     from hmpc.models.diagnose.report import write_report
-    html = open(write_report(dg, tmp_path), encoding="utf-8").read()
+    html = Path(write_report(dg, tmp_path)).read_text(encoding="utf-8")
     assert "understeer against the steering ratio: not testable on this recording" in html
     assert "cannot tell a dead time from a lag" in html
     # the response's finding card carries what qualifies it, not only the notes at the end

@@ -15,6 +15,7 @@ Bounds, measured (mpc, parameters identified from the minute): reference mode sp
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -77,7 +78,7 @@ def test_reference_replay_comma_minute(identified, tmp_path):
                for i in range(3) for j in range(i + 1, 3))
     assert r["compared"]
     for f in r["plots"]:
-        assert (tmp_path / "plots").exists() and open(f, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
+        assert (tmp_path / "plots").exists() and Path(f).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_log_replay_against_openpilot(identified, tmp_path):
@@ -106,7 +107,7 @@ def test_log_replay_against_openpilot(identified, tmp_path):
     assert lka["hmpc_abs_max"] <= 1500             # panda TOYOTA_MAX_TORQUE
     assert lka["samples"] > 4000
     assert r["kpis"]["failures"] == 0
-    assert open(r["plots"][0], "rb").read(4) == b"\x89PNG"
+    assert Path(r["plots"][0]).read_bytes()[:4] == b"\x89PNG"
 
 
 @pytest.fixture(scope="module")

@@ -370,6 +370,8 @@ def test_flood_of_random_datagrams_keeps_the_loop_rate():
         if flooder.poll() is None:
             flooder.kill()
         flooder.wait()
+        flooder.stdin.close()
+        flooder.stdout.close()
         op.close()
         rx.close()
 

@@ -315,12 +315,16 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
     names: dict = {}
     frame_no = 0
     fh = None
+    reader = None
     try:
         if gz:
             if fmt == "sqlite":
                 raise InputError("a gzip-compressed sqlite log cannot be read; decompress it",
                                  spath)
             fh = open_binary(p, True) if binary else open_text(p, errors="replace")
+            reader = cls(fh, **kwargs)
+        elif fmt == "blf":  # python-can's BLFReader leaves the file it opens open on a bad header
+            fh = open_binary(p, False)
             reader = cls(fh, **kwargs)
         else:
             reader = cls(spath, **kwargs)
@@ -356,6 +360,8 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
         raise InputError(f"python-can's {cls_name} failed after {frame_no} frames: "
                          f"{type(exc).__name__}: {exc}", spath, frame=frame_no + 1) from None
     finally:
+        if reader is not None:
+            reader.stop()  # closes the file the reader opened, also after a failure
         if fh is not None:
             fh.close()
     gzr = getattr(getattr(fh, "buffer", None), "raw", fh)
