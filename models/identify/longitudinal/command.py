@@ -19,8 +19,10 @@ by held-out evidence, the dead time by blocked cross-validation over a one-sampl
 and per zone OLS on [1, command regressor] with HAC intervals widened by the half-sample
 timing bound. The brake channel is not a regressor: the speed controller applies the brake
 itself to follow the command. A gain fitted below zero is set aside (a larger command never
-slows the car): the zone then copies the nearest zone's gain, as a zone without enough data
-does, and is flagged ``identifiable: false`` with the reason under ``not_identified``.
+slows the car): the zone then copies the gain of the nearest zone that determined it (95%
+interval above 0), as a zone without enough data does, and is flagged ``identifiable: false``
+with the reason under ``not_identified``; a gain whose interval reaches 0 is written, flagged
+and named there too.
 
 The speed replay (``speed_rmse_mps``) of a speed-command zone integrates the model in closed
 loop from the measured speed at the start of every run (the command is the input, the speed
@@ -172,7 +174,7 @@ def _zone(i: int, reps: list[dict], zones, cfg: LongitudinalIdConfig, inp: str,
         j = nearest(fitted)
         off, off_ci = reps[j]["offset_mps2"], None
         ni["offset_mps2"] = f"{rep['not_fitted_because']}: copied from zone '{zones[j][0]}'"
-        notes.append(ni["offset_mps2"])
+        notes.append(f"{rep['not_fitted_because']}: offset copied from zone '{zones[j][0]}'")
     else:
         off, off_ci = rep["offset_mps2"], rep["offset_ci95_mps2"]
         half = 0.5 * (off_ci[1] - off_ci[0])
@@ -180,11 +182,14 @@ def _zone(i: int, reps: list[dict], zones, cfg: LongitudinalIdConfig, inp: str,
             ident = False
             notes.append(f"offset known only to +-{half:.2f} m/s^2")
     if "gain" not in rep or "negative_gain" in rep:
-        j = nearest(has_gain)
+        # from the nearest zone that determined its gain (interval above 0), else the nearest
+        # with a gain >= 0
+        j = nearest([k for k in has_gain if reps[k]["gain_ci95"][0] > 0.0] or has_gain)
         gain, gain_ci = reps[j]["gain"], None
         why = rep["negative_gain"]["reason"] if "gain" in rep else rep["not_fitted_because"]
         ni[key] = f"{why}: copied from zone '{zones[j][0]}'"
-        notes.append(f"{key} {ni[key]}")
+        notes.append(f"{key} copied from zone '{zones[j][0]}'" if "gain" not in rep
+                     else f"{why}: {key} copied from zone '{zones[j][0]}'")
         ident = False
     else:
         gain, gain_ci = rep["gain"], rep["gain_ci95"]
