@@ -1,6 +1,6 @@
 """Parameter files (``params/*.yaml``): the strict loader and writer.
 
-The contract is ``../shared/CONVENTIONS.md``: every numeric key carries its unit as a suffix
+The contract is ``docs/conventions.md``: every numeric key carries its unit as a suffix
 (``_m``, ``_s``, ``_rad``, ``_mps``, ``_mps2``, ...), a file with only ``vehicle``,
 ``steering`` and ``longitudinal.zones`` is a complete model, and everything else is optional.
 Unknown keys and keys without a unit are rejected (:class:`ParamError`), never defaulted; so is
@@ -725,7 +725,7 @@ def unidentifiable_keys(params: Params) -> list[tuple[str, str]]:
 
 def check_identifiable(params: Params, *, accept: bool = False,
                        flag: str = ACCEPT_UNIDENTIFIABLE_FLAG) -> list[str]:
-    """Refuse values the recording could not identify (issue 8): a steering map or zone flagged
+    """Refuse values the recording could not identify: a steering map or zone flagged
     ``identifiable: false`` raises :class:`ParamError` in one line naming the key(s) and
     ``flag``, the option that accepts them. With ``accept`` nothing is raised and one warning
     line naming every flagged key is returned for the caller to print."""

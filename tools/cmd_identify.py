@@ -105,7 +105,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicle", required=True, metavar="GEOMETRY.yaml",
                    help="vehicle geometry (params/*.yaml; at least wheelbase_m, track_front_m)")
     p.add_argument("--out", required=True, metavar="PARAMS.yaml",
-                   help="parameter file to write (the CONVENTIONS keys plus optional ones)")
+                   help="parameter file to write (the keys of docs/conventions.md plus optional ones)")
     p.add_argument("--plots", metavar="DIR", help="write figures like the report's Figs. 2-5")
     p.add_argument("--json", metavar="FILE", help="write every figure (stable keys, SI units)")
     p.add_argument("--zones", type=_zones, metavar="NAME:VMIN:VMAX,...",
