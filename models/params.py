@@ -44,7 +44,7 @@ Optional keys (all documented here, nowhere else):
 - ``limits``: actuator and comfort limits used by the controller (see ``VehicleLimits``).
 - ``provenance``: free text/number fields (input hashes, time span, hmpc version).
 - ``extensions``: physics ``hmpc diagnose`` added to the report's model, by catalogue id
-  (``models.catalogue``, the diagnosis issue's contract) and subsystem:
+  (``models.catalogue``, whose ids are part of the contract) and subsystem:
   ``extensions: {aero_drag: {longitudinal: {coeff_per_m: 1.5e-3, intervals: {coeff_per_m:
   [1.3e-3, 1.7e-3]}, equation: "..."}}}``. Each entry holds only its catalogue parameters
   (numbers), ``intervals`` ({parameter: [low, high]}), ``base`` (the coefficients it was

@@ -1,5 +1,5 @@
 """`hmpc identify` on the bundled REAL recordings with one channel group removed at a time
-(issue 8 acceptance): the comma2k19 minute (raw CAN + INS + IMU, highway, accelerator used,
+(acceptance): the comma2k19 minute (raw CAN + INS + IMU, highway, accelerator used,
 brake never pressed) and the VerifiedCAN drive (raw CAN only, stop-and-go under ACC, no GNSS).
 
 Each recording is ingested once per session; a group of columns is dropped from the canonical
@@ -202,7 +202,7 @@ def test_without_the_brake_the_accelerator_zones_remain_and_the_brake_is_named(r
                                                                                name):
     """The brake is (nearly) never pressed on either drive: the accelerator terms come out as
     with it; the parameter file says the brake term was not identified, naming 'brake_pedal'
-    (today in every zone's note), and no zone claims a brake interval."""
+    (in every zone's note), and no zone claims a brake interval."""
     res, full = _case(run_identify, name, "brake"), run_identify(name)
     assert res["rc"] == 0, res["err"]
     p = res["params"]

@@ -40,7 +40,8 @@ from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded,
 from hmpc.models.diagnose.hypothesis import grid_search, sse_per_sample
 from hmpc.models.identify.stats import savgol_derivative
 
-G_MPS2 = 9.80665
+from hmpc.models.constants import G_MPS2
+
 DEFAULT_ZONES = (("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
 #: linear extension -> (parameter name, bounds)
 LINEAR_EXT = {

@@ -1,9 +1,9 @@
 """``identify``: the report's steering map (eq. 7) and zone accelerator models (eq. 8) from a
 recording, as a parameter set the controller loads, plus a report of every figure.
 
-Steps: :func:`models.steering_id.identify_steering` (wheel-speed and yaw-rate fits, eq. 1
+Steps: :func:`models.identify.steering.identify_steering` (wheel-speed and yaw-rate fits, eq. 1
 position replay, dead time, intervals, identifiability) and
-:func:`models.longitudinal_id.identify_longitudinal` (per-zone eq. 8 with brake, FOS term
+:func:`models.identify.longitudinal.identify_longitudinal` (per-zone eq. 8 with brake, FOS term
 selection, NMSE%, speed RMSE, intervals). A car without the report's inputs is identified
 from its commands: without ``steering_wheel_angle`` the steering map reads ``steering_cmd``
 (written as ``steering.input: steering_cmd``), and without ``accel_pedal`` the zones read
@@ -118,7 +118,7 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
     """Identify eq. 7 and eq. 8 (+ brake) per zone from ``recording``.
 
     Args:
-        recording: a canonical recording (``models.recording``).
+        recording: a canonical recording (``models.logs.recording``).
         vehicle: the measured geometry (``load_params(path).vehicle``).
         zones: speed zones as ``[(name, v_min_mps, v_max_mps), ...]``; overrides
             ``longitudinal_config.zones``. Default: the config's zones, or when those are the

@@ -17,7 +17,7 @@ Formats (``fmt`` names):
 Any of these may be gzip-compressed (``.gz``). Without ``fmt`` the format comes from the file
 suffix, confirmed (or, for an unknown suffix, found) by looking at the first line.
 
-Bad input (``../shared/CONVENTIONS.md``): malformed lines (truncated, garbled, non-hex, binary
+Bad input (``docs/conventions.md``): malformed lines (truncated, garbled, non-hex, binary
 garbage) are skipped, counted and reported with their first line numbers in a
 :class:`~models.errors.Problems` collector; so are remote and error frames (no payload to decode)
 and exact duplicate frames. Timestamps going backwards are re-sorted (stable) and reported;

@@ -2,15 +2,15 @@
 
 :func:`ingest_files` does, in order (each step a function a test can call):
 
-1. (:func:`read_can`) load the DBC (``models.dbc``) and the vehicle's signal map
-   (``models.signalmap``), validated against each other;
-2. read the CAN log (``models.canlog``) and decode only the messages the map uses
-   (``models.decode``), on the buses it names; evaluate each channel's expression, convert to SI
-   and apply its sign. A required channel without a sample raises :class:`InputError` naming the
-   channel and the log;
-3. (:func:`read_nav_stage`) read the nav file (``models.nav``) and put it on the CAN clock: the
+1. (:func:`read_can`) load the DBC (``models.logs.dbc``) and the vehicle's signal map
+   (``models.logs.signalmap``), validated against each other;
+2. read the CAN log (``models.logs.canlog``) and decode only the messages the map uses
+   (``models.logs.decode``), on the buses it names; evaluate each channel's expression, convert
+   to SI and apply its sign. A required channel without a sample raises :class:`InputError`
+   naming the channel and the log;
+3. (:func:`read_nav_stage`) read the nav file (``models.logs.nav``) and put it on the CAN clock: the
    offset is given, or estimated by cross-correlating CAN ``speed`` with GNSS ground speed
-   (``models.align``);
+   (``models.logs.align``);
 4. estimate the heading mount offset (device heading minus course over ground above
    :data:`MOUNT_MIN_SPEED_MPS`) and, unless ``mount_correction=False``, subtract it from
    ``heading`` and rotate the IMU's horizontal accelerations by it, so both describe the car body;
@@ -19,7 +19,7 @@
    ISO body axes, removing gravity with the nav attitude;
 6. choose one source per channel (:data:`DEFAULT_PREFERENCE`, :func:`choose_sources`),
    resample everything onto a uniform grid spanning the time all required CAN channels cover
-   (:func:`grid_for`, :func:`resample_channels`, ``models.resample``) and mark gaps.
+   (:func:`grid_for`, :func:`resample_channels`, ``models.logs.resample``) and mark gaps.
 
 The result carries the recording (``raw`` keeps each chosen channel's samples, on the CAN clock,
 before resampling), the recoverable problems, and a summary with stable keys (see
@@ -192,7 +192,7 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
     """Ingest a CAN log (+ optional nav and IMU CSVs) into a canonical recording.
 
     Args:
-        log_path: CAN log (any format ``models.canlog`` reads).
+        log_path: CAN log (any format ``models.logs.canlog`` reads).
         dbc_path: the car's DBC (optionally .gz).
         signals_path: the vehicle's signal map YAML.
         nav_path: GPS/INS CSV (columns: ``nav_columns``), optional.
@@ -203,7 +203,7 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
         imu_offset_s: IMU clock offset [s] to the CAN clock; None: the nav offset (same device)
             when there is a nav file, else estimated from yaw rate against CAN.
         nav_columns, imu_columns: column layouts (default: the comma2k19 files).
-        gap_s: gap threshold [s] for every channel; None: per channel, see ``models.resample``.
+        gap_s: gap threshold [s] for every channel; None: per channel, see ``models.logs.resample``.
         problems: collector to add to (a new one by default).
         mount_correction: subtract the estimated heading mount offset from ``heading`` and rotate
             the IMU accelerations by it (reported either way).

@@ -4,7 +4,7 @@
 (:func:`read_channels`) and writing one (:func:`write_csv`, :func:`write_parquet`) are functions
 beside it.
 
-Channel names and units are those of ``../shared/CONVENTIONS.md`` (see ``models.channels``).
+Channel names and units are those of ``docs/conventions.md`` (see ``models.logs.channels``).
 Columns not available are absent, never zero-filled. Samples inside a gap longer than the
 ingest threshold are NaN (``""`` for ``gear``), and the gaps are listed in ``meta['gaps']``.
 The raw, un-resampled samples of each channel stay available in ``raw``.
