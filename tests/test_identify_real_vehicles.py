@@ -5,7 +5,8 @@ value checked against an independent sensor or a physical bound.
   no steering measurement; a 28 s straight run driven by ``cmd_vel``. Identify writes the
   speed-command zones (``speed_cmd_gain_ps``); the steering map is not identified, with the
   reason. The written model, run in closed loop from the command, follows the GNSS ground
-  speed (not used by the fit) closer than the command itself does.
+  speed (not used by the fit) closer than the command itself does, and the fit to the GNSS
+  speed's acceleration agrees with the fit to the kit's.
 - The F1TENTH car (FrictionMaps DS5 bundled; DS2 in ../shared/data only): the steering map is
   fitted to the Ackermann command (``steering.input: steering_cmd``) from the IMU yaw rate; the
   particle filter's heading (lidar localisation, another sensor) checks it. The speed-command
@@ -204,6 +205,28 @@ def test_catvehicle_speed_response_follows_gnss(identified):
     # 1 / gain within a second-to-seconds response of a by-wire SUV
     idle = p.command_zones[0]
     assert 0.2 < 1.0 / idle.speed_cmd_gain_ps < 10.0
+
+
+def test_catvehicle_gains_from_gnss_agree_with_those_from_the_kit_speed(identified, tmp_path):
+    """The same fit with the acceleration measured by the GNSS ground speed (another sensor)
+    instead of the kit's speed: every gain the run determined (interval above 0) lies inside
+    the other fit's interval."""
+    r = identified("catvehicle")
+    out = tmp_path / "gnss.yaml"
+    idf = _run("identify", r["rec"], "--vehicle", r["vehicle"], "--accel-source", "gps_speed",
+               "--out", out)
+    assert idf.returncode == 0, idf.stderr
+    kit, gnss = load_params(r["params"]), load_params(out)
+    assert gnss.accel_source_chosen == "gps_speed"
+    determined = 0
+    for a, b in zip(kit.command_zones, gnss.command_zones):
+        for x, y in ((a, b), (b, a)):
+            ci = y.speed_cmd_gain_ci95_ps
+            if ci is None or x.speed_cmd_gain_ci95_ps is None or ci[0] <= 0.0:
+                continue
+            determined += 1
+            assert ci[0] <= x.speed_cmd_gain_ps <= ci[1], (a.name, x, y)
+    assert determined >= 2      # the launch zone, both ways
 
 
 # ---------------------------------------------------------------- the F1TENTH car

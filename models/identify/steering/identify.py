@@ -66,7 +66,7 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
     ``input_channel="steering_cmd"`` fits the map to the steering command instead (a car with
     no steering measurement): road-wheel angle = offset + scale * steering_cmd, the servo
     included; every step is the same, errors name ``steering_cmd``, and the range check of
-    identifiability is on the road-wheel angle (:func:`_command_rec`).
+    identifiability is on the road-wheel angle (``_identify``).
 
     Raises:
         InputError: no method has its channels, no trustworthy samples remain, or no fit is
