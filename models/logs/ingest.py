@@ -508,18 +508,22 @@ def resample_channels(raw: dict[str, Series], origin: dict[str, str], smap, grid
             kind = smap.channels[ch].resample
         else:
             kind = "linear"
-        values, g = resample(t, v, grid, kind, gap_s)
+        d = np.diff(t)
+        med = np.median(d) if len(d) else None
+        # with every step positive, their median is also the median of the positive steps
+        thr = gap_threshold_s(t, gap_s, median_step_s=float(med) if med is not None
+                              and d.min() > 0 else None)
+        values, g = resample(t, v, grid, kind, gap_s, threshold_s=thr)
         out.channels[ch] = values
         if g:
             out.gaps[ch] = [x.to_dict() for x in g]
         valid = (values != "") if ch in STRING_CHANNELS else np.isfinite(values)
-        d = np.diff(t)
         out.info[ch] = {
             "unit": CHANNELS[ch], "source": origin[ch], "resample": kind,
             "raw_samples": int(len(t)),
-            "raw_rate_hz": float(1.0 / np.median(d)) if len(d) and np.median(d) > 0 else None,
+            "raw_rate_hz": float(1.0 / med) if med is not None and med > 0 else None,
             "valid_fraction": float(np.mean(valid)) if len(valid) else 0.0,
-            "gap_threshold_s": gap_threshold_s(t, gap_s),
+            "gap_threshold_s": thr,
         }
     return out
 
