@@ -10,6 +10,7 @@ Imports only numpy, ``models.errors`` and ``models.logs.frames``/``candump_fixed
 """
 from __future__ import annotations
 
+import mmap
 import threading
 import zlib
 from concurrent.futures import ThreadPoolExecutor
@@ -109,6 +110,19 @@ def text_bytes(p: Path, gz: bool) -> int:
     return isize if isize >= size else 8 * size
 
 
+def _anonymous(shape, dtype) -> np.ndarray:
+    """A zeroed array in its own anonymous memory map, page by page as it is first touched.
+
+    numpy asks the kernel for transparent huge pages for arrays this large, and where the
+    kernel then compacts memory at fault time (``defrag`` set to ``madvise``, the common
+    default) a machine with much page cache spends milliseconds per 2 MB fault; the columns
+    here are written once, in order, so ordinary pages lose nothing.
+    """
+    count = int(np.prod(shape, dtype=np.int64))
+    nbytes = max(count * np.dtype(dtype).itemsize, 1)
+    return np.frombuffer(mmap.mmap(-1, nbytes), dtype, count).reshape(shape)
+
+
 class FrameSink:
     """Frames appended part by part to columns allocated once for the whole file (grown if
     the estimate falls short), so no part is copied twice.
@@ -128,10 +142,10 @@ class FrameSink:
 
     def _grow(self, cap: int, width: int) -> None:
         old, n = self.cols, self.n
-        self.cols = {"t_s": np.empty(cap), "bus": np.empty(cap, np.int16),
-                     "arb_id": np.empty(cap, np.uint32), "is_extended": np.empty(cap, bool),
-                     "dlc": np.empty(cap, np.uint8), "data": np.zeros((cap, width), np.uint8),
-                     "where": np.empty(cap, np.int64)}
+        self.cols = {"t_s": _anonymous(cap, np.float64), "bus": _anonymous(cap, np.int16),
+                     "arb_id": _anonymous(cap, np.uint32), "is_extended": _anonymous(cap, bool),
+                     "dlc": _anonymous(cap, np.uint8), "data": _anonymous((cap, width), np.uint8),
+                     "where": _anonymous(cap, np.int64)}
         for k, v in old.items():
             if k == "data":
                 self.cols[k][:n, :v.shape[1]] = v[:n]
