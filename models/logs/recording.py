@@ -159,7 +159,9 @@ CSV_ROWS_PER_WRITE = 1 << 14
 
 def _rows_text(names: list[str], channels: dict, lo: int, hi: int):
     """The CSV lines of rows [lo, hi), in pieces of :data:`CSV_ROWS_PER_WRITE` rows."""
-    rows = list(zip(*[_csv_cells(name, channels[name][lo:hi]) for name in names]))
+    whole = lo == 0 and hi == len(channels[names[0]])
+    rows = list(zip(*[_csv_cells(name, channels[name] if whole else channels[name][lo:hi])
+                      for name in names]))
     for i in range(0, len(rows), CSV_ROWS_PER_WRITE):
         yield "".join([",".join(r) + "\r\n" for r in rows[i:i + CSV_ROWS_PER_WRITE]])
 
