@@ -182,7 +182,7 @@ def run_cli_ingest(log: Path, dbc: Path, signals: Path) -> dict:
     rec, js = log.with_suffix(".rec.csv"), log.with_suffix(".summary.json")
     res = run_child([*hmpc_command(), "ingest", log, "--dbc", dbc, "--signals", signals,
                      "--rate", "50", "--out", rec, "--json", js], log.parent)
-    out = {k: res[k] for k in ("wall_s", "peak_rss_b", "returncode")}
+    out = {k: res[k] for k in ("wall_s", "cpu_s", "peak_rss_b", "returncode")}
     if res["returncode"] != 0:
         out["error"] = (res["stderr"].strip().splitlines() or ["?"])[-1]
         return out
@@ -236,7 +236,8 @@ def _report_ingest(runs: list[tuple[str, dict]], cli: dict, minutes: int) -> lis
         print(f"  {name} / now: wall {hour(r):.2f} s / {hour(ing):.2f} s = "
               f"{hour(r) / hour(ing):.1f}x{note}; CPU {r['cpu_s'] / ing['cpu_s']:.1f}x")
     print(f"ingest, `hmpc ingest` end to end (what the user runs): wall "
-          f"{cli['wall_s']:.2f} s, peak memory {cli['peak_rss_b'] / 1e6:.0f} MB; "
+          f"{cli['wall_s']:.2f} s, CPU {cli['cpu_s']:.2f} s (all threads and processes), "
+          f"peak memory {cli['peak_rss_b'] / 1e6:.0f} MB; "
           f"{cli['csv_mb']:.0f} MB CSV written; `hmpc --version` alone "
           f"{cli['startup_s']:.2f} s (start-up: every subcommand imported); load average "
           f"{cli['load1']:.1f}")

@@ -106,9 +106,9 @@ class Recording:
 
 # ---------------------------------------------------------------------- writing
 #: rows from which :func:`write_csv` turns the second half of the rows to text in a forked
-#: child process while it does the first half: the text (``repr`` of each number) is about
-#: 0.5 s per 100k rows of 14 channels on the 2-core development machine, the fork and the pipe
-#: a few ms; below this the split cannot pay for itself
+#: child process while it does the first half: the text (``repr`` of every number) costs per
+#: row, the fork and the pipe once; below this many rows (a minute at 50 Hz is 3000) the split
+#: saves too little to matter (``docs/benchmarks.md`` has the hour's figures)
 CSV_SPLIT_ROWS = 50_000
 
 

@@ -115,8 +115,9 @@ def _anonymous(shape, dtype) -> np.ndarray:
 
     numpy asks the kernel for transparent huge pages for arrays this large, and where the
     kernel then compacts memory at fault time (``defrag`` set to ``madvise``, the common
-    default) a machine with much page cache spends milliseconds per 2 MB fault; the columns
-    here are written once, in order, so ordinary pages lose nothing.
+    default) a machine with much page cache spends a large share of the read in those faults
+    (``docs/benchmarks.md``); the columns here are written once, in order, so ordinary pages
+    lose nothing.
     """
     count = int(np.prod(shape, dtype=np.int64))
     nbytes = max(count * np.dtype(dtype).itemsize, 1)
