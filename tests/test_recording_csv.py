@@ -72,8 +72,8 @@ def test_write_csv_gzip_and_a_single_column(tmp_path):
 @pytest.mark.parametrize("n", [2, 7, 1000, 40_000])
 def test_write_csv_split_across_a_child_process_writes_the_same_bytes(tmp_path, n):
     """The second half of the rows turned to text by a forked child: the same file."""
-    if not hasattr(os, "fork"):
-        pytest.skip("no os.fork on this platform: write_csv never splits here")
+    if not recording._CAN_FORK:
+        pytest.skip("write_csv splits the rows across processes on Linux only")
     ch = _channels(n, seed=n + 1)
     write_csv(ch, tmp_path / "split.csv", split_rows=2)
     _reference(ch, tmp_path / "rows.csv")
@@ -83,8 +83,8 @@ def test_write_csv_split_across_a_child_process_writes_the_same_bytes(tmp_path, 
 def test_write_csv_child_failure_falls_back_to_this_process(tmp_path, monkeypatch):
     """A child that fails (here: an error raised only in the child) leaves no trace: the
     parent makes those rows itself and the file is still right."""
-    if not hasattr(os, "fork"):
-        pytest.skip("no os.fork on this platform: write_csv never splits here")
+    if not recording._CAN_FORK:
+        pytest.skip("write_csv splits the rows across processes on Linux only")
     parent = os.getpid()
     real = recording._csv_cells
 

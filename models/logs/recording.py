@@ -16,6 +16,7 @@ import gzip
 import io
 import zlib
 import os
+import sys
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -120,7 +121,8 @@ def write_csv(channels: dict[str, np.ndarray], path: str | Path, *,
     as they are, in ``csv.writer``'s dialect (``\r\n`` line ends, minimal quoting). Each column
     is turned to text in one pass and the rows are joined in bulk. From ``split_rows`` rows on
     (and where ``os.fork`` exists) a child process makes the text of the second half of the
-    rows meanwhile and hands it back through a pipe; the bytes written are the same.
+    rows meanwhile and hands it back through a pipe (on Linux); the bytes written are the
+    same.
     """
     names = [c for c in CHANNELS if c in channels]
     names += [c for c in channels if c not in CHANNELS]
@@ -138,7 +140,7 @@ def write_csv(channels: dict[str, np.ndarray], path: str | Path, *,
             if len(names) == 1:  # a one-cell row: csv quotes an empty cell, let it
                 w.writerows(zip(*[_csv_cells(names[0], channels[names[0]])]))
             else:
-                mid = n // 2 if n >= max(split_rows, 2) and hasattr(os, "fork") else n
+                mid = n // 2 if n >= max(split_rows, 2) and _CAN_FORK else n
                 with _RowsInChild(names, channels, mid, n) as child:
                     _write_rows(fh, names, channels, 0, mid)
                     text = child.text()
@@ -153,6 +155,9 @@ def write_csv(channels: dict[str, np.ndarray], path: str | Path, *,
             tmp.unlink()
 
 
+#: where :func:`write_csv` may fork: Linux (macOS system libraries are not safe to use in a
+#: child forked from a process with threads, and Windows has no fork)
+_CAN_FORK = sys.platform.startswith("linux") and hasattr(os, "fork")
 #: rows joined into one string per write of :func:`write_csv`
 CSV_ROWS_PER_WRITE = 1 << 14
 
