@@ -23,7 +23,9 @@ the same run; and the decoder against per-frame cantools on the same frames.
      CSV and JSON writes, the exit).
    With ``--repeat N`` each of these runs N times, the variants interleaved so each sees the
    same load, and each one's fastest run counts (the load average at its end is printed).
-   Prints each, the ratio baseline / now, and the verdicts.
+   Prints each, the ratio baseline / now, and the verdicts. Beside each wall time: the CPU
+   time of all threads, and of the main thread alone (start-up included): the wall time the
+   call would take with a free core whenever a thread of it could run.
 3. (b) Reads the same file in this process and decodes every frame of every DBC message with
    hmpc's vectorised path (twice; the faster call counts, as per-frame cantools runs warm),
    and the first ``--cantools-frames`` (default 200 000) frames one by
@@ -120,7 +122,8 @@ rec = getattr(result, "recording", result)
 channels = getattr(rec, "channels", {})
 rows = int(len(channels["time"])) if "time" in channels else None
 print(json.dumps({"import_s": t1 - t0, "ingest_s": t2 - t1, "setup_s": setup, "rows": rows,
-                  "channels": len(channels), "result": type(result).__name__}))
+                  "channels": len(channels), "result": type(result).__name__,
+                  "main_cpu_s": time.thread_time()}))
 """
 
 
@@ -229,7 +232,8 @@ def _report_ingest(runs: list[tuple[str, dict]], cli: dict, minutes: int) -> lis
     for name, r in runs:
         print(f"ingest, library call, {name}: wall {r['wall_s']:.2f} s (child process incl. "
               f"Python start-up; ingest_files() itself {r['ingest_s']:.2f} s, its imports "
-              f"{r['import_s']:.2f} s), CPU {r['cpu_s']:.2f} s (all threads), peak memory "
+              f"{r['import_s']:.2f} s), CPU {r['cpu_s']:.2f} s (all threads; the main "
+              f"thread's {r.get('main_cpu_s', float('nan')):.2f} s), peak memory "
               f"{r['peak_rss_b'] / 1e6:.0f} MB; recording: {r.get('rows')} rows x "
               f"{r.get('channels')} channels at 50 Hz; load average {r['load1']:.1f}")
     for name, r in runs[1:]:
