@@ -177,8 +177,10 @@ class FrameSink:
         c["where"][a:b] = ch.where
 
     def prefault(self) -> None:
-        """Write zeros to the rows ahead of the writer, up to :data:`PREFAULT_AHEAD` rows
-        ahead, until :meth:`close` (run it in a worker thread)."""
+        """Write a zero byte to each memory page of the rows ahead of the writer, up to
+        :data:`PREFAULT_AHEAD` rows ahead, until :meth:`close` (run it in a worker thread).
+        The columns' pages are zero already (anonymous maps): the write only makes the
+        kernel provide each page here rather than in the writer."""
         done = 0
         while True:
             with self._cond:
@@ -192,7 +194,8 @@ class FrameSink:
                 self._claim, cols = (a, b), self.cols
             try:
                 for v in cols.values():
-                    v[a:b] = 0
+                    row = v.strides[0]
+                    v.reshape(-1).view(np.uint8)[a * row:b * row:mmap.PAGESIZE] = 0
             finally:
                 with self._cond:
                     self._claim = None
