@@ -78,6 +78,9 @@ def test_write_csv_split_across_a_child_process_writes_the_same_bytes(tmp_path, 
     write_csv(ch, tmp_path / "split.csv", split_rows=2)
     _reference(ch, tmp_path / "rows.csv")
     assert (tmp_path / "split.csv").read_bytes() == (tmp_path / "rows.csv").read_bytes()
+    write_csv(ch, tmp_path / "split.csv.gz", split_rows=2)
+    assert gzip.decompress((tmp_path / "split.csv.gz").read_bytes()) \
+        == (tmp_path / "rows.csv").read_bytes()
 
 
 def test_write_csv_child_failure_falls_back_to_this_process(tmp_path, monkeypatch):
