@@ -9,7 +9,6 @@ a 2 s GNSS outage). Run with ``-n 2``.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,8 +24,8 @@ from hmpc.models.reference import Reference
 from hmpc.models.sim.scenarios import make_scenario
 from hmpc.models.sim.simulator import random_params
 
-ROOT = Path(__file__).resolve().parents[1]
-REPORT = ROOT / "params" / "report_2008.yaml"
+from _data import REPORT_PARAMS
+
 #: the issue's rate figures and bounds differentiated the 0.1 s commands at the 0.02 s
 #: recording rate: sqrt(T / dt) times the rate per control update the figures now are
 OLD_RATE_FACTOR = math.sqrt(0.1 / 0.02)
@@ -128,7 +127,7 @@ def test_closed_loop_rate_is_the_change_per_control_update(plant_dt_s):
 def _params(name: str):
     """report_2008, or a parameter set the tuning never saw (random_params seed 9: idle
     creep +0.33 m/s^2, steering scale 0.090 against the report's)."""
-    return load_params(REPORT, require_model=True) if name == "report" else random_params(9)
+    return load_params(REPORT_PARAMS, require_model=True) if name == "report" else random_params(9)
 
 
 def _run(params_name: str, scenario: str, robust: bool = False):

@@ -97,7 +97,7 @@ def test_imports_flow_tools_controller_models(stage):
 
 def test_no_generic_top_level_imports():
     bad = [f"{p.relative_to(REPO_DIR)}:{line}: imports {mod}"
-           for p in [*_sources(), *sorted((REPO_DIR / "tests").glob("*.py"))]
+           for p in [*_sources(), *sorted((REPO_DIR / "tests").rglob("*.py"))]
            for line, mod in imports_of(p) if mod.split(".")[0] in GENERIC]
     assert not bad, "import hmpc.models/controller/tools, never the bare name:\n" + "\n".join(bad)
 
