@@ -33,20 +33,17 @@ from _data import PARAMS_DIR, bundled
 
 CAN = bundled("rav4-comma2k19/can.log.gz")
 NAV = bundled("rav4-comma2k19/nav.csv.gz")
-IMU = bundled("rav4-comma2k19/imu.csv.gz")
-DBC = bundled("dbc/toyota_rav4_2017.dbc.gz")
-SIGNALS = PARAMS_DIR / "toyota_rav4_2017.signals.yaml"
 ACTUATION = PARAMS_DIR / "toyota_rav4_2017.actuation.yaml"
 ALLOW = "--accept-unidentifiable"   # the minute's steering is flagged not identifiable
 
 
 @pytest.fixture(scope="module")
-def identified(tmp_path_factory):
-    """The minute ingested, and the plant identified from it (what a user does first)."""
+def identified(tmp_path_factory, comma_ingest):
+    """The minute ingested (conftest's shared ingest, saved as ``hmpc ingest --out`` saves it),
+    and the plant identified from it (what a user does first)."""
     d = tmp_path_factory.mktemp("replay")
     rec, params = d / "rec.csv", d / "params.yaml"
-    assert main(["ingest", str(CAN), "--dbc", str(DBC), "--signals", str(SIGNALS), "--nav",
-                 str(NAV), "--imu", str(IMU), "--out", str(rec)]) == 0
+    comma_ingest.recording.save(rec)
     assert main(["identify", str(rec), "--vehicle", str(PARAMS_DIR / "toyota_rav4_2017.yaml"),
                  "--out", str(params)]) == 0
     return rec, params

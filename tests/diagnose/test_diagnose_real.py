@@ -22,19 +22,15 @@ from __future__ import annotations
 import pytest
 
 from hmpc.models.diagnose.diagnose import diagnose
-from hmpc.models.logs.ingest import ingest_files
 from hmpc.models.params import load_params
-from _data import PARAMS_DIR, bundled
+from _data import PARAMS_DIR
 
 RESPONSE = {"actuator_lag": "tau_s", "actuator_delay": "delay_s"}
 
 
 @pytest.fixture(scope="module")
-def comma():
-    ing = ingest_files(bundled("rav4-comma2k19/can.log.gz"), bundled("dbc/toyota_rav4_2017.dbc.gz"),
-                       PARAMS_DIR / "toyota_rav4_2017.signals.yaml",
-                       nav_path=bundled("rav4-comma2k19/nav.csv.gz"),
-                       imu_path=bundled("rav4-comma2k19/imu.csv.gz"))
+def comma(comma_ingest):
+    ing = comma_ingest
     vehicle = load_params(PARAMS_DIR / "toyota_rav4_2017.yaml").vehicle
     return ing.recording, vehicle, diagnose(ing.recording, vehicle)
 

@@ -305,17 +305,13 @@ def test_config_rejects_bad_numbers():
 
 # ------------------------------------------------------------------ the real comma minute
 @pytest.fixture(scope="module")
-def comma_recording(comma_log, comma_dbc):
-    from _data import DATA_DIR, PARAMS_DIR
-    from hmpc.models.logs.ingest import ingest_files
-    res = ingest_files(comma_log, comma_dbc, PARAMS_DIR / "toyota_rav4_2017.signals.yaml",
-                       DATA_DIR / "rav4-comma2k19" / "nav.csv.gz",
-                       DATA_DIR / "rav4-comma2k19" / "imu.csv.gz")
+def comma_recording(comma_ingest):
+    from _data import PARAMS_DIR
     geometry = load_params(PARAMS_DIR / "toyota_rav4_2017.yaml").vehicle
     # the maker's steering ratio and a flat eq. 8: the IMU's acceleration drives the speed
     params = Params(geometry, Steering(0.0, 1.0 / geometry.steering_ratio),
                     [Zone("all", 0.0, 50.0, 0.0, 2.0, 5.0)])
-    return res, params
+    return comma_ingest, params
 
 
 @pytest.mark.parametrize("latency_s", [0.0, 0.1])

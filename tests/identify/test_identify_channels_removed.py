@@ -22,8 +22,7 @@ import json
 import pytest
 import yaml
 
-from _data import PARAMS_DIR, bundled
-from hmpc.models.logs.ingest import ingest_files
+from _data import PARAMS_DIR
 from hmpc.models.logs.recording import Recording
 from hmpc.tools.cli import main
 
@@ -55,23 +54,12 @@ def _parts_missing(p: dict) -> dict:
             if k in ("steering", "longitudinal")}
 
 
-def _ingest(name: str, *, ins: bool = True) -> Recording:
-    if name == "comma":
-        kw = {"nav_path": bundled("rav4-comma2k19/nav.csv.gz"),
-              "imu_path": bundled("rav4-comma2k19/imu.csv.gz")} if ins else {}
-        return ingest_files(bundled("rav4-comma2k19/can.log.gz"),
-                            bundled("dbc/toyota_rav4_2017.dbc.gz"),
-                            PARAMS_DIR / "toyota_rav4_2017.signals.yaml", **kw).recording
-    return ingest_files(bundled("rav4-2019-verifiedcan/drive.csv.gz"),
-                        bundled("dbc/toyota_rav4_2019_tss2.dbc.gz"),
-                        PARAMS_DIR / "toyota_rav4_2019.signals.yaml").recording
-
-
 @pytest.fixture(scope="session")
-def canonical():
-    """The canonical recordings, ingested once: full, and the comma minute from CAN alone."""
-    return {"comma": _ingest("comma"), "comma_can_only": _ingest("comma", ins=False),
-            "vcan": _ingest("vcan")}
+def canonical(comma_ingest, comma_can_ingest, vcan_ingest):
+    """The canonical recordings (conftest's shared ingests): full, and the comma minute from
+    CAN alone."""
+    return {"comma": comma_ingest.recording, "comma_can_only": comma_can_ingest.recording,
+            "vcan": vcan_ingest.recording}
 
 
 @pytest.fixture(scope="session")

@@ -8,28 +8,20 @@ import math
 import pytest
 
 from hmpc.models.identify.pipeline import identify
-from hmpc.models.logs.ingest import ingest_files
 from hmpc.models.params import load_params
-from _data import PARAMS_DIR, bundled
+from _data import PARAMS_DIR
 
 
 @pytest.fixture(scope="module")
-def comma():
-    ing = ingest_files(bundled("rav4-comma2k19/can.log.gz"), bundled("dbc/toyota_rav4_2017.dbc.gz"),
-                       PARAMS_DIR / "toyota_rav4_2017.signals.yaml",
-                       nav_path=bundled("rav4-comma2k19/nav.csv.gz"),
-                       imu_path=bundled("rav4-comma2k19/imu.csv.gz"))
+def comma(comma_ingest):
     vehicle = load_params(PARAMS_DIR / "toyota_rav4_2017.yaml").vehicle
-    return identify(ing.recording, vehicle)
+    return identify(comma_ingest.recording, vehicle)
 
 
 @pytest.fixture(scope="module")
-def vcan():
-    ing = ingest_files(bundled("rav4-2019-verifiedcan/drive.csv.gz"),
-                       bundled("dbc/toyota_rav4_2019_tss2.dbc.gz"),
-                       PARAMS_DIR / "toyota_rav4_2019.signals.yaml")
+def vcan(vcan_ingest):
     vehicle = load_params(PARAMS_DIR / "toyota_rav4_2019.yaml").vehicle
-    return identify(ing.recording, vehicle)
+    return identify(vcan_ingest.recording, vehicle)
 
 
 def _finite(*xs):
@@ -141,15 +133,13 @@ def _front_speed(rec):
     return 0.5 * (rec["wheel_speed_fl"] + rec["wheel_speed_fr"])
 
 
-def test_comma_minute_zones_without_data_are_named_not_identified_with_their_source(comma):
+def test_comma_minute_zones_without_data_are_named_not_identified_with_their_source(
+        comma, comma_can_ingest):
     """The minute never drops below 5 m/s (checked on the recording itself), so the idle and
     low zones have no samples: every value written for them is named under not_identified,
     in the JSON's top level and the longitudinal report, with the zone it was copied from (or
     the prior when no zone identified it); the fitted high zone copies nothing."""
-    ing = ingest_files(bundled("rav4-comma2k19/can.log.gz"),
-                       bundled("dbc/toyota_rav4_2017.dbc.gz"),
-                       PARAMS_DIR / "toyota_rav4_2017.signals.yaml")
-    v = _front_speed(ing.recording)
+    v = _front_speed(comma_can_ingest.recording)
     assert float(v[v == v].min()) > 5.0  # independent of identify: nothing at or below 5 m/s
     lon, top = comma.report["longitudinal"], comma.report["not_identified"]
     reps = {zr["name"]: zr for zr in lon["zones"]}

@@ -34,8 +34,8 @@ def _comma_ingest(signals=COMMA_MAP):
 
 
 @pytest.fixture(scope="module")
-def comma_ing():
-    return _comma_ingest()
+def comma_ing(comma_ingest):
+    return comma_ingest
 
 
 @pytest.fixture(scope="module")
@@ -45,10 +45,8 @@ def comma_id(comma_ing):
 
 
 @pytest.fixture(scope="module")
-def vcan_ing():
-    return ingest_files(bundled("rav4-2019-verifiedcan/drive.csv.gz"),
-                        bundled("dbc/toyota_rav4_2019_tss2.dbc.gz"),
-                        PARAMS_DIR / "toyota_rav4_2019.signals.yaml")
+def vcan_ing(vcan_ingest):
+    return vcan_ingest
 
 
 @pytest.fixture(scope="module")
