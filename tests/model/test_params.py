@@ -1,4 +1,5 @@
-"""The strict parameter-file loader: the CONVENTIONS keys load; typos and unit-less keys fail loudly."""
+"""The strict parameter-file loader: the keys of docs/conventions.md load, typos and unit-less
+keys fail loudly, and every shipped file loads as written."""
 import pytest
 import yaml
 
@@ -78,27 +79,105 @@ def test_unreadable_files(tmp_path):
     assert str(bad) in str(ei.value)
 
 
-# signal maps (*.signals.yaml), topic maps (*.topics.yaml) and actuation profiles
-# (*.actuation.yaml) are other formats, checked by test_signalmap and below
-@pytest.mark.parametrize("path", sorted(p for p in PARAMS_DIR.glob("*.yaml")
-                                        if not p.name.endswith((".signals.yaml", ".topics.yaml",
-                                                                ".actuation.yaml"))),
-                         ids=lambda p: p.name)
-def test_shipped_parameter_files_load(path):
-    load_params(path)
+# signal maps (*.signals.yaml) are another format, checked by test_signalmap; topic maps
+# (*.topics.yaml) and actuation profiles (*.actuation.yaml) are checked below
+PARAM_FILES = sorted(p for p in PARAMS_DIR.glob("*.yaml")
+                     if not p.name.endswith((".signals.yaml", ".topics.yaml", ".actuation.yaml")))
+TOPIC_MAPS = sorted(PARAMS_DIR.glob("*.topics.yaml"))
+PROFILES = sorted(PARAMS_DIR.glob("*.actuation.yaml"))
+#: the files the CLI's examples, the docs and the other tests name: each glob finds at least these
+#: (an empty glob would otherwise turn the parametrised tests below into one silent skip)
+NAMED = {"parameter files": (PARAM_FILES, {"report_2008.yaml", "report_2008_weak_zones.yaml",
+                                           "toyota_rav4_2017.yaml", "toyota_rav4_2019.yaml",
+                                           "catvehicle.yaml", "f1tenth.yaml"}),
+         "topic maps": (TOPIC_MAPS, {"catvehicle.topics.yaml",
+                                     "f1tenth_frictionmaps.topics.yaml"}),
+         "actuation profiles": (PROFILES, {"toyota_rav4_2017.actuation.yaml",
+                                           "bywire.actuation.yaml"})}
+#: values from the files' own sources, not from the files: the report's eq. 7 and zone
+#: boundaries (section IV-C, V), opendbc's wheelbase and steering ratio of each RAV4
+SOURCE_VALUES = {
+    "report_2008.yaml": {"wheelbase_m": 2.65, "scale": 0.08, "offset_rad": 0.017,
+                         "zones_mps": [(0.0, 2.0), (2.0, 5.0), (5.0, 20.0)]},
+    "toyota_rav4_2017.yaml": {"wheelbase_m": 2.65, "steering_ratio": 16.88},
+    "toyota_rav4_2019.yaml": {"wheelbase_m": 2.69, "steering_ratio": 14.3},
+}
 
 
-@pytest.mark.parametrize("path", sorted(PARAMS_DIR.glob("*.topics.yaml")), ids=lambda p: p.name)
-def test_shipped_topic_maps_load(path):
+def _plain(value):
+    """YAML's lists and the loader's tuples compare alike."""
+    return tuple(_plain(v) for v in value) if isinstance(value, (list, tuple)) else value
+
+
+@pytest.mark.parametrize("kind", sorted(NAMED))
+def test_the_shipped_files_are_where_the_tests_look(kind):
+    found, named = NAMED[kind]
+    assert named <= {p.name for p in found}, f"{kind} missing from {PARAMS_DIR}"
+
+
+@pytest.mark.parametrize("path", PARAM_FILES, ids=lambda p: p.name)
+def test_shipped_parameter_files_load_as_written(path):
+    """Every value the file states comes out of the strict loader unchanged (the file read
+    with plain YAML is the reference), and the values with a published source match it."""
+    raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    p = load_params(path)
+    for key, value in raw["vehicle"].items():
+        assert _plain(getattr(p.vehicle, key)) == _plain(value), f"vehicle.{key}"
+    for key, value in (raw.get("steering") or {}).items():
+        assert _plain(getattr(p.steering, key)) == _plain(value), f"steering.{key}"
+    zones = (raw.get("longitudinal") or {}).get("zones") or []
+    assert [z.name for z in p.zones] == [z["name"] for z in zones]
+    for zone, rz in zip(p.zones, zones):
+        for key, value in rz.items():
+            assert _plain(getattr(zone, key)) == _plain(value), f"{zone.name}.{key}"
+    known = SOURCE_VALUES.get(path.name, {})
+    for key in ("wheelbase_m", "steering_ratio"):
+        if key in known:
+            assert getattr(p.vehicle, key) == known[key], key
+    for key in ("scale", "offset_rad"):
+        if key in known:
+            assert getattr(p.steering, key) == known[key], key
+    if "zones_mps" in known:
+        assert [(z.v_min_mps, z.v_max_mps) for z in p.zones] == known["zones_mps"]
+
+
+@pytest.mark.parametrize("path", TOPIC_MAPS, ids=lambda p: p.name)
+def test_shipped_topic_maps_load_as_written(path):
+    """Each channel of the map reads the topic, field and unit the file names."""
     from hmpc.models.logs.topicmap import load_topic_map
-    assert load_topic_map(path).channels
+    raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    tm = load_topic_map(path)
+    assert tm.vehicle == raw.get("vehicle")
+    assert set(tm.channels) == set(raw["channels"]) and "speed" in tm.channels
+    for name, spec in raw["channels"].items():
+        ch = tm.channels[name]
+        assert (ch.channel, ch.topic, ch.field, ch.unit) == (name, spec["topic"], spec["field"],
+                                                             spec["unit"]), name
 
 
-@pytest.mark.parametrize("path", sorted(PARAMS_DIR.glob("*.actuation.yaml")),
-                         ids=lambda p: p.name)
-def test_shipped_actuation_profiles_load(path):
+@pytest.mark.parametrize("path", PROFILES, ids=lambda p: p.name)
+def test_shipped_actuation_profiles_load_as_written(path):
+    """Each command goes out in the message and at the rate the file names, on its bus."""
     from hmpc.controller.actuation.profiles import load_profile
-    load_profile(path)
+    raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    prof = load_profile(path)
+    assert (prof.name, prof.bus, prof.steering, prof.limits) == (
+        raw["profile"], raw["bus"], raw["steering"], raw["limits"])
+    assert set(prof.commands) == set(raw["commands"])
+    for role, spec in raw["commands"].items():
+        cmd = prof.commands[role]
+        assert cmd.message.name == spec["message"] and cmd.rate_hz == spec["rate_hz"], role
+        assert cmd.values == spec["values"], role
+
+
+def test_the_toyota_profile_sends_what_openpilot_sends():
+    """Frame ids and rates of the bundled comma minute (opendbc's STEERING_LKA 0x2E4 at
+    100 Hz, ACC_CONTROL 0x343 every third 100 Hz frame)."""
+    from hmpc.controller.actuation.profiles import load_profile
+    prof = load_profile(PARAMS_DIR / "toyota_rav4_2017.actuation.yaml")
+    steer, accel = prof.commands["steer_torque"], prof.commands["accel"]
+    assert (steer.message.frame_id, steer.rate_hz) == (0x2E4, 100)
+    assert accel.message.frame_id == 0x343 and accel.rate_hz == pytest.approx(100 / 3, abs=1e-3)
 
 
 def test_cli_reports_bad_params_in_one_line(tmp_path, capsys):
