@@ -3,6 +3,7 @@ real receiver on loopback UDP, a simulated clock, and the source's ``poll``/``st
 the drive loop calls them; and ``hmpc teleop``'s refusals of bad input."""
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import random
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 from _data import PARAMS_DIR, REPORT_PARAMS
-from hmpc.controller.base import Controller, Status
+from hmpc.controller.base import ControlResult, Controller, Status
 from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
 from hmpc.controller.mpc import MpcConfig, MpcController
 from hmpc.controller.teleop.link import LinkReceiver, Mode, OperatorLink, TeleopCommand
@@ -85,8 +86,18 @@ def rig(params):
     r.close()
 
 
-def test_is_a_controller():
-    assert isinstance(TeleopController.__new__(TeleopController), Controller)
+def test_is_a_controller(rig):
+    """A built source meets the contract (controller/base.py): keyword-only ``stop`` and
+    ``obstacle_distance_m``, a name, and a step that answers with a ControlResult; before the
+    operator engages, that answer is a hold on the brake."""
+    src = rig.src
+    assert isinstance(src, Controller) and src.name == "teleop"
+    sig = inspect.signature(src.step)
+    for name in ("stop", "obstacle_distance_m"):
+        assert sig.parameters[name].kind is inspect.Parameter.KEYWORD_ONLY, name
+    r = src.step(rig.x, rig.ref, rig.t, stop=False, obstacle_distance_m=None)
+    assert isinstance(r, ControlResult) and r.traceback is None
+    assert r.status == Status.HOLD and r.command == Command(0.0, 0.0, HOLD_BRAKE)
 
 
 def test_engages_only_on_the_operators_engage_then_holds(rig):
