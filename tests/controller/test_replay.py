@@ -14,8 +14,10 @@ Bounds, measured (mpc, parameters identified from the minute): reference mode sp
 """
 from __future__ import annotations
 
+import hashlib
 import json
 
+import can
 import numpy as np
 import pytest
 
@@ -80,13 +82,20 @@ def test_reference_replay_comma_minute(identified, tmp_path):
 def test_log_replay_against_openpilot(identified, tmp_path):
     """The whole minute through the drive loop; the CLI's JSON."""
     _, params = identified
-    out, plots = tmp_path / "log.json", tmp_path / "plots"
+    out, plots, dump = tmp_path / "log.json", tmp_path / "plots", tmp_path / "run.log"
     assert main(["replay", str(CAN), "--mode", "log", "--actuation", str(ACTUATION), "--nav",
                  str(NAV), "--params", str(params), ALLOW, "--json", str(out), "--plots",
-                 str(plots)]) == 0
+                 str(plots), "--candump", str(dump)]) == 0
     r = json.loads(out.read_text())
     assert r["mode"] == "log"
-    assert len(r["hash"]["sha256"]) == 64 and r["hash"]["frames"] > 0
+    # the hash is the documented digest of the frames the run sent (the profile's command
+    # messages in its candump, as python-can reads it): id, data, timestamp to 4 decimals
+    ids = {c.message.frame_id for c in load_profile(ACTUATION).commands.values()}
+    sent = [m for m in can.LogReader(str(dump)) if m.arbitration_id in ids]
+    digest = hashlib.sha256(b"".join(f"{m.arbitration_id:08x} {bytes(m.data).hex()} "
+                                     f"{m.timestamp:.4f}\n".encode() for m in sent))
+    assert r["hash"]["timestamp_decimals"] == 4 and r["hash"]["frames"] == len(sent) > 5000
+    assert r["hash"]["sha256"] == digest.hexdigest()
     acc = r["differences"]["ACC_CONTROL.ACCEL_CMD"]
     lka = r["differences"]["STEERING_LKA.STEER_TORQUE_CMD"]
     sw = r["differences"]["steering_wheel_angle_cmd_rad"]

@@ -4,6 +4,7 @@ Golden data from an independent source: comma's own decoding of the same frames
 (reference_decoded.csv, reference_steering.csv) and the INS's own NED velocities.
 """
 import gzip
+import hashlib
 import json
 
 import numpy as np
@@ -57,7 +58,7 @@ def resolution(comma_dbc):
     return {"wheel_speed_mps": ws * KMH, "steering_rad": np.radians(frac)}
 
 
-def test_recording_file_is_canonical(run):
+def test_recording_file_is_canonical(run, comma_log, comma_dbc):
     rec, summary = run
     for ch in ("steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
                "wheel_speed_rr", "speed", "accel_pedal", "brake_pedal", "gear", "engine_rpm",
@@ -69,8 +70,9 @@ def test_recording_file_is_canonical(run):
     assert np.allclose(dt, 0.02, atol=1e-6)
     assert summary["rate_hz"] == 50.0 and summary["samples"] == len(rec)
     assert 59.5 < summary["duration_s"] < 60.5
-    for name in ("log", "dbc", "signals", "nav", "imu"):
-        assert len(summary["sources"][name]["sha256"]) == 64
+    files = {"log": comma_log, "dbc": comma_dbc, "signals": MAP17, "nav": NAV, "imu": IMU}
+    for name, path in files.items():  # each input's provenance: the sha256 of its bytes
+        assert summary["sources"][name]["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
     assert set(rec["gear"]) <= {"D", ""} and (rec["gear"] == "D").mean() > 0.9
     assert summary["gaps"] == {}
 
