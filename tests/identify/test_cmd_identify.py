@@ -1,5 +1,6 @@
 """`hmpc identify`: writes a parameter file the strict loader accepts, the JSON and the figures;
 bad input exits 2 with one line naming the file (never a traceback)."""
+import hashlib
 import json
 
 import pytest
@@ -42,7 +43,8 @@ def test_cli_writes_a_strict_params_file_json_and_figures(sim_csv, tmp_path, cap
     assert abs(p.steering.offset_rad - truth.steering.offset_rad) <= 0.0003
     assert abs(p.steering.scale / truth.steering.scale - 1) <= 0.003
     assert [z.name for z in p.zones] == ["idle", "low", "high"]
-    assert p.provenance["recording_sha256"] and p.provenance["hmpc_version"]
+    assert p.provenance["recording_sha256"] == hashlib.sha256(rec.read_bytes()).hexdigest()
+    assert p.provenance["hmpc_version"]
     assert p.provenance["duration_s"] > 0
     # the file holds the fit, not only its keys: the interval written brackets the truth
     # (measured [0.07988, 0.08007] around 0.08) and every zone's NMSE is near zero (measured
@@ -119,7 +121,11 @@ def test_raw_comma_log_runs_end_to_end_through_the_cli(tmp_path, capsys):
     assert rc == 0, cap.err
     p = load_params(out, require_model=True)
     assert p.steering.identifiable is False and "NOT identifiable" in cap.out
-    assert {"log_sha256", "dbc_sha256", "signals_sha256", "nav_sha256", "imu_sha256",
-            "vehicle_sha256"} <= set(p.provenance)
+    inputs = {"log": bundled(d + "can.log.gz"), "dbc": bundled("dbc/toyota_rav4_2017.dbc.gz"),
+              "signals": PARAMS_DIR / "toyota_rav4_2017.signals.yaml",
+              "nav": bundled(d + "nav.csv.gz"), "imu": bundled(d + "imu.csv.gz"),
+              "vehicle": PARAMS_DIR / "toyota_rav4_2017.yaml"}
+    for name, path in inputs.items():  # provenance: the sha256 of each input's bytes
+        assert p.provenance[f"{name}_sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
     rep = json.loads(js.read_text())
     assert rep["ingest"]["vehicle"] == "toyota_rav4_2017"
