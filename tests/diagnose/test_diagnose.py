@@ -51,6 +51,15 @@ def test_each_catalogue_effect_is_the_top_finding(case):
     assert top["windows"], "a finding says where it helps"
     assert not any(u["channel"] == top["channel"] and u["share_of_error"] > 0.5
                    for u in dg.unexplained)
+    if case == "actuator_delay_longitudinal":
+        # a known answer for the joint dead time + lag fit: a pure pedal dead time under rich
+        # pedal excitation is told from a lag (the lag alone is rejected, the dead time carries
+        # the response), and the effective delay d + tau covers the truth
+        r = dg.channels["speed"]["response"]
+        lo, hi = r["intervals"]["effective_delay_s"]
+        assert r["separable"] is True and lo <= value <= hi, r
+        assert r["lr_lag_only"] > max(3.84, r["lr_dead_time_only"]), r
+        assert r["dead_time_s"] > 5 * r["tau_s"], r
 
 
 def test_clean_recording_has_no_finding_that_improves_heldout_by_10pct():
