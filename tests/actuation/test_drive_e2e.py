@@ -36,6 +36,7 @@ def test_drive_tracks_like_simulate(profile, scenario, tmp_path):
           "simulate:", {k: base[k] for k in ("speed_error_rms_mps", "lateral_error_rms_m")})
     assert s["stop"]["reason"] == "duration"
     assert s["stop"]["standstill_t_s"] is not None
+    assert s["stop"]["standstill_t_s"] >= s["stop"]["t_s"]
     assert s["limit_violations"] == 0 and s["limit_audit"]["frames_checked"] > 100
     assert s["frames_rejected_by_vehicle"] == 0
     assert sum(s["node"]["accepted"].values()) == sum(s["frames_sent"].values())

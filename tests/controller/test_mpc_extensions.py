@@ -65,7 +65,11 @@ def random_rows(n: int, rng) -> tuple[np.ndarray, np.ndarray]:
                                  ("steering_nonlinearity",), ("understeer",)])
 def test_jacobians_match_finite_differences(ids):
     plant = HybridPlant(with_ext(report(), {k: ALL_PHYSICS[k] for k in ids}), extensions=True)
-    assert plant.ext is not None
+    # the plant carries exactly the physics asked for (each id's coefficient, nothing else)
+    fields = {"aero_drag": "drag_per_m", "rolling_resistance": "rolling_per_s",
+              "idle_creep": "creep_accel_mps2", "steering_nonlinearity": "cubic_per_rad2",
+              "understeer": "understeer_rad_per_mps2"}
+    assert {k for k, f in fields.items() if getattr(plant.ext, f)} == set(ids)
     rng = np.random.default_rng(SEED)
     X, U = random_rows(40, rng)
     X[:, IV] = np.where(np.abs(X[:, IV] - 2.0) < 0.05, 2.2, X[:, IV])  # off the creep's kink
@@ -124,7 +128,8 @@ def test_without_extensions_the_plant_is_the_reports_and_truth_plants_never_add_
     a, b = HybridPlant(p), HybridPlant(q)
     assert np.array_equal(derivative_batch(a, X, U, zones), derivative_batch(b, X, U, zones))
     assert MpcController(p).plant.ext is None
-    assert MpcController(q).plant.ext is not None
+    assert MpcController(q).plant.ext == HybridPlant(q, extensions=True).ext
+    assert MpcController(q).plant.ext.longitudinal and MpcController(q).plant.ext.steering
 
 
 def test_base_coefficients_are_used_and_a_command_fit_adds_no_longitudinal_term():

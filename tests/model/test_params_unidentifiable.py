@@ -12,6 +12,9 @@ from hmpc.models.errors import ParamError
 from hmpc.models.params import check_identifiable, load_params
 from hmpc.tools.cli import main
 from hmpc.controller.build import make_controller
+from hmpc.controller.mpc import MpcController
+from hmpc.controller.nmpc import NmpcController
+from hmpc.controller.pid import PidController
 
 FLAG = "--accept-unidentifiable"
 
@@ -90,7 +93,9 @@ def test_controller_construction_refuses_unless_accepted(tmp_path, name):
     params = load_params(_flagged(tmp_path, steering=True))
     with pytest.raises(ParamError, match=r"key 'steering'.*--accept-unidentifiable"):
         make_controller(name, params)
-    assert make_controller(name, params, accept_unidentifiable=True) is not None
+    ctl = make_controller(name, params, accept_unidentifiable=True)
+    assert type(ctl) is {"mpc": MpcController, "nmpc": NmpcController, "pid": PidController}[name]
+    assert ctl.params.steering.identifiable is False  # built on the flagged values as given
 
 
 def test_drive_refuses_flagged_values_before_touching_the_bus(tmp_path, capsys):
