@@ -1,13 +1,14 @@
 """The actuator delay of an ACC-driven car in closed loop, on a generator hmpc was not built on.
 
 On the real comma minute (an openpilot-driven RAV4 on a hilly highway) ``hmpc diagnose`` puts
-the response of the car's acceleration to ``accel_cmd`` at 0.27 s (dead time; 0.30 s as a joint
-dead time + lag). The request there is computed in closed loop from the measured speed and the
-car's ECU rejects the grade through its own acceleration loop: both could bias a delay read off
-the recorded request. ``tests/indep/acc_truth.py`` generates exactly that setting with a known
-dead time ``d`` and lag ``tau`` (its own physics: an openpilot-like PI request on the quantised
-wheel speeds, an ECU integrator against grade and resistance, hilly road, RAV4-like CAN and INS
-sensors), and these tests hold hmpc to the truth there:
+the response of the car's acceleration to ``accel_cmd`` at about a third of a second
+(tests/diagnose/test_diagnose_real.py; docs/results.md, "Diagnosis"). The request there is
+computed in closed loop from the measured speed and the car's ECU rejects the grade through its
+own acceleration loop: both could bias a delay read off the recorded request.
+``tests/indep/acc_truth.py`` generates exactly that setting with a known dead time ``d``
+and lag ``tau`` (its own physics: an openpilot-like PI request on the quantised wheel speeds,
+an ECU integrator against grade and resistance, hilly road, RAV4-like CAN and INS sensors),
+and these tests hold hmpc to the truth there:
 
 - 10 minutes: the named ``actuator_delay`` within 10 % of ``d + tau`` and the joint fit's
   effective delay within 10 % (measured: named 0.53 / 0.51 / 0.24 for 0.5 / 0.3+0.2 / 0.25;
@@ -16,8 +17,8 @@ sensors), and these tests hold hmpc to the truth there:
   within 10 % of a true half second (measured over 20 seeds: median error 0.000 s, single
   minutes off by up to about 0.1 s, more often low than high).
 
-So a half-second response would read as about half a second on a minute like comma's; hmpc's
-0.27-0.30 s there is the car's, not a bias of the method (docs/results.md, "Diagnosis").
+So a half-second response would read as about half a second on a minute like comma's; the
+delay hmpc reads there is the car's, not a bias of the method.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Closing the loop (diagnosis issue): the MPC on a benchmark case's ground-truth plant
+"""Closing the loop: the MPC on a benchmark case's ground-truth plant
 (``models.sim.simulator.TruthPlant`` with the concealed effect), once with the report's
 baseline model and once with the extended model ``diagnose`` writes (``--params-out``), both
 fitted on that case's recording. A dead time reaches the MPC through the conventions' keys, a

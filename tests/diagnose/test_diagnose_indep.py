@@ -4,8 +4,8 @@ CAN quantisation and INS noise (``tests/indep/commonroad_truth.py``), 10 minutes
 
 One case per catalogue effect, concealed in the generator's own terms
 (``commonroad_truth.Effects``; the cases are ``tests/indep/diagnose_matrix.py``'s ``CASES``),
-each on one of the truth sets A / B (alternating, so both are covered), asserting the issue's
-acceptance:
+each on one of the truth sets A / B (alternating, so both are covered), asserting the
+diagnosis's acceptance:
 
 - a concealed effect is the TOP finding, on its subsystem, its parameter within 20 % of the
   truth and inside its own interval, with a held-out gain (after < before, gain >= 5 %), and
@@ -17,10 +17,8 @@ acceptance:
 
 Measured (tests/indep/diagnose_matrix.py, truth sets A, B, C with their seeds and A, B with
 seed 5: 80 recordings): every effect named top in all 65 effect recordings; parameter errors
-within 8 % (rolling resistance -0.8 to -4.0 %: it was -12.6 to -22.7 % while the fit integrated
-the inputs one sample ahead of the speed, clean recordings then showing an apparent -0.0014
-1/s; on seeds 1-5 of A, B, C it is -4.9 to +0.6 %, 15 of 15 named, where it had been named
-8 of 15, aero drag the other 7); clean max gain 0.000 (10 of 10); the heavier half
+within 8 % (rolling resistance -0.8 to -4.0 %; on seeds 1-5 of A, B, C it is -4.9 to +0.6 %,
+15 of 15 named); clean max gain 0.000 (10 of 10); the heavier half
 unexplained from 301.8-303.9 s of 600 s, share 0.999-1.0 (5 of 5). Cases here: one per
 effect, truth sets alternating, plus truth set C for the two fixes it exposed (a clean false
 alarm: idle creep 11 %; road grade: an unexplained last 150 s), and rolling resistance on A
@@ -58,7 +56,7 @@ def _summary(dg):
 
 #: catalogue ids whose evidence is two sensors of one quantity, not the generator's vehicle
 #: physics: tested on hand-built recordings and the bundled real ones
-#: (tests/test_diagnose_sensors.py)
+#: (tests/diagnose/test_diagnose_sensors.py)
 SENSOR_PAIR_IDS = {"wheel_speed_scale", "accelerometer_lag", "sensor_mounting"}
 
 
@@ -72,10 +70,9 @@ def test_every_catalogue_effect_has_a_case():
         ("actuator_lag", "steering"), ("actuator_lag", "longitudinal")}
 
 
-#: rolling resistance on A seed 5: -22.7 % (0.00464 for 0.006 1/s) while the fit integrated
-#: the inputs one sample ahead of the speed (clean recordings then carried an apparent
-#: -0.0015 1/s); -2.5 % with the causal integral (longitudinal.fit_inputs) and the inputs'
-#: timing fitted within a sample (longitudinal.input_alignment)
+#: rolling resistance on A seed 5: -2.5 % with the causal integral (longitudinal.fit_inputs)
+#: and the inputs' timing fitted within a sample (longitudinal.input_alignment); a fit that
+#: integrates the inputs one sample ahead of the speed misses it by about a fifth
 ROLLING_A5 = pytest.param("rolling_resistance", "A", 5, id="rolling_resistance-A-seed5")
 
 

@@ -40,7 +40,7 @@ def _cli(argv, capsys):
 
 
 def test_short_slalom_without_pedals_diagnoses_its_lateral_part(tmp_path, capsys):
-    """The issue's case: a 20 s slalom with no pedals exits 0 with the lateral part diagnosed;
+    """A 20 s slalom with no pedals exits 0 with the lateral part diagnosed;
     at 15 s the longitudinal model (20 s of moving data) is named as not diagnosed, printed,
     in the JSON and in the parameter file's not_identified, which hmpc loads back."""
     for dur, lon_ran in ((20.0, None), (15.0, False)):

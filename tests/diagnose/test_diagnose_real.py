@@ -1,22 +1,18 @@
 """`hmpc diagnose` on the real comma minute (raw CAN + nav + IMU, openpilot driving through
 `ACC_CONTROL.ACCEL_CMD`): what the data support, with the checks available without a truth.
 
-On this minute the road falls about 11 m and climbs 18 m; the car's ACC closes its own loop
-on acceleration, so it compensates the grade, only over seconds: until the grade is modelled
-that way (road_grade with its compensation rate), the grade change after 24 s dwarfs the
-response of the car to the request. On top of the grade the response to ``accel_cmd`` is
-named with its interval and held-out gain. Measured (equation error against the Savitzky-
-Golay dv/dt with the inputs smoothed alike): a dead time of 0.30 s [0.15, 0.46] (held-out
-speed error 0.275 -> 0.252 m/s, 9 %); a first-order lag fits 0.34 s [0.15, 0.56] (7 %) and
-is kept on record. Fitted together, dead time 0.10 s [0, 0.48] and lag 0.25 s [0, 0.58]
-trade along a ridge: the minute fixes the total effective delay d + tau, 0.35 s [0.12, 0.58]
-(9 %), not its split (each alone is within likelihood ratio 0.7 of the joint fit), and
-which single description wins depends on the speed source (wheel speeds: the dead time;
-GNSS or the rear wheels: the lag; d + tau 0.30-0.35 s from all of them). So the response is
-about a third of a second: half a second is inside the joint interval, not the estimate. The
-method is not what holds it there: on an independent generator of this very setting (request in
-closed loop on the wheel speeds, the ECU's own loop against the grade, one minute long) a true
-half second reads as half a second (tests/test_diagnose_acc_indep.py)."""
+On this minute the road falls and climbs by tens of metres; the car's ACC closes its own
+loop on acceleration, so it compensates the grade, only over seconds: until the grade is
+modelled that way (road_grade with its compensation rate), the grade change after 24 s dwarfs
+the response of the car to the request. On top of the grade the response to ``accel_cmd`` is
+named with its interval and held-out gain; the other description (a lag for a dead time, or
+the reverse) is kept on record. Fitted together, dead time and lag trade along a ridge: the
+minute fixes the total effective delay d + tau, not its split, and which single description
+wins depends on the speed source. The ranges the asserts hold are below; the measured figures
+are in docs/results.md ("Diagnosis") and are printed by the tests (pytest -s). The method is
+not what sets the delay: on an independent generator of this very setting (request in closed
+loop on the wheel speeds, the ECU's own loop against the grade, one minute long) a true half
+second reads as half a second (tests/diagnose/test_diagnose_acc_indep.py)."""
 from __future__ import annotations
 
 import pytest
@@ -106,8 +102,7 @@ def test_grade_is_compensated_by_the_acc_over_seconds(comma):
 def test_response_does_not_depend_on_which_speed_sensor_measures_it(comma):
     """The joint response measured on the GNSS ground speed (an independent sensor), which the
     diagnosis reports beside the wheel-speed one: each total delay lies inside the other's
-    interval, and the note says so. Measured: wheels d + tau 0.30 s [0.12, 0.58], GNSS 0.35 s
-    [0.12, 0.58]."""
+    interval, and the note says so (both printed with -s)."""
     _, _, dg = comma
     r = dg.channels["speed"]["response"]
     g = r["gnss_speed"]

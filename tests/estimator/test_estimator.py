@@ -341,7 +341,7 @@ def test_comma_minute_estimate_follows_the_raw_channels(comma_recording, latency
 
 
 def test_three_times_the_noise_with_latency_and_outage_stays_bounded():
-    """Issue 9's robustness set-up: 3x noise, GNSS at 10 Hz with 100 ms latency, a 2 s
+    """The robustness set-up: 3x noise, GNSS at 10 Hz with 100 ms latency, a 2 s
     outage. The filter (told the noise) keeps every error within 4 sigma and centimetres."""
     seed = 81
     scfg = SensorConfig(noise_scale=3.0, gnss_rate_hz=10.0, gnss_latency_s=0.1,

@@ -1,5 +1,5 @@
-"""`hmpc identify` on the bundled REAL recordings with one channel group removed at a time
-(issue 8 acceptance): the comma2k19 minute (raw CAN + INS + IMU, highway, accelerator used,
+"""`hmpc identify` on the bundled REAL recordings with one channel group removed at a time:
+the comma2k19 minute (raw CAN + INS + IMU, highway, accelerator used,
 brake never pressed) and the VerifiedCAN drive (raw CAN only, stop-and-go under ACC, no GNSS).
 
 Each recording is ingested once per session; a group of columns is dropped from the canonical

@@ -1,9 +1,9 @@
 """Bad input at the ``hmpc`` command line, found by an adversarial audit of every subcommand.
 
-Each case failed before (a traceback and exit 1, a silent wrong number, or an output written
-before the run was refused) and must now end with exit 2 and exactly one stderr line naming
-the file and the line, channel, key or option (../shared/CONVENTIONS.md), with nothing written.
-The cases run ``tools.cli.main`` in-process as tests/test_cli.py does; one runs the installed
+Each case (a traceback and exit 1, a silent wrong number, or an output written before the run
+was refused, were it not handled) must end with exit 2 and exactly one stderr line naming
+the file and the line, channel, key or option (docs/conventions.md), with nothing written.
+The cases run ``tools.cli.main`` in-process as tests/tools/test_cli.py does; one runs the installed
 console script. Data: the first lines of the real comma2k19 minute and the shipped parameters.
 """
 from __future__ import annotations

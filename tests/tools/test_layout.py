@@ -1,4 +1,4 @@
-"""The layout's rules (../shared/STYLE.md "Layout", issue 7 items 2 and 9), checked on the source.
+"""The layout's rules (docs/style.md "Layout"), checked on the source.
 
 - Imports flow one way, ``tools -> controller -> models``: nothing under models/ imports
   ``hmpc.controller`` or ``hmpc.tools``, nothing under controller/ imports ``hmpc.tools``;
