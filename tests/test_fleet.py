@@ -227,3 +227,38 @@ def test_a_corrupt_drive_fails_alone_and_the_rest_finish(fleet, tmp_path, capsys
     assert "gone.csv" in html and 'href="' in html
     link = html.split('<a href="')[1].split('"')[0]
     assert link.endswith("report/index.html") and (tmp_path / "html" / link).resolve().exists()
+
+
+def test_ctrl_c_leaves_every_finished_drive_usable_and_a_rerun_does_the_rest(fleet, tmp_path):
+    """SIGINT to the whole process group (what Ctrl-C in a terminal sends) once the first
+    drive is in the store."""
+    store = tmp_path / "store"
+    cmd = [sys.executable, "-m", "hmpc", "fleet", "run", str(fleet["manifest"]), "--out",
+           str(store), "--workers", "2", "--steps", STEPS, "--json", str(tmp_path / "run.json")]
+    p = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    try:
+        for _ in range(6000):
+            if any((store / "drives").glob("*/status.json")) or p.poll() is not None:
+                break
+            time.sleep(0.05)
+        os.killpg(p.pid, signal.SIGINT)
+        out, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    run = json.loads((tmp_path / "run.json").read_text())
+    assert p.returncode == 130 and run["interrupted"], err[-2000:]
+    assert "Traceback" not in err
+    finished = sorted(d.name for d in (store / "drives").iterdir())
+    assert finished and len(finished) < 2 * DRIVES_PER_VEHICLE
+    for did in finished:  # every folder in the store is whole
+        status = json.loads((store / "drives" / did / "status.json").read_text())
+        assert status["exit"] == 0, status
+        load_params(store / "drives" / did / "params.yaml", require_model=True)
+    assert sorted(run["done"]) == finished
+    rc = cli.main(["fleet", "run", str(fleet["manifest"]), "--out", str(store), "--workers",
+                   "2", "--steps", STEPS, "--json", str(tmp_path / "run2.json")])
+    run2 = json.loads((tmp_path / "run2.json").read_text())
+    assert rc == 0 and sorted(run2["skipped"]) == finished
+    assert len(run2["done"]) == 2 * DRIVES_PER_VEHICLE - len(finished)

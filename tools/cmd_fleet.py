@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 
 from hmpc.models.errors import InputError
@@ -81,6 +82,10 @@ def _run(args) -> int:
     for f in res.failed:
         print(f"failed {f['drive_id']} (exit {f['exit']}): {f['error']}")
     write_json(args.json, res.to_json())
+    if res.interrupted:
+        print("hmpc fleet: interrupted: the drives not finished were cancelled; every "
+              "finished drive is in the store (a rerun does the rest)", file=sys.stderr)
+        return 130
     return 1 if res.failed else 0
 
 

@@ -10,9 +10,12 @@ the drive's folder itself, so a drive finished before an interrupt stays usable.
 """
 from __future__ import annotations
 
+import logging
 import math
 import os
+import signal
 import sys
+import threading
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -117,10 +120,11 @@ def run_fleet(manifest, store, *, steps=st.STEPS, workers: int | None = None,
               scheduler: str | None = None, progress_stream=None) -> RunResult:
     """Run the fleet of ``manifest`` into ``store`` (see the module doc).
 
+    On Ctrl-C (KeyboardInterrupt) the drives not finished are cancelled and the result says
+    ``interrupted``; every drive finished before it is in the store.
+
     Raises:
         InputError: a bad manifest, or a scheduler that cannot be reached (exit 2).
-        KeyboardInterrupt: after cancelling the drives not finished; every finished drive is
-            in the store.
     """
     t0 = time.perf_counter()
     drives = read_manifest(manifest)
@@ -139,10 +143,13 @@ def run_fleet(manifest, store, *, steps=st.STEPS, workers: int | None = None,
         try:
             _submit_all(todo, store, tuple(steps), workers, scheduler, res, prog)
         except KeyboardInterrupt:
+            # the drives not finished are cancelled; each finished one is already committed,
+            # also those whose result had not reached this process yet
             res.interrupted = True
-            raise
-        finally:
-            res.wall_s = time.perf_counter() - t0
+            for d, _, digest in todo:
+                if d.drive_id not in res.statuses and st.finished(
+                        st.read_status(store, d.drive_id), digest, __version__, steps):
+                    res.done.append(d.drive_id)
     order = {d.drive_id: i for i, d in enumerate(drives)}
     res.done.sort(key=order.get)
     res.failed.sort(key=lambda f: order[f["drive_id"]])
@@ -162,9 +169,22 @@ def _client(workers: int | None, scheduler: str | None):
             raise InputError(f"cannot reach the Dask scheduler ({' '.join(str(exc).split())})",
                              scheduler) from None
     n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=40)
+    # the worker processes start with SIGINT ignored (inherited; Python then installs no
+    # KeyboardInterrupt handler in them): Ctrl-C reaches this process alone, which cancels
+    # the drives not finished and closes the cluster, instead of every worker dying on it
+    # with a traceback of its own
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
+    try:
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.CRITICAL)
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGINT, old)
     return Client(cluster), cluster
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
 
 
 def _submit_all(todo, store, steps, workers, scheduler, res: RunResult, prog: Progress):
