@@ -129,7 +129,7 @@ def _drive(cells: dict, base: Path, where: str, line: int) -> Drive:
     for role in FILE_ROLES:
         v = cells.get(role, "")
         if v:
-            files[role] = str((base / v).resolve()) if "://" not in v else v
+            files[role] = str((base / v).resolve())
     model = cells.get("model", "") or Path(cells["geometry"]).name.split(".")[0]
     return Drive(cells["vehicle_id"], cells["drive_id"], _utc(cells["start_time"], where),
                  files, model, line)
