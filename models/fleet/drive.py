@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import os
 import resource
+import shutil
 import socket
 import time
 from datetime import datetime, timezone
@@ -137,7 +138,6 @@ def process_drive(drive: Drive, inputs: dict, inputs_sha256: str, store: str,
     if status["exit"] != 0:  # a failed drive keeps only its status
         for p in tmp.iterdir():
             if p.is_dir():
-                import shutil
                 shutil.rmtree(p, ignore_errors=True)
             else:
                 p.unlink()

@@ -109,8 +109,9 @@ def plan(drives: list[Drive], store, steps) -> tuple[list, list, dict]:
     return todo, skipped, unreadable
 
 
-def _record_unreadable(store, status: dict) -> None:
-    """A drive whose inputs cannot be read: its status committed like any other failure."""
+def _commit_status(store, status: dict) -> None:
+    """A drive that failed outside a worker's drive task (its inputs cannot be read, or its
+    worker was lost): its status committed like any other failure."""
     tmp = st.new_tmp_dir(store, status["drive_id"])
     st.write_json_file(tmp / st.STATUS, status)
     st.commit(tmp, store, status["drive_id"])
@@ -135,7 +136,7 @@ def run_fleet(manifest, store, *, steps=st.STEPS, workers: int | None = None,
     todo, res.skipped, unreadable = plan(drives, store, steps)
     prog = Progress(len(todo) + len(unreadable), progress_stream)
     for did, status in unreadable.items():
-        _record_unreadable(store, status)
+        _commit_status(store, status)
         res.statuses[did] = status
         res.failed.append(_failed_entry(status))
         prog.update(False, did)
@@ -209,7 +210,7 @@ def _submit_all(todo, store, steps, workers, scheduler, res: RunResult, prog: Pr
                 status["exit"] = 1
                 status["error"] = " ".join(f"worker failed: {type(exc).__name__}: {exc}"
                                            .split())
-                _record_unreadable(store, status)
+                _commit_status(store, status)
             res.statuses[status["drive_id"]] = status
             if status["exit"] == 0:
                 res.done.append(status["drive_id"])
