@@ -119,3 +119,22 @@ def test_manifest_paths_are_relative_to_its_folder_and_times_utc(tmp_path):
     assert d.start_time == "2026-01-05T08:00:00Z"
     assert d.files["recording"] == str((tmp_path / "sub" / "r.parquet").resolve())
     assert d.model == "g" and not d.raw
+
+
+def test_vehicles_of_one_model_compared_and_the_one_that_differs_named():
+    from hmpc.models.fleet.report import _compare
+
+    def veh(value, half_width):
+        return {"parameters": {"steering.scale": {
+            "pooled": value, "ci95": [value - half_width, value + half_width],
+            "drift": None}}}
+
+    vehicles = {"V1": veh(0.0800, 0.0002), "V2": veh(0.0801, 0.0002),
+                "V3": veh(0.0799, 0.0002), "V4": veh(0.0850, 0.0002)}
+    out = _compare(sorted(vehicles), vehicles)["steering.scale"]
+    assert out["differs"] == ["V4"]
+    assert set(out["vehicles"]) == set(vehicles) and out["between_vehicle_sd"] > 0.001
+    # the same vehicles without V4 agree: none named, no spread between them
+    del vehicles["V4"]
+    out = _compare(sorted(vehicles), vehicles)["steering.scale"]
+    assert out["differs"] == [] and out["pooled"] == pytest.approx(0.0800, abs=1e-4)
