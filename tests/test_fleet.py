@@ -201,7 +201,8 @@ def test_a_corrupt_drive_fails_alone_and_the_rest_finish(fleet, tmp_path, capsys
                  f"A,A1,2026-01-05T08:00:00Z,{src / 'A.geometry.yaml'},{src / 'A1.parquet'},,,\n"
                  f"R,R1,2026-01-05T09:00:00Z,{PARAMS_DIR / 'toyota_rav4_2017.yaml'},,{log},"
                  f"{dbc},{sig}\n"
-                 f"A,A9,2026-01-06T08:00:00Z,{src / 'A.geometry.yaml'},{tmp_path / 'gone.csv'},,,\n")
+                 f"A,A9,2026-01-06T08:00:00Z,{src / 'A.geometry.yaml'},"
+                 f"{tmp_path / 'gone.csv'},,,\n")
     store = tmp_path / "store"
     rc = cli.main(["fleet", "run", str(m), "--out", str(store), "--workers", "2",
                    "--json", str(tmp_path / "run.json")])
