@@ -57,6 +57,13 @@ def _failed_entry(status: dict) -> dict:
             "exit": status["exit"], "error": status["error"]}
 
 
+#: characters of the progress bar: the whole line stays within 80 columns
+_BAR_CHARS = 24
+#: how long to wait for a scheduler to answer [s]: a scheduler on the network answers in
+#: well under a second; 20 s rides out a busy one without hanging a typo for long
+_CONNECT_TIMEOUT_S = 20
+
+
 class Progress:
     """One status line on stderr: done, failed, to go, ETA (rewritten in place on a
     terminal, a line per drive otherwise)."""
@@ -73,9 +80,8 @@ class Progress:
         n = self.done + self.failed
         el = time.perf_counter() - self.t0
         eta = el / n * (self.total - n) if n else math.nan
-        width = 24
-        fill = int(round(width * n / max(self.total, 1)))
-        line = (f"hmpc fleet: [{'#' * fill}{'.' * (width - fill)}] {n}/{self.total} "
+        fill = int(round(_BAR_CHARS * n / max(self.total, 1)))
+        line = (f"hmpc fleet: [{'#' * fill}{'.' * (_BAR_CHARS - fill)}] {n}/{self.total} "
                 f"done {self.done}, failed {self.failed}, ETA {_clock(eta)} ({drive_id})")
         if self.tty:
             print("\r" + line, end="" if n < self.total else "\n", file=self.stream,
@@ -165,7 +171,7 @@ def _client(workers: int | None, scheduler: str | None):
 
     if scheduler:
         try:
-            return Client(scheduler, timeout="20s"), None
+            return Client(scheduler, timeout=f"{_CONNECT_TIMEOUT_S}s"), None
         except (OSError, TimeoutError, ValueError) as exc:
             raise InputError(f"cannot reach the Dask scheduler ({' '.join(str(exc).split())})",
                              scheduler) from None
