@@ -182,8 +182,12 @@ def _client(workers: int | None, scheduler: str | None):
     # with a traceback of its own
     old = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
     try:
+        # no dashboard; the scheduler's small HTTP server on a free loopback port (the
+        # default, 8787, warns when another cluster on the machine holds it)
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.CRITICAL)
+                               host="127.0.0.1", dashboard_address=None,
+                               scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                               silence_logs=logging.CRITICAL)
     finally:
         if old is not None:
             signal.signal(signal.SIGINT, old)
