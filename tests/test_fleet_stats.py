@@ -138,3 +138,17 @@ def test_vehicles_of_one_model_compared_and_the_one_that_differs_named():
     del vehicles["V4"]
     out = _compare(sorted(vehicles), vehicles)["steering.scale"]
     assert out["differs"] == [] and out["pooled"] == pytest.approx(0.0800, abs=1e-4)
+
+
+def test_a_finished_drive_is_skipped_only_for_the_same_inputs_version_and_steps():
+    from hmpc.models.fleet.store import finished
+
+    status = {"exit": 0, "inputs_sha256": "abc", "hmpc_version": "1.0",
+              "steps": ["ingest", "identify"]}
+    assert finished(status, "abc", "1.0", ("identify",))
+    assert finished(status, "abc", "1.0", ("ingest", "identify"))
+    assert not finished(status, "abc", "1.0", ("ingest", "identify", "diagnose"))
+    assert not finished(status, "abd", "1.0", ("identify",))      # an input changed
+    assert not finished(status, "abc", "1.1", ("identify",))      # another hmpc
+    assert not finished({**status, "exit": 2}, "abc", "1.0", ("identify",))  # it failed
+    assert not finished(None, "abc", "1.0", ("identify",))        # never run
