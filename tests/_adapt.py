@@ -1,6 +1,6 @@
-"""Hidden parameter sets for the online model estimator's tests (tests/test_adapt*.py) and its
+"""Hidden parameter sets for the online model estimator's tests (tests/adapt/) and its
 figures (docs/adaptation.md): a simulated car a seeded draw away from the file the controller
-is given, as the acceptance of the adaptation issue describes it.
+is given.
 
 ``hidden_params(base, seed)``: the steering scale and every zone's accelerator and brake gains
 each scaled by ``1 +- U(0.10, 0.25)`` (sign drawn too), the steering offset moved by +-13 mrad;

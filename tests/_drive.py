@@ -105,7 +105,7 @@ def _drive_once(profile, scenario, duration_s, tmp_path, faults, ref_s, attempt)
 
 def simulate_baseline(scenario: str, t_end_s: float) -> dict:
     """``hmpc simulate``'s closed loop on the same stretch of reference, at the drive loop's
-    50 Hz, with simulate's default sensors and estimator (the figures the issue compares
+    50 Hz, with simulate's default sensors and estimator (the figures the drive tests compare
     with; the node adds CAN quantisation and the drive loop dead-reckons from CAN)."""
     p = params()
     ref = truncated(make_scenario(scenario, p), t_end_s)

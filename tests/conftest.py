@@ -1,12 +1,11 @@
-"""Shared fixtures: paths of the real data bundled under tools/data.
-
-The bundled files are gzip copies of ../shared/data's.
-"""
+"""Shared fixtures: paths of the real data bundled under tools/data (gzip copies of
+../shared/data), and the bundled recordings ingested once per test process."""
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from _data import bundled
+from _data import PARAMS_DIR, bundled
 
 
 @pytest.fixture(scope="session")
@@ -31,6 +30,48 @@ def vcan_log() -> Path:
 def vcan_dbc() -> Path:
     """The 2019 RAV4 TSS2 DBC (opendbc), gzip."""
     return bundled("dbc/toyota_rav4_2019_tss2.dbc.gz")
+
+
+def _shared(res):
+    """Hand one ingest result to every test that asks for it: its arrays are made read-only
+    (a test writing into them fails where it writes), and a test that adds or drops a channel
+    fails at the end of the session, naming the channels."""
+    rec = res.recording
+    for arr in [*rec.channels.values(), *(a for pair in rec.raw.values() for a in pair)]:
+        if isinstance(arr, np.ndarray):
+            arr.flags.writeable = False
+    names = (sorted(rec.channels), sorted(rec.raw))
+    yield res
+    assert (sorted(rec.channels), sorted(rec.raw)) == names, \
+        "a test changed the shared ingest's channels; copy the recording before changing it"
+
+
+@pytest.fixture(scope="session")
+def comma_ingest(comma_log, comma_dbc):
+    """The comma minute as ``ingest_files`` reads it with every option at its default: the CAN
+    log through params/toyota_rav4_2017.signals.yaml, with the bundled INS and IMU files."""
+    from hmpc.models.logs.ingest import ingest_files
+    yield from _shared(ingest_files(comma_log, comma_dbc,
+                                    PARAMS_DIR / "toyota_rav4_2017.signals.yaml",
+                                    nav_path=bundled("rav4-comma2k19/nav.csv.gz"),
+                                    imu_path=bundled("rav4-comma2k19/imu.csv.gz")))
+
+
+@pytest.fixture(scope="session")
+def comma_can_ingest(comma_log, comma_dbc):
+    """The comma minute from its CAN log alone (no INS, no IMU), options at their defaults."""
+    from hmpc.models.logs.ingest import ingest_files
+    yield from _shared(ingest_files(comma_log, comma_dbc,
+                                    PARAMS_DIR / "toyota_rav4_2017.signals.yaml"))
+
+
+@pytest.fixture(scope="session")
+def vcan_ingest(vcan_log, vcan_dbc):
+    """The VerifiedCAN drive through params/toyota_rav4_2019.signals.yaml, options at their
+    defaults (the drive has CAN only)."""
+    from hmpc.models.logs.ingest import ingest_files
+    yield from _shared(ingest_files(vcan_log, vcan_dbc,
+                                    PARAMS_DIR / "toyota_rav4_2019.signals.yaml"))
 
 
 def pytest_configure(config):

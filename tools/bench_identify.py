@@ -42,7 +42,7 @@ from hmpc.tools.datafiles import PARAMS_DIR  # noqa: E402
 
 TARGET_S = 10.0  # the target: identification of one hour of 50 Hz recording in under 10 s
 # Accuracy the run must reach, or it exits 1 (the acceptance tolerances, the outer bound that
-# tests/test_identify_sim.py also keeps): a fast wrong answer is a failed benchmark.
+# tests/identify/test_identify_sim.py also keeps): a fast wrong answer is a failed benchmark.
 STEER_OFFSET_TOL_RAD = 0.002
 STEER_SCALE_TOL = 0.02       # relative
 ZONE_OFFSET_TOL_MPS2 = 0.05

@@ -32,6 +32,9 @@ SUBCOMMANDS = {
                "operator link"),
     "operator": ("hmpc.tools.cmd_operator",
                  "the tele-operation station: scripted, experiment, keyboard or gamepad operator"),
+    "fleet": ("hmpc.tools.cmd_fleet",
+              "many drives on a Dask cluster (run), and each vehicle across its drives: pooled "
+              "values, drift (report)"),
     "replay": ("hmpc.tools.cmd_replay",
                "offline closed-loop replay of a recorded drive: on the plant, or its log through "
                "the drive loop"),

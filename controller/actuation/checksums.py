@@ -11,7 +11,7 @@ def toyota_checksum(arb_id: int, payload: bytes | bytearray, length: int | None 
     """Toyota's checksum byte: (id low byte + id high byte + length + payload[:-1]) mod 256.
 
     Checked against every ``STEERING_LKA`` (0x2E4) and ``ACC_CONTROL`` (0x343) frame openpilot
-    sent in the bundled comma2k19 minute (tests/test_actuation_golden.py), e.g.
+    sent in the bundled comma2k19 minute (tests/actuation/test_actuation_golden.py), e.g.
     ``2E4#BE000000A9``: 0x02 + 0xE4 + 5 + 0xBE = 0x1A9 -> 0xA9.
 
     Args:

@@ -20,7 +20,7 @@ are written: ``HybridPlant.step`` for the mean (zone hysteresis, exact in speed,
 clamp) and ``bicycle_jacobian`` for the covariance. The prediction runs a few hundred times a
 second, so both are written out in :meth:`Ekf._propagate` on Python floats, operation
 for operation, with the plant's zone lists and eq. 8 coefficients
-(``tests/test_estimator_speed.py`` holds them to the plant: the mean to the bit, ``F`` to
+(``tests/estimator/test_estimator_speed.py`` holds them to the plant: the mean to the bit, ``F`` to
 ``HybridPlant.jacobians``); a plant with opt-in extensions is stepped by ``HybridPlant.step``
 itself. The ``delta_offset`` state enters by folding it into the steering input, ``sw +
 delta_offset / scale``; eq. 1's derivative with respect to the road-wheel angle is its
@@ -86,7 +86,8 @@ def _zone_bands(v_min_mps, v_max_mps, hysteresis_mps: float) -> list[tuple[float
     """Per zone, the speeds [m/s] for which ``models.zones.zone_with_hysteresis(v, zone, ...,
     clamp=True)`` keeps ``zone`` (its band widened by the hysteresis; the first zone has no
     lower edge, the last none above). A cache of that rule's first test: outside the band the
-    estimator calls the rule itself (``tests/test_estimator_speed.py`` checks they agree)."""
+    estimator calls the rule itself (``tests/estimator/test_estimator_speed.py`` checks they
+    agree)."""
     n = len(v_max_mps)
     return [(-math.inf if z == 0 else v_min_mps[z] - hysteresis_mps,
              v_max_mps[z] + hysteresis_mps if z < n - 1 else math.inf) for z in range(n)]
@@ -221,7 +222,7 @@ class Ekf:
 
         The mean is ``HybridPlant.step`` (eq. 1, 7, 8; exact in speed, midpoint in heading and
         position, standstill clamp) written out here on Python floats, operation for
-        operation (``tests/test_estimator_speed.py`` checks they agree to the bit); the
+        operation (``tests/estimator/test_estimator_speed.py`` checks they agree to the bit); the
         covariance is ``F P F' + Q dt`` with eq. 1's Jacobian at the start of the step written
         into ``F`` (``bicycle_jacobian`` with respect to the road-wheel angle, which is also
         the derivative with respect to ``delta_offset``)."""

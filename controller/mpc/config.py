@@ -33,7 +33,7 @@ class MpcConfig:
     # damp the chatter that estimate noise causes without holding back a planned turn.
     # Velocity above steering here too (report VI). Tuned at the default sensor noise
     # (estimate noise about 1 cm, 1 mrad, 0.02 m/s) on report_2008; checked on a parameter
-    # set not used for tuning (tests/test_smooth_control.py holds the figures).
+    # set not used for tuning (tests/controller/test_smooth_control.py holds the figures).
     w_steer_rate_change: float = 0.3
     w_pedal_rate_change: float = 1.0
     # the standstill HOLD brake is reached at this rate [full travel / s] from the brake the
@@ -94,7 +94,8 @@ class MpcConfig:
     adaptive_rho_tolerance: float = 3.0
     # OSQP relaxation (its default 1.6): from a shifted warm start strong over-relaxation
     # overshoots, and 1.2 stops in fewer iterations (tools/bench_mpc.py); 1.0 stops as early
-    # but with a less converged steering plan (the MPC/NMPC agreement test, tests/test_nmpc.py)
+    # but with a less converged steering plan (the MPC/NMPC agreement test,
+    # tests/controller/test_nmpc.py)
     admm_alpha: float = 1.2
     time_limit_s: float = 0.0      # 0: none (OSQP time_limit)
     cold_start_iterations: int = 3  # SQP iterations when no previous plan exists

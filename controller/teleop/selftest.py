@@ -5,7 +5,7 @@ engages it with one valid packet from a real ``OperatorLink`` and then sends the
 attack datagrams. The receiver is polled in lock step (send a batch, wait until the kernel has
 delivered every datagram of it, poll), so every datagram is accounted for: a case row holds
 the datagrams sent, how many were rejected (by reason) and how many were delivered to the
-host. ``tests/test_teleop_link.py`` asserts on these rows; ``tools/bench_teleop_link.py``
+host. ``tests/teleop/test_teleop_link.py`` asserts on these rows; ``tools/bench_teleop_link.py``
 prints them as a table.
 """
 from __future__ import annotations

@@ -19,7 +19,7 @@ and any remaining candidate ``m``::
 
 so choosing a term costs O(M K) per candidate, never a pass over the N samples. The
 coefficients of the selected terms follow from the orthogonal ones by back-substitution and
-equal ordinary least squares on the selected columns (tested in ``tests/test_fos.py``).
+equal ordinary least squares on the selected columns (tested in ``tests/identify/test_fos.py``).
 
 Stopping: a term is added only while (1) fewer than ``max_terms`` are selected, (2) its error
 reduction is at least ``min_reduction`` times the target's mean square (the training MSE of the

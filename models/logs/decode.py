@@ -6,7 +6,7 @@ chosen buses) and decodes them together with numpy: little-endian (Intel) and bi
 scale and offset. The arithmetic is the one cantools does per frame (``raw * scale + offset``
 in float64, or in exact integers for integer scale/offset), so every value equals
 ``db.decode_message(frame_id, data, decode_choices=False, scaling=True)`` bit for bit
-(``tests/test_decode.py`` checks this on every frame of both real logs). What the fast path
+(``tests/logs/test_decode.py`` checks this on every frame of both real logs). What the fast path
 does not cover (multiplexed messages, signals spanning more than 8 bytes of a CAN FD payload,
 integer scalings whose products could pass 2**63) falls back to cantools frame by frame.
 

@@ -287,11 +287,28 @@ def read_can(log_path, dbc_path, signals_path, problems: Problems,
             several buses without ``bus:``, no channel of the map in the log).
     """
     say(f"loading DBC {dbc_path} and signal map {signals_path}")
-    db = load_dbc(dbc_path, lenient=dbc_lenient, problems=problems)
-    smap = load_signal_map(signals_path, db)
-    log_format = detect_format(log_path)
-    say(f"reading CAN log {log_path} ({log_format})")
-    frames = read_log(log_path, problems, fmt=log_format)
+    # the DBC and the map (pure Python) are parsed in a worker thread while this one reads the
+    # log (mostly inside numpy, which lets it run); their errors and problems still come first
+    dbc_problems, log_problems = Problems(), Problems()
+
+    def load_map():
+        db = load_dbc(dbc_path, lenient=dbc_lenient, problems=dbc_problems)
+        return db, load_signal_map(signals_path, db)
+
+    with ThreadPoolExecutor(1) as pool:
+        setup = pool.submit(load_map)
+        try:
+            log_format = detect_format(log_path)
+            say(f"reading CAN log {log_path} ({log_format})")
+            frames = read_log(log_path, log_problems, fmt=log_format)
+        except BaseException:
+            exc = setup.exception()
+            if exc is not None:  # a bad DBC or map is reported before the log
+                raise exc from None
+            raise
+        db, smap = setup.result()
+    problems.merge(dbc_problems)
+    problems.merge(log_problems)
     say(f"decoding {len(frames)} frames ({', '.join(smap.messages())})")
     decoded = decode_frames(frames, db, problems, names=smap.messages(), buses=smap.buses(),
                             dbc_path=str(dbc_path))
@@ -514,18 +531,22 @@ def resample_channels(raw: dict[str, Series], origin: dict[str, str], smap, grid
             kind = smap.channels[ch].resample
         else:
             kind = "linear"
-        values, g = resample(t, v, grid, kind, gap_s)
+        d = np.diff(t)
+        med = np.median(d) if len(d) else None
+        # with every step positive, their median is also the median of the positive steps
+        thr = gap_threshold_s(t, gap_s, median_step_s=float(med) if med is not None
+                              and d.min() > 0 else None)
+        values, g = resample(t, v, grid, kind, gap_s, threshold_s=thr)
         out.channels[ch] = values
         if g:
             out.gaps[ch] = [x.to_dict() for x in g]
         valid = (values != "") if ch in STRING_CHANNELS else np.isfinite(values)
-        d = np.diff(t)
         out.info[ch] = {
             "unit": CHANNELS[ch], "source": origin[ch], "resample": kind,
             "raw_samples": int(len(t)),
-            "raw_rate_hz": float(1.0 / np.median(d)) if len(d) and np.median(d) > 0 else None,
+            "raw_rate_hz": float(1.0 / med) if med is not None and med > 0 else None,
             "valid_fraction": float(np.mean(valid)) if len(valid) else 0.0,
-            "gap_threshold_s": gap_threshold_s(t, gap_s),
+            "gap_threshold_s": thr,
         }
     return out
 

@@ -5,7 +5,7 @@ held-out gain, clean false alarms and unexplained windows.
 
 Test-only (hmpc never imports it); run from the repository root:
 ``.venv/bin/python tests/indep/diagnose_matrix.py [--truths A B] [--cases ...] [--json OUT]``.
-The cases (``CASES``) are shared with tests/test_diagnose_indep.py.
+The cases (``CASES``) are shared with tests/diagnose/test_diagnose_indep.py.
 """
 from __future__ import annotations
 
