@@ -95,8 +95,11 @@ CATALOGUE: dict[str, dict] = {
     },
     "gears": {
         "physics": "pedal gain and engine braking per gear (a stepped transmission)",
-        "equation": {"longitudinal": "dv/dt = offset_g + gain_g * u, g the gear at each sample "
-                                     "(recorded, or engine_rpm / v clustered into gears)"},
+        "equation": {"longitudinal": "dv/dt = offset_g + gain_g * u + e_g * rpm_released, g the "
+                                     "gear at each sample (recorded, or engine_rpm / v "
+                                     "clustered into gears), rpm_released the engine speed "
+                                     "[1000 1/min] with the accelerator released (1 without "
+                                     "engine_rpm)"},
         "parameters": {"n_gears": "gears told apart in the recording [1], 2..9",
                        "gain_ratio": "largest / smallest accelerator gain over the gears [1]",
                        "engine_braking_spread_mps2": "largest - smallest released-pedal "

@@ -61,7 +61,9 @@ def braking_windows(d: lon.LonData, mask: np.ndarray, mu: float = MU
     for _ in range(ROUNDS):
         m = lon.fit(d, lon.LonSpec(), mask & ~brake)
         r = lon.residual(d, m)
-        quiet = d.idle & ~brake & np.isfinite(r)
+        # the equation error's spread where no braking can hide (the pedal pressed): the
+        # released samples mix coasting and the braking looked for
+        quiet = ~d.idle & np.isfinite(r)
         sd = 1.4826 * float(np.median(np.abs(r[quiet] - np.median(r[quiet])))) \
             if quiet.sum() > 10 else 0.0
         thr = max(MIN_BRAKE_DECEL_MPS2, 3.0 * sd)

@@ -55,6 +55,7 @@ from hmpc.models.diagnose import steering as ste
 from hmpc.models.diagnose.candidates import Resolution, accept, candidate, fos_selects
 from hmpc.models.diagnose.common import DiagnoseConfig, corr_length, rmse, size_factor
 from hmpc.models.diagnose.lon_extra import lon_extra_step
+from hmpc.models.diagnose.lon_inputs import absent_inputs
 from hmpc.models.diagnose.locate import (change_point, elevated_windows, improved_windows,
                                          noise_floor, regime_table, regime_variables,
                                          top_regimes)
@@ -214,7 +215,7 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
                      None if ld is None else "+".join(ld.input_names), w.series, params_out,
                      baseline_out, round(time.perf_counter() - t_start, 3), w.notes,
                      w.not_diagnosed, _clean(verdict), w.steering_samples,
-                     [] if ld is None else list(ld.absent_inputs))
+                     absent_inputs(w.ch))
 
 
 # ---- which parts the recording supports, and the sensor pairs compared ----------------------

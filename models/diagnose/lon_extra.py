@@ -85,10 +85,24 @@ def _gears_params(ld: lon.LonData, s: lon.LonScore) -> None:
     s.params["engine_braking_spread_mps2"] = float(off.max() - off.min())
 
 
+def speed_cmd_response(ld: lon.LonData, b: lon.LonScore) -> dict:
+    """How the reached speed follows a speed command in the baseline (``dv/dt = offset_z +
+    k_z (speed_cmd - v)``): per fitted zone k_z [1/s] and the time constant 1 / k_z [s] of
+    that first-order response (how far the speed lags the command)."""
+    j = 1 + ld.input_names.index("speed_cmd")
+    out = {}
+    for z in b.model.fitted_zones:
+        k = float(b.model.C[z, j])
+        out[ld.zones[z][0]] = {"gain_per_s": k, "tau_s": 1.0 / k if k > 0 else None}
+    return out
+
+
 def lon_extra_step(w, ld: lon.LonData, b: lon.LonScore, lon_scores: dict, cfg: DiagnoseConfig,
                    res: Resolution, cl: float) -> None:
     """Test the recording-dependent hypotheses (module doc) against the baseline ``b``; each
     score joins ``lon_scores``, each candidate ``w.cands``, each untested one ``w.hyps``."""
+    if "speed_cmd" in ld.input_names:
+        w.channels.setdefault("speed", {})["speed_cmd_response"] = speed_cmd_response(ld, b)
     if ld.commanded:
         s = lon.evaluate(ld, "actuator_saturation", cfg, cl)
         gains = [s.model.C[z, 1] for z in s.model.fitted_zones]

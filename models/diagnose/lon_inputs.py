@@ -65,6 +65,11 @@ def _moved(x: np.ndarray | None) -> bool:
     return x is not None and float(np.nanmax(np.abs(x))) > INPUT_USED
 
 
+def absent_inputs(ch: dict) -> list[str]:
+    """The longitudinal input channels the recording does not hold (no finite sample)."""
+    return [nm for nm in LON_INPUTS if _recorded(ch, nm) is None]
+
+
 def choose_inputs(ch: dict) -> InputChoice:
     """The recorded inputs that drive eq. 8 (module doc).
 

@@ -201,3 +201,49 @@ def gearbox_scenario(seed: int = 0, duration_s: float = 300.0) -> Scenario:
 def unrecorded_brake_scenario(seed: int = 0, duration_s: float = 300.0) -> Scenario:
     """A single-ratio car (no gears, no engine braking) whose recording lacks the brake."""
     return Scenario(Car(gearbox=False), duration_s, seed, record_brake=False, record_rpm=False)
+
+
+# ---- a by-wire car following a speed command ----------------------------------------------
+
+@dataclass
+class ByWireCar:
+    """A small by-wire car (an F1TENTH-like platform scaled to a road car's speeds) whose
+    speed controller is proportional with its motor's force limit: the acceleration asked for,
+    ``k_p (speed_cmd(t - d) - v)``, is clipped to +-``accel_limit_mps2`` (both ways: the
+    motor brakes regeneratively through the same limit) before the body's resistance."""
+
+    k_p_per_s: float = 2.0
+    accel_limit_mps2: float = 1.5
+    dead_time_s: float = 0.0
+    c_roll_mps2: float = 0.1
+
+    def accel(self, v: float, cmd: float) -> float:
+        a = float(np.clip(self.k_p_per_s * (cmd - v), -self.accel_limit_mps2,
+                          self.accel_limit_mps2))
+        return a - (self.c_roll_mps2 if v > 0.01 else 0.0)
+
+
+def speed_command_record(car: ByWireCar, duration_s: float = 300.0, seed: int = 0
+                         ) -> dict[str, np.ndarray]:
+    """A teleoperated drive: the speed command jumps between random levels (0-12 m/s, held
+    3-10 s, as a joystick gives), sampled at 50 Hz and held; the car integrated at 500 Hz;
+    ``speed`` quantised to 0.01 km/h, ``speed_cmd`` to 0.01 m/s. No pedal channel."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, duration_s, REC_DT_S)
+    cmd = np.zeros_like(t)
+    t0 = 0.0
+    while t0 < duration_s:
+        hold = float(rng.uniform(3.0, 10.0))
+        cmd[(t >= t0) & (t < t0 + hold)] = 0.0 if rng.random() < 0.15 else rng.uniform(1.0, 12.0)
+        t0 += hold
+    cmd = np.round(cmd / 0.01) * 0.01
+    lag = int(round(car.dead_time_s / REC_DT_S))
+    v, out = 0.0, np.zeros_like(t)
+    sub = int(round(REC_DT_S / SIM_DT_S))
+    for i in range(len(t)):
+        out[i] = v
+        c = cmd[max(i - lag, 0)]
+        for _ in range(sub):
+            v = max(0.0, v + car.accel(v, c) * SIM_DT_S)
+    kmh = 0.01 / 3.6
+    return {"time": t, "speed": np.round(out / kmh) * kmh, "speed_cmd": cmd}
