@@ -144,3 +144,18 @@ def test_speed_command_without_limit_names_nothing_and_its_time_constant():
     resp = dg.channels["speed"]["speed_cmd_response"]
     for z in resp.values():
         assert z["tau_s"] == pytest.approx(1.0 / car.k_p_per_s, rel=0.05)
+
+
+def test_recorded_gear_channel_is_used_when_engine_rpm_is_absent():
+    sc = pt.gearbox_scenario(seed=0)
+    sc.record_rpm = False
+    run = pt.simulate(sc)
+    ch = pt.record(sc, run)
+    ch["gear"] = np.array([str(int(g) + 1) for g in run.gear], dtype=object)
+    dg = _diagnose(ch, "powertrain gear channel")
+    top = dg.findings[0]
+    assert top["effect"] == "gears", _summary(dg)
+    assert top["gears"]["source"] == "gear channel" and top["gears"]["gears"] == list("12345")
+    # without the engine speed the released pedal is one drag level per gear: it still
+    # explains most of the baseline's error
+    assert top["gain"] >= 0.5

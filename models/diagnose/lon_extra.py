@@ -120,6 +120,12 @@ def lon_extra_step(w, ld: lon.LonData, b: lon.LonScore, lon_scores: dict, cfg: D
         lon_scores["gears"] = s
         c = _add(w, ld, "gears", b, s, cfg, res)
         c["gears"] = _gears_record(ld, s)
+        if c["_ok"]:
+            g = c["gears"]
+            ratios = ", ".join(f"{r:.0f}" for r in g.get("ratios_rpm_per_mps", []))
+            w.notes.append(f"gears: {g['n']} from {g['source']}"
+                           + (f" (ratios {ratios} 1/min per m/s)" if ratios else "")
+                           + "; moving samples per gear " + ", ".join(map(str, g["samples"])))
     else:
         why = ld.gear_info.get("why", "no engine_rpm or gear channel")
         _untested(w, "gears", why)
@@ -136,4 +142,8 @@ def lon_extra_step(w, ld: lon.LonData, b: lon.LonScore, lon_scores: dict, cfg: D
     lon_scores["unobserved_braking"] = s
     c = _add(w, ld, "unobserved_braking", b, s, cfg, res)
     c["braking_windows"] = wins
+    if c["_ok"]:
+        w.notes.append(f"unobserved_braking: {len(wins)} window(s) where the car decelerates "
+                       "beyond its coasting with the pedal released and no brake channel, "
+                       f"first {wins[0][0]:.1f}-{wins[0][1]:.1f} s")
     c["absent_inputs"] = list(ld.absent_inputs)

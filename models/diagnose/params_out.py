@@ -200,6 +200,8 @@ def _base_zones(m: lon.LonModel, names: list, zones) -> list[dict]:
     out = []
     for i, (nm, _, _) in enumerate(zones):
         z = {"name": nm, "offset_mps2": float(m.C[i, 0])}
+        if m.C.shape[1] > 1 + len(names):  # the released pedal's column of ``gears``
+            z["engine_braking_per_krpm_mps2"] = float(m.C[i, -1])
         for j, inp in enumerate(names):
             g = float(m.C[i, 1 + j])
             # U holds -brake_pedal (longitudinal.py), so the gain on it is the report's
