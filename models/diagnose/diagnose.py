@@ -3,7 +3,9 @@ the held-out fit with it added.
 
 0. **Parts**: each part (``sensors``, ``steering``, ``longitudinal``) runs when the recording
    supports it (its channels, enough moving data); one that cannot is named with the reason
-   under ``not_diagnosed``. Only a recording that supports no part is refused.
+   under ``not_diagnosed``. Only a recording that supports no part is refused. The
+   longitudinal model runs on the inputs the recording holds (a command that moves, else the
+   pedals recorded: ``lon_inputs``); the others are ``absent_inputs``, never filled in.
 1. **Replay and residuals** per channel, each with its noise floor: speed (free-run windows)
    and acceleration (equation error); heading (free-run windows), road-wheel angle and yaw
    rate; position (free-run windows of eq. 1); independent sensors of one quantity against
