@@ -8,7 +8,8 @@ only, in its own terms: torques, ratios, forces), 300 s at 50 Hz:
 - the same car without ``engine_rpm``: gears are named untested, with a note;
 - a single-ratio car whose recording lacks the brake: no brake input is claimed (``brake_pedal``
   absent, never filled in), the top finding is ``unobserved_braking``, its windows lie where
-  the truth brakes and its levels within the friction bound;
+  the truth brakes and its levels within the friction bound; with a driver who never brakes
+  it is tested and not found;
 - a by-wire car following a speed command through a proportional controller whose motor limits
   the acceleration: the model takes the command as input, the top finding is
   ``actuator_saturation`` at the truth's limit; without the limit nothing is named and the
@@ -122,6 +123,18 @@ def test_unrecorded_brake_is_absent_and_named_unobserved_braking(unrecorded_brak
         truth = np.mean(run.brake[m]) * sc.car.brake_force_max_n / sc.car.mass_kg
         assert lv == pytest.approx(truth, rel=0.35), (t0, t1, lv, truth)
     params_text(dg.params_out, tmp_path / "p.yaml")
+
+
+def test_a_driver_who_never_brakes_gives_no_unobserved_braking():
+    """The false alarm the hypothesis must not raise: the same brake-less recording of a car
+    whose driver only lifts off (it coasts down): tested, not a finding."""
+    sc = pt.unrecorded_brake_scenario(seed=1)
+    sc.driver_brakes = False
+    dg = _diagnose(pt.record(sc), "powertrain coasting only")
+    assert dg.longitudinal_input == "accel_pedal"
+    h = next(h for h in dg.hypotheses if h["effect"] == "unobserved_braking")
+    assert h["tested"] is not False and not h.get("finding"), h
+    assert all(f["effect"] != "unobserved_braking" for f in dg.findings)
 
 
 @pytest.mark.parametrize("limit", [1.5, 2.5])

@@ -21,6 +21,7 @@ fixed ratio and no engine braking (an electric car's reduction gear). The body:
 **Driver** (:func:`simulate`): a PI controller on a random target speed profile (holds of
 4-15 s at 0-22 m/s, raised-cosine ramps, stops), pedal for positive demand, brake when the
 demand is below what coasting gives by more than a margin; pedal and brake never together.
+With ``Scenario.driver_brakes`` False the driver never brakes (the car coasts down).
 
 **Sensors** (:func:`record`): 50 Hz grid; ``speed`` quantised to 0.01 km/h (CAN);
 ``accel_pedal`` quantised to 0.5 %; ``brake_pedal`` (0..1, 0.5 %) unless
@@ -113,6 +114,8 @@ class Scenario:
     seed: int = 0
     record_brake: bool = True
     record_rpm: bool = True
+    #: the driver brakes (False: only the accelerator, the car coasts to slow down)
+    driver_brakes: bool = True
 
 
 def target_profile(sc: Scenario, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -165,6 +168,8 @@ def simulate(sc: Scenario) -> Run:
             b = float(np.clip((coast - demand) * car.mass_kg / car.brake_force_max_n, 0.0, 1.0))
             if vt[i] < 0.1 and v < 0.5:
                 b = max(b, 0.3)
+        if not sc.driver_brakes:
+            b = 0.0
         p, b = np.round(p / 0.005) * 0.005, np.round(b / 0.005) * 0.005
         v_rec[i], ped[i], brk[i], gear[i], rpm[i] = v, p, b, g, car.rpm(v, g)
         for _ in range(sub):
