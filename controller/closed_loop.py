@@ -5,9 +5,9 @@ limits again (independently of the controller), delays it by the PLANT's actuato
 times, and steps the plant. The plant may be built from different parameters than the
 controller's model (``plant_params``: model mismatch, ``hmpc simulate --plant-params``).
 
-The output is a canonical recording (``models.recording.Recording``) at the plant rate
+The output is a canonical recording (``models.logs.recording.Recording``) at the plant rate
 with the applied inputs, the commands (``steering_cmd``, ``accel_pedal_cmd``,
-``brake_pedal_cmd``) and the plant state, plus the metrics of issue 4 and the controller's
+``brake_pedal_cmd``) and the plant state, plus the run metrics and the controller's
 statuses: ``failures`` counts the steps whose own computation failed (any status but
 solved/ok/hold), ``internal_errors`` those that were bugs (their tracebacks are in
 ``ClosedLoopResult.internal_errors``). The library prints nothing: progress goes to an
@@ -46,7 +46,7 @@ class SensorFeedback:
 
     Args:
         params: the controller's model (the estimator's; the sensors use it for eq. 7).
-        sensors: rates, latency, noise (default ``SensorConfig()``: today's noise).
+        sensors: rates, latency, noise (default ``SensorConfig()``: the default noise).
         config: the estimator's noise model (default matched to ``sensors``).
         seed: the sensors' seed. t0_s: time of the first truth sample [s].
         initial_state: start the estimator from this plant state at ``t0_s`` with the
@@ -88,7 +88,7 @@ class ClosedLoopResult:
 
     Attributes:
         recording: canonical channels at the plant rate.
-        metrics: the issue 4 figures (see :func:`metrics_of`).
+        metrics: the run's figures (see :func:`metrics_of`).
         zone: plant zone per sample.
         speed_ref_mps: reference speed per sample [m/s].
         lateral_error_m: signed distance to the path per sample [m].
@@ -521,7 +521,7 @@ def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
         # the commands at the control updates (held in between): rates per update
         **smoothness_of(t[upd], rec.channels["steering_cmd"][upd], ap[upd], bp[upd],
                         duration_s=float(t[-1] - t[0])),
-        # extras (not in the issue's list, kept stable too)
+        # extras (not acceptance figures, kept stable too)
         "step_time_ms": {"p50": pct(step_ms, 50), "p99": pct(step_ms, 99),
                          "max": float(step_ms.max()) if len(step_ms) else 0.0},
         "step_with_estimator_ms": {"p50": pct(whole_ms, 50), "p99": pct(whole_ms, 99),

@@ -6,7 +6,7 @@ report's section II-D warns about (throttle-brake chatter near idle speed), show
 the MPC on the same scenarios. It implements the controller contract
 (:class:`controller.base.Controller`); it ignores stop commands and obstacles.
 
-It is the PID a controls engineer would write against a noisy state estimate (issue 9),
+It is the PID a controls engineer would write against a noisy state estimate,
 not a tuned optimiser: the measured speed is low-pass filtered; the proportional term
 acts on a weighted setpoint (b r - y) and the derivative on the filtered measurement only,
 never on the error (both available; the defaults, b = 1 and no D, are what measured best
@@ -42,7 +42,7 @@ class PidConfig:
     ki_per_m: float = 0.3          # pedal per m of integrated speed error
     # derivative on the filtered measured speed (pedal per m/s^2 of acceleration), never
     # on the error (no kick on a reference step). Off: the plant is first order, and 0.05
-    # raised idle_hold's brake rate RMS 0.09 -> 0.14 /s through the estimator (issue 9)
+    # raised idle_hold's brake rate RMS 0.09 -> 0.14 /s through the estimator
     kd_per_mps2: float = 0.0
     # setpoint weight of the proportional term: P = kp (b v_ref - v) (Astrom & Hagglund);
     # b < 1 softens the answer to reference steps, but the scenarios' references are ramps,
@@ -57,8 +57,8 @@ class PidConfig:
     # per pedal) still 1.75 m/s^3, under the 2.5 m/s^3 jerk limit
     pedal_rate_max_ps: float = 0.5
     # pure pursuit look-ahead = max(min, time * v). Its gain on a lateral offset falls as
-    # 1 / look-ahead^2: 4 m (was 3) cut idle_hold's reversals >= 1 deg 28 -> 18 /min with
-    # the filter below, lateral RMS unchanged on arcs and figure8 (issue 9, measured)
+    # 1 / look-ahead^2: 4 m rather than 3 cut idle_hold's reversals >= 1 deg 28 -> 18 /min
+    # with the filter below, lateral RMS unchanged on arcs and figure8 (measured)
     lookahead_min_m: float = 4.0
     lookahead_time_s: float = 1.0
     # pure pursuit's road-wheel angle target low-pass [s]: a 1 cm error in the estimated

@@ -1,7 +1,7 @@
 """The catalogue of physically named hypotheses: what ``hmpc diagnose`` tests, and what the
 ``extensions:`` section of a parameter file may hold (``models.params`` validates that section
 against it, ``models.plant`` simulates it). Its ids are part of hmpc's contract
-(docs/conventions.md); each entry names its physics, the equation
+(docs/conventions.md, "Diagnosis catalogue"); each entry names its physics, the equation
 it adds to the report's model, and its parameters with units and bounds.
 """
 from __future__ import annotations

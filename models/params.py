@@ -1,6 +1,6 @@
 """Parameter files (``params/*.yaml``): the strict loader and writer.
 
-The contract is ``../shared/CONVENTIONS.md``: every numeric key carries its unit as a suffix
+The contract is ``docs/conventions.md``: every numeric key carries its unit as a suffix
 (``_m``, ``_s``, ``_rad``, ``_mps``, ``_mps2``, ...), a file with only ``vehicle``,
 ``steering`` and ``longitudinal.zones`` is a complete model, and everything else is optional.
 Unknown keys and keys without a unit are rejected (:class:`ParamError`), never defaulted; so is
@@ -18,7 +18,10 @@ Optional keys (all documented here, nowhere else):
   ``method`` (text: the fit chosen by held-out evidence), ``method_scores`` (mapping method ->
   held-out score, lower is better; ``models.identify.steering.cross_validate``),
   ``dead_time_ci95_s`` ([low, high] [s]; absent when the dead time is not determined),
-  ``identifiable`` (bool), ``note`` (text), ``rms_error_rad``.
+  ``identifiable`` (bool), ``note`` (text), ``rms_error_rad``, ``input`` (text: the channel
+  the map reads, ``steering_wheel_angle`` when absent, or ``steering_cmd`` for a car without
+  a steering measurement: road-wheel angle = offset + scale * steering_cmd, the servo
+  included; an Ackermann angle command has a scale near 1).
 - ``longitudinal``: ``dead_time_s``, ``hysteresis_mps``, ``accel_source`` (text: how the
   measured acceleration was obtained), ``accel_source_chosen`` (text: the source chosen by
   held-out evidence, one of ``wheel_speeds``, ``speed``, ``gps_speed``, ``accel_x``),
@@ -26,10 +29,22 @@ Optional keys (all documented here, nowhere else):
   ``models.identify.longitudinal.choose_accel_source``); per zone
   ``*_ci95_mps2`` ([low, high]), ``nmse_pct``, ``speed_rmse_mps``, ``samples``,
   ``identifiable``, ``note``.
+- ``longitudinal.input`` (text, :data:`LONGITUDINAL_INPUTS`): ``accel_pedal`` (the default:
+  eq. 8 as above) or, for a car driven by a command and without an accelerator pedal channel,
+  ``accel_cmd`` or ``speed_cmd``. Its zones (:class:`CommandZone`) hold ``name``,
+  ``v_min_mps``, ``v_max_mps``, ``offset_mps2`` and one gain instead of ``scale_mps2`` and
+  ``brake_scale_mps2``: ``accel_cmd_gain`` [1] (acceleration = offset_mps2 + accel_cmd_gain *
+  accel_cmd(t - dead_time_s)) or ``speed_cmd_gain_ps`` [1/s] (acceleration = offset_mps2 +
+  speed_cmd_gain_ps * (speed_cmd(t - dead_time_s) - speed): a first-order speed response with
+  time constant 1 / speed_cmd_gain_ps), >= 0; optional ``offset_ci95_mps2``,
+  ``accel_cmd_gain_ci95`` / ``speed_cmd_gain_ci95_ps``, ``nmse_pct``, ``speed_rmse_mps``,
+  ``samples``, ``identifiable``, ``note``. A tool that needs the pedal model (``simulate``,
+  ``drive``, ``teleop``, ``replay``: ``load_params(require_model=True)``) refuses such a file
+  in one line naming the gain key.
 - ``limits``: actuator and comfort limits used by the controller (see ``VehicleLimits``).
 - ``provenance``: free text/number fields (input hashes, time span, hmpc version).
 - ``extensions``: physics ``hmpc diagnose`` added to the report's model, by catalogue id
-  (``models.catalogue``, the diagnosis issue's contract) and subsystem:
+  (``models.catalogue``, whose ids are part of the contract) and subsystem:
   ``extensions: {aero_drag: {longitudinal: {coeff_per_m: 1.5e-3, intervals: {coeff_per_m:
   [1.3e-3, 1.7e-3]}, equation: "..."}}}``. Each entry holds only its catalogue parameters
   (numbers), ``intervals`` ({parameter: [low, high]}), ``base`` (the coefficients it was
@@ -42,9 +57,10 @@ Optional keys (all documented here, nowhere else):
   Unknown ids, subsystems or parameters are rejected like unknown keys.
 - ``not_identified``: besides the conventions' parts (``steering``, ``longitudinal``), one zone
   value the recording did not determine, ``longitudinal.zones.<zone>.<offset_mps2 |
-  scale_mps2 | brake_scale_mps2>``: "copied from zone 'high'", "the prior 8 m/s^2". The zone
-  is still written (the controller needs a model at every speed) and must be flagged
-  ``identifiable: false``, so a tool refuses it unless told to accept it.
+  scale_mps2 | brake_scale_mps2 | accel_cmd_gain | speed_cmd_gain_ps>``: "copied from zone
+  'high'", "the prior 8 m/s^2". The zone is still written (the controller needs a model at
+  every speed) and must be flagged ``identifiable: false``, so a tool refuses it unless told
+  to accept it.
 """
 from __future__ import annotations
 
@@ -61,8 +77,9 @@ from hmpc.models.errors import ParamError
 from hmpc.models.catalogue import CATALOGUE, EXTENSION_TEXT_KEYS
 from hmpc.models.zones import zone_of_speed
 
-#: Unit suffixes a numeric key may carry.
-UNIT_SUFFIXES = ("_m", "_s", "_rad", "_mps", "_mps2", "_mps3", "_radps", "_pct", "_kg", "_hz")
+#: Unit suffixes a numeric key may carry (``_ps``: per second, 1/s).
+UNIT_SUFFIXES = ("_m", "_s", "_rad", "_mps", "_mps2", "_mps3", "_radps", "_pct", "_kg", "_hz",
+                 "_ps")
 #: Dimensionless keys (ratios, counts) need no suffix: scale, scale_ci95, steering_ratio, samples.
 
 
@@ -172,6 +189,9 @@ class Steering:
     dead_time_ci95_s: tuple | None = None
     identifiable: bool | None = None
     note: str | None = None
+    #: the map's input channel: ``steering_wheel_angle`` (absent: the report's eq. 7) or
+    #: ``steering_cmd`` (the commanded angle, servo included; :data:`STEERING_INPUTS`)
+    input: str | None = None
     __required__ = ("offset_rad", "scale")
 
 
@@ -203,6 +223,41 @@ class Zone:
 
 @_typed
 @dataclass
+class CommandZone:
+    """A zone of a command-driven car (``longitudinal.input: accel_cmd | speed_cmd``), one gain:
+
+    - ``accel_cmd``: accel [m/s^2] = offset_mps2 + accel_cmd_gain * accel_cmd(t - dead_time);
+    - ``speed_cmd``: accel [m/s^2] = offset_mps2 + speed_cmd_gain_ps * (speed_cmd(t - dead_time)
+      - speed), a first-order speed response with time constant 1 / speed_cmd_gain_ps [s].
+    """
+
+    name: str
+    v_min_mps: float
+    v_max_mps: float
+    offset_mps2: float
+    accel_cmd_gain: float | None = None
+    speed_cmd_gain_ps: float | None = None
+    offset_ci95_mps2: tuple | None = None
+    accel_cmd_gain_ci95: tuple | None = None
+    speed_cmd_gain_ci95_ps: tuple | None = None
+    nmse_pct: float | None = None
+    speed_rmse_mps: float | None = None
+    samples: float | None = None
+    identifiable: bool | None = None
+    note: str | None = None
+    __required__ = ("name", "v_min_mps", "v_max_mps", "offset_mps2")
+
+
+#: ``longitudinal.input``: the input of the zone models -> the gain key each zone must hold
+#: (``accel_pedal``: eq. 8's ``scale_mps2`` with ``brake_scale_mps2``, the default)
+COMMAND_GAIN_KEYS = {"accel_cmd": "accel_cmd_gain", "speed_cmd": "speed_cmd_gain_ps"}
+LONGITUDINAL_INPUTS = ("accel_pedal",) + tuple(COMMAND_GAIN_KEYS)
+#: ``steering.input``: the channel the steering map reads
+STEERING_INPUTS = ("steering_wheel_angle", "steering_cmd")
+
+
+@_typed
+@dataclass
 class VehicleLimits:
     """The ``limits:`` section of a parameter file: the limits recorded for this vehicle, each
     optional. The controller's limits (``controller.limits.ActuatorLimits``) are its defaults
@@ -229,6 +284,10 @@ class Params:
     accel_source: str | None = None
     accel_source_chosen: str | None = None
     accel_source_scores_mps2: dict | None = None
+    #: ``longitudinal.input`` of a command-driven car (``accel_cmd`` or ``speed_cmd``; None:
+    #: the pedal model in ``zones``) and its zones (``zones`` is then empty)
+    command_input: str | None = None
+    command_zones: list[CommandZone] = field(default_factory=list)
     limits: VehicleLimits | None = None
     provenance: dict = field(default_factory=dict)
     #: parts a recording could not identify -> the reason (CONVENTIONS: ``not_identified:``)
@@ -255,8 +314,11 @@ class Params:
         out: dict[str, Any] = {"vehicle": clean(self.vehicle)}
         if self.steering is not None:
             out["steering"] = clean(self.steering)
-        if self.zones:
-            lon: dict[str, Any] = {"zones": [clean(z) for z in self.zones]}
+        if self.zones or self.command_zones:
+            lon: dict[str, Any] = {}
+            if self.command_zones:
+                lon["input"] = self.command_input
+            lon["zones"] = [clean(z) for z in (self.zones or self.command_zones)]
             if self.longitudinal_dead_time_s is not None:
                 lon["dead_time_s"] = self.longitudinal_dead_time_s
             if self.hysteresis_mps is not None:
@@ -350,8 +412,9 @@ def _check_geometry(path: str, vehicle: "Vehicle") -> None:
                              f"have {lo:g}-{hi:g}): the two are likely in different units or "
                              "swapped", path, key=f"vehicle.{k}")
 
-_LONG = {"zones": None, "dead_time_s": _num, "hysteresis_mps": _num, "accel_source": _text,
-         "accel_source_chosen": _text, "accel_source_scores_mps2": _scores}
+_LONG = {"zones": None, "input": _text, "dead_time_s": _num, "hysteresis_mps": _num,
+         "accel_source": _text, "accel_source_chosen": _text,
+         "accel_source_scores_mps2": _scores}
 
 
 def parse_params(data: Any, path: str = "<params>", *, require_model: bool = False) -> Params:
@@ -379,6 +442,9 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
             raise ParamError(f"must be positive (a left turn has positive steering-wheel and "
                              f"road-wheel angles), got {p.steering.scale:g}", path,
                              key="steering.scale")
+        if p.steering.input is not None and p.steering.input not in STEERING_INPUTS:
+            raise ParamError(f"unknown steering input {p.steering.input!r} (one of "
+                             f"{', '.join(STEERING_INPUTS)})", path, key="steering.input")
     if "longitudinal" in data:
         lon = data["longitudinal"]
         if not isinstance(lon, dict):
@@ -389,19 +455,12 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
         zones = lon.get("zones")
         if not isinstance(zones, list) or not zones:
             raise ParamError("expected a non-empty list of zones", path, key="longitudinal.zones")
-        for i, z in enumerate(zones):
-            p.zones.append(Zone(**_check_keys(path, f"longitudinal.zones[{i}]", z, Zone)))
-        for i, z in enumerate(p.zones):
-            for k in ("scale_mps2", "brake_scale_mps2"):
-                if getattr(z, k) < 0:
-                    raise ParamError(f"must be >= 0 (pressing the pedal never works against "
-                                     f"it; the brake term is subtracted), got "
-                                     f"{getattr(z, k):g}", path,
-                                     key=f"longitudinal.zones[{i}].{k}")
+        _parse_zones(path, p, lon, zones)
+        for i, z in enumerate(p.zones or p.command_zones):
             if not z.v_max_mps > z.v_min_mps:
                 raise ParamError("v_max_mps must exceed v_min_mps", path,
                                  key=f"longitudinal.zones[{i}].v_max_mps")
-            if i and abs(z.v_min_mps - p.zones[i - 1].v_max_mps) > 1e-9:
+            if i and abs(z.v_min_mps - (p.zones or p.command_zones)[i - 1].v_max_mps) > 1e-9:
                 raise ParamError("zones must be contiguous (v_min_mps = previous v_max_mps)", path,
                                  key=f"longitudinal.zones[{i}].v_min_mps")
         if "dead_time_s" in lon:
@@ -439,6 +498,12 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
         p.not_identified = dict(ni)
     if "extensions" in data:
         p.extensions = _parse_extensions(path, data["extensions"])
+    if require_model and p.command_zones:
+        gain = COMMAND_GAIN_KEYS[p.command_input]
+        raise ParamError(f"this command needs the pedal model (eq. 8: scale_mps2, "
+                         f"brake_scale_mps2 per zone); the file holds a {p.command_input} model "
+                         f"(acceleration from the command, '{gain}'), which hmpc does not "
+                         "simulate or drive", path, key=f"longitudinal.zones[0].{gain}")
     if require_model and not p.is_model:
         missing = "steering" if p.steering is None else "longitudinal"
         why = p.not_identified.get(missing)
@@ -447,10 +512,52 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
     return p
 
 
+def _parse_zones(path: str, p: Params, lon: dict, zones: list) -> None:
+    """``longitudinal.zones`` into ``p.zones`` (the pedal model, eq. 8) or, with
+    ``longitudinal.input: accel_cmd | speed_cmd``, into ``p.command_zones``: every zone holds
+    the input's gain key (:data:`COMMAND_GAIN_KEYS`) and no other input's; gains are >= 0."""
+    inp = _text(path, "longitudinal.input", lon["input"]) if "input" in lon else "accel_pedal"
+    if inp not in LONGITUDINAL_INPUTS:
+        raise ParamError(f"unknown input {inp!r} (one of {', '.join(LONGITUDINAL_INPUTS)})",
+                         path, key="longitudinal.input")
+    for i, z in enumerate(zones):
+        zk = f"longitudinal.zones[{i}]"
+        if inp == "accel_pedal":
+            if isinstance(z, dict):
+                for k, cmd in ((g, c) for c, g in COMMAND_GAIN_KEYS.items()):
+                    if k in z:
+                        raise ParamError(f"a {cmd} gain needs 'longitudinal.input: {cmd}'",
+                                         path, key=f"{zk}.{k}")
+            zone = Zone(**_check_keys(path, zk, z, Zone))
+            for k in ("scale_mps2", "brake_scale_mps2"):
+                if getattr(zone, k) < 0:
+                    raise ParamError(f"must be >= 0 (pressing the pedal never works against "
+                                     f"it; the brake term is subtracted), got "
+                                     f"{getattr(zone, k):g}", path, key=f"{zk}.{k}")
+            p.zones.append(zone)
+            continue
+        cz = CommandZone(**_check_keys(path, zk, z, CommandZone))
+        gain = COMMAND_GAIN_KEYS[inp]
+        for other in COMMAND_GAIN_KEYS.values():
+            if other != gain and getattr(cz, other) is not None:
+                raise ParamError(f"'longitudinal.input: {inp}' zones hold '{gain}', not "
+                                 f"'{other}'", path, key=f"{zk}.{other}")
+        value = getattr(cz, gain)
+        if value is None:
+            raise ParamError(f"required key is missing ('longitudinal.input: {inp}')", path,
+                             key=f"{zk}.{gain}")
+        if value < 0:
+            raise ParamError(f"must be >= 0 (a larger command never slows the car), got "
+                             f"{value:g}", path, key=f"{zk}.{gain}")
+        p.command_zones.append(cz)
+    p.command_input = None if inp == "accel_pedal" else inp
+
+
 #: ``not_identified:`` may also name one written zone value the recording did not determine
 #: (copied from another zone, or a prior): ``longitudinal.zones.<name>.<key>``
 _ZONE_VALUE = "longitudinal.zones."
-_ZONE_VALUE_KEYS = ("offset_mps2", "scale_mps2", "brake_scale_mps2")
+_ZONE_VALUE_KEYS = ("offset_mps2", "scale_mps2", "brake_scale_mps2",
+                    *COMMAND_GAIN_KEYS.values())
 
 
 def _check_zone_value_named(path: str, p: Params, k: str, why: Any) -> None:
@@ -461,7 +568,7 @@ def _check_zone_value_named(path: str, p: Params, k: str, why: Any) -> None:
     if not isinstance(why, str) or not why.strip():
         raise ParamError("expected the reason as text", path, key=key)
     name, _, coef = k[len(_ZONE_VALUE):].rpartition(".")
-    zone = next((z for z in p.zones if z.name == name), None)
+    zone = next((z for z in p.zones or p.command_zones if z.name == name), None)
     if zone is None or coef not in _ZONE_VALUE_KEYS:
         raise ParamError(f"names no zone value of this file (longitudinal.zones.<zone name>."
                          f"<{'|'.join(_ZONE_VALUE_KEYS)}>)", path, key=key)
@@ -621,7 +728,7 @@ def unidentifiable_keys(params: Params) -> list[tuple[str, str]]:
 
 def check_identifiable(params: Params, *, accept: bool = False,
                        flag: str = ACCEPT_UNIDENTIFIABLE_FLAG) -> list[str]:
-    """Refuse values the recording could not identify (issue 8): a steering map or zone flagged
+    """Refuse values the recording could not identify: a steering map or zone flagged
     ``identifiable: false`` raises :class:`ParamError` in one line naming the key(s) and
     ``flag``, the option that accepts them. With ``accept`` nothing is raised and one warning
     line naming every flagged key is returned for the caller to print."""

@@ -40,6 +40,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from hmpc.models.constants import G_MPS2
 from hmpc.models.params import Params
 from hmpc.models.zones import zone_of_speed, zone_with_hysteresis, zones_with_hysteresis
 
@@ -176,7 +177,6 @@ def _extension_jacobians(plant: "HybridPlant", X: np.ndarray, U: np.ndarray, A: 
 
 
 # ------------------------------------------------------- opt-in physics of ``extensions:``
-G_MPS2 = 9.80665  #: standard gravity [m/s^2]
 #: accelerator pedal below which the idle creep acts (the catalogue: "throttle released"; the
 #: ground-truth simulator's IdleCreep uses the same 0.01)
 CREEP_PEDAL_MAX = 0.01

@@ -1,4 +1,4 @@
-"""The acceleration source of the zone models is chosen by held-out evidence (issue 8, item 1).
+"""The acceleration source of the zone models is chosen by held-out evidence.
 
 Recordings come from the independent CommonRoad simulator (``tests/indep/commonroad_truth.py``,
 truth set B, INS at the rear axle, seed 22), where the three sources (front wheel speeds, GNSS
@@ -30,7 +30,7 @@ from indep import commonroad_truth as ct
 TRUTH = "B"
 REF = "rear"
 WHEELS = ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")
-#: issue 8's zone tolerances
+#: the acceptance's zone tolerances
 ZONE_SCALE_TOL = 0.05
 ZONE_OFFSET_TOL_MPS2 = 0.05
 

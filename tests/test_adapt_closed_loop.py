@@ -1,6 +1,6 @@
 """The online model estimator in the closed loop (``hmpc simulate --adapt``): the controller
 starts from params/report_2008.yaml, the simulated car is a seeded hidden parameter set as far
-away as the adaptation issue's (gains and scale 10-25 %, offset 13 mrad; tests/_adapt.py).
+away as docs/adaptation.md's (gains and scale 10-25 %, offset 13 mrad; tests/_adapt.py).
 
 What is checked, per seed: the learned values (figure8: offset within 2 mrad, scale within
 3 %; ramp_sequence: the low and high zones' accelerator gains within 6 %), tracking over the

@@ -2,7 +2,7 @@
 
 Each case failed before (a traceback and exit 1, a silent wrong number, or an output written
 before the run was refused) and must now end with exit 2 and exactly one stderr line naming
-the file and the line, channel, key or option (../shared/CONVENTIONS.md), with nothing written.
+the file and the line, channel, key or option (docs/conventions.md), with nothing written.
 The cases run ``tools.cli.main`` in-process as tests/test_cli.py does; one runs the installed
 console script. Data: the first lines of the real comma2k19 minute and the shipped parameters.
 """

@@ -94,6 +94,26 @@ def test_bad_signal_map(case, tmp_path, short_log, comma_dbc, capsys):
     assert not (tmp_path / "r.csv").exists()
 
 
+@pytest.mark.parametrize("log_case", ["missing", "garbage"])
+def test_bad_map_is_reported_before_a_bad_log(log_case, tmp_path, comma_dbc, capsys):
+    """The DBC and the map are parsed while the log is read: when both are bad, the map's
+    error is the one reported, as when they were read one after the other."""
+    m = write(tmp_path, "bad.signals.yaml", BAD_MAPS["unknown channel"][0])
+    log = tmp_path / "bus.log"
+    if log_case == "garbage":
+        log.write_bytes(b"this is not a CAN log\n" * 50)
+    with pytest.raises(ParamError) as ei:
+        ingest_files(log, comma_dbc, m)
+    assert str(ei.value).startswith(f"{m}:2: key 'channels.velocity'")
+    rc, err = cli_run(["ingest", log, "--dbc", comma_dbc, "--signals", m,
+                       "--out", tmp_path / "r.csv"], capsys)
+    assert rc == 2 and f"{m}:2" in error_line(err) and "Traceback" not in err
+    # with a good map the log's own error is the one reported
+    with pytest.raises(InputError) as ei:
+        ingest_files(log, comma_dbc, MAP17)
+    assert str(ei.value).startswith(str(log))
+
+
 def test_message_on_two_buses_needs_bus(tmp_path, short_log, comma_dbc, capsys):
     m = write(tmp_path, "m.yaml", """\
         channels:

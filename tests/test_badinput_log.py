@@ -1,7 +1,7 @@
-"""Every log-related case of issue 2's "Bad input": recoverable problems are skipped, counted
-and reported with their first line numbers (CLI exit 0); fatal ones raise InputError naming the
-file and line/frame (CLI exit 2, one line on stderr, no traceback). Built from real lines of the
-comma minute and the real DBC.
+"""Every log-related case of "Bad input" (docs/conventions.md): recoverable problems are
+skipped, counted and reported with their first line numbers (CLI exit 0); fatal ones raise
+InputError naming the file and line/frame (CLI exit 2, one line on stderr, no traceback). Built
+from real lines of the comma minute and the real DBC.
 """
 import gzip
 import json

@@ -213,3 +213,42 @@ def test_bulk_reader_equals_reference_across_groups_and_garbage(tmp_path):
 def test_bundled_logs_equal_the_reference(comma_log, vcan_log):
     assert len(_same(comma_log)) == 135468
     assert len(_same(vcan_log)) == 68178
+
+
+def test_frame_sink_grows_widens_and_prefaults_without_touching_rows():
+    """The frame columns (anonymous maps, a worker writing a byte per page ahead of the
+    writer) hold exactly what was appended, through a capacity estimate that falls short and
+    a wider payload part way; unused payload bytes read as zero."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from hmpc.models.logs import textblocks
+    from hmpc.models.logs.textscan import Chunk
+
+    rng = np.random.default_rng(7)
+    parts = []
+    for k, (n, width) in enumerate([(700, 8), (3000, 8), (50, 64), (9000, 8), (1, 16)]):
+        dlc = rng.integers(0, width + 1, n).astype(np.uint8)
+        data = rng.integers(0, 256, (n, width)).astype(np.uint8)
+        data[np.arange(width) >= dlc[:, None]] = 0
+        parts.append(Chunk(rng.random(n) + k, None, rng.integers(0, 0x800, n).astype(np.uint32),
+                           rng.random(n) < 0.5, dlc, data, np.arange(n, dtype=np.int64) + 10 * k,
+                           {}))
+    sink = textblocks.FrameSink(1024)
+    with ThreadPoolExecutor(1) as pool:
+        pool.submit(sink.prefault)
+        for k, ch in enumerate(parts):
+            sink.append(ch, np.full(len(ch.t), k, np.int16))
+        sink.close()
+    ft = sink.table("x.log")
+    n = sum(len(ch.t) for ch in parts)
+    assert len(ft) == n and ft.data.shape == (n, 64)
+    assert np.array_equal(ft.t_s, np.concatenate([ch.t for ch in parts]))
+    assert np.array_equal(ft.bus, np.concatenate([np.full(len(ch.t), k) for k, ch in
+                                                  enumerate(parts)]))
+    assert np.array_equal(ft.arb_id, np.concatenate([ch.arb_id for ch in parts]))
+    assert np.array_equal(ft.is_extended, np.concatenate([ch.ext for ch in parts]))
+    assert np.array_equal(ft.where, np.concatenate([ch.where for ch in parts]))
+    want = np.concatenate([np.pad(ch.data, ((0, 0), (0, 64 - ch.data.shape[1])))
+                           for ch in parts])
+    assert np.array_equal(ft.data, want) and np.array_equal(ft.dlc,
+                                                            np.concatenate([c.dlc for c in parts]))

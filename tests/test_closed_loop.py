@@ -1,6 +1,6 @@
-"""Closed loop on the hybrid plant: issue 4's acceptance for the MPC.
+"""Closed loop on the hybrid plant: the acceptance for the MPC.
 
-The controller sees the plant through simulated sensors and the EKF (issue 9), with seeded
+The controller sees the plant through simulated sensors and the EKF, with seeded
 wheel-speed noise (0.05 m/s) and GNSS position noise (0.02 m); seeds are fixed and printed. The figures are printed (pytest -s) so the closing note can quote them.
 """
 from __future__ import annotations
@@ -167,7 +167,7 @@ class _Spy:
 
 
 def test_controller_sees_the_estimate_never_the_plant(params):
-    """Issue 9: the truth reaches the controller only through the simulated sensors and the
+    """The truth reaches the controller only through the simulated sensors and the
     EKF. The states it is given are the estimates (equal to ``estimated_state``), differ from
     the plant's at every step but the first (the estimator starts on the start pose), and stay
     within centimetres of it. Measured on this 6 s run: position error RMS about 1 cm."""

@@ -37,8 +37,8 @@ def test_cli_writes_a_strict_params_file_json_and_figures(sim_csv, tmp_path, cap
     assert "hmpc identify:" in cap.err  # progress on stderr
     p = load_params(out, require_model=True)
     # measured offset error 0.00015 rad, scale error -0.17% (the replay, with the dead time
-    # "not determined" since issue 8: 0 s used; it was -0.007 s before, scale +0.008%);
-    # bounds 0.0003 rad, 0.3% (margin 2x; issue 3: 0.002 rad, 2%)
+    # "not determined": 0 s used); bounds 0.0003 rad, 0.3% (margin 2x; the acceptance
+    # tolerances, 0.002 rad and 2%, stay the outer bound)
     assert abs(p.steering.offset_rad - truth.steering.offset_rad) <= 0.0003
     assert abs(p.steering.scale / truth.steering.scale - 1) <= 0.003
     assert [z.name for z in p.zones] == ["idle", "low", "high"]
@@ -52,7 +52,7 @@ def test_cli_writes_a_strict_params_file_json_and_figures(sim_csv, tmp_path, cap
         assert 0.0 <= z.nmse_pct < 0.1 and abs(z.scale_mps2 / t.scale_mps2 - 1) <= 0.003, z.name
     rep = json.loads(js.read_text())
     assert rep["params"]["steering"]["scale"] == pytest.approx(p.steering.scale)
-    # the evidence behind each choice is in the file too (issue 8): every steering method's
+    # the evidence behind each choice is in the file too: every steering method's
     # held-out score, the chosen one the best of the trusted; every acceleration source's
     sel = rep["steering"]["selection"]
     assert set(p.steering.method_scores) == set(sel["scores"]) and p.steering.method == sel["chosen"]

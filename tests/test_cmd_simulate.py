@@ -77,10 +77,8 @@ def test_pid_and_plant_params(tmp_path, short_ref):
     assert rc == 0
     d = json.loads(js.read_text())
     assert d["controller"] == "pid" and d["plant_params"] == str(weak)
-    # the PID tracks the weaker plant (measured speed RMS 0.035 m/s, lateral 0.024 m). Its
-    # pedal chatter (83 switches/min on the noised plant state before issue 9) is no longer
-    # held here: through the estimator and with issue 9's PID it measured 7.6/min, and the
-    # PID's smoothness is tests/test_pid_smooth.py's.
+    # the PID tracks the weaker plant (measured speed RMS 0.035 m/s, lateral 0.024 m); its
+    # smoothness is tests/test_pid_smooth.py's.
     assert d["failures"] == 0 and d["internal_errors"] == 0 and d["steps"] == 80
     assert d["speed_error_rms_mps"] < 0.1 and d["lateral_error_rms_m"] < 0.06
 
@@ -162,7 +160,7 @@ def test_reference_csv_round_trip(tmp_path):
 
 
 def test_sensor_options_reach_the_run_and_the_json(tmp_path, short_ref, capsys):
-    """Issue 9: the controller sees the plant through simulated sensors and the estimator;
+    """The controller sees the plant through simulated sensors and the estimator;
     their settings are options, echoed in the JSON with the smoothness figures."""
     js = tmp_path / "s.json"
     rc = main(["simulate", "--params", PARAMS, "--reference", str(short_ref), "--json", str(js),

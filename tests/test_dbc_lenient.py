@@ -1,6 +1,6 @@
 """A DBC that breaks cantools' parser is refused by default, naming the line and the flag; with
 ``--dbc-lenient`` the bad lines are skipped and reported one by one, and everything else decodes
-exactly as with the clean DBC (issue 8). The ingest JSON names the log format it detected,
+exactly as with the clean DBC. The ingest JSON names the log format it detected,
 whatever the file is called."""
 from __future__ import annotations
 

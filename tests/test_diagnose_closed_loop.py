@@ -1,5 +1,5 @@
 """Closing the loop (diagnosis issue): the MPC on a benchmark case's ground-truth plant
-(``models.sim.simulator.TruthPlant`` with the concealed effect), once with the report's
+(``models.sim.truth_plant.TruthPlant`` with the concealed effect), once with the report's
 baseline model and once with the extended model ``diagnose`` writes (``--params-out``), both
 fitted on that case's recording. A dead time reaches the MPC through the conventions' keys, a
 lag, drag or creep through ``extensions:`` (the MPC's ``HybridPlant(params, extensions=True)``

@@ -4,7 +4,7 @@ CAN quantisation and INS noise (``tests/indep/commonroad_truth.py``), 10 minutes
 
 One case per catalogue effect, concealed in the generator's own terms
 (``commonroad_truth.Effects``; the cases are ``tests/indep/diagnose_matrix.py``'s ``CASES``),
-each on one of the truth sets A / B (alternating, so both are covered), asserting the issue's
+each on one of the truth sets A / B (alternating, so both are covered), asserting the
 acceptance:
 
 - a concealed effect is the TOP finding, on its subsystem, its parameter within 20 % of the

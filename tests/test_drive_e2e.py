@@ -21,9 +21,9 @@ RUN_S = 6.0
 # The Toyota node's ACC has a 0.25 s powertrain lag that the report_2008 model lacks; the
 # Toyota runs give the MPC that lag as identify/diagnose would report it (``extensions:
 # actuator_lag``, tests/_drive.py controller_params). Without it, ramp_sequence tracked
-# 0.226 m/s RMS against 2 x simulate's 0.108 = 0.217 (issue 9's pedal smoothing terms cost
-# speed tracking through the lag); with it 0.206..0.208 (3 runs; most of the rest is the
-# start from rest under the jerk limit).
+# 0.226 m/s RMS against 2 x simulate's 0.108 = 0.217 (the pedal smoothing terms cost speed
+# tracking through the lag); with it 0.206..0.208 (3 runs; most of the rest is the start
+# from rest under the jerk limit).
 
 
 @pytest.mark.parametrize("profile", ["toyota", "bywire"])

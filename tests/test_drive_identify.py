@@ -55,7 +55,7 @@ def _identify_answer_within_2_percent(st: dict, truth) -> None:
 
 def _yaw_rate_offset_tied_to_the_gyro_bias(yaw: dict, st: dict, truth) -> None:
     """The yaw-rate fit (eq. 7 through eq. 1 against the KINEMATICS yaw rate): scale within the
-    issue's 2 %. Its offset cannot be held to 2 % on this drive, and identify says so. The
+    acceptance's 2 %. Its offset cannot be held to 2 % on this drive, and identify says so. The
     offset's yaw rate is v tan(offset)/b, the gyro bias estimated with it a constant: only the
     spread of the speeds separates them, and these arcs run at 2.3-2.8 m/s (|corr(offset,
     bias)| ~ 0.998; with the bias fixed at its true 0 the same samples give the offset within
@@ -88,7 +88,7 @@ def test_zone_models_recovered_from_a_bywire_drive_of_ramps(tmp_path):
     for z in params().zones:
         g = zones[z.name]
         print(z.name, g["offset_mps2"], g["scale_mps2"], g["brake_scale_mps2"])
-        # the issue's tolerances: offsets within 0.05 m/s^2, scales within 5 %
+        # the acceptance tolerances: offsets within 0.05 m/s^2, scales within 5 %
         assert g["offset_mps2"] == pytest.approx(z.offset_mps2, abs=0.05), z.name
         for key in ("scale_mps2", "brake_scale_mps2"):
             assert g[key] == pytest.approx(getattr(z, key), rel=0.05), (z.name, key)

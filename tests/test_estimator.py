@@ -345,7 +345,7 @@ def test_comma_minute_estimate_follows_the_raw_channels(comma_recording, latency
 
 
 def test_three_times_the_noise_with_latency_and_outage_stays_bounded():
-    """Issue 9's robustness set-up: 3x noise, GNSS at 10 Hz with 100 ms latency, a 2 s
+    """The robustness set-up: 3x noise, GNSS at 10 Hz with 100 ms latency, a 2 s
     outage. The filter (told the noise) keeps every error within 4 sigma and centimetres."""
     seed = 81
     scfg = SensorConfig(noise_scale=3.0, gnss_rate_hz=10.0, gnss_latency_s=0.1,
@@ -439,7 +439,7 @@ def test_rewind_equals_the_fix_received_on_time():
             on_time.feed(what, what.t_meas_s)  # a GNSS fix arrives when it is measured
     assert late.stats["gnss"]["replays"] >= 70 and on_time.stats["gnss"]["replays"] == 0
     assert late.time_s == pytest.approx(on_time.time_s)
-    # the same operations in the same order: equal to rounding (bit-equal today)
+    # the same operations in the same order: equal to rounding (bit-equal when measured)
     np.testing.assert_allclose(late.full_state(), on_time.full_state(), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(late.full_covariance(), on_time.full_covariance(), rtol=1e-9,
                                atol=1e-15)

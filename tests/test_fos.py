@@ -1,4 +1,4 @@
-"""Fast Orthogonal Search (models.fos): finds the true terms among distractors, and its
+"""Fast Orthogonal Search (models.identify.fos): finds the true terms among distractors, and its
 coefficients are ordinary least squares on the terms it selected."""
 import numpy as np
 import pytest

@@ -1,5 +1,5 @@
 """`hmpc identify` on the bundled REAL recordings with one channel group removed at a time
-(issue 8 acceptance): the comma2k19 minute (raw CAN + INS + IMU, highway, accelerator used,
+(acceptance): the comma2k19 minute (raw CAN + INS + IMU, highway, accelerator used,
 brake never pressed) and the VerifiedCAN drive (raw CAN only, stop-and-go under ACC, no GNSS).
 
 Each recording is ingested once per session; a group of columns is dropped from the canonical
@@ -36,6 +36,8 @@ INERTIAL_AND_NAV = ("x", "y", "z", "heading", "pitch", "roll", "gps_speed", "yaw
 #: files for the comma minute; the VerifiedCAN drive has no INS, so it equals the full drive)
 GROUPS = {
     "accel_pedal": ("accel_pedal",),
+    # every longitudinal input: the pedal and the commands a car without one is identified from
+    "longitudinal_inputs": ("accel_pedal", "accel_cmd", "speed_cmd"),
     "brake": ("brake_pedal",),
     "wheel_speeds": WHEEL_SPEEDS,
     "yaw_rate": ("yaw_rate",),
@@ -160,10 +162,11 @@ def test_full_recording_identifies_both_parts(run_identify, name):
 
 
 @pytest.mark.parametrize("name", RECORDINGS)
-def test_without_the_accelerator_pedal_steering_only_and_the_pedal_named(run_identify, name):
-    """No throttle input: eq. 8 cannot be fitted (and the brake alone was never pressed long
-    enough on either drive), so longitudinal is absent and named with 'accel_pedal'."""
-    res, full = _case(run_identify, name, "accel_pedal"), run_identify(name)
+def test_without_any_longitudinal_input_steering_only_and_the_pedal_named(run_identify, name):
+    """No throttle input and no command: eq. 8 cannot be fitted (and the brake alone was never
+    pressed long enough on either drive), so longitudinal is absent and named with
+    'accel_pedal'."""
+    res, full = _case(run_identify, name, "longitudinal_inputs"), run_identify(name)
     assert res["rc"] == 0, res["err"]
     p = res["params"]
     assert "longitudinal" not in p
@@ -175,11 +178,31 @@ def test_without_the_accelerator_pedal_steering_only_and_the_pedal_named(run_ide
 
 
 @pytest.mark.parametrize("name", RECORDINGS)
+def test_without_the_accelerator_pedal_the_acc_request_is_the_input(run_identify, name):
+    """Both RAV4s record the ACC's acceleration request (``accel_cmd``): without the pedal, the
+    zones are fitted to it (``longitudinal.input: accel_cmd``), and steering is unchanged. The
+    car realises its ACC request: every gain its zone's own data determined is near 1
+    (0.7-1.4: the powertrain lag and grade within the zone move it, a unit or sign error
+    would not stay there)."""
+    res, full = _case(run_identify, name, "accel_pedal"), run_identify(name)
+    assert res["rc"] == 0, res["err"]
+    lon = res["params"]["longitudinal"]
+    assert lon["input"] == "accel_cmd"
+    own = [z for z in lon["zones"] if "accel_cmd_gain_ci95" in z]
+    assert own
+    for z in own:
+        assert 0.7 < z["accel_cmd_gain"] < 1.4, z
+    assert all(z["accel_cmd_gain"] >= 0 for z in lon["zones"])
+    assert "longitudinal" not in _parts_missing(res["params"])
+    _same_steering_as_full(res, full, res["params"]["steering"]["method"])
+
+
+@pytest.mark.parametrize("name", RECORDINGS)
 def test_without_the_brake_the_accelerator_zones_remain_and_the_brake_is_named(run_identify,
                                                                                name):
     """The brake is (nearly) never pressed on either drive: the accelerator terms come out as
     with it; the parameter file says the brake term was not identified, naming 'brake_pedal'
-    (today in every zone's note), and no zone claims a brake interval."""
+    (in every zone's note), and no zone claims a brake interval."""
     res, full = _case(run_identify, name, "brake"), run_identify(name)
     assert res["rc"] == 0, res["err"]
     p = res["params"]
@@ -292,9 +315,11 @@ def test_a_steering_only_recording_gives_the_steering_map(run_identify, name):
 
 @pytest.mark.parametrize("name", RECORDINGS)
 def test_nothing_identifiable_is_exit_2_naming_the_channel(run_identify, name):
-    """No steering-wheel angle and no accelerator pedal: neither eq. 7 nor eq. 8 has its input;
-    exit 2 with one line naming a missing input channel."""
-    res = run_identify(name, drop=("steering_wheel_angle", "accel_pedal"))
+    """No steering-wheel angle and no accelerator pedal (nor a command standing in for either):
+    neither eq. 7 nor eq. 8 has its input; exit 2 with one line naming a missing input
+    channel."""
+    res = run_identify(name, drop=("steering_wheel_angle", "steering_cmd",
+                                   *GROUPS["longitudinal_inputs"]))
     assert res["rc"] == 2
     assert len(res["err"]) == 1, res["err"]
     assert "steering_wheel_angle" in res["err"][0] or "accel_pedal" in res["err"][0]

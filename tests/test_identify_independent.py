@@ -1,14 +1,14 @@
-"""`hmpc identify` against a ground truth it was not built on (issue 8, part 4).
+"""`hmpc identify` against a ground truth it was not built on.
 
 The recordings come from CommonRoad's vehicle models (``tests/indep/commonroad_truth.py``:
 kinematic single-track model with its position at the rear axle, and the single-track model
 with tyres), a speed-tracking PI driver, RAV4-like CAN quantisation and INS noise, and an INS
 reference point at the rear axle, the centre of gravity or the front axle. The truth is the
-report's family with no concealed effect and no dead time, so the issue's tolerances apply:
+report's family with no concealed effect and no dead time, so the acceptance tolerances apply:
 steering offset +-2 mrad and scale +-2 %; every zone's scale (throttle and brake) +-5 % and
 offset +-0.05 m/s^2; no dead time (< 2 samples, or "not determined").
 
-Cases that fail on today's identification are marked ``xfail(strict=True)`` with their cause,
+Cases that the identification fails are marked ``xfail(strict=True)`` with their cause,
 so that they turn into failures ("XPASS(strict)") the day identification is fixed: remove the
 mark then.
 """
@@ -28,7 +28,7 @@ from hmpc.models.params import dump_params, load_params
 from hmpc.tools import cli
 from indep import commonroad_truth as ct
 
-#: the issue's tolerances
+#: the acceptance tolerances
 STEER_OFFSET_TOL_RAD = 0.002
 STEER_SCALE_TOL = 0.02
 ZONE_SCALE_TOL = 0.05
@@ -174,7 +174,7 @@ def test_recordings_lacking_channels_or_at_other_rates(identified, omit, ref, ra
 
 @pytest.mark.parametrize("truth", "ABC")
 def test_steering_without_wheel_speeds_uses_yaw_rate_and_speed(identified, truth):
-    """Issue 8: no wheel speeds -> the yaw-rate fit with the CAN 'speed' (whose point it
+    """No wheel speeds -> the yaw-rate fit with the CAN 'speed' (whose point it
     estimates), within the tolerances, and the skipped method named with its channel."""
     sc, rc, p, rep = identified(truth, "cog", omit=frozenset({"wheel_speeds"}))
     assert rc == 0

@@ -1,4 +1,4 @@
-"""Recording rate (issue 8 acceptance): the bundled REAL recordings, ingested from the raw logs
+"""Recording rate (acceptance): the bundled REAL recordings, ingested from the raw logs
 at 10 Hz and 100 Hz (`hmpc identify RAW --rate HZ`, the ingest option), identify to within the
 50 Hz result's 95% intervals, parameter by parameter.
 

@@ -70,7 +70,7 @@ def test_comma_minute_steering_gain_with_interval_and_honest_verdict(comma):
     # road-wheel angle, bound 0.01 rad (0.6 deg; the whole minute spans 3 deg of wheel angle)
     assert 0.0 < rep["agreement_a_b"]["rms_difference_rad"] < 0.01
     # the yaw rate follows the angle sensor within a few tens of ms on a production car:
-    # measured 0.027 s (peak correlation 0.73); bound -0.02..0.15 s (was -0.2..1.0 s)
+    # measured 0.027 s (peak correlation 0.73); bound -0.02..0.15 s
     assert -0.02 <= st.dead_time_s <= 0.15
 
 

@@ -5,7 +5,7 @@ report's experiments (models.sim, noise="typical": CAN quantisation, message rat
 INS noise and biases); the recordings are joined and identified in one run.
 
 Tolerances: near what the code achieves (measured over the four sets, sim seed 11), with the
-margin stated beside each; issue 3's acceptance tolerances (steering offset +-0.002 rad, scale
+margin stated beside each; the acceptance tolerances (steering offset +-0.002 rad, scale
 +-2%; zone scales +-5%, offsets +-0.05 m/s^2) remain the outer bound and are far looser.
 The README's "Known truth" figures (offset within 0.0002 rad, scale within 0.05%, every zone
 coefficient within 0.3%) are these tolerances.
@@ -22,25 +22,24 @@ SIM_SEED = 11
 SETS = ["report_2008", 1, 2, 3]
 
 # Measured worst case over SETS -> tolerance (README "Known truth" figure where it states one).
-# measured 0.00032 rad (params=2; the held-out choice, issue 8, takes the yaw-rate fit, whose
+# measured 0.00032 rad (params=2; the held-out choice takes the yaw-rate fit, whose
 # interval covers the truth in all four sets; the replay's 0.00017 came with intervals that
-# missed it in three); README 0.0002 (issue 3: 0.002)
+# missed it in three); README 0.0002 (acceptance: 0.002)
 STEER_OFFSET_TOL_RAD = 0.0004
-STEER_SCALE_TOL = 0.0005         # measured 0.035%; README 0.05% (issue 3: 2%)
+STEER_SCALE_TOL = 0.0005         # measured 0.035%; README 0.05% (acceptance: 2%)
 DIRECT_OFFSET_TOL_RAD = 0.0005   # (a)/(b) fits: measured 0.00032 rad, margin 1.5x
 DIRECT_SCALE_TOL = 0.0015        # (a)/(b) fits: measured 0.073%, margin 2x
 STEER_DEAD_TIME_TOL_S = 0.01     # measured -0.0052 s (none simulated), margin 2x
-ZONE_COEF_TOL = 0.003            # scale, brake scale: measured 0.28%; README 0.3% (issue 3: 5%)
-ZONE_OFFSET_TOL_MPS2 = 0.002     # measured 0.00056 m/s^2, margin 3.5x (issue 3: 0.05)
+ZONE_COEF_TOL = 0.003            # scale, brake scale: measured 0.28%; README 0.3% (acceptance: 5%)
+ZONE_OFFSET_TOL_MPS2 = 0.002     # measured 0.00056 m/s^2, margin 3.5x (acceptance: 0.05)
 ZONE_NMSE_MAX_PCT = 0.1          # measured 0.020%, margin 5x (the model is the truth)
 ZONE_SPEED_RMSE_MAX_MPS = 0.02   # measured 0.0084 m/s, margin 2.4x
 LON_DEAD_TIME_TOL_S = 0.02       # measured 0.000 s (none simulated), one 50 Hz sample
 
-# Every 95% interval covers the truth (issue 8): the zone intervals add the half-sample pedal
-# timing bound (models.identify.longitudinal.ols_timed) to the HAC interval. Before, 4 of the 36
-# zone intervals missed (by up to 1.13 half-widths: report_2008 idle offset and scale, set 1
-# idle scale, set 2 high offset); measured after: none, the largest error 0.77 half-widths.
-# A set listed here must miss, so a regression that is accepted shows up by name.
+# Every 95% interval covers the truth: the zone intervals add the half-sample pedal timing
+# bound (models.identify.longitudinal.ols_timed) to the HAC interval; measured: none of the 36
+# zone intervals misses, the largest error 0.77 half-widths. A set listed here must miss,
+# so a regression that is accepted shows up by name.
 KNOWN_INTERVAL_MISSES: dict = {}
 
 
@@ -128,7 +127,7 @@ def test_every_interval_covers_the_truth(identified, request):
     assert set(misses) <= known, f"new interval misses: {sorted(set(misses) - known)}"
     if known:
         assert set(misses) == known, f"fixed, remove from KNOWN_INTERVAL_MISSES: {known - set(misses)}"
-        pytest.xfail(f"95% intervals too narrow (issue 7): {'; '.join(sorted(misses))}")
+        pytest.xfail(f"95% intervals too narrow: {'; '.join(sorted(misses))}")
 
 
 def test_fos_selects_exactly_the_true_terms(identified):

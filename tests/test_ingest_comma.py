@@ -187,6 +187,6 @@ def test_unknown_ids_reported_not_fatal(run):
     _, summary = run
     items = summary["information"]
     unknown = [i for i in items if "not in the DBC" in i["kind"]]
-    # frames of ids the DBC does not define are information, not problems (issue 8)
+    # frames of ids the DBC does not define are information, not problems
     assert not [i for i in summary["problems"]["items"] if "not in the DBC" in i["kind"]]
     assert unknown and unknown[0]["count"] > 0 and unknown[0]["first"]

@@ -1,5 +1,5 @@
 """A wheel install in a fresh virtual environment, next to a project with top-level ``models``
-and ``tools`` packages (issue 7 item 1).
+and ``tools`` packages.
 
 The wheel is built from a copy of the working tree (``pip wheel``, as ``pip install .`` would).
 The fresh environment has no system site-packages and no PYTHONPATH; hmpc's dependencies come

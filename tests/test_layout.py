@@ -1,10 +1,10 @@
-"""The layout's rules (../shared/STYLE.md "Layout", issue 7 items 2 and 9), checked on the source.
+"""The layout's rules (docs/style.md "Layout"), checked on the source.
 
 - Imports flow one way, ``tools -> controller -> models``: nothing under models/ imports
   ``hmpc.controller`` or ``hmpc.tools``, nothing under controller/ imports ``hmpc.tools``;
   absolute (``hmpc.``) and relative (``from ..``) imports alike, anywhere in a module (also
   inside functions).
-- No module imports the old generic top-level names (``models``, ``controller``, ``tools``),
+- No module imports generic top-level names (``models``, ``controller``, ``tools``),
   which would find another project's package of that name.
 - Every package's ``__init__.py`` says in a docstring of at least two lines what lives there
   and what it may import.

@@ -269,7 +269,7 @@ def _issue_mentions(texts: dict[str, str]) -> list[str]:
 
 
 def test_no_issue_numbers_in_code():
-    """Project history lives in git log: no 'issue 9' in models/, controller/, tools/."""
+    """Project history lives in git log: no issue numbers in models/, controller/, tools/."""
     texts = {str(p.relative_to(REPO_DIR)): p.read_text(encoding="utf-8")
              for p in _sources().values()}
     bad = _issue_mentions(texts)

@@ -108,7 +108,7 @@ def test_accel_x_source_is_used_and_named(truth):
     for z, t in zip(res.zones, truth.zones):
         # INS accel_x carries a bias of up to 0.02 m/s^2 and white noise: measured offset
         # errors -0.004/-0.005/-0.011 m/s^2 and scale errors 0.36/0.52/0.50%; bounds 0.02 m/s^2
-        # (the bias) and 1% (margin 2x; issue 3's 0.05 m/s^2 and 5% stay the outer bound)
+        # (the bias) and 1% (margin 2x; the acceptance's 0.05 m/s^2 and 5% stay the outer bound)
         assert z.offset_mps2 == pytest.approx(t.offset_mps2, abs=0.02), z.name
         assert z.scale_mps2 == pytest.approx(t.scale_mps2, rel=0.01), z.name
 

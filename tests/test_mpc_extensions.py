@@ -1,4 +1,4 @@
-"""The MPC predicts with the physics ``hmpc diagnose`` adds (``extensions:``; issues 12 and 10).
+"""The MPC predicts with the physics ``hmpc diagnose`` adds (``extensions:``).
 
 ``HybridPlant(params, extensions=True)`` adds drag, rolling resistance, idle creep and the
 steering map's shapes (models.plant.plant_extensions) on the coefficients each was fitted

@@ -1,8 +1,8 @@
 """The MPC step's vectorised helpers (controller/mpc/, controller/modes.py) against the
-straightforward code they replaced: same values, to the bit.
+straightforward code: same values, to the bit.
 
-They run every control step and were rewritten for speed (issue 9: the whole controller
-step, estimator included, no slower than before); each test below holds the plain version
+They run every control step and are written for speed (the whole controller step,
+estimator included, has a time budget, tools/bench_mpc.py); each test below holds the plain version
 (a loop, a per-block interpolation, NumPy's own routine) and checks the fast one against it
 on seeded random data that reaches every branch.
 """

@@ -45,7 +45,7 @@ def test_nmpc_and_mpc_agree_on_a_simple_case(params):
           f"{a.metrics['solve_time_ms']['p50']:.2f} ms")
     assert a.metrics["failures"] == 0 and b.metrics["failures"] == 0
     assert a.metrics["internal_errors"] == 0 and b.metrics["internal_errors"] == 0
-    # with the shared input cost (issue 9's smoothness in both) measured max |dv| 0.0004 m/s,
+    # with the shared input cost (the smoothness terms in both) measured max |dv| 0.0004 m/s,
     # |d lateral| 0.0055 m, |d sw| 0.012 rad, |d accel pedal| 0.0001; an NMPC with its own
     # smoothness weights instead gave |d lateral| 0.17 m: these bounds catch a cost mismatch
     assert dv < 0.03
@@ -65,7 +65,7 @@ def test_nmpc_failure_is_a_status_and_a_safe_command(params):
     assert r.command.accel_pedal == 0.0 and r.command.brake_pedal > 0.0
 
 
-# ---------------------------------------------------------------- issue 9: smoothness
+# ---------------------------------------------------------------- smoothness
 def _first(ref: Reference, seconds: float) -> Reference:
     """The first ``seconds`` of a scenario (the NMPC is slow: short closed loops)."""
     n = int(np.searchsorted(ref.time_s, ref.time_s[0] + seconds)) + 1
@@ -87,14 +87,12 @@ def _smooth_figures(m):
 def test_nmpc_idle_hold_through_the_estimator_is_smooth(params, which):
     """The first 24 s of idle_hold (up to 1 m/s and holding it), default sensor noise
     through the EKF, seed 0, on report_2008 and on ``random_params(913)`` (a set no other
-    test tunes against). Measured with the fast path's issue 9 input cost (MpcConfig
-    defaults of this commit), report_2008 / random_913: reversals >= 1 deg 10.0 / 7.5 per
+    test tunes against). Measured with the fast path's smoothness input cost (MpcConfig
+    defaults), report_2008 / random_913: reversals >= 1 deg 10.0 / 7.5 per
     min, >= 5 deg 0 / 0; steering rate RMS 0.024 / 0.011 rad/s; brake rate RMS 0.010 /
     0.010 /s (rates: change per control update / period); speed RMS 0.010 / 0.011 m/s;
-    lateral RMS 0.008 / 0.003 m; no pedal switch. The HEAD NMPC measured 97.5 / 97.5 per min,
-    27.5 / 27.5, 0.37 / 0.38 rad/s, 0.098 / 0.096 /s (rates then finite differences of the
-    held command every 0.02 s: sqrt(5) = 2.24x the per-update rate; 0.17 rad/s, 0.044 /s on
-    the per-update definition). Bounds: the issue's limits for reversals >= 1 deg (12/min, 1.2x the larger
+    lateral RMS 0.008 / 0.003 m; no pedal switch. Bounds: the acceptance limits for
+    reversals >= 1 deg (12/min, 1.2x the larger
     figure), speed RMS and pedal switches; one reversal >= 5 deg in the run (2.5/min);
     about 2x the larger figure for the steering and brake rates and the lateral RMS."""
     if which == "random_913":
@@ -116,8 +114,8 @@ def test_nmpc_idle_hold_through_the_estimator_is_smooth(params, which):
 def test_nmpc_figure8_through_the_estimator_is_smooth(params):
     """The first 20 s of figure8 (the first loop and the turn into the second), default
     sensor noise through the EKF, seed 0, report_2008. Measured: reversals >= 1 deg
-    18/min, speed RMS 0.010 m/s, lateral RMS 0.113 m (the smoothness costs tracking here:
-    the HEAD NMPC measured 72/min and 0.034 m). Bounds: the issue's limits (30 reversals
+    18/min, speed RMS 0.010 m/s, lateral RMS 0.113 m (the smoothness costs tracking here).
+    Bounds: the acceptance limits (30 reversals
     >= 1 deg/min, 1.7x the figure; speed 0.3 m/s; lateral 0.3 m, 2.7x)."""
     ref = _first(make_scenario("figure8", params), 20.0)
     res = run_closed_loop(NmpcController(params), ref, params, seed=0)

@@ -115,7 +115,7 @@ def test_cli_reports_bad_params_in_one_line(tmp_path, capsys):
 def test_a_part_that_was_not_identified_is_refused_by_simulate_naming_key_and_reason(tmp_path,
                                                                                    capsys):
     """identify writes what it could identify and names the rest under not_identified:; a
-    tool that needs the absent part refuses the file in one line naming the key (issue 8)."""
+    tool that needs the absent part refuses the file in one line naming the key."""
     import yaml as _yaml
     src = _yaml.safe_load((PARAMS_DIR / "report_2008.yaml").read_text())
     part = {"vehicle": src["vehicle"], "steering": src["steering"],

@@ -1,6 +1,6 @@
 """Values identification flagged ``identifiable: false`` are refused by ``hmpc simulate``,
 ``hmpc drive`` and the controller construction they share, in one line naming the key and the
-flag that accepts them (``--accept-unidentifiable``); with the flag they run and warn (issue 8).
+flag that accepts them (``--accept-unidentifiable``); with the flag they run and warn.
 """
 from __future__ import annotations
 

@@ -1,14 +1,13 @@
 """The PID baseline (controller/pid.py) through the state estimator: filtered inputs and
-rate-limited outputs keep its steering quiet (issue 9), while it stays a naive PID.
+rate-limited outputs keep its steering quiet, while it stays a naive PID.
 
 Closed loops run at the default sensor noise through the EKF (controller/closed_loop.py
 feeds the controller from simulated sensors), seed 0, on params/report_2008.yaml and on
 ``random_params(913)``, a parameter set no other test tunes against. Each bound states
-the figure measured with this PidConfig and the margin; the HEAD PID (before issue 9)
-measured, on report_2008 idle_hold, 132 reversals >= 1 deg/min, steering rate RMS
-0.31 rad/s, brake rate RMS 0.30 /s, so these bounds fail on it. Those two rates, like the
-issue's, were differences of the 0.1 s commands at the 0.02 s recording rate, sqrt(5) times
-the rate per control update the figures are now: 0.139 rad/s and 0.134 /s on this one.
+the figure measured with this PidConfig and the margin. A PID without the input filters
+and output rate limits fails them (on report_2008 idle_hold it exceeds the reversal,
+steering-rate and brake-rate bounds several times over). Rates are changes per control
+update.
 """
 from __future__ import annotations
 
@@ -50,10 +49,10 @@ def _figures(m):
 
 def test_idle_hold_through_the_estimator_is_smooth(params):
     """Measured (report_2008 / random_913): reversals >= 1 deg 18.3 / 18.3 per min (the
-    issue's MPC target, 12, is missed by the baseline), >= 5 deg 0 / 0; steering rate RMS
-    0.020 / 0.024 rad/s; brake rate RMS 0.041 / 0.041 /s (per control update; 0.045 / 0.053
-    and 0.092 / 0.091 on the old 50 Hz differences); speed RMS 0.042 / 0.038 m/s; pedal
-    switches 3.1 / 3.1 per min. Bounds: about 1.4x the larger figure, or the issue's limit
+    MPC's target, 12, is missed by the baseline), >= 5 deg 0 / 0; steering rate RMS
+    0.020 / 0.024 rad/s; brake rate RMS 0.041 / 0.041 /s (per control update); speed RMS
+    0.042 / 0.038 m/s; pedal switches 3.1 / 3.1 per min. Bounds: about 1.4x the larger
+    figure, or the acceptance limit
     where that is tighter (speed RMS 0.05 m/s, pedal switches 6/min)."""
     ref = make_scenario("idle_hold", params)
     res = run_closed_loop(PidController(params), ref, params, seed=SEED)
@@ -72,7 +71,7 @@ def test_idle_hold_through_the_estimator_is_smooth(params):
 def test_figure8_through_the_estimator(params):
     """Measured (report_2008 / random_913): reversals >= 1 deg 9.0 / 9.0 per min, speed RMS
     0.033 / 0.039 m/s, lateral RMS 0.387 / 0.387 m (pure pursuit cuts the 8 m loops: the
-    issue's 0.3 m is missed by the baseline, as at HEAD, 0.394 m). Bounds ~1.3x."""
+    MPC's 0.3 m is missed by the baseline). Bounds ~1.3x."""
     ref = make_scenario("figure8", params)
     res = run_closed_loop(PidController(params), ref, params, seed=SEED)
     m = res.metrics

@@ -1,4 +1,4 @@
-"""Zone switching and standstill of the hybrid plant (models/plant.py), issue 4 acceptance."""
+"""Zone switching and standstill of the hybrid plant (models/plant.py)."""
 from __future__ import annotations
 
 import copy

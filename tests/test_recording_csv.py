@@ -4,11 +4,13 @@ by row does, with the cell rules of the canonical CSV: ``time`` as ``%.6f``, num
 import csv
 import gzip
 import math
+import os
 
 import numpy as np
 import pytest
 
 from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS
+from hmpc.models.logs import recording
 from hmpc.models.logs.recording import write_csv
 
 
@@ -65,3 +67,37 @@ def test_write_csv_gzip_and_a_single_column(tmp_path):
         write_csv(only, tmp_path / "one.csv")
         _reference(only, tmp_path / "one_rows.csv")
         assert (tmp_path / "one.csv").read_bytes() == (tmp_path / "one_rows.csv").read_bytes()
+
+
+@pytest.mark.parametrize("n", [2, 7, 1000, 40_000])
+def test_write_csv_split_across_a_child_process_writes_the_same_bytes(tmp_path, n):
+    """The second half of the rows turned to text by a forked child: the same file."""
+    if not recording._CAN_FORK:
+        pytest.skip("write_csv splits the rows across processes on Linux only")
+    ch = _channels(n, seed=n + 1)
+    write_csv(ch, tmp_path / "split.csv", split_rows=2)
+    _reference(ch, tmp_path / "rows.csv")
+    assert (tmp_path / "split.csv").read_bytes() == (tmp_path / "rows.csv").read_bytes()
+    write_csv(ch, tmp_path / "split.csv.gz", split_rows=2)
+    assert gzip.decompress((tmp_path / "split.csv.gz").read_bytes()) \
+        == (tmp_path / "rows.csv").read_bytes()
+
+
+def test_write_csv_child_failure_falls_back_to_this_process(tmp_path, monkeypatch):
+    """A child that fails (here: an error raised only in the child) leaves no trace: the
+    parent makes those rows itself and the file is still right."""
+    if not recording._CAN_FORK:
+        pytest.skip("write_csv splits the rows across processes on Linux only")
+    parent = os.getpid()
+    real = recording._csv_cells
+
+    def cells_failing_in_child(name, v):
+        if os.getpid() != parent:
+            raise MemoryError("planted failure in the child")
+        return real(name, v)
+
+    monkeypatch.setattr(recording, "_csv_cells", cells_failing_in_child)
+    ch = _channels(3000, seed=5)
+    write_csv(ch, tmp_path / "split.csv", split_rows=2)
+    _reference(ch, tmp_path / "rows.csv")
+    assert (tmp_path / "split.csv").read_bytes() == (tmp_path / "rows.csv").read_bytes()

@@ -192,7 +192,7 @@ def test_bad_maps_are_rejected_with_file_line_and_key(tmp_path, db17, what, body
                                              ("m/s2", "m/s^2"), ("percent", "%")])
 def test_unit_spellings_found_in_field_dbcs_convert_like_their_canonical_unit(alias, canonical):
     """opendbc's DBCs say ``kph``; a map copied from them must load and convert exactly as
-    ``km/h`` does (issue 8), while an unknown spelling stays an error."""
+    ``km/h`` does, while an unknown spelling stays an error."""
     from hmpc.models.logs.signalmap import UNITS, canonical_unit
     assert canonical_unit(alias) == canonical
     assert UNITS[canonical_unit(alias)] == UNITS[canonical]

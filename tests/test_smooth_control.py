@@ -1,4 +1,4 @@
-"""Issue 9: smooth, chatter-free control. The smoothness figures on signals with known counts,
+"""Smooth, chatter-free control. The smoothness figures on signals with known counts,
 and the acceptance of the closed loop through the sensors and the estimator.
 
 The acceptance runs use the scenarios of ``hmpc simulate`` (report parameters, and a parameter
@@ -27,9 +27,9 @@ from hmpc.models.sim.simulator import random_params
 
 ROOT = Path(__file__).resolve().parents[1]
 REPORT = ROOT / "params" / "report_2008.yaml"
-#: the issue's rate figures and bounds differentiated the 0.1 s commands at the 0.02 s
-#: recording rate: sqrt(T / dt) times the rate per control update the figures now are
-OLD_RATE_FACTOR = math.sqrt(0.1 / 0.02)
+#: the acceptance's rate bounds were set on differences of the 0.1 s commands at the 0.02 s
+#: recording rate, which read sqrt(T / dt) times the rate per control update the metrics give
+SAMPLED_RATE_FACTOR = math.sqrt(0.1 / 0.02)
 
 
 # ----------------------------------------------------------- the reversal counter
@@ -157,21 +157,19 @@ def _fig(m) -> str:
 
 @pytest.mark.parametrize("params_name", ["report", "unseen"])
 def test_idle_hold_is_smooth(params_name):
-    """Issue 9 acceptance at idle, default noise. Measured (report / unseen): 6.1 / 5.1
+    """Acceptance at idle, default noise. Measured (report / unseen): 6.1 / 5.1
     reversals >= 1 deg per min, steering rate 0.017 / 0.007 rad/s, brake rate 0.041 / 0.042
     /s, speed RMS 0.013 / 0.013 m/s, no pedal switch.
 
-    The issue's rate figures (today: 1.38 rad/s, brake 0.30 /s; bounds 0.3 rad/s and half of
-    0.30 /s) were differences of the 0.1 s commands sampled every 0.02 s, which read
-    sqrt(T/dt) = sqrt(5) times the rate per control update that the figures are now: the
-    bounds are the issue's divided by sqrt(5) (0.134 rad/s, 0.067 /s; today's brake 0.134
-    /s). The old-definition figures were 0.038 / 0.016 rad/s and 0.093 / 0.094 /s."""
+    The rate bounds (0.3 rad/s and half of 0.30 /s) are stated on differences of the 0.1 s
+    commands sampled every 0.02 s, which read sqrt(T/dt) = sqrt(5) times the rate per control
+    update the metrics give: they are divided by sqrt(5) here (0.134 rad/s, 0.067 /s)."""
     m = _run(params_name, "idle_hold")
     print(f"\nidle_hold {params_name}: {_fig(m)}")
     assert m["failures"] == 0
     assert m["steering_reversals_per_min"]["1deg"] <= 12.0
-    assert m["steering_rate_rms_radps"] <= 0.3 / OLD_RATE_FACTOR
-    assert m["brake_pedal_rate_rms_ps"] <= 0.5 * 0.30 / OLD_RATE_FACTOR
+    assert m["steering_rate_rms_radps"] <= 0.3 / SAMPLED_RATE_FACTOR
+    assert m["brake_pedal_rate_rms_ps"] <= 0.5 * 0.30 / SAMPLED_RATE_FACTOR
     assert m["speed_error_rms_mps"] <= 0.05
     assert m["lateral_error_rms_m"] <= 0.3
     assert m["pedal_switches_per_min"] <= 6.0
@@ -181,7 +179,7 @@ def test_idle_hold_is_smooth(params_name):
 @pytest.mark.parametrize("scenario,max_reversals", [("ramp_sequence", 12.0), ("arcs", 30.0),
                                                     ("figure8", 30.0)])
 def test_moving_scenarios_are_smooth_and_track(params_name, scenario, max_reversals):
-    """Issue 9 acceptance, default noise. Measured reversals >= 1 deg per min (report /
+    """Acceptance, default noise. Measured reversals >= 1 deg per min (report /
     unseen): ramp_sequence 9.7 / 9.7, arcs 9.2 / 10.1, figure8 13.4 / 13.4; speed RMS
     <= 0.081 m/s, lateral RMS <= 0.085 m."""
     m = _run(params_name, scenario)
@@ -196,8 +194,8 @@ def test_moving_scenarios_are_smooth_and_track(params_name, scenario, max_revers
     ("report", s) for s in ("arcs", "circles", "figure8", "ramps", "ramp_sequence", "idle_hold")
 ] + [("unseen", s) for s in ("figure8", "idle_hold")])
 def test_robust_to_3x_noise_slow_late_gnss_and_an_outage(params_name, scenario):
-    """Issue 9 robustness: 3x noise, GNSS at 10 Hz 100 ms late, no fix for 2 s mid-run.
-    Every scenario stays stable (no failure, tracking inside the issue-4 limits). Measured
+    """Robustness: 3x noise, GNSS at 10 Hz 100 ms late, no fix for 2 s mid-run.
+    Every scenario stays stable (no failure, tracking inside the closed-loop limits). Measured
     (report): reversals >= 1 deg 8.8-29/min (idle 15, ramp_sequence 29), speed RMS <= 0.14
     m/s, lateral RMS <= 0.09 m; the unseen set alike."""
     m = _run(params_name, scenario, robust=True)

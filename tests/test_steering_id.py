@@ -23,7 +23,7 @@ def truth():
 
 
 def test_front_wheel_inversion_is_exact_to_full_lock():
-    # wheel speeds from the simulator's independent rigid-body model (models.sensors)
+    # wheel speeds from the simulator's independent rigid-body model (models.sim.sensors)
     b, T = 2.65, 1.6
     delta = np.linspace(-0.66, 0.66, 41)
     for v in (1.5, 5.0, 20.0):
@@ -84,7 +84,7 @@ def test_steering_dead_time_is_recovered(truth):
     print(f"dead time {res.dead_time_s:.3f} s (truth 0.2 s), offset {res.offset_rad:+.5f}, "
           f"scale {res.scale:.5f}")
     # measured: dead time 0.195 s, offset error -0.00008 rad, scale error -0.095%; bounds
-    # 0.01 s (half a 50 Hz sample), 0.0003 rad and 0.3% (margin 2-4x; issue 3: 0.002 rad, 2%)
+    # 0.01 s (half a 50 Hz sample), 0.0003 rad and 0.3% (margin 2-4x; acceptance: 0.002 rad, 2%)
     assert res.dead_time_s == pytest.approx(0.2, abs=0.01)
     assert res.report["dead_time"]["used"]
     assert abs(res.offset_rad - truth.steering.offset_rad) <= 0.0003
@@ -138,7 +138,7 @@ def _without(rec, *names):
 
 
 def test_without_wheel_speeds_steering_comes_from_yaw_rate_and_speed(truth, wide):
-    """Issue 8: no wheel speeds -> the yaw-rate fit (with 'speed' at a point it estimates) and
+    """No wheel speeds -> the yaw-rate fit (with 'speed' at a point it estimates) and
     the replay; the skipped method is named with its channel."""
     res = identify_steering(_without(wide, *WHEELS), truth.vehicle)
     sel = res.report["selection"]
@@ -212,7 +212,7 @@ def test_gyro_bias_reason_only_for_a_fit_that_estimates_a_bias():
     assert "offset_gyro_bias_correlation" not in {c["name"] for c in _verdict(sw, v)["checks"]}
 
 
-# ---- the dead time is decided by held-out prediction (issue 8)
+# ---- the dead time is decided by held-out prediction
 def _delay_data(lag, seed):
     rng = np.random.default_rng(seed)
     n = 6000
@@ -237,7 +237,7 @@ def test_dead_time_cv_uses_a_delay_only_when_it_predicts_better(lag):
         assert hi - lo <= 3 * dt
 
 
-# ---- each identifiability reason is computed from the data it describes (issue 8)
+# ---- each identifiability reason is computed from the data it describes
 def _fit(**kw):
     from hmpc.models.identify.steering import MapFit
     base = dict(method="wheel_speed_difference", offset_rad=0.01, scale=0.08,
@@ -254,7 +254,7 @@ def _verdict(sw, v, fit=None):
 
 def test_slow_steering_that_is_too_short_is_not_called_fast():
     """Every sample at 2.2-2.5 m/s but only 4 s of them (a real Civic log had 1.8 s): the note
-    must say 'only 4.0 s', never 'above 10 m/s', which it used to print."""
+    must say 'only 4.0 s', never 'above 10 m/s'."""
     rng = np.random.default_rng(3)
     n = 200  # 4 s at 50 Hz: fewer than the samples and the kinematic seconds needed
     res = _verdict(np.linspace(-3.0, 3.0, n), rng.uniform(2.2, 2.5, n))

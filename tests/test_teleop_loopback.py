@@ -168,7 +168,7 @@ ARCS_S = (0.0, 16.0)
 
 
 def test_loopback_identification_recovers_the_car(tmp_path):
-    """Issue 11's acceptance: the scripted operator drives ramp_sequence and arcs through the
+    """Acceptance: the scripted operator drives ramp_sequence and arcs through the
     link into the simulator node (by-wire kit: continuous pedal positions on the bus); ``hmpc
     identify`` on the candump recovers params/report_2008.yaml: steering offset and scale
     within 2 %, every zone coefficient within 5 %. About 70 s of real time."""

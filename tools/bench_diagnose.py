@@ -208,7 +208,7 @@ CL_SCENARIO = {"steering": "figure8", "longitudinal": "ramps", "idle_creep": "id
 def _track(model, truth, effects, ref, plant_dt_s: float = 0.02, period_s: float = 0.1,
            seed: int = 0, lag_method: str | None = None) -> dict:
     """The MPC built on ``model`` drives the ground-truth plant (``truth`` with the concealed
-    ``effects``: ``run_closed_loop(effects=)``, models.sim.simulator.TruthPlant) along ``ref``,
+    ``effects``: ``run_closed_loop(effects=)``, models.sim.truth_plant.TruthPlant) along ``ref``,
     fed as a car is: simulated sensors through the EKF, at the default noise, the same seed for
     every model (only the model differs between runs). ``lag_method``: the MPC's handling of
     an actuator lag (``MpcController.lag_method``; None: its default). Returns the tracking
@@ -230,7 +230,7 @@ def _track(model, truth, effects, ref, plant_dt_s: float = 0.02, period_s: float
 def controller_view(p) -> tuple[object, list[str]]:
     """What of the extended model ``p`` the MPC uses, and what it does not.
 
-    The MPC (controller/mpc.py) predicts through ``steering.dead_time_s`` and
+    The MPC (controller/mpc/) predicts through ``steering.dead_time_s`` and
     ``longitudinal.dead_time_s`` and, through ``HybridPlant(params, extensions=True)``
     (models.plant.plant_extensions), with the physics of ``extensions:`` that belongs to a
     prediction model, on the steering map and zones each was fitted jointly with (``base:``):

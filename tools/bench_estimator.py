@@ -4,7 +4,7 @@ One seeded 60 s drive of the hybrid plant (``live_sensors.random_drive``) is mea
 the simulated sensors (CAN 83 Hz, IMU 100 Hz, GNSS); the messages that arrive in each control
 period are then fed to each filter followed by ``predict`` for the period, and the wall time
 of that whole step (all updates + predict) is recorded. Set-ups: GNSS at 20 Hz with 50 ms
-latency (the default) and at 10 Hz with 100 ms latency (issue 9's robustness case), with a
+latency (the default) and at 10 Hz with 100 ms latency (the robustness case), with a
 20 ms period, and the latter with the closed loop's 100 ms control period.
 
 The baseline is the textbook way to write the same filter (in this file, same state, same

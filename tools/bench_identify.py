@@ -1,4 +1,4 @@
-"""Identification benchmark (issue 3): one hour of 50 Hz simulated recording, identified end to
+"""Identification benchmark: one hour of 50 Hz simulated recording, identified end to
 end, against the 10 s target; and FOS against naive forward selection on the same data.
 
     .venv/bin/python -m hmpc.tools.bench_identify              # one hour
@@ -6,14 +6,14 @@ end, against the 10 s target; and FOS against naive forward selection on the sam
 
 1. Builds the hour by joining the report's experiments (``models.sim``, noise "typical", the
    report's parameters) with successive seeds until the duration is reached (not timed).
-2. Times ``models.identify.identify`` on it (steering fits, replay refinement, dead times,
-   zone fits, FOS, intervals): hmpc's figure, printed beside the issue's target (10 s) and the
+2. Times ``models.identify.pipeline.identify`` on it (steering fits, replay refinement, dead times,
+   zone fits, FOS, intervals): hmpc's figure, printed beside the target (10 s) and the
    ratio target / figure (> 1 means faster than the target). Also checks the recovered
-   parameters against the truth and exits 1 when they miss issue 3's tolerances, so a fast
+   parameters against the truth and exits 1 when they miss the accuracy tolerances, so a fast
    wrong answer fails the benchmark.
 3. Baseline measured in the same run: term selection on the hour's high-zone candidate matrix
-   by FOS (implicit Gram-Schmidt through the correlation recursions, ``models.fos``) against
-   naive forward selection that refits least squares for every candidate at every step
+   by FOS (implicit Gram-Schmidt through the correlation recursions, ``models.identify.fos``)
+   against naive forward selection that refits least squares for every candidate at every step
    (what FOS avoids); same terms selected, time ratio printed.
 
 BLAS runs single-threaded (``OPENBLAS_NUM_THREADS=1`` etc., unless already set): on this
@@ -40,8 +40,8 @@ from hmpc.models.sim.plans import EXPERIMENTS  # noqa: E402
 from hmpc.models.sim.simulator import simulate_experiment  # noqa: E402
 from hmpc.tools.datafiles import PARAMS_DIR  # noqa: E402
 
-TARGET_S = 10.0  # issue 3: identification of one hour of 50 Hz recording in under 10 s
-# Accuracy the run must reach, or it exits 1 (issue 3's tolerances, the outer bound that
+TARGET_S = 10.0  # the target: identification of one hour of 50 Hz recording in under 10 s
+# Accuracy the run must reach, or it exits 1 (the acceptance tolerances, the outer bound that
 # tests/test_identify_sim.py also keeps): a fast wrong answer is a failed benchmark.
 STEER_OFFSET_TOL_RAD = 0.002
 STEER_SCALE_TOL = 0.02       # relative

@@ -3,7 +3,7 @@
     .venv/bin/python tools/bench_teleop_link.py [--seconds S] [--seed N]
 
 1. Security cases (``controller.teleop.selftest``): datagrams sent, rejected (by reason) and
-   delivered, for every attack of the issue's list.
+   delivered, for every attack of the selftest's list.
 2. Latency, operator process -> vehicle process on 127.0.0.1, 50 Hz for ``--seconds``:
    - hmpc's link, receiver reading at once (waits on the socket): transport + HMAC + checks;
    - hmpc's link, receiver polled by a 50 Hz loop as the drive loop does (adds the queueing

@@ -1,6 +1,6 @@
 """The ``hmpc`` console script: one module per subcommand, all logic in the library.
 
-Exit status (../shared/CONVENTIONS.md): 0 success, 2 bad input (one line on stderr naming
+Exit status (docs/conventions.md): 0 success, 2 bad input (one line on stderr naming
 the file and the line, frame or channel), 1 internal failure.
 """
 from __future__ import annotations

@@ -18,7 +18,8 @@ EPILOG = """\
 what the recording must hold (channel names, units and signs: the channel table of
 docs/conventions.md; SI units, a left turn positive):
   always        time
-  steering      steering_wheel_angle, and at least one of
+  steering      steering_wheel_angle (else steering_cmd: the map's input is then the
+                command, written as steering.input: steering_cmd), and at least one of
   (eq. 7)         - wheel_speed_fl, wheel_speed_fr, wheel_speed_rl, wheel_speed_rr
                     (wheel-speed difference)
                   - yaw_rate and a speed: the rear wheel speeds, speed or gps_speed
@@ -27,7 +28,9 @@ docs/conventions.md; SI units, a left turn positive):
                 optional: gear (reverse is dropped)
   longitudinal  accel_pedal (0..1) and a speed: the wheel speeds, speed, gps_speed or
   (eq. 8)       accel_x; brake_pedal (0..1) for the brake term; accel_cmd is offered
-                to the term selection
+                to the term selection; without accel_pedal, accel_cmd or speed_cmd
+                is the input (longitudinal.input; zone gain accel_cmd_gain or
+                speed_cmd_gain_ps [1/s], see docs/conventions.md)
 A part whose channels are missing is listed under not_identified: with the reason (exit 0
 while the other part is identified; exit 2 when neither is).
 
@@ -102,11 +105,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicle", required=True, metavar="GEOMETRY.yaml",
                    help="vehicle geometry (params/*.yaml; at least wheelbase_m, track_front_m)")
     p.add_argument("--out", required=True, metavar="PARAMS.yaml",
-                   help="parameter file to write (the CONVENTIONS keys plus optional ones)")
+                   help="parameter file to write (the keys of docs/conventions.md plus optional ones)")
     p.add_argument("--plots", metavar="DIR", help="write figures like the report's Figs. 2-5")
     p.add_argument("--json", metavar="FILE", help="write every figure (stable keys, SI units)")
     p.add_argument("--zones", type=_zones, metavar="NAME:VMIN:VMAX,...",
-                   help="speed zones [m/s] (default idle:0:2,low:2:5,high:5:20)")
+                   help="speed zones [m/s] (default idle:0:2,low:2:5,high:5:20, scaled by "
+                        "sqrt(wheelbase / 2.65 m) for a shorter vehicle)")
     p.add_argument("--accel-source", choices=ACCEL_SOURCES, default="auto",
                    help="measured acceleration: auto (chosen by held-out evidence among the "
                         "sources the recording has), wheel_speeds, speed, gps_speed, accel_x "
@@ -160,8 +164,10 @@ def _steering_model(res) -> list[str]:
     st, sr = res.params.steering, res.report["steering"]
     o_lo, o_hi = st.offset_ci95_rad
     s_lo, s_hi = st.scale_ci95
+    what = ("steering_cmd (the command: no steering measurement)" if st.input == "steering_cmd"
+            else "steering-wheel angle")
     return [f"steering (eq. 7): road-wheel angle = {_deg(st.offset_rad)} deg + {st.scale:.5f} * "
-            f"steering-wheel angle   {_flag(st.identifiable)}",
+            f"{what}   {_flag(st.identifiable)}",
             f"  95% intervals: offset [{_deg(o_lo)}, {_deg(o_hi)}] deg, scale [{s_lo:.5f}, "
             f"{s_hi:.5f}]; fit {sr['method']}; dead time "
             f"{_steering_dead_time(sr['dead_time'])}",
@@ -180,8 +186,32 @@ def _pair(ci, fmt: str) -> str:
     return "n/a" if ci is None else f"[{ci[0]:{fmt}}, {ci[1]:{fmt}}]"
 
 
+def _command_model(res) -> list[str]:
+    """The zones of a command-driven car (``longitudinal.input: accel_cmd | speed_cmd``)."""
+    p, lo = res.params, res.report["longitudinal"]
+    key = lo["gain_key"]
+    unit = "1/s" if key.endswith("_ps") else "1"
+    term = ("accel_cmd" if p.command_input == "accel_cmd" else "(speed_cmd - v)")
+    out = [f"longitudinal (per speed zone; no accelerator pedal, input {p.command_input}: "
+           f"{lo['equation']}; acceleration from {lo['selection']['chosen']}):"]
+    for z in p.command_zones:
+        gain = getattr(z, key)
+        ci = z.accel_cmd_gain_ci95 if key == "accel_cmd_gain" else z.speed_cmd_gain_ci95_ps
+        tc = (f" (time constant {1.0 / gain:.2f} s)"
+              if key == "speed_cmd_gain_ps" and gain > 0 else "")
+        out.append(f"  {z.name} ({z.v_min_mps:g}, {z.v_max_mps:g}] m/s: a = {z.offset_mps2:+.3f} "
+                   f"+ {gain:.3f} * {term} [m/s^2]{tc}   {_flag(z.identifiable)}")
+        out.append(f"      95% intervals: offset {_pair(z.offset_ci95_mps2, '+.3f')} m/s^2, "
+                   f"{key} {_pair(ci, '.3f')} {unit}")
+        if z.note:
+            out.append(f"      note: {z.note}")
+    return out
+
+
 def _longitudinal_model(res) -> list[str]:
     p, lo = res.params, res.report["longitudinal"]
+    if p.command_zones:
+        return _command_model(res)
     out = [f"longitudinal (eq. 8 + brake, per speed zone; pedals 0..1, acceleration from "
            f"{lo['selection']['chosen'] if lo.get('selection') else lo['accel_source']}):"]
     for z in p.zones:
@@ -235,12 +265,13 @@ def _steering_evidence(res) -> list[str]:
 def _longitudinal_evidence(res) -> list[str]:
     p, lo = res.params, res.report["longitudinal"]
     dci = lo.get("dead_time_ci95_s")
-    out = [f"  longitudinal: acceleration from {lo['accel_source']}; pedal dead time "
+    out = [f"  longitudinal: acceleration from {lo['accel_source']}; "
+           f"{'command' if p.command_zones else 'pedal'} dead time "
            f"{lo['dead_time_s']:.2f} s"
            + (f" ({lo['dead_time_note']})" if lo.get("dead_time_note") else
               f" (held-out 95% interval [{dci[0]:.2f}, {dci[1]:.2f}] s)" if dci else "")]
     out += ["  longitudinal:" + ln.removeprefix(" ") for ln in _source_lines(lo.get("selection"))]
-    for z, zr in zip(p.zones, lo["zones"]):
+    for z, zr in zip(p.zones or p.command_zones, lo["zones"]):
         nm = "n/a" if z.nmse_pct is None else f"{z.nmse_pct:.1f}%"
         sp = "n/a" if z.speed_rmse_mps is None else f"{z.speed_rmse_mps:.3f} m/s"
         line = (f"  longitudinal: zone {z.name}: {zr['samples']} samples, NMSE {nm}, speed RMSE "

@@ -1,4 +1,4 @@
-"""`hmpc ingest`: raw CAN log (+ GPS/INS, IMU) to one canonical recording (models.ingest), or
+"""`hmpc ingest`: raw CAN log (+ GPS/INS, IMU) to one canonical recording (models.logs.ingest), or
 a ROS recording with a topic map (``--topics``, models.logs.topic_ingest)."""
 from __future__ import annotations
 

@@ -131,7 +131,7 @@ CAN_ONLY_OPTIONS = {"dbc": "--dbc", "signals": "--signals", "nav": "--nav", "imu
 
 
 def ingest_from_args(args, progress=None):
-    """Run models.ingest.ingest_files with the options of :func:`add_ingest_options`, or
+    """Run models.logs.ingest.ingest_files with the options of :func:`add_ingest_options`, or
     models.logs.topic_ingest.ingest_topics when ``--topics`` names a topic map."""
     if getattr(args, "topics", None):
         return _ingest_topics_from_args(args, progress)

@@ -27,7 +27,7 @@ State estimate (default): minimal dead reckoning: speed = the mean of the front 
 (eq. 1's point is the front-axle centre; the signal map's ``speed``, the four-wheel mean, is the
 fallback), heading and position integrated every tick with eq. 1 (midpoint heading) from the
 measured steering-wheel angle through the controller's own steering map (eq. 7).
-``DriveConfig(estimator="ekf")`` feeds the shared estimator (``controller/estimator.py``)
+``DriveConfig(estimator="ekf")`` feeds the shared estimator (``controller/estimator/``)
 the decoded wheel speeds, steering angle and yaw rate instead; not the default yet
 (see :class:`DriveConfig`: the Toyota's quantised yaw rate biases its heading when
 straight). No GNSS reaches the bus, so position is dead reckoning either way; it drifts
@@ -82,7 +82,7 @@ from hmpc.controller.actuation.watchdog import Watchdog, WatchdogConfig
 class DriveConfig:
     """Timing and stop behaviour (each number with its reason)."""
 
-    # The controller at 50 Hz (the issue's default); commands go out at their own rates.
+    # The controller at 50 Hz (the default); commands go out at their own rates.
     control_period_s: float = 0.02
     # Base tick: 100 Hz, the rate of the fastest command (STEERING_LKA, BW_STEER_CMD).
     tick_s: float = 0.01
@@ -103,7 +103,7 @@ class DriveConfig:
     stop_timeout_s: float = 15.0
     watchdog: WatchdogConfig = WatchdogConfig()
     # "dead_reckoning" (default): eq. 1 integrated from the measured speed and steering
-    # angle; "ekf": the shared estimator (controller/estimator.py, the one simulate and replay
+    # angle; "ekf": the shared estimator (controller/estimator/, the one simulate and replay
     # use) fed the decoded CAN feedback. On the node (MPC, 6 s, speed / lateral error RMS,
     # EKF against dead reckoning) they track alike on Toyota figure8 0.010 / 0.118 against
     # 0.010 / 0.116 m and ramp_sequence 0.209 / 0.009 against 0.205 / 0.008, by-wire figure8

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 class WatchdogConfig:
     """Thresholds, each with its reason."""
 
-    # The issue's rule: no wheel speeds for 3 of their periods is stale feedback.
+    # The rule: no wheel speeds for 3 of their periods is stale feedback.
     stale_periods: float = 3.0
     # A tick whose loop clock advanced by less than this fraction of the monotonic time
     # that passed (at least ``clock_min_elapsed_s``) has a frozen clock.

@@ -1,7 +1,7 @@
 """The tele-operation link: packets, HMAC-SHA256, key files, the vehicle-side receiver.
 
 The operator station sends one command packet per period (50 Hz) over UDP to the vehicle
-(default ``127.0.0.1:47700``, ``../shared/CONVENTIONS.md``); the vehicle answers with telemetry
+(default ``127.0.0.1:47700``, ``docs/conventions.md``); the vehicle answers with telemetry
 packets (vehicle state and link statistics) at a lower rate. Both directions are authenticated
 with the same pre-shared key.
 
@@ -65,8 +65,8 @@ failure is its rejection reason (counted, never passed on):
 
 The receiver is a small state machine: pedal and reference commands are delivered only while
 engaged (an ENGAGE packet with the dead-man held engages). Stop requests (``StopRequest``,
-latched until the next ENGAGE): ``link_lost`` (no valid packet for ``timeout_s`` = 200 ms, the
-issue's figure), ``dead_man_released`` (a valid packet with the dead-man flag clear) and
+latched until the next ENGAGE): ``link_lost`` (no valid packet for ``timeout_s`` = 200 ms, ten
+20 ms periods), ``dead_man_released`` (a valid packet with the dead-man flag clear) and
 ``operator_disengaged``. The link timeout counts from the last valid packet *read*, and is
 checked before and after each drain: fresh packets starved behind a flood in the socket queue
 do not hide the silence the car has seen. The host (the drive loop) turns a stop request into a
@@ -377,7 +377,7 @@ class LinkConfig:
     # Send times ahead of the receiver's clock by more than this are refused: 50 ms is far
     # beyond a synchronised LAN clock error (about 1 ms with chrony) and well inside the window.
     future_tolerance_s: float = 0.050
-    # No valid packet for 200 ms -> stop (the issue's figure: ten 20 ms periods).
+    # No valid packet for 200 ms -> stop (ten 20 ms periods).
     timeout_s: float = 0.200
     # Work per poll is bounded: a datagram that reaches the HMAC costs about 6 us in Python
     # (measured on the 2-core development machine), so 512 take about 3 ms, a seventh of a

@@ -1,4 +1,4 @@
-"""The link's security cases, run over real loopback UDP sockets (the issue's acceptance list).
+"""The link's security cases, run over real loopback UDP sockets (docs/teleop.md's list).
 
 Each case opens a fresh ``LinkReceiver`` on a free loopback port with a simulated clock,
 engages it with one valid packet from a real ``OperatorLink`` and then sends the case's
@@ -107,7 +107,7 @@ def random_datagrams(seed: int, n: int, key_free_prefix: bytes) -> list[bytes]:
 
 
 def run_security_cases(key: bytes, seed: int = 0, n_random: int = 10_000) -> list[dict]:
-    """Every attack of the issue's list against a fresh, engaged receiver; one row per case.
+    """Every attack of the list against a fresh, engaged receiver; one row per case.
 
     Rows: case, sent, received (by the socket), rejected, delivered (to the host), reasons.
     """

@@ -53,7 +53,8 @@ from hmpc.models.diagnose.lon_grade import measured_grade
 from hmpc.models.diagnose.lon_inputs import COMMANDS, INPUT_USED, choose_inputs, regressors
 from hmpc.models.identify.stats import savgol_derivative
 
-G_MPS2 = 9.80665
+from hmpc.models.constants import G_MPS2
+
 DEFAULT_ZONES = (("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
 #: linear extension -> (parameter name, bounds)
 LINEAR_EXT = {

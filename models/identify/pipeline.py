@@ -1,13 +1,16 @@
 """``identify``: the report's steering map (eq. 7) and zone accelerator models (eq. 8) from a
 recording, as a parameter set the controller loads, plus a report of every figure.
 
-Steps: :func:`models.steering_id.identify_steering` (wheel-speed and yaw-rate fits, eq. 1
+Steps: :func:`models.identify.steering.identify_steering` (wheel-speed and yaw-rate fits, eq. 1
 position replay, dead time, intervals, identifiability) and
-:func:`models.longitudinal_id.identify_longitudinal` (per-zone eq. 8 with brake, FOS term
-selection, NMSE%, speed RMSE, intervals). The geometry (wheelbase, track) comes from the
-vehicle file and is copied to the result unchanged.
+:func:`models.identify.longitudinal.identify_longitudinal` (per-zone eq. 8 with brake, FOS term
+selection, NMSE%, speed RMSE, intervals). A car without the report's inputs is identified
+from its commands: without ``steering_wheel_angle`` the steering map reads ``steering_cmd``
+(written as ``steering.input: steering_cmd``), and without ``accel_pedal`` the zones read
+``accel_cmd`` or ``speed_cmd`` (``longitudinal.input``, ``params.CommandZone``). The geometry
+(wheelbase, track) comes from the vehicle file and is copied to the result unchanged.
 
-The result's ``params`` holds the keys of ``../shared/CONVENTIONS.md`` and the optional keys of
+The result's ``params`` holds the keys of ``docs/conventions.md`` and the optional keys of
 ``models.params`` (delays, intervals, fit metrics, identifiability flags and notes,
 provenance); ``report`` holds the same figures and more, JSON-ready, with stable keys.
 """
@@ -22,7 +25,9 @@ from hmpc import __version__
 from hmpc.models.logs.channels import STRING_CHANNELS
 from hmpc.models.errors import InputError
 from hmpc.models.logs.ingest import sha256_file
-from hmpc.models.identify.longitudinal import LongitudinalIdConfig, LongitudinalResult, identify_longitudinal
+from hmpc.models.identify.longitudinal import (DEFAULT_ZONES, LongitudinalIdConfig,
+                                               LongitudinalResult, identify_longitudinal,
+                                               zones_for_vehicle)
 from hmpc.models.params import Params, Steering, Vehicle
 from hmpc.models.logs.recording import Recording
 from hmpc.models.identify.steering import SteeringIdConfig, SteeringResult, identify_steering
@@ -113,10 +118,12 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
     """Identify eq. 7 and eq. 8 (+ brake) per zone from ``recording``.
 
     Args:
-        recording: a canonical recording (``models.recording``).
+        recording: a canonical recording (``models.logs.recording``).
         vehicle: the measured geometry (``load_params(path).vehicle``).
-        zones: speed zones as ``[(name, v_min_mps, v_max_mps), ...]`` (default idle [0, 2],
-            low (2, 5], high (5, 20] m/s); overrides ``longitudinal_config.zones``.
+        zones: speed zones as ``[(name, v_min_mps, v_max_mps), ...]``; overrides
+            ``longitudinal_config.zones``. Default: the config's zones, or when those are the
+            report's (idle [0, 2], low (2, 5], high (5, 20] m/s), the report's scaled to the
+            vehicle (``longitudinal.zones_for_vehicle``: a 1:10 car's are 0-0.71-1.8-7.1 m/s).
         steering_config, longitudinal_config: thresholds (defaults documented there).
         sources: provenance of the input files, ``{role: path}``; hashed into the result.
         progress: callable receiving progress lines (the CLI prints them on stderr).
@@ -128,6 +135,8 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
     lcfg = longitudinal_config or LongitudinalIdConfig()
     if zones is not None:
         lcfg = replace(lcfg, zones=tuple((str(n), float(a), float(b)) for n, a, b in zones))
+    elif lcfg.zones == DEFAULT_ZONES:
+        lcfg = replace(lcfg, zones=zones_for_vehicle(vehicle))
     if len(recording) < 10:
         raise InputError(f"the recording has only {len(recording)} samples",
                          recording.meta.get("path"))
@@ -146,7 +155,19 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
             say(f"{name}: not identified: {exc.one_line()}")
             return None
 
-    st = part("steering", identify_steering, recording, vehicle, steering_config)
+    steering_input = ("steering_cmd" if "steering_wheel_angle" not in recording
+                      and "steering_cmd" in recording else "steering_wheel_angle")
+    if steering_input == "steering_cmd":
+        say("steering: no steering_wheel_angle: the map's input is the command 'steering_cmd'")
+    if steering_input not in recording:
+        def no_input(*args, progress):
+            raise InputError("neither 'steering_wheel_angle' nor 'steering_cmd' is in the "
+                             "recording: the steering map has no input", recording.meta.get("path"),
+                             channel="steering_wheel_angle")
+        st = part("steering", no_input)
+    else:
+        st = part("steering", identify_steering, recording, vehicle, steering_config,
+                  steering_input)
     lo = part("longitudinal", identify_longitudinal, recording, vehicle, lcfg)
     if st is None and lo is None:
         raise InputError("nothing could be identified: " + "; ".join(
@@ -166,7 +187,8 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
         rms_error_rad=(float(st.rms_error_rad) if math.isfinite(st.rms_error_rad) else None),
         method=st.method,
         method_scores=_steering_scores(st.report), dead_time_ci95_s=_dead_time_ci(st.report),
-        identifiable=bool(st.identifiable), note=st.note)
+        identifiable=bool(st.identifiable), note=st.note,
+        input=None if steering_input == "steering_wheel_angle" else steering_input)
     t = recording.time
     prov: dict = {"hmpc_version": __version__,
                   "time_start_s": float(t[0]), "time_end_s": float(t[-1]),
@@ -178,6 +200,8 @@ def identify(recording: Recording, vehicle: Vehicle, *, zones=None,
             prov[f"{role}_sha256"] = sha256_file(path)
     params = Params(vehicle=replace(vehicle), steering=steering,
                     zones=[] if lo is None else lo.zones,
+                    command_input=None if lo is None else lo.command_input,
+                    command_zones=[] if lo is None else lo.command_zones,
                     longitudinal_dead_time_s=None if lo is None else float(lo.dead_time_s),
                     hysteresis_mps=(lcfg.hysteresis_mps if lo is not None
                                     and lcfg.hysteresis_mps > 0 else None),

@@ -17,7 +17,7 @@ Formats (``fmt`` names):
 Any of these may be gzip-compressed (``.gz``). Without ``fmt`` the format comes from the file
 suffix, confirmed (or, for an unknown suffix, found) by looking at the first line.
 
-Bad input (``../shared/CONVENTIONS.md``): malformed lines (truncated, garbled, non-hex, binary
+Bad input (``docs/conventions.md``): malformed lines (truncated, garbled, non-hex, binary
 garbage) are skipped, counted and reported with their first line numbers in a
 :class:`~models.errors.Problems` collector; so are remote and error frames (no payload to decode)
 and exact duplicate frames. Timestamps going backwards are re-sorted (stable) and reported;
@@ -285,6 +285,9 @@ class _BusMapper:
         if n == 0:
             return out
         words = names.view("<u8")
+        if w == 8 and words[0, 0] == words[-1, 0] and (words[:, 0] == words[0, 0]).all():
+            out.fill(self.number_of(names[0].tobytes().rstrip(b"\0")))  # one interface
+            return out
         key = words[:, 0] if w == 8 else words[:, 0] * np.uint64(0x9E3779B97F4A7C15) ^ words[:, 1]
         todo = np.ones(n, bool)
         while todo.any():

@@ -80,7 +80,7 @@ def decode_frames(frames: FrameTable, db, problems: Problems, *, names=None, bus
 
     Args:
         frames: the log's frames (time order).
-        db: a cantools database (:func:`models.dbc.load_dbc`).
+        db: a cantools database (:func:`models.logs.dbc.load_dbc`).
         problems: collector for recoverable problems (short/long payloads, unknown ids, ...).
         names: decode only these message names (default: every DBC message present).
         buses: decode only frames on these bus numbers (default: all buses).

@@ -1,8 +1,8 @@
 """A block of CAN frames held as numpy columns (one row per frame).
 
-Readers (``models.canlog``) produce a :class:`FrameTable`; decoders (``models.decode``)
-consume it. Rows keep the 1-based line (text logs) or frame number (binary logs) of the
-source so every later problem can be reported where it came from.
+Readers (``models.logs.canlog``) produce a :class:`FrameTable`; decoders
+(``models.logs.decode``) consume it. Rows keep the 1-based line (text logs) or frame number
+(binary logs) of the source so every later problem can be reported where it came from.
 """
 from __future__ import annotations
 

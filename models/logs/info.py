@@ -22,7 +22,7 @@ def log_info(path, problems: Problems, *, dbc_path=None, fmt: str | None = None,
     """Read a CAN log and summarise it.
 
     Args:
-        path: the log (any format :func:`models.canlog.read_log` reads).
+        path: the log (any format :func:`models.logs.canlog.read_log` reads).
         problems: collector; the reader's recoverable problems land here too.
         dbc_path: optional DBC; adds message names and decodable/unknown frame counts.
         fmt: force the log format.

@@ -2,15 +2,15 @@
 
 :func:`ingest_files` does, in order (each step a function a test can call):
 
-1. (:func:`read_can`) load the DBC (``models.dbc``) and the vehicle's signal map
-   (``models.signalmap``), validated against each other;
-2. read the CAN log (``models.canlog``) and decode only the messages the map uses
-   (``models.decode``), on the buses it names; evaluate each channel's expression, convert to SI
-   and apply its sign. A required channel without a sample raises :class:`InputError` naming the
-   channel and the log;
-3. (:func:`read_nav_stage`) read the nav file (``models.nav``) and put it on the CAN clock: the
+1. (:func:`read_can`) load the DBC (``models.logs.dbc``) and the vehicle's signal map
+   (``models.logs.signalmap``), validated against each other;
+2. read the CAN log (``models.logs.canlog``) and decode only the messages the map uses
+   (``models.logs.decode``), on the buses it names; evaluate each channel's expression, convert
+   to SI and apply its sign. A required channel without a sample raises :class:`InputError`
+   naming the channel and the log;
+3. (:func:`read_nav_stage`) read the nav file (``models.logs.nav``) and put it on the CAN clock: the
    offset is given, or estimated by cross-correlating CAN ``speed`` with GNSS ground speed
-   (``models.align``);
+   (``models.logs.align``);
 4. estimate the heading mount offset (device heading minus course over ground above
    :data:`MOUNT_MIN_SPEED_MPS`) and, unless ``mount_correction=False``, subtract it from
    ``heading`` and rotate the IMU's horizontal accelerations by it, so both describe the car body;
@@ -19,7 +19,7 @@
    ISO body axes, removing gravity with the nav attitude;
 6. choose one source per channel (:data:`DEFAULT_PREFERENCE`, :func:`choose_sources`),
    resample everything onto a uniform grid spanning the time all required CAN channels cover
-   (:func:`grid_for`, :func:`resample_channels`, ``models.resample``) and mark gaps.
+   (:func:`grid_for`, :func:`resample_channels`, ``models.logs.resample``) and mark gaps.
 
 The result carries the recording (``raw`` keeps each chosen channel's samples, on the CAN clock,
 before resampling), the recoverable problems, and a summary with stable keys (see
@@ -192,7 +192,7 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
     """Ingest a CAN log (+ optional nav and IMU CSVs) into a canonical recording.
 
     Args:
-        log_path: CAN log (any format ``models.canlog`` reads).
+        log_path: CAN log (any format ``models.logs.canlog`` reads).
         dbc_path: the car's DBC (optionally .gz).
         signals_path: the vehicle's signal map YAML.
         nav_path: GPS/INS CSV (columns: ``nav_columns``), optional.
@@ -203,7 +203,7 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
         imu_offset_s: IMU clock offset [s] to the CAN clock; None: the nav offset (same device)
             when there is a nav file, else estimated from yaw rate against CAN.
         nav_columns, imu_columns: column layouts (default: the comma2k19 files).
-        gap_s: gap threshold [s] for every channel; None: per channel, see ``models.resample``.
+        gap_s: gap threshold [s] for every channel; None: per channel, see ``models.logs.resample``.
         problems: collector to add to (a new one by default).
         mount_correction: subtract the estimated heading mount offset from ``heading`` and rotate
             the IMU accelerations by it (reported either way).
@@ -283,11 +283,27 @@ def read_can(log_path, dbc_path, signals_path, problems: Problems,
             several buses without ``bus:``, no channel of the map in the log).
     """
     say(f"loading DBC {dbc_path} and signal map {signals_path}")
-    db = load_dbc(dbc_path, lenient=dbc_lenient, problems=problems)
-    smap = load_signal_map(signals_path, db)
-    log_format = detect_format(log_path)
-    say(f"reading CAN log {log_path} ({log_format})")
-    frames = read_log(log_path, problems, fmt=log_format)
+    # the DBC and the map (pure Python) are parsed in a worker thread while this one reads the
+    # log (mostly inside numpy, which lets it run); their errors and problems still come first
+    dbc_problems, log_problems = Problems(), Problems()
+
+    def load_map():
+        db = load_dbc(dbc_path, lenient=dbc_lenient, problems=dbc_problems)
+        return db, load_signal_map(signals_path, db)
+
+    with ThreadPoolExecutor(1) as pool:
+        setup = pool.submit(load_map)
+        try:
+            log_format = detect_format(log_path)
+            say(f"reading CAN log {log_path} ({log_format})")
+            frames = read_log(log_path, log_problems, fmt=log_format)
+        except BaseException:
+            if setup.exception() is not None:  # a bad DBC or map is reported before the log
+                raise setup.exception() from None
+            raise
+        db, smap = setup.result()
+    problems.merge(dbc_problems)
+    problems.merge(log_problems)
     say(f"decoding {len(frames)} frames ({', '.join(smap.messages())})")
     decoded = decode_frames(frames, db, problems, names=smap.messages(), buses=smap.buses(),
                             dbc_path=str(dbc_path))
@@ -508,18 +524,22 @@ def resample_channels(raw: dict[str, Series], origin: dict[str, str], smap, grid
             kind = smap.channels[ch].resample
         else:
             kind = "linear"
-        values, g = resample(t, v, grid, kind, gap_s)
+        d = np.diff(t)
+        med = np.median(d) if len(d) else None
+        # with every step positive, their median is also the median of the positive steps
+        thr = gap_threshold_s(t, gap_s, median_step_s=float(med) if med is not None
+                              and d.min() > 0 else None)
+        values, g = resample(t, v, grid, kind, gap_s, threshold_s=thr)
         out.channels[ch] = values
         if g:
             out.gaps[ch] = [x.to_dict() for x in g]
         valid = (values != "") if ch in STRING_CHANNELS else np.isfinite(values)
-        d = np.diff(t)
         out.info[ch] = {
             "unit": CHANNELS[ch], "source": origin[ch], "resample": kind,
             "raw_samples": int(len(t)),
-            "raw_rate_hz": float(1.0 / np.median(d)) if len(d) and np.median(d) > 0 else None,
+            "raw_rate_hz": float(1.0 / med) if med is not None and med > 0 else None,
             "valid_fraction": float(np.mean(valid)) if len(valid) else 0.0,
-            "gap_threshold_s": gap_threshold_s(t, gap_s),
+            "gap_threshold_s": thr,
         }
     return out
 

@@ -1,4 +1,4 @@
-"""GPS/INS and IMU CSV readers, converted to hmpc's conventions (../shared/CONVENTIONS.md).
+"""GPS/INS and IMU CSV readers, converted to hmpc's conventions (docs/conventions.md).
 
 :func:`read_nav` reads a GPS/INS solution with configurable column names (:class:`NavColumns`):
 
@@ -45,7 +45,7 @@ import numpy as np
 from hmpc.models.logs.files import read_bytes
 from hmpc.models.errors import InputError, ParamError, Problems
 
-G_MPS2 = 9.80665  # standard gravity [m/s^2]
+from hmpc.models.constants import G_MPS2
 
 KIND_MALFORMED = "malformed row (wrong number of fields or not a number)"
 KIND_NONFINITE = "row with NaN or inf (skipped)"

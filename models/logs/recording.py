@@ -4,7 +4,7 @@
 (:func:`read_channels`) and writing one (:func:`write_csv`, :func:`write_parquet`) are functions
 beside it.
 
-Channel names and units are those of ``../shared/CONVENTIONS.md`` (see ``models.channels``).
+Channel names and units are those of ``docs/conventions.md`` (see ``models.logs.channels``).
 Columns not available are absent, never zero-filled. Samples inside a gap longer than the
 ingest threshold are NaN (``""`` for ``gear``), and the gaps are listed in ``meta['gaps']``.
 The raw, un-resampled samples of each channel stay available in ``raw``.
@@ -16,6 +16,8 @@ import gzip
 import io
 import zlib
 import os
+import sys
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -104,17 +106,28 @@ class Recording:
 
 
 # ---------------------------------------------------------------------- writing
-def write_csv(channels: dict[str, np.ndarray], path: str | Path) -> None:
+#: rows from which :func:`write_csv` turns the second half of the rows to text in a forked
+#: child process while it does the first half: the text (``repr`` of every number) costs per
+#: row, the fork and the pipe once; below this many rows (a minute at 50 Hz is 3000) the split
+#: saves too little to matter (``docs/benchmarks.md`` has the hour's figures)
+CSV_SPLIT_ROWS = 50_000
+
+
+def write_csv(channels: dict[str, np.ndarray], path: str | Path, *,
+              split_rows: int = CSV_SPLIT_ROWS) -> None:
     """Write the canonical CSV (columns in CONVENTIONS order, unknown extras last).
 
     Cells: ``time`` as ``f"{x:.6f}"``, numbers as ``repr(float(x))`` (empty for NaN), strings
     as they are, in ``csv.writer``'s dialect (``\r\n`` line ends, minimal quoting). Each column
-    is turned to text in one pass and the rows are joined in bulk.
+    is turned to text in one pass and the rows are joined in bulk. From ``split_rows`` rows on
+    (and where ``os.fork`` exists) a child process makes the text of the second half of the
+    rows meanwhile and hands it back through a pipe (on Linux); the bytes written are the
+    same.
     """
     names = [c for c in CHANNELS if c in channels]
     names += [c for c in channels if c not in CHANNELS]
     path = Path(path)
-    cols = [_csv_cells(n, channels[n]) for n in names]
+    n = len(channels[names[0]]) if names else 0
     # written beside the target and renamed over it: a failed write (full disk, interrupt)
     # never leaves a half-written recording under the name the user gave
     regular = path.is_file() or not path.exists()
@@ -125,12 +138,16 @@ def write_csv(channels: dict[str, np.ndarray], path: str | Path) -> None:
             w = csv.writer(fh)
             w.writerow(names)
             if len(names) == 1:  # a one-cell row: csv quotes an empty cell, let it
-                w.writerows(zip(*cols))
+                w.writerows(zip(*[_csv_cells(names[0], channels[names[0]])]))
             else:
-                rows = list(zip(*cols))
-                for i in range(0, len(rows), CSV_ROWS_PER_WRITE):
-                    fh.write("".join([",".join(r) + "\r\n"
-                                      for r in rows[i:i + CSV_ROWS_PER_WRITE]]))
+                mid = n // 2 if n >= max(split_rows, 2) and _CAN_FORK else n
+                with _RowsInChild(names, channels, mid, n) as child:
+                    _write_rows(fh, names, channels, 0, mid)
+                    text = child.text()
+                    if text is None:  # no child, or it failed: this process does it
+                        _write_rows(fh, names, channels, mid, n)
+                    else:
+                        fh.write(text)
         if tmp != path:
             os.replace(tmp, path)
     finally:
@@ -138,8 +155,80 @@ def write_csv(channels: dict[str, np.ndarray], path: str | Path) -> None:
             tmp.unlink()
 
 
+#: where :func:`write_csv` may fork: Linux (macOS system libraries are not safe to use in a
+#: child forked from a process with threads, and Windows has no fork)
+_CAN_FORK = sys.platform.startswith("linux") and hasattr(os, "fork")
 #: rows joined into one string per write of :func:`write_csv`
 CSV_ROWS_PER_WRITE = 1 << 14
+
+
+def _rows_text(names: list[str], channels: dict, lo: int, hi: int):
+    """The CSV lines of rows [lo, hi), in pieces of :data:`CSV_ROWS_PER_WRITE` rows."""
+    whole = lo == 0 and hi == len(channels[names[0]])
+    rows = list(zip(*[_csv_cells(name, channels[name] if whole else channels[name][lo:hi])
+                      for name in names]))
+    for i in range(0, len(rows), CSV_ROWS_PER_WRITE):
+        yield "".join([",".join(r) + "\r\n" for r in rows[i:i + CSV_ROWS_PER_WRITE]])
+
+
+def _write_rows(fh, names: list[str], channels: dict, lo: int, hi: int) -> None:
+    for piece in _rows_text(names, channels, lo, hi):
+        fh.write(piece)
+
+
+class _RowsInChild:
+    """The text of rows [lo, hi) made by a forked child process (none when lo == hi).
+
+    The child only turns numbers to text and writes them to a pipe, then leaves with
+    ``os._exit`` (no cleanup of the parent's state runs twice); every module it needs is
+    imported already, so it takes no lock another thread of the parent could hold.
+    :meth:`text` is None when there is no child or it failed; leaving the ``with`` block
+    always closes the pipe and reaps the child.
+    """
+
+    def __init__(self, names: list[str], channels: dict, lo: int, hi: int):
+        self.pid, self.fd = None, None
+        if hi <= lo:
+            return
+        r, w = os.pipe()
+        with warnings.catch_warnings():
+            # Python >= 3.12 warns about fork in a process with threads (numpy's BLAS pool);
+            # the child takes none of their locks, see the class docstring
+            warnings.filterwarnings("ignore", ".*fork", DeprecationWarning)
+            pid = os.fork()
+        if pid == 0:  # the child
+            try:
+                os.close(r)
+                with os.fdopen(w, "wb") as out:
+                    for piece in _rows_text(names, channels, lo, hi):
+                        out.write(piece.encode("utf-8", "surrogatepass"))
+                os._exit(0)
+            finally:
+                os._exit(1)
+        os.close(w)
+        self.pid, self.fd = pid, r
+
+    def __enter__(self) -> "_RowsInChild":
+        return self
+
+    def text(self) -> str | None:
+        if self.fd is None:
+            return None
+        with os.fdopen(self.fd, "rb") as pipe:
+            self.fd = None
+            data = pipe.read()
+        ok = self._reap()
+        return data.decode("utf-8", "surrogatepass") if ok else None
+
+    def _reap(self) -> bool:
+        pid, self.pid = self.pid, None
+        return pid is not None and os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) == 0
+
+    def __exit__(self, *exc) -> None:
+        if self.fd is not None:
+            os.close(self.fd)  # a child still writing gets EPIPE and leaves
+            self.fd = None
+        self._reap()
 
 
 def _csv_cells(name: str, v: np.ndarray) -> list[str]:

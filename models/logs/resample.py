@@ -59,14 +59,17 @@ def make_grid(t_start_s: float, t_end_s: float, rate_hz: float) -> np.ndarray:
     return t_start_s + np.arange(n) / rate_hz
 
 
-def gap_threshold_s(t_s: np.ndarray, gap_s: float | None = None) -> float:
-    """The gap threshold of a channel sampled at ``t_s`` (see module docstring) [s]."""
+def gap_threshold_s(t_s: np.ndarray, gap_s: float | None = None, *,
+                    median_step_s: float | None = None) -> float:
+    """The gap threshold of a channel sampled at ``t_s`` (see module docstring) [s].
+    ``median_step_s``: the median of ``t_s``'s positive steps when the caller has it."""
     if gap_s is not None:
         return float(gap_s)
-    d = np.diff(np.asarray(t_s, float))
-    d = d[d > 0]
-    med = float(np.median(d)) if len(d) else 0.0
-    return max(MIN_GAP_S, GAP_PERIODS * med)
+    if median_step_s is None:
+        d = np.diff(np.asarray(t_s, float))
+        d = d[d > 0]
+        median_step_s = float(np.median(d)) if len(d) else 0.0
+    return max(MIN_GAP_S, GAP_PERIODS * median_step_s)
 
 
 def find_gaps(t_s: np.ndarray, threshold_s: float) -> list[Gap]:
@@ -79,7 +82,8 @@ def find_gaps(t_s: np.ndarray, threshold_s: float) -> list[Gap]:
 
 
 def resample(t_s: np.ndarray, values: np.ndarray, grid_s: np.ndarray, kind: str = "linear",
-             gap_s: float | None = None) -> tuple[np.ndarray, list[Gap]]:
+             gap_s: float | None = None, *,
+             threshold_s: float | None = None) -> tuple[np.ndarray, list[Gap]]:
     """Resample one channel onto ``grid_s``.
 
     Args:
@@ -89,6 +93,8 @@ def resample(t_s: np.ndarray, values: np.ndarray, grid_s: np.ndarray, kind: str 
         grid_s: uniform grid [s].
         kind: one of :data:`KINDS`.
         gap_s: gap threshold [s]; None for the default rule.
+        threshold_s: ``gap_threshold_s(t_s, gap_s)`` when the caller has it already; used
+            only when no sample is dropped or reordered here (else it is worked out anew).
 
     Returns:
         (values on the grid, gaps). Float64 with NaN where there is no value, or an object array
@@ -109,14 +115,17 @@ def resample(t_s: np.ndarray, values: np.ndarray, grid_s: np.ndarray, kind: str 
         keep = np.isfinite(t) & np.isfinite(v)
     if t.shape != v.shape:
         raise ValueError("times and values differ in length")
-    t, v = t[keep], v[keep]
+    if not keep.all():
+        t, v = t[keep], v[keep]
+        threshold_s = None
     if len(t) and np.any(np.diff(t) < 0):
         order = np.argsort(t, kind="stable")
         t, v = t[order], v[order]
+        threshold_s = None
     empty = np.full(grid.shape, "", dtype=object) if kind == "string" else np.full(grid.shape, np.nan)
     if len(t) == 0:
         return empty, []
-    thr = gap_threshold_s(t, gap_s)
+    thr = gap_threshold_s(t, gap_s) if threshold_s is None else threshold_s
     gaps = find_gaps(t, thr)
     inside = (grid >= t[0]) & (grid <= t[-1])
     if kind in ("hold", "string"):

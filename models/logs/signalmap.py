@@ -20,7 +20,7 @@ One YAML file per vehicle in ``params/`` (``*.signals.yaml``)::
         expr: GEAR
         gear: {0: D, 1: S, 8: N, 16: R, 32: P}   # raw value -> P/R/N/D/L/B/S/1..9 (gear only)
 
-Channel names are those of ``models.channels.CHANNELS`` (``../shared/CONVENTIONS.md``).
+Channel names are those of ``models.logs.channels.CHANNELS`` (``docs/conventions.md``).
 ``expr`` is parsed with :mod:`ast` and checked against a whitelist: numbers, the message's
 signal names, ``+ - * /``, unary ``-``/``+``, parentheses and the functions ``abs``, ``min``,
 ``max``. Nothing from the file is ever passed to ``eval``/``exec``.
@@ -47,6 +47,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
+from hmpc.models.constants import G_MPS2
 from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS, VALID_GEARS
 from hmpc.models.errors import InputError, ParamError
 
@@ -60,7 +61,7 @@ UNITS: dict[str, tuple[str, float]] = {
     "km/h": ("m/s", 1.0 / 3.6),
     "mph": ("m/s", 0.44704),            # international mile / hour, exact
     "m/s^2": ("m/s^2", 1.0),
-    "g": ("m/s^2", 9.80665),            # standard gravity, exact (CGPM 1901)
+    "g": ("m/s^2", G_MPS2),             # standard gravity
     "1": ("1", 1.0),
     "fraction": ("1", 1.0),
     "%": ("1", 0.01),
@@ -89,7 +90,7 @@ def canonical_unit(unit: str) -> str:
     return UNIT_ALIASES.get(u, u)
 
 
-#: resampling kinds a map may ask for (``models.resample``).
+#: resampling kinds a map may ask for (``models.logs.resample``).
 RESAMPLE_KINDS = ("linear", "hold")
 
 #: per-channel keys a map entry may hold
@@ -308,7 +309,8 @@ def load_signal_map(path: str | Path, db=None) -> SignalMap:
 
     Args:
         path: the ``*.signals.yaml`` file.
-        db: a cantools Database to validate messages and signals against (``models.dbc.load_dbc``).
+        db: a cantools Database to validate messages and signals against
+            (``models.logs.dbc.load_dbc``).
             Without it, only the file's own structure is checked and signal names are not
             validated (``check_against_dbc`` does it later).
 

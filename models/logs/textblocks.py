@@ -10,6 +10,7 @@ Imports only numpy, ``models.errors`` and ``models.logs.frames``/``candump_fixed
 """
 from __future__ import annotations
 
+import mmap
 import threading
 import zlib
 from concurrent.futures import ThreadPoolExecutor
@@ -109,6 +110,20 @@ def text_bytes(p: Path, gz: bool) -> int:
     return isize if isize >= size else 8 * size
 
 
+def _anonymous(shape, dtype) -> np.ndarray:
+    """A zeroed array in its own anonymous memory map, page by page as it is first touched.
+
+    numpy asks the kernel for transparent huge pages for arrays this large, and where the
+    kernel then compacts memory at fault time (``defrag`` set to ``madvise``, the common
+    default) a machine with much page cache spends a large share of the read in those faults
+    (``docs/benchmarks.md``); the columns here are written once, in order, so ordinary pages
+    lose nothing.
+    """
+    count = int(np.prod(shape, dtype=np.int64))
+    nbytes = max(count * np.dtype(dtype).itemsize, 1)
+    return np.frombuffer(mmap.mmap(-1, nbytes), dtype, count).reshape(shape)
+
+
 class FrameSink:
     """Frames appended part by part to columns allocated once for the whole file (grown if
     the estimate falls short), so no part is copied twice.
@@ -128,10 +143,10 @@ class FrameSink:
 
     def _grow(self, cap: int, width: int) -> None:
         old, n = self.cols, self.n
-        self.cols = {"t_s": np.empty(cap), "bus": np.empty(cap, np.int16),
-                     "arb_id": np.empty(cap, np.uint32), "is_extended": np.empty(cap, bool),
-                     "dlc": np.empty(cap, np.uint8), "data": np.zeros((cap, width), np.uint8),
-                     "where": np.empty(cap, np.int64)}
+        self.cols = {"t_s": _anonymous(cap, np.float64), "bus": _anonymous(cap, np.int16),
+                     "arb_id": _anonymous(cap, np.uint32), "is_extended": _anonymous(cap, bool),
+                     "dlc": _anonymous(cap, np.uint8), "data": _anonymous((cap, width), np.uint8),
+                     "where": _anonymous(cap, np.int64)}
         for k, v in old.items():
             if k == "data":
                 self.cols[k][:n, :v.shape[1]] = v[:n]
@@ -162,8 +177,10 @@ class FrameSink:
         c["where"][a:b] = ch.where
 
     def prefault(self) -> None:
-        """Write zeros to the rows ahead of the writer, up to :data:`PREFAULT_AHEAD` rows
-        ahead, until :meth:`close` (run it in a worker thread)."""
+        """Write a zero byte to each memory page of the rows ahead of the writer, up to
+        :data:`PREFAULT_AHEAD` rows ahead, until :meth:`close` (run it in a worker thread).
+        The columns' pages are zero already (anonymous maps): the write only makes the
+        kernel provide each page here rather than in the writer."""
         done = 0
         while True:
             with self._cond:
@@ -177,7 +194,8 @@ class FrameSink:
                 self._claim, cols = (a, b), self.cols
             try:
                 for v in cols.values():
-                    v[a:b] = 0
+                    row = v.strides[0]
+                    v.reshape(-1).view(np.uint8)[a * row:b * row:mmap.PAGESIZE] = 0
             finally:
                 with self._cond:
                     self._claim = None

@@ -54,7 +54,7 @@ def ingest_topics(path, topics_path, rate_hz: float = 50.0, gap_s: float | None 
             export (folder, ``DIR/PREFIX`` or one of its files).
         topics_path: the topic map YAML.
         rate_hz: grid rate of the recording [Hz].
-        gap_s: gap threshold [s] for every channel; None: per channel (``models.resample``).
+        gap_s: gap threshold [s] for every channel; None: per channel (``models.logs.resample``).
         problems: collector to add to (a new one by default).
         progress: called with a short text at each stage.
 

@@ -98,7 +98,9 @@ def steering_figure(result):
         _legend_right(ax[1])
         k = 2
     ax[k].plot(t, np.degrees(s["steering_wheel_angle"]), lw=0.7)
-    ax[k].set_ylabel("steering-wheel\nangle [deg]")
+    # a car without a steering measurement: the map's input is the command (steering_cmd)
+    ax[k].set_ylabel("steering_cmd\n[deg]" if st.report.get("input") == "steering_cmd"
+                     else "steering-wheel\nangle [deg]")
     trust = np.asarray(s["trustworthy"], dtype=bool)
     model = np.degrees(s["delta_model_rad"])
     # the measured angles divide by the speed: below the fit's minimum speed they are noise

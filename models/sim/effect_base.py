@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import math
 
-G_MPS2 = 9.80665  #: standard gravity [m/s^2]
-
 
 class Effect:
     """Base class: every hook leaves the plant and the sensors unchanged."""

@@ -14,7 +14,8 @@ import math
 from collections import deque
 
 from hmpc.models.errors import InputError
-from hmpc.models.sim.effect_base import G_MPS2, Effect, finite_param
+from hmpc.models.constants import G_MPS2
+from hmpc.models.sim.effect_base import Effect, finite_param
 from hmpc.models.sim.effects_extra import EXTRA_EFFECTS
 
 

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import math
 
-from hmpc.models.sim.effect_base import G_MPS2, Effect, finite_param
+from hmpc.models.constants import G_MPS2
+from hmpc.models.sim.effect_base import Effect, finite_param
 
 
 class IdleCreep(Effect):

@@ -16,11 +16,11 @@ each with its own rate, random phase (seeded) and latency:
   ``gnss_rate_hz`` with ``gnss_latency_s``; outage windows give no fix; optional jumps add an
   offset to the position (outliers, e.g. a multipath or a wrong RTK fix).
 
-Noise defaults are the closed loop's of today (``controller.closed_loop``: 2 cm white position
+Noise defaults are the closed loop's (``controller.closed_loop``: 2 cm white position
 noise, 0.05 m/s speed noise): the 0.05 m/s is added to all four wheel speeds alike (a speed
 error, as the closed loop adds it to the measured speed) and to the GNSS speed; each wheel also
 has its own 0.02 km/h edge-timing jitter (``sensors.CAN_SIGNALS``). ``noise_scale`` multiplies
-every random error (3 for the robustness runs of issue 9); quantisation is not scaled.
+every random error (3 for the robustness runs); quantisation is not scaled.
 
 The measurement instant of a message generally falls between two truth samples: the truth is
 interpolated linearly (heading on the circle) between the previous and the current sample.
@@ -54,7 +54,7 @@ class SensorConfig:
     can_rate_hz: float = 83.3
     #: CAN transport delay: one 500 kbit/s frame plus gateway, well under a millisecond.
     can_latency_s: float = 0.0
-    #: speed error common to the four wheels: today's closed-loop default (--speed-noise 0.05).
+    #: speed error common to the four wheels: the closed loop's default (--speed-noise 0.05).
     speed_noise_mps: float = 0.05
     #: per-wheel edge-timing jitter: 0.02 km/h (models.sim.sensors CAN_SIGNALS noise_dbc).
     wheel_jitter_mps: float = 0.02 / 3.6
@@ -77,11 +77,11 @@ class SensorConfig:
     #: GNSS/INS fixes: comma's INS solution comes at 20 Hz; a receiver's fix takes tens of ms.
     gnss_rate_hz: float = 20.0
     gnss_latency_s: float = 0.05
-    #: GNSS position noise [m], white: today's closed-loop default (2 cm, RTK class).
+    #: GNSS position noise [m], white: the closed loop's default (2 cm, RTK class).
     position_noise_m: float = 0.02
     #: GNSS/INS heading noise [rad]: 0.1 deg (InsNoise, dual-antenna/INS class).
     heading_noise_rad: float = math.radians(0.1)
-    #: GNSS speed noise [m/s]: today's closed-loop default speed noise.
+    #: GNSS speed noise [m/s]: the closed loop's default speed noise.
     gnss_speed_noise_mps: float = 0.05
     #: GNSS outage windows (t_start_s, t_end_s): no fix is taken inside.
     gnss_outages: tuple[tuple[float, float], ...] = ()

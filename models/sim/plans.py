@@ -32,7 +32,7 @@ EXPERIMENTS: dict[str, str] = {
 }
 
 #: full lock when the vehicle file has no steering_wheel_angle_max_rad: a RAV4 turns about
-#: +-480 deg lock to lock (VerifiedCAN parked sweep, ../shared/data/rav4-2019-verifiedcan).
+#: +-480 deg lock to lock (VerifiedCAN parked sweep, tools/data/rav4-2019-verifiedcan).
 DEFAULT_SW_MAX_RAD = 8.4
 
 

@@ -122,8 +122,8 @@ class CanSignal:
         return self.step_dbc * self.to_si
 
 
-#: the CAN channels, in the order of ``models.channels.CHANNELS``. Noise: wheel speeds jitter by
-#: 0.02 km/h rms (tone-wheel edge timing), rpm by 5 rpm; angle and pedal sensors are exact
+#: the CAN channels, in the order of ``models.logs.channels.CHANNELS``. Noise: wheel speeds
+#: jitter by 0.02 km/h rms (tone-wheel edge timing), rpm by 5 rpm; angle and pedal sensors are exact
 #: encoders. Rates: comma2k19 minute (82.9, 31.5, 41.5, 42.5, 1.1 Hz).
 CAN_SIGNALS: tuple[CanSignal, ...] = (
     CanSignal("steering_wheel_angle", "STEER_ANGLE_SENSOR", "STEER_ANGLE+STEER_FRACTION", 83.3,

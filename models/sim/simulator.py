@@ -106,7 +106,7 @@ def _check_args(name: str, params: Params, rate_hz: float, noise: str, effects) 
         raise ValueError(f"rate_hz must be within 1..1000 Hz, got {rate_hz!r}")
     for e in effects:
         if not isinstance(e, Effect):
-            raise TypeError(f"effects must be models.effects.Effect instances, got {e!r}")
+            raise TypeError(f"effects must be models.sim.effect_base.Effect instances, got {e!r}")
 
 
 # -------------------------------------------------------------------------------- API

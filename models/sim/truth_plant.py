@@ -4,7 +4,7 @@ or by any closed loop that wants hidden physics; and the truth record on the int
 (:class:`Truth`) that the sensors (``models.sim.measure``) read.
 
 The truth zone is chosen by speed without hysteresis (``params.hysteresis_mps`` if the file
-sets it): zone (v_min, v_max] as in ``../shared/CONVENTIONS.md``, so identification by speed
+sets it): zone (v_min, v_max] as in ``docs/conventions.md``, so identification by speed
 sees the model that acted. At rest the plant holds the car (no rolling backwards), so samples
 at v = 0 do not follow eq. 8.
 """

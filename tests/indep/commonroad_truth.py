@@ -6,7 +6,7 @@ kinematic single-track model ``vehicle_dynamics_ks`` (state ``[sx, sy, delta, v,
 reference point is the REAR-axle centre, ``v`` the rear-axle speed) or its single-track model
 with tyres ``vehicle_dynamics_st`` (state ``[sx, sy, delta, v, psi, psi_dot, beta]`` at the
 centre of gravity), with CommonRoad's parameter set 2 (BMW 320i: wheelbase 2.579 m, tracks
-1.387 / 1.364 m). It differs from hmpc's simulator in the three ways issue 8 asks for:
+1.387 / 1.364 m). It differs from hmpc's simulator in three ways:
 
 - **reference point**: the INS position, heading, ground speed and accelerations are those of
   the rear-axle centre, the centre of gravity, the front-axle centre or any lever arm
@@ -82,7 +82,7 @@ GROUPS: dict[str, tuple[str, ...]] = {
     "ins": ("yaw_rate", "accel_x", "accel_y", "x", "y", "z", "heading", "pitch", "gps_speed"),
 }
 
-#: Column order of a canonical recording (../shared/CONVENTIONS.md), for the channels made here.
+#: Column order of a canonical recording (docs/conventions.md), for the channels made here.
 COLUMNS = ("time", "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
            "wheel_speed_rr", "speed", "accel_pedal", "brake_pedal", "yaw_rate", "accel_x",
            "accel_y", "x", "y", "z", "heading", "pitch", "gps_speed")

@@ -21,15 +21,17 @@ the order :func:`identify_longitudinal` runs them:
   metrics (NMSE, the speed replay) and the FOS term selection;
 - ``identifiable``: what each zone's data determined, the fallbacks for what it did not, and
   the written ``params.Zone``;
+- ``command``: the same steps for a car driven by ``accel_cmd`` or ``speed_cmd`` without an
+  accelerator pedal channel (the command is the input; ``params.CommandZone``);
 - ``identify``: :func:`identify_longitudinal`, the steps in order and the report.
 
 Imports hmpc.models.identify.stats, fos and steering (the time shift and eq. 1's speed from
 the front wheel speeds), params, zones, logs.recording and errors; never controller or tools.
 Inside the package the modules import one way: config <- signals, deadtime <- zonefit <-
-sources, identifiable <- identify.
+sources, identifiable, command <- identify.
 """
 from hmpc.models.identify.longitudinal.config import (ACCEL_SOURCES, DEFAULT_ZONES, SOURCE_ORDER,
-                                                      LongitudinalIdConfig)
+                                                      LongitudinalIdConfig, zones_for_vehicle)
 from hmpc.models.identify.longitudinal.signals import (LongitudinalSignals, Pedals, ZoneMasks,
                                                        accel_candidates, assign_zones, eq1_speed,
                                                        lagged_pedals, longitudinal_signals,
@@ -39,10 +41,12 @@ from hmpc.models.identify.longitudinal.zonefit import (ZoneFit, fit_zone, fos_ca
                                                        ols_timed, speed_rmse)
 from hmpc.models.identify.longitudinal.sources import choose_accel_source, source_disagreements
 from hmpc.models.identify.longitudinal.identifiable import braking_evidence, zone_from_fit
+from hmpc.models.identify.longitudinal.command import COMMAND_CHANNELS, command_channel
 from hmpc.models.identify.longitudinal.identify import LongitudinalResult, identify_longitudinal
 
 __all__ = ["LongitudinalIdConfig", "LongitudinalResult", "identify_longitudinal",
-           "DEFAULT_ZONES", "SOURCE_ORDER", "ACCEL_SOURCES",
+           "DEFAULT_ZONES", "SOURCE_ORDER", "ACCEL_SOURCES", "zones_for_vehicle",
+           "COMMAND_CHANNELS", "command_channel",
            "LongitudinalSignals", "ZoneMasks", "Pedals", "PedalDeadTime", "ZoneFit",
            "eq1_speed", "accel_candidates", "longitudinal_signals", "assign_zones", "zone_masks",
            "lagged_pedals", "pedal_dead_time_cv", "choose_accel_source", "source_disagreements",

@@ -13,6 +13,30 @@ from hmpc.models.errors import InputError
 #: default zones: the report's section V (name, v_min [m/s], v_max [m/s]).
 DEFAULT_ZONES: tuple[tuple[str, float, float], ...] = (
     ("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
+#: [m] the wheelbase the default zones were set for: the report's car (a passenger car).
+REFERENCE_WHEELBASE_M = 2.65
+
+
+def zones_for_vehicle(vehicle) -> tuple[tuple[str, float, float], ...]:
+    """:data:`DEFAULT_ZONES` scaled to a vehicle shorter than :data:`REFERENCE_WHEELBASE_M`.
+
+    By dynamic similarity (equal Froude number v^2 / (g b), as the steering thresholds of
+    ``models.identify.steering.config``), a car of wheelbase b drives like the reference at
+    speeds scaled by sqrt(b / 2.65 m): a 1:10 model car (0.33 m) covers the report's three
+    zones between 0 and 7.1 m/s. Boundaries are rounded to two significant digits (they are a
+    choice, not a measurement); a vehicle at least as long keeps the report's zones.
+    """
+    f = min(1.0, float(vehicle.wheelbase_m) / REFERENCE_WHEELBASE_M)
+    if f >= 1.0:
+        return DEFAULT_ZONES
+
+    def two_digits(x: float) -> float:
+        return float(f"{x:.2g}") if x > 0 else 0.0
+
+    return tuple((n, two_digits(lo * math.sqrt(f)), two_digits(hi * math.sqrt(f)))
+                 for n, lo, hi in DEFAULT_ZONES)
+
+
 #: measured-acceleration sources, in the order of preference when held-out evidence does not
 #: separate them (``sources``, "Choice of source").
 SOURCE_ORDER = ("wheel_speeds", "speed", "gps_speed", "accel_x")

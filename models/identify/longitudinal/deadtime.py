@@ -96,9 +96,11 @@ def pedal_dead_time_cv(a_meas: np.ndarray, ok: np.ndarray, zid: np.ndarray, n_zo
                 "not determined, 0 used")
         interval = None
     elif within[0]:
+        lo_s = max(interval[0], 0.0)
         note = (f"no delay improves the held-out prediction beyond fold-to-fold noise (best "
-                f"{tau:.2f} s, 95% interval {max(interval[0], 0.0):.2f}-{interval[1]:.2f} s "
-                "includes 0): not determined, 0 used")
+                f"{tau:.2f} s, 95% interval {lo_s:.2f}-{interval[1]:.2f} s"
+                + (" includes 0" if lo_s == 0.0 else "; no delay predicts as well within "
+                   "that noise") + "): not determined, 0 used")
     elif gain < cfg.dead_time_min_gain:
         note = (f"a dead time of {tau:.2f} s lowers the held-out error by only "
                 f"{100 * gain:.1f}% (< {100 * cfg.dead_time_min_gain:g}%): not determined, 0 used")

@@ -8,8 +8,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hmpc.models.errors import InputError
-from hmpc.models.params import Vehicle, Zone
+from hmpc.models.params import CommandZone, Vehicle, Zone
 from hmpc.models.logs.recording import Recording
+from hmpc.models.identify.longitudinal.command import command_channel, identify_command
 from hmpc.models.identify.longitudinal.config import LongitudinalIdConfig, _check_config
 from hmpc.models.identify.longitudinal.deadtime import PedalDeadTime, pedal_dead_time_cv
 from hmpc.models.identify.longitudinal.identifiable import (braking_evidence,
@@ -30,6 +31,10 @@ class LongitudinalResult:
     accel_source: str
     report: dict
     series: dict = field(default_factory=dict, repr=False)
+    #: a car without an accelerator pedal: the command its zones read (``accel_cmd`` or
+    #: ``speed_cmd``; ``command``) and the zones (``zones`` is then empty)
+    command_input: str | None = None
+    command_zones: list[CommandZone] = field(default_factory=list)
 
 
 def identify_longitudinal(rec: Recording, vehicle: Vehicle,
@@ -38,7 +43,9 @@ def identify_longitudinal(rec: Recording, vehicle: Vehicle,
     """Fit eq. 8 with brake per zone (see the package doc).
 
     Needs ``accel_pedal`` and a speed (front wheel speeds or ``speed``); ``brake_pedal`` when
-    present (absent: brake terms are not identified).
+    present (absent: brake terms are not identified). Without ``accel_pedal``, a car with
+    ``accel_cmd`` or ``speed_cmd`` is identified with the command as the input
+    (``command.identify_command``; the result's ``command_input`` and ``command_zones``).
 
     Raises:
         InputError: a required channel is absent, the accel source is unavailable, the zones
@@ -47,6 +54,10 @@ def identify_longitudinal(rec: Recording, vehicle: Vehicle,
     cfg = config or LongitudinalIdConfig()
     say = progress or (lambda msg: None)
     zones = _check_config(cfg, rec.meta.get("path"))
+    inp = command_channel(rec) if "accel_pedal" not in rec else None
+    if inp is not None:
+        czones, tau, sig, report, series = identify_command(rec, vehicle, cfg, inp, say)
+        return LongitudinalResult([], tau, sig.accel_desc, report, series, inp, czones)
     rec.require("accel_pedal")
     sig = longitudinal_signals(rec, vehicle, cfg)
     say("longitudinal: choosing the acceleration source by blocked cross-validation")

@@ -167,7 +167,7 @@ def accel_candidates(rec: Recording, v: np.ndarray, d_ker: np.ndarray, g_ker: np
         skipped["wheel_speeds"] = "no 'wheel_speed_fl'/'wheel_speed_fr' channel"
     if "speed" in rec and not has_wheels:
         cands["speed"] = (apply_kernel(np.asarray(rec["speed"], dtype=float), d_ker),
-                          f"d/dt of the CAN 'speed' channel ({sg})")
+                          f"d/dt of the 'speed' channel ({sg})")
     else:
         skipped["speed"] = ("the CAN 'speed' comes from the same wheel sensors as the wheel "
                             "speeds (not an independent source)" if has_wheels

@@ -18,8 +18,13 @@ from hmpc.models.identify.steering.fits import MapFit
 
 
 def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt_s: float,
-                    cfg: SteeringIdConfig, steering_ratio: float | None = None) -> dict:
+                    cfg: SteeringIdConfig, steering_ratio: float | None = None,
+                    road_wheel_min_range_rad: float | None = None) -> dict:
     """Checks that decide whether a recording separates offset from scale (module doc).
+
+    With ``road_wheel_min_range_rad`` (a steering-command input, whose unit may be a
+    road-wheel angle) the range check is on the road-wheel range ``|scale| * input range``
+    against it, instead of the steering-wheel range against ``min_sw_range_rad``.
 
     Returns ``{"identifiable", "offset_identifiable", "scale_identifiable", "checks": [...],
     "note"}``; each check has name, value, threshold, passed.
@@ -35,9 +40,17 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
     add("samples", n, need, n >= need,
         f"{n} trustworthy samples ({n * dt_s:.1f} s; need {cfg.min_trustworthy_s:g} s)")
     rng = float(np.subtract(*np.percentile(sw_steady, [97.5, 2.5]))) if n else 0.0
-    add("steering_range_rad", rng, cfg.min_sw_range_rad, rng >= cfg.min_sw_range_rad,
-        f"steering-wheel range {np.degrees(rng):.1f} deg (2.5-97.5%; need "
-        f"{np.degrees(cfg.min_sw_range_rad):.0f} deg)")
+    what = "steering-wheel"
+    if road_wheel_min_range_rad is None:
+        add("steering_range_rad", rng, cfg.min_sw_range_rad, rng >= cfg.min_sw_range_rad,
+            f"steering-wheel range {np.degrees(rng):.1f} deg (2.5-97.5%; need "
+            f"{np.degrees(cfg.min_sw_range_rad):.0f} deg)")
+    else:
+        rng, what = rng * abs(fit.scale), "road-wheel"
+        add("steering_range_rad", rng, road_wheel_min_range_rad,
+            rng >= road_wheel_min_range_rad,
+            f"road-wheel range {np.degrees(rng):.1f} deg (|scale| x the command's 2.5-97.5% "
+            f"range; need {np.degrees(road_wheel_min_range_rad):.1f} deg)")
     add("offset_scale_correlation", abs(fit.corr), cfg.max_param_corr,
         abs(fit.corr) <= cfg.max_param_corr, f"|corr(offset, scale)| = {abs(fit.corr):.3f}")
     half_s = 0.5 * (fit.scale_ci95[1] - fit.scale_ci95[0])
@@ -71,7 +84,7 @@ def identifiability(fit: MapFit, sw_steady: np.ndarray, v_steady: np.ndarray, dt
     if not ok["samples"]:
         notes.append("too few trustworthy samples")
     if not ok["steering_range_rad"]:
-        notes.append(f"the steering-wheel range ({np.degrees(rng):.1f} deg) is too small to "
+        notes.append(f"the {what} range ({np.degrees(rng):.1f} deg) is too small to "
                      "separate the offset from sensor biases (tyre radius mismatch, gyro bias, "
                      "angle-sensor zero) or the scale from noise")
     if not ok["offset_scale_correlation"]:

@@ -50,6 +50,7 @@ class SteeringResult:
 
 
 def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig | None = None,
+                      input_channel: str = "steering_wheel_angle",
                       progress=None) -> SteeringResult:
     """Identify eq. 7 from a canonical recording (see the package doc).
 
@@ -62,12 +63,50 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
     The thresholds default to :meth:`SteeringIdConfig.for_vehicle` (scaled to a vehicle
     smaller than a passenger car).
 
+    ``input_channel="steering_cmd"`` fits the map to the steering command instead (a car with
+    no steering measurement): road-wheel angle = offset + scale * steering_cmd, the servo
+    included; every step is the same, errors name ``steering_cmd``, and the range check of
+    identifiability is on the road-wheel angle (``_identify``).
+
     Raises:
         InputError: no method has its channels, no trustworthy samples remain, or no fit is
             trusted (every one with a gain <= 0, or only an untrusted replay).
     """
     cfg = config or SteeringIdConfig.for_vehicle(vehicle)
     say = progress or (lambda msg: None)
+    if input_channel == "steering_cmd":
+        try:
+            res = _identify(_command_rec(rec), vehicle, cfg, say,
+                            cfg.min_sw_range_rad * cfg.replay_start_scale)
+        except InputError as exc:
+            raise InputError(exc.reason.replace("steering-wheel", "steering command"), exc.path,
+                             channel="steering_cmd" if exc.channel == "steering_wheel_angle"
+                             else exc.channel) from None
+        res.report["input"] = "steering_cmd"
+        res.note = (f"input steering_cmd (the commanded angle: road-wheel angle = offset + "
+                    f"scale * steering_cmd, the servo included): {res.note}")
+        res.report["identifiability"]["note"] = res.note
+        return res
+    if input_channel != "steering_wheel_angle":
+        raise ValueError(f"unknown steering input {input_channel!r}")
+    return _identify(rec, vehicle, cfg, say, None)
+
+
+def _command_rec(rec: Recording) -> Recording:
+    """``rec`` with the steering command read where the steps read the steering-wheel angle
+    (the same arrays, nothing copied or filled in)."""
+    rec.require("steering_cmd")
+    ch = dict(rec.channels)
+    ch["steering_wheel_angle"] = rec["steering_cmd"]
+    return Recording(ch, rec.raw, rec.meta)
+
+
+def _identify(rec: Recording, vehicle: Vehicle, cfg: SteeringIdConfig, say,
+              road_wheel_min_range_rad: float | None) -> SteeringResult:
+    """The steps of :func:`identify_steering`; ``road_wheel_min_range_rad`` (a command input)
+    moves identifiability's range check to the road-wheel angle the fit implies: the
+    steering-wheel threshold ``min_sw_range_rad`` times ``replay_start_scale`` (1/15), the
+    road-wheel range it means on a passenger car."""
     sig = steering_signals(rec, vehicle)
     for m, why in sig.skipped.items():
         say(f"steering: {m} skipped: {why}")
@@ -117,7 +156,8 @@ def identify_steering(rec: Recording, vehicle: Vehicle, config: SteeringIdConfig
             + [f"{m}: {w}" for m, w in sig.skipped.items()]) + ")", rec.meta.get("path"),
             channel="steering_wheel_angle")
     idents = {k: identifiability(f, sw_d[steady], sig.v_front[steady], sig.dt_s, cfg,
-                                 vehicle.steering_ratio) for k, f in fits.items()}
+                                 vehicle.steering_ratio, road_wheel_min_range_rad)
+              for k, f in fits.items()}
     for k, f in fits.items():
         if not f.extra.get("trusted", True):
             idents[k] = dict(idents[k], identifiable=False,
