@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hmpc.models.constants import G_MPS2
 from hmpc.models.diagnose import longitudinal as lon
 from hmpc.models.diagnose.common import (DiagnoseConfig, bic, rmse, segment_fold_ids,
                                          train_mask, windows)
@@ -78,7 +79,7 @@ def braking_windows(d: lon.LonData, mask: np.ndarray, mu: float = MU
     out = []
     r = lon.residual(d, m)
     for a, b in runs:
-        level = float(np.clip(np.nanmean(r[a:b]), -mu * lon.G_MPS2, 0.0))
+        level = float(np.clip(np.nanmean(r[a:b]), -mu * G_MPS2, 0.0))
         extra[a:b] = level
         out.append((a, b, level))
     return m, extra, out

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
+from hmpc.models.constants import G_MPS2
 from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded,
                                          profile_interval, rmse, segment_fold_ids, segments,
                                          train_mask, windows)
@@ -52,8 +53,6 @@ from hmpc.models.diagnose.hypothesis import grid_search, sse_per_sample
 from hmpc.models.diagnose.lon_grade import measured_grade
 from hmpc.models.diagnose.lon_inputs import COMMANDS, INPUT_USED, choose_inputs, regressors
 from hmpc.models.identify.stats import savgol_derivative
-
-from hmpc.models.constants import G_MPS2
 
 DEFAULT_ZONES = (("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
 #: linear extension -> (parameter name, bounds)
