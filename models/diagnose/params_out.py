@@ -194,7 +194,7 @@ def _keep_status(p: Params, given: Params | None, steering_refit: bool, zones_re
 def _base_zones(m: lon.LonModel, names: list, zones) -> list[dict]:
     """Per zone the offset and one gain per input of ``m`` (``models.params``' ``base``)."""
     key = {"accel_pedal": "scale_mps2", "brake_pedal": "brake_scale_mps2",
-           "accel_cmd": "accel_cmd_gain", "speed_cmd": "speed_cmd_gain_per_s"}
+           "accel_cmd": "accel_cmd_gain", "speed_cmd": "speed_cmd_gain_ps"}
     if m.spec.by_gear:  # one coefficient set per gear (``gears``)
         zones = [(f"gear_{i + 1}", 0.0, 0.0) for i in range(len(m.C))]
     out = []
