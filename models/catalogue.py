@@ -96,6 +96,37 @@ CATALOGUE: dict[str, dict] = {
                                   "clockwise seen from above [rad], -pi..pi",
                        "gain": "k [1] (accel_x per true acceleration along its axis)"},
     },
+    "gears": {
+        "physics": "pedal gain and engine braking per gear (a stepped transmission)",
+        "equation": {"longitudinal": "dv/dt = offset_g + gain_g * u + e_g * rpm_released, g the "
+                                     "gear at each sample (recorded, or engine_rpm / v "
+                                     "clustered into gears), rpm_released the engine speed "
+                                     "[1000 1/min] with the accelerator released (1 without "
+                                     "engine_rpm)"},
+        "parameters": {"n_gears": "gears told apart in the recording [1], 2..9",
+                       "gain_ratio": "largest / smallest accelerator gain over the gears [1]",
+                       "engine_braking_spread_mps2": "largest - smallest released-pedal "
+                                                     "deceleration over the gears [m/s^2]"},
+    },
+    "unobserved_braking": {
+        "physics": "deceleration no recorded input explains (a brake the recording lacks)",
+        "equation": {"longitudinal": "dv/dt = eq. 8 - b(t),  0 <= b <= mu * g, b > 0 only in "
+                                     "windows with the accelerator released (one level each)"},
+        "parameters": {"mu": "friction coefficient bounding b [1] (stated, not fitted)",
+                       "max_decel_mps2": "largest window level of b [m/s^2], 0..mu g",
+                       "mean_decel_mps2": "mean window level of b [m/s^2]",
+                       "braking_s": "total duration of the windows [s]",
+                       "n_windows": "braking windows found [1]"},
+    },
+    "actuator_saturation": {
+        "physics": "the command asks for more than the actuator delivers",
+        "equation": {"longitudinal": "dv/dt = offset_z + gain_z * clip(u, -s, s),  u = accel_cmd "
+                                     "or speed_cmd(t - d) - v"},
+        "parameters": {"sat_level": "s [unit of the command's regressor: m/s^2 for accel_cmd, "
+                                    "m/s of speed error for speed_cmd], > 0",
+                       "accel_mps2": "the acceleration at saturation, s times the mean gain "
+                                     "over the fitted zones [m/s^2]"},
+    },
 }
 
 #: text keys an ``extensions:`` entry of a parameter file may carry beside the parameters

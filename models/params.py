@@ -49,7 +49,8 @@ Optional keys (all documented here, nowhere else):
   [1.3e-3, 1.7e-3]}, equation: "..."}}}``. Each entry holds only its catalogue parameters
   (numbers), ``intervals`` ({parameter: [low, high]}), ``base`` (the coefficients it was
   fitted jointly with: ``{offset_rad, scale}`` for steering, ``{zones: [{name, offset_mps2,
-  scale_mps2, brake_scale_mps2 | accel_cmd_gain}]}`` for longitudinal; the conventions' keys
+  scale_mps2, brake_scale_mps2 | accel_cmd_gain | speed_cmd_gain_ps,
+  engine_braking_per_krpm_mps2}]}`` for longitudinal; the conventions' keys
   of the file are what a tool that ignores the section should use, see ``hmpc diagnose``) and
   the text keys ``catalogue.EXTENSION_TEXT_KEYS``; ``on_top_of`` names another id of the
   same section.
@@ -637,12 +638,14 @@ def _parse_extensions(path: str, data: Any) -> dict:
 
 #: ``base:`` of an extension entry: the coefficients it was fitted jointly with
 _BASE_STEERING = ("offset_rad", "scale")
-_BASE_ZONE = ("offset_mps2", "scale_mps2", "brake_scale_mps2", "accel_cmd_gain")
+_BASE_ZONE = ("offset_mps2", "scale_mps2", "brake_scale_mps2", "accel_cmd_gain",
+              "speed_cmd_gain_ps", "engine_braking_per_krpm_mps2")
 
 
 def _extension_base(path: str, key: str, sub: str, v: Any) -> dict:
     """``base: {offset_rad, scale}`` (steering) or ``base: {zones: [{name, offset_mps2,
-    scale_mps2, brake_scale_mps2 | accel_cmd_gain}, ...]}`` (longitudinal)."""
+    scale_mps2, brake_scale_mps2 | accel_cmd_gain | speed_cmd_gain_ps,
+    engine_braking_per_krpm_mps2}, ...]}`` (longitudinal)."""
     if not isinstance(v, dict):
         raise ParamError("expected a mapping", path, key=key)
     if sub == "steering":

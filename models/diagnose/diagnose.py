@@ -3,7 +3,9 @@ the held-out fit with it added.
 
 0. **Parts**: each part (``sensors``, ``steering``, ``longitudinal``) runs when the recording
    supports it (its channels, enough moving data); one that cannot is named with the reason
-   under ``not_diagnosed``. Only a recording that supports no part is refused.
+   under ``not_diagnosed``. Only a recording that supports no part is refused. The
+   longitudinal model runs on the inputs the recording holds (a command that moves, else the
+   pedals recorded: ``lon_inputs``); the others are ``absent_inputs``, never filled in.
 1. **Replay and residuals** per channel, each with its noise floor: speed (free-run windows)
    and acceleration (equation error); heading (free-run windows), road-wheel angle and yaw
    rate; position (free-run windows of eq. 1); independent sensors of one quantity against
@@ -55,6 +57,8 @@ from hmpc.models.diagnose import sensors as sen
 from hmpc.models.diagnose import steering as ste
 from hmpc.models.diagnose.candidates import Resolution, accept, candidate, fos_selects
 from hmpc.models.diagnose.common import DiagnoseConfig, corr_length, rmse, size_factor
+from hmpc.models.diagnose.lon_extra import lon_extra_step
+from hmpc.models.diagnose.lon_inputs import absent_inputs
 from hmpc.models.diagnose.locate import (change_point, elevated_windows, improved_windows,
                                          noise_floor, regime_table, regime_variables,
                                          top_regimes)
@@ -91,6 +95,8 @@ class Diagnosis:
     verdict: dict = field(default_factory=dict)
     #: the steering samples used and dropped by reason (``steering.support``)
     steering_samples: dict = field(default_factory=dict)
+    #: longitudinal input channels the recording does not hold (never filled in)
+    absent_inputs: list = field(default_factory=list)
 
     def to_json(self) -> dict:
         return _clean({"verdict": self.verdict, "findings": self.findings,
@@ -98,6 +104,7 @@ class Diagnosis:
                        "channels": self.channels, "hypotheses": self.hypotheses,
                        "baseline_checks": self.evidence,
                        "longitudinal_input": self.longitudinal_input,
+                       "absent_inputs": self.absent_inputs,
                        "steering_samples": self.steering_samples,
                        "notes": self.notes, "timing_s": self.timing_s})
 
@@ -179,6 +186,10 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
     response = None
     if ld is not None:
         say(f"longitudinal: eq. 8 zones driven by {', '.join(ld.input_names)}")
+        w.notes += ld.input_notes
+        if ld.absent_inputs:
+            w.notes.append("not in the recording (no model fills them in): "
+                           + ", ".join(ld.absent_inputs))
         lon_scores, cl = _longitudinal_step(w, ld, cfg, res)
         w.series["speed"]["measured"] = ld.v  # for the verdict's persistence yardstick
         stack_on_dynamics(ld, w.cands, lon_scores, cfg, cl, res)
@@ -210,7 +221,8 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
     return Diagnosis(findings, unexplained, _clean(w.channels), w.hyps, w.evidence,
                      None if ld is None else "+".join(ld.input_names), w.series, params_out,
                      baseline_out, round(time.perf_counter() - t_start, 3), w.notes,
-                     w.not_diagnosed, _clean(verdict), w.steering_samples)
+                     w.not_diagnosed, _clean(verdict), w.steering_samples,
+                     absent_inputs(w.ch))
 
 
 # ---- which parts the recording supports, and the sensor pairs compared ----------------------
@@ -369,9 +381,11 @@ def _longitudinal_step(w: _Work, ld: lon.LonData, cfg: DiagnoseConfig,
         if h == "road_grade" and ld.grade is None:
             w.hyps.append({"effect": h, "tested": False, "why": "no altitude or pitch channel"})
             continue
-        if h == "idle_creep" and "accel_cmd" in ld.input_names:
+        if h == "idle_creep" and (ld.commanded or "accel_pedal" not in ld.input_names):
             w.hyps.append({"effect": h, "tested": False,
-                           "why": "the car follows an acceleration command, not the pedal"})
+                           "why": "the car follows a command, not the pedal" if ld.commanded
+                           else "no accel_pedal channel: when the throttle is released is "
+                                "not known"})
             continue
         s = lon.evaluate(ld, h, cfg, cl)
         lon_scores[h] = s
@@ -383,6 +397,7 @@ def _longitudinal_step(w: _Work, ld: lon.LonData, cfg: DiagnoseConfig,
         if h == "road_grade":
             c["parameters"]["grade_source"] = ld.grade_source
         w.cands.append(c)
+    lon_extra_step(w, ld, b, lon_scores, cfg, res, cl)
     return lon_scores, cl
 
 

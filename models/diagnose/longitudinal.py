@@ -2,7 +2,11 @@
 
 Baseline (eq. 8, zone z chosen by speed as in ``models.plant.HybridPlant.zone_by_speed``)::
 
-    dv/dt = offset_z + sum_i gain_z,i * u_i          u = (accel_pedal, -brake_pedal) or (accel_cmd)
+    dv/dt = offset_z + sum_i gain_z,i * u_i
+
+u: the inputs the recording holds (``lon_inputs``): accel_pedal and -brake_pedal (each only when
+recorded), or accel_cmd, or the speed error speed_cmd - v a speed command asks to close (with
+any pedal that moved beside a command).
 
 Extensions (``CATALOGUE`` ids), each refitted jointly with every zone coefficient:
 
@@ -19,12 +23,18 @@ Extensions (``CATALOGUE`` ids), each refitted jointly with every zone coefficien
   fitted (0: not compensated);
 - ``idle_creep``: + a0 max(0, 1 - v / v_c) with the throttle released, a0 in [0, 2] m/s^2,
   v_c in [0.5, 5] m/s.
+- ``actuator_saturation``: each command's regressor clipped to +-s, s on a grid of its
+  magnitude's quantiles (:func:`saturation_grid`);
+- ``gears``: the coefficients per gear (``d.gear``) instead of per zone, plus the engine's
+  drag with the pedal released (``LonSpec.by_gear``);
+- ``unobserved_braking``: a known acceleration per sample added (``LonSpec.extra_accel``,
+  estimated in ``models.diagnose.braking``).
 
 Fits are equation error (measured dv/dt, Savitzky-Golay, against the inputs smoothed alike:
 :func:`fit_inputs`, integrated causally as the replay does) on moving samples, the inputs'
 timing against the speed fitted within one sample first (:func:`input_alignment`); scores are
-speed free-run replays from the measured speed at each window start. :func:`joint_response`
-fits a dead time and a lag together (the total effective delay of an actuator, and whether a
+speed free-run replays from the measured speed at each window start. ``lon_joint`` fits a
+dead time and a lag together (the total effective delay of an actuator, and whether a
 recording tells the two apart).
 """
 from __future__ import annotations
@@ -34,13 +44,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
+from hmpc.models.constants import G_MPS2
 from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded,
                                          profile_interval, rmse, segment_fold_ids, segments,
                                          train_mask, windows)
+from hmpc.models.diagnose.gear_data import gear_index
 from hmpc.models.diagnose.hypothesis import grid_search, sse_per_sample
+from hmpc.models.diagnose.lon_grade import measured_grade
+from hmpc.models.diagnose.lon_inputs import COMMANDS, INPUT_USED, choose_inputs, regressors
 from hmpc.models.identify.stats import savgol_derivative
-
-from hmpc.models.constants import G_MPS2
 
 DEFAULT_ZONES = (("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
 #: linear extension -> (parameter name, bounds)
@@ -54,10 +66,7 @@ LINEAR_EXT = {
 }
 NONLINEAR: dict[str | None, str] = {
     "actuator_delay": "delay_s", "actuator_lag": "tau_s", "idle_creep": "creep_speed_mps",
-    "road_grade": "comp_rate_per_s"}
-#: an input whose magnitude never exceeds this in the training samples is not used there
-#: (pedal fractions, m/s^2 requests: 0.01 is below any deliberate actuation)
-INPUT_USED = 0.01
+    "road_grade": "comp_rate_per_s", "actuator_saturation": "sat_level"}
 HYPOTHESES = ("actuator_delay", "actuator_lag", "aero_drag", "rolling_resistance", "road_grade",
               "idle_creep")
 
@@ -82,11 +91,28 @@ class LonData:
     _grade_cache: dict = field(default_factory=dict, repr=False)
     #: [s] the inputs' timing against the speed applied to ``U`` (:func:`input_alignment`)
     input_shift_s: float = 0.0
+    #: input channels the recording does not hold (``lon_inputs.choose_inputs``)
+    absent_inputs: list = field(default_factory=list)
+    input_notes: list = field(default_factory=list)
+    #: gear index per sample (-1: unknown) and the gears found (``models.diagnose.gears``)
+    gear: np.ndarray | None = None
+    gear_info: dict = field(default_factory=dict)
 
     @property
     def commanded(self) -> bool:
-        """The car follows an acceleration request (an ACC with its own acceleration loop)."""
-        return "accel_cmd" in self.input_names
+        """The car follows a command (an ACC's acceleration request or a by-wire speed
+        command: a controller of its own closes the loop)."""
+        return any(c in self.input_names for c in COMMANDS)
+
+    @property
+    def tracking(self) -> np.ndarray:
+        """Per input column: a speed command (regressor ``speed_cmd - v``)."""
+        return np.array([nm == "speed_cmd" for nm in self.input_names], bool)
+
+    @property
+    def command_cols(self) -> np.ndarray:
+        """Per input column: a command (what ``actuator_saturation`` clips)."""
+        return np.array([nm in COMMANDS for nm in self.input_names], bool)
 
     def grade_accel(self, rate_per_s: float) -> np.ndarray:
         """g sin(theta) [m/s^2] the car has not compensated: all of it (``rate_per_s`` 0), or
@@ -117,27 +143,8 @@ def prepare(ch: dict, zones=None, cfg: DiagnoseConfig = DiagnoseConfig()) -> Lon
     dt = float(np.median(np.diff(t)))
     v = np.asarray(ch["speed"], float)
     n = len(t)
-    cmd = ch.get("accel_cmd")
-    use_cmd = (cmd is not None and np.isfinite(cmd).mean() > 0.5
-               and np.nanstd(cmd) > 0.1)
-    if use_cmd:
-        # an ACC request drives the car while engaged; the driver's pedal before and between
-        inputs = [np.nan_to_num(np.asarray(cmd, float), nan=0.0)]
-        names = ["accel_cmd"]
-        for nm, sign in (("accel_pedal", 1.0), ("brake_pedal", -1.0)):
-            x = ch.get(nm)
-            if x is not None and np.nanmax(np.abs(np.nan_to_num(x))) > 0.01:
-                inputs.append(sign * np.nan_to_num(np.asarray(x, float), nan=0.0))
-                names.append(nm)
-        U = np.column_stack(inputs)
-        idle = np.zeros(n, bool)
-    else:
-        ap = np.asarray(ch.get("accel_pedal", np.zeros(n)), float)
-        bp = ch.get("brake_pedal")
-        bp = np.zeros(n) if bp is None or not np.isfinite(bp).any() else np.asarray(bp, float)
-        U = np.column_stack([ap, -bp])
-        names = ["accel_pedal", "brake_pedal"]
-        idle = np.nan_to_num(ap, nan=1.0) < 0.01
+    inp = choose_inputs(ch)
+    U, names, idle = inp.U, inp.names, inp.idle
     valid = np.isfinite(v) & np.isfinite(U).all(axis=1)
     segs = segments(valid, int(cfg.min_segment_s / dt))
     ok = np.zeros(n, bool)
@@ -146,9 +153,10 @@ def prepare(ch: dict, zones=None, cfg: DiagnoseConfig = DiagnoseConfig()) -> Lon
     a = savgol_derivative(np.where(ok, v, np.nan), dt, cfg.deriv_window_s)
     vs = savgol_derivative(np.where(ok, v, np.nan), dt, cfg.deriv_window_s, deriv=0)
     vs = np.where(np.isfinite(vs), vs, v)
-    grade, src = _grade(ch, v, dt)
+    grade, src = measured_grade(ch, v, dt)
     d = LonData(t, dt, v, vs, a, U, names, idle, grade, src, tuple(zones or DEFAULT_ZONES), segs,
-                ok)
+                ok, absent_inputs=inp.absent, input_notes=inp.notes)
+    d.gear, d.gear_info = gear_index(ch, v, ok)
     d.input_shift_s = input_alignment(d)
     d.U = shift_inputs(d, d.U, d.input_shift_s)
     return d
@@ -206,70 +214,6 @@ def input_alignment(d: LonData) -> float:
     return float(np.clip(best, shifts[0], 0.0))
 
 
-def _grade(ch: dict, v: np.ndarray, dt: float) -> tuple[np.ndarray | None, str]:
-    """Road grade [rad] from the altitude over the distance travelled, else the pitch."""
-    z = ch.get("z")
-    if z is not None and np.isfinite(z).mean() > 0.5 and np.nanstd(z) > 0.05:
-        dz = savgol_derivative(np.asarray(z, float), dt, 3.0)
-        vsm = savgol_derivative(v, dt, 3.0, deriv=0)
-        g = np.where(vsm > 2.0, np.arcsin(np.clip(dz / np.maximum(vsm, 1e-3), -0.3, 0.3)), np.nan)
-        # below 2 m/s dz/dt over 3 s is noise against a small ds/dt: there the grade is the
-        # slope of the altitude against the distance travelled, over the 6 m that 3 s cover at
-        # 2 m/s (the road's grade where the car is: a car creeping at 1 m/s for 20 s crosses
-        # 20 m of road, whose grade a held last value does not follow)
-        g_low = _grade_over_distance(np.asarray(z, float), v, dt, GRADE_LOW_SPEED_SPAN_M)
-        g = np.where(np.isfinite(g) | ~(vsm <= 2.0), g, g_low)
-        idx = np.flatnonzero(np.isfinite(g))
-        if len(idx) > 10:
-            g = np.interp(np.arange(len(g)), idx, g[idx])
-            return g, ("altitude z over distance travelled (3 s Savitzky-Golay; below 2 m/s "
-                       f"the altitude's slope over {GRADE_LOW_SPEED_SPAN_M:g} m of distance)")
-    p = ch.get("pitch")
-    if p is not None and np.isfinite(p).mean() > 0.5:
-        return np.nan_to_num(np.asarray(p, float)), "INS pitch"
-    return None, "none (no altitude or pitch channel)"
-
-
-#: [m] distance span of the low-speed grade (3 s at the 2 m/s where the time estimate stops)
-GRADE_LOW_SPEED_SPAN_M = 6.0
-#: [m] distance bins in which the altitude is averaged for the low-speed grade
-GRADE_BIN_M = 0.25
-
-
-def _grade_over_distance(z: np.ndarray, v: np.ndarray, dt: float, span_m: float) -> np.ndarray:
-    """Grade [rad] per sample: the least-squares slope of the altitude against the distance
-    travelled (speed integrated) over ``span_m``, the altitude averaged per 0.25 m of distance
-    (a car at rest adds samples to one bin, not a slope); per contiguous run of samples with
-    both channels (a gap may join two drives whose altitudes share no origin)."""
-    out = np.full(len(z), np.nan)
-    for a, b in segments(np.isfinite(z) & np.isfinite(v), 2):
-        out[a:b] = _grade_over_distance_run(z[a:b], v[a:b], dt, span_m)
-    return out
-
-
-def _grade_over_distance_run(z: np.ndarray, v: np.ndarray, dt: float, span_m: float
-                             ) -> np.ndarray:
-    s = np.cumsum(np.maximum(v, 0.0) * dt)
-    b = (s / GRADE_BIN_M).astype(int)
-    fin = np.isfinite(z)
-    nb = int(b[-1]) + 1
-    cnt = np.bincount(b[fin], minlength=nb)
-    zs = np.bincount(b[fin], weights=z[fin], minlength=nb)
-    have = np.flatnonzero(cnt > 0)
-    if len(have) < 2:
-        return np.full(len(z), np.nan)
-    zb = np.interp(np.arange(nb), have, zs[have] / cnt[have])
-    k = max(1, int(round(0.5 * span_m / GRADE_BIN_M)))
-    x = np.arange(-k, k + 1) * GRADE_BIN_M
-    w = x / np.sum(x * x)                        # slope of a straight line over the span
-    slope = np.convolve(np.pad(zb, k, mode="edge"), w[::-1], mode="valid")
-    g = np.arcsin(np.clip(slope, -0.3, 0.3))
-    if nb > 2 * k:                               # ends: no full span (unless that is all)
-        g[:k] = np.nan
-        g[nb - k:] = np.nan
-    return g[b]
-
-
 @dataclass
 class LonSpec:
     """One hypothesis: the extension and its nonlinear parameter (0 = baseline)."""
@@ -282,6 +226,20 @@ class LonSpec:
     comp_rate_per_s: float = 0.0
     #: the linear extension term when it is not ``name`` (a delay fitted on top of a grade)
     ext_name: str | None = None
+    #: level [command unit] at which each command's regressor saturates (0: never;
+    #: ``actuator_saturation``)
+    sat_level: float = 0.0
+    #: a known acceleration [m/s^2] per sample added to eq. 8 (an estimated input the
+    #: recording lacks: ``unobserved_braking``); None: none
+    extra_accel: np.ndarray | None = field(default=None, repr=False, compare=False)
+    #: eq. 8's coefficients per gear instead of per speed zone (``gears``)
+    by_gear: bool = False
+    #: parameters behind ``extra_accel`` (one level per braking window), for the BIC
+    extra_params: int = 0
+
+    def __post_init__(self):
+        if self.name == "gears":
+            self.by_gear = True
 
     @property
     def term(self) -> str | None:
@@ -304,6 +262,11 @@ def inputs(d: LonData, spec: LonSpec) -> np.ndarray:
     """Inputs as the actuator delivers them under ``spec``: the dead time, then the lag (each
     when set; per segment)."""
     U = d.U
+    if spec.by_gear and "accel_pedal" in d.input_names:
+        # engine braking per gear (``gears``): an engine's drag torque grows with its speed
+        # (friction and pumping losses), so with the pedal released the regressor is the
+        # recorded engine speed [1000 1/min]; without it the released pedal (a constant drag)
+        U = np.column_stack([U, d.idle * d.gear_info.get("drag_krpm", 1.0)])
     if spec.delay_s > 0:
         U = shift_inputs(d, U, spec.delay_s)
     if spec.tau_s > 0:
@@ -364,10 +327,37 @@ def ext_column(d: LonData, spec: LonSpec, v: np.ndarray, idx=None) -> np.ndarray
     return None
 
 
-def _design(d: LonData, U: np.ndarray, spec: LonSpec):
-    nz, m = len(d.zones), U.shape[1]
+def n_groups(d: LonData, spec: LonSpec) -> int:
+    """How many sets of eq. 8 coefficients ``spec`` has: one per speed zone, or per gear."""
+    return int(d.gear_info["n"]) if spec.by_gear else len(d.zones)
+
+
+def group_of(d: LonData, spec: LonSpec, v: np.ndarray, idx=None) -> np.ndarray:
+    """The coefficient set per sample: the speed zone of ``v`` (as
+    ``models.plant.HybridPlant.zone_by_speed``), or the recorded gear at samples ``idx``."""
+    if spec.by_gear:
+        assert d.gear is not None  # a by-gear hypothesis runs only with gears
+        return d.gear if idx is None else d.gear[idx]
     vmax = np.array([z[2] for z in d.zones])
-    zone = np.minimum(np.searchsorted(vmax, d.vs, side="left"), nz - 1)
+    return np.minimum(np.searchsorted(vmax, v, side="left"), len(d.zones) - 1)
+
+
+def model_regressors(d: LonData, spec: LonSpec, U: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``U`` as eq. 8's regressors at speed ``v`` (``lon_inputs.regressors``; a column beyond
+    the recorded inputs, the released pedal of ``gears``, as it is)."""
+    pad = np.zeros(U.shape[1] - len(d.input_names), bool)
+    return regressors(U, np.r_[d.tracking, pad], v, spec.sat_level, np.r_[d.command_cols, pad])
+
+
+def target(d: LonData, spec: LonSpec) -> np.ndarray:
+    """The measured dv/dt less the known acceleration ``spec`` adds (``extra_accel``)."""
+    return d.a if spec.extra_accel is None else d.a - spec.extra_accel
+
+
+def _design(d: LonData, U: np.ndarray, spec: LonSpec):
+    nz, m = n_groups(d, spec), U.shape[1]
+    zone = group_of(d, spec, d.vs)
+    U = model_regressors(d, spec, U, d.vs)
     X = np.zeros((d.n, nz * (1 + m)))
     rows = np.arange(d.n)
     X[rows, zone * (1 + m)] = 1.0
@@ -419,8 +409,8 @@ def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None
     the samples whose zone is ambiguous: near a zone change, or at a zone boundary)."""
     U = fit_inputs(d, spec) if U is None else U
     X, zone = _design(d, U, spec)
-    use = mask & fit_samples(d, X, zone)
-    nz, m = len(d.zones), U.shape[1]
+    use = mask & fit_samples(d, X, zone) & np.isfinite(target(d, spec))
+    nz, m = n_groups(d, spec), U.shape[1]
     cols, fitted = [], []
     for z in range(nz):
         if (use & (zone == z)).sum() >= max(50, int(2.0 / d.dt)):
@@ -443,7 +433,7 @@ def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None
     if ext and cols[-1] == X.shape[1] - 1:
         assert spec.term is not None  # ext: the model carries a linear term
         bounds[len(cols) - 1] = LINEAR_EXT[spec.term][1]
-    coef, sse = lstsq_bounded(Xs, d.a[use], bounds)
+    coef, sse = lstsq_bounded(Xs, target(d, spec)[use], bounds)
     C = np.zeros((nz, 1 + m))
     ext_coef = 0.0
     for c, val in zip(cols, coef):
@@ -454,8 +444,8 @@ def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None
     for z in range(nz):  # a zone without data takes the nearest fitted zone's model
         if z not in fitted:
             C[z] = C[min(fitted, key=lambda f: abs(f - z))]
-    n_nl = sum(1 for k in ("delay_s", "tau_s", "comp_rate_per_s") if getattr(spec, k) > 0) \
-        + (spec.name == "idle_creep")
+    n_nl = sum(1 for k in ("delay_s", "tau_s", "comp_rate_per_s", "sat_level")
+               if getattr(spec, k) > 0) + (spec.name == "idle_creep") + spec.extra_params
     return LonModel(spec, C, ext_coef, fitted, sse, int(use.sum()), len(cols) + n_nl)
 
 
@@ -466,18 +456,20 @@ def free_run(d: LonData, model: LonModel, idx: np.ndarray, U: np.ndarray | None 
         return np.zeros(idx.shape)
     U = inputs(d, model.spec) if U is None else U
     U = np.nan_to_num(U, nan=0.0)
-    vmax = np.array([z[2] for z in d.zones])
-    nz = len(d.zones)
+    spec = model.spec
     v = d.vs[idx[:, 0]].copy()
     out = np.empty(idx.shape)
     for j in range(idx.shape[1]):
         k = idx[:, j]
         out[:, j] = v
-        z = np.minimum(np.searchsorted(vmax, v, side="left"), nz - 1)
-        a = model.C[z, 0] + np.einsum("ij,ij->i", model.C[z, 1:], U[k])
-        e = ext_column(d, model.spec, v, k)
+        z = group_of(d, spec, v, k)
+        a = model.C[z, 0] + np.einsum("ij,ij->i", model.C[z, 1:],
+                                      model_regressors(d, spec, U[k], v))
+        e = ext_column(d, spec, v, k)
         if e is not None:
             a = a + model.ext * e
+        if spec.extra_accel is not None:
+            a = a + np.nan_to_num(spec.extra_accel[k])
         v = np.maximum(v + a * d.dt, 0.0)
     return out - d.v[idx]
 
@@ -497,6 +489,22 @@ def _grid(name: str, cfg: DiagnoseConfig, dt: float, commanded: bool = False) ->
     if name == "idle_creep":
         return np.arange(0.5, 5.01, 0.25)
     return np.zeros(1)
+
+
+#: quantiles of a command's regressor magnitude tried as its saturation level: from the median
+#: (half the commands saturated) to the 98th percentile (a clip of the largest few)
+SATURATION_QUANTILES = np.array([0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 0.98])
+
+
+def saturation_grid(d: LonData) -> np.ndarray:
+    """Saturation levels tried (``actuator_saturation``): quantiles of the commands' regressor
+    magnitude on the moving samples (in the command's unit)."""
+    R = model_regressors(d, LonSpec(), d.U, d.vs)[:, d.command_cols]
+    x = np.abs(R[d.ok & (d.vs > DiagnoseConfig.v_stop_mps)]).ravel()
+    x = x[np.isfinite(x) & (x > INPUT_USED)]
+    if x.size == 0:
+        return np.array([np.inf])
+    return np.unique(np.quantile(x, SATURATION_QUANTILES))
 
 
 def _spec(name, val, base: dict | None = None) -> LonSpec:
@@ -519,6 +527,8 @@ def fit_best(d: LonData, name: str | None, mask: np.ndarray, cfg: DiagnoseConfig
         m = fit(d, _spec(name, 0.0, base), mask)
         return m, np.zeros(1), np.array([sse_per_sample(m)])
     refine = grid is None and name in ("actuator_delay", "actuator_lag")
+    if grid is None and name == "actuator_saturation":
+        grid = saturation_grid(d)
     grid = _grid(name, cfg, d.dt, d.commanded) if grid is None else np.asarray(grid, float)
     # refined to one sample; numpy's default closeness to a coarse point (rtol 1e-5, atol 1e-8)
     return grid_search(lambda g: fit(d, _spec(name, g, base), mask), grid,
@@ -527,14 +537,13 @@ def fit_best(d: LonData, name: str | None, mask: np.ndarray, cfg: DiagnoseConfig
 
 def residual(d: LonData, m: LonModel) -> np.ndarray:
     """Equation error dv/dt - model [m/s^2] at the measured speed (NaN where not fitted)."""
-    U = fit_inputs(d, m.spec)
-    vmax = np.array([z[2] for z in d.zones])
-    z = np.minimum(np.searchsorted(vmax, d.vs, side="left"), len(d.zones) - 1)
+    U = model_regressors(d, m.spec, fit_inputs(d, m.spec), d.vs)
+    z = group_of(d, m.spec, d.vs)
     a = m.C[z, 0] + np.einsum("ij,ij->i", m.C[z, 1:], U)
     e = ext_column(d, m.spec, d.vs)
     if e is not None:
         a = a + m.ext * e
-    r = d.a - a
+    r = target(d, m.spec) - a
     r[~(d.ok & (d.vs > DiagnoseConfig.v_stop_mps))] = np.nan
     return r
 
@@ -567,6 +576,8 @@ def evaluate(d: LonData, name: str | None, cfg: DiagnoseConfig, corr_len: float,
     local = None
     if name == "road_grade":
         local = None if d.commanded else np.zeros(1)  # a handful of rates: each fold tries all
+    elif name == "actuator_saturation":
+        local = saturation_grid(d)
     elif name in NONLINEAR:  # each fold searches near the full-data optimum, on its own data
         g0 = _param_value(full)
         assert name is not None  # a key of NONLINEAR
@@ -670,93 +681,3 @@ def unconstrained_ext(d: LonData, name: str) -> float:
     Xs = Xs[:, np.abs(Xs).max(axis=0) > 1e-12]
     c, _ = lstsq_bounded(Xs, d.a[use])
     return float(c[-1])
-
-
-#: grid steps [s] of the joint dead-time + lag fit (:func:`joint_response`): a coarse map of
-#: the whole range, then a fine one around the coarse 95 % region (0.025 s: finer than the
-#: 0.05 s an interval is quoted to), or 0.05 s when that region is large (a short recording)
-JOINT_STEPS_S = (0.1, 0.025, 0.05)
-#: most fine-grid fits before the fine step is coarsened (bounds the cost on long recordings)
-JOINT_MAX_FINE = 300
-
-
-def joint_response(d: LonData, base: dict | None, cfg: DiagnoseConfig, corr_len: float) -> dict:
-    """The actuator's response to its input fitted as a dead time d AND a first-order lag tau
-    together (u(t - d) through 1 / (tau s + 1)), on top of ``base`` (LonSpec keywords of the
-    static term the final model carries), to say what one of them alone cannot: the total
-    effective delay d + tau (the centroid of the response, the 63 % time of a step) and
-    whether the recording tells a dead time from a lag.
-
-    The SSE is mapped on a coarse grid (d + tau up to the larger search bound), then on a fine
-    grid around the coarse points within twice the 95 % likelihood-ratio bound. Intervals are
-    95 % profile-likelihood intervals with the effective sample size, widened by half a fine
-    step. ``separable`` is False when the dead time alone or the lag alone fits within the
-    chi-square(1) 95 % point (3.84) of the joint fit: the data then fix the total delay, not
-    its split. The held-out speed RMSE [m/s] refits d and tau per fold near the full-data
-    optimum, like :func:`evaluate`."""
-    top = max(cfg.delay_max_s, cfg.tau_max_s)
-    kw = dict(base or {})
-
-    def spec(a, b):
-        return LonSpec(None, **{**kw, "delay_s": float(a), "tau_s": float(b)})
-
-    sse: dict = {}
-
-    def run(pairs):
-        for a, b in pairs:
-            key = (round(float(a), 6), round(float(b), 6))
-            if key not in sse and key[0] + key[1] <= top + 1e-9:
-                m = fit(d, spec(*key), d.ok)
-                sse[key] = (sse_per_sample(m), m.n)
-
-    coarse, fine, wide = JOINT_STEPS_S
-    g = np.arange(0.0, top + 1e-9, coarse)
-    run([(a, b) for a in g for b in g])
-    ne = max(min(n for _, n in sse.values()) / max(corr_len, 1.0), 3.0)
-    s0 = min(v for v, _ in sse.values())
-    near = np.array([k for k, (v, _) in sse.items() if ne * np.log(v / s0) <= 2 * 3.84])
-    lo, hi = np.maximum(near.min(axis=0) - coarse, 0.0), near.max(axis=0) + coarse
-    step = fine if np.prod((hi - lo) / fine + 1) <= JOINT_MAX_FINE else wide
-    run([(a, b) for a in np.arange(lo[0], hi[0] + 1e-9, step)
-         for b in np.arange(lo[1], hi[1] + 1e-9, step)])
-    P = np.array(list(sse))
-    v = np.array([x for x, _ in sse.values()])
-    i = int(np.argmin(v))
-    lr = ne * np.log(v / v[i])
-
-    def interval(x):
-        inside = x[lr <= 3.84]
-        return [max(float(inside.min()) - step / 2, 0.0), float(inside.max()) + step / 2]
-
-    lr_delay = float(lr[P[:, 1] == 0].min())
-    lr_lag = float(lr[P[:, 0] == 0].min())
-    d_hat, tau_hat = float(P[i, 0]), float(P[i, 1])
-    return {"input": "+".join(d.input_names), "dead_time_s": d_hat, "tau_s": tau_hat,
-            "effective_delay_s": d_hat + tau_hat,
-            "intervals": {"dead_time_s": interval(P[:, 0]), "tau_s": interval(P[:, 1]),
-                          "effective_delay_s": interval(P.sum(axis=1))},
-            "lr_dead_time_only": lr_delay, "lr_lag_only": lr_lag,
-            "separable": bool(min(lr_delay, lr_lag) > 3.84),
-            "heldout_rmse_mps": _joint_heldout(d, spec, (d_hat, tau_hat), cfg),
-            "n_eff": ne, "grid_step_s": step}
-
-
-def _joint_heldout(d: LonData, spec, best: tuple, cfg: DiagnoseConfig) -> float:
-    """Held-out free-run speed RMSE [m/s] of the joint fit (blocked folds as in
-    :func:`evaluate`; each fold picks d and tau on its own data, each within 0.05 s of the
-    full-data optimum)."""
-    folds = segment_fold_ids(d.n, d.segs, cfg.n_folds)
-    guard = int(cfg.guard_s / d.dt)
-    L = int(cfg.window_lon_s / d.dt)
-    near = JOINT_STEPS_S[2] * np.arange(-1, 2)
-    local = sorted({(round(float(a), 6), round(float(b), 6))
-                    for a in np.maximum(best[0] + near, 0.0)
-                    for b in np.maximum(best[1] + near, 0.0)})
-    err = np.full(d.n, np.nan)
-    for f in range(cfg.n_folds):
-        tr = train_mask(folds, f, guard)
-        m = min((fit(d, spec(a, b), tr) for a, b in local), key=sse_per_sample)
-        idx = _covered(d, tr, windows(folds == f, L))
-        if idx.size:
-            err[idx] = free_run(d, m, idx)
-    return rmse(err)

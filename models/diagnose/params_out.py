@@ -13,6 +13,8 @@ from types import SimpleNamespace
 from hmpc.models.catalogue import CATALOGUE
 from hmpc.models.diagnose import longitudinal as lon
 from hmpc.models.diagnose import steering as ste
+from hmpc.models.diagnose.lon_inputs import COMMANDS
+from hmpc.models.errors import InputError
 from hmpc.models.params import Params, Steering, Zone
 
 #: longitudinal findings whose fit the conventions' keys take (see :func:`extended_params`)
@@ -86,11 +88,14 @@ def extended_params(rec, vehicle, params, ld, lon_scores, steer_scores, findings
     zs = params.zones if params is not None and ld is None else []
     if ld is not None:
         zs = _zones_out(rec, params, ld, lon_scores, findings, zones, cfg)
+        if not zs:
+            nd = {**nd, "longitudinal": "no accel_pedal channel: the zones' pedal maps cannot "
+                                        f"be fitted (the car is driven by "
+                                        f"{'+'.join(ld.input_names)})"}
     p = Params(vehicle=replace(vehicle), steering=steering, zones=zs,
                provenance={"source": "hmpc diagnose",
                            "recording": str(rec.meta.get("path", "?"))})
-    if ld is not None and ("actuator_delay", "longitudinal") in fx and "accel_cmd" not in \
-            ld.input_names:
+    if ld is not None and ("actuator_delay", "longitudinal") in fx and not ld.commanded:
         p.longitudinal_dead_time_s = float(
             fx[("actuator_delay", "longitudinal")]["parameters"]["delay_s"])
     _keep_status(p, params, steer_scores is not None, ld is not None)
@@ -114,9 +119,15 @@ def extended_params(rec, vehicle, params, ld, lon_scores, steer_scores, findings
 def _zones_out(rec, params, ld, lon_scores, findings, zones, cfg) -> list[Zone]:
     """The zones of eq. 8 as the conventions' keys hold them (see :func:`extended_params`)."""
     d_pedal = ld
-    if "accel_cmd" in ld.input_names:  # the conventions' zones are pedal maps
-        ch = {k: v for k, v in rec.channels.items() if k != "accel_cmd"}
-        d_pedal = lon.prepare(ch, zones, cfg)
+    if ld.commanded:  # the conventions' zones are pedal maps
+        ch = {k: v for k, v in rec.channels.items() if k not in COMMANDS}
+        try:
+            d_pedal = lon.prepare(ch, zones, cfg)
+        except InputError:
+            d_pedal = None
+    if d_pedal is None or "accel_pedal" not in d_pedal.input_names:
+        return list(params.zones) if params is not None and params.zones else []
+    names = d_pedal.input_names
     best_lon = next((f["effect"] for f in findings if f["subsystem"] == "longitudinal"
                      and f["channel"] == "speed" and f["effect"] in _KEYS_HOLD), None)
     if d_pedal is ld:
@@ -127,8 +138,9 @@ def _zones_out(rec, params, ld, lon_scores, findings, zones, cfg) -> list[Zone]:
     for i, (nm, lo, hi) in enumerate(zones):
         c = m.C[i]
         z = Zone(name=nm, v_min_mps=float(lo), v_max_mps=float(hi), offset_mps2=float(c[0]),
-                 scale_mps2=float(c[1]) if len(c) > 1 else 0.0,
-                 brake_scale_mps2=float(c[2]) if len(c) > 2 else 0.0,
+                 scale_mps2=float(c[1 + names.index("accel_pedal")]),
+                 brake_scale_mps2=float(c[1 + names.index("brake_pedal")])
+                 if "brake_pedal" in names else 0.0,
                  identifiable=bool(i in m.fitted_zones))
         if params is not None and params.zones:  # what this recording cannot tell: as given
             g = params.zones[i]
@@ -139,6 +151,8 @@ def _zones_out(rec, params, ld, lon_scores, findings, zones, cfg) -> list[Zone]:
             elif z.brake_scale_mps2 == 0.0:
                 z.brake_scale_mps2 = g.brake_scale_mps2
                 z.note = "brake not used in this recording: brake scale kept from the given file"
+        elif "brake_pedal" not in names:
+            z.note = "no brake_pedal channel: brake scale unknown (0 written)"
         elif z.brake_scale_mps2 == 0.0:
             z.note = "brake not used in this recording: brake scale unknown (0 written)"
         zs.append(z)
@@ -182,10 +196,14 @@ def _keep_status(p: Params, given: Params | None, steering_refit: bool, zones_re
 def _base_zones(m: lon.LonModel, names: list, zones) -> list[dict]:
     """Per zone the offset and one gain per input of ``m`` (``models.params``' ``base``)."""
     key = {"accel_pedal": "scale_mps2", "brake_pedal": "brake_scale_mps2",
-           "accel_cmd": "accel_cmd_gain"}
+           "accel_cmd": "accel_cmd_gain", "speed_cmd": "speed_cmd_gain_ps"}
+    if m.spec.by_gear:  # one coefficient set per gear (``gears``)
+        zones = [(f"gear_{i + 1}", 0.0, 0.0) for i in range(len(m.C))]
     out = []
     for i, (nm, _, _) in enumerate(zones):
         z = {"name": nm, "offset_mps2": float(m.C[i, 0])}
+        if m.C.shape[1] > 1 + len(names):  # the released pedal's column of ``gears``
+            z["engine_braking_per_krpm_mps2"] = float(m.C[i, -1])
         for j, inp in enumerate(names):
             g = float(m.C[i, 1 + j])
             # U holds -brake_pedal (longitudinal.py), so the gain on it is the report's

@@ -13,6 +13,7 @@ from hmpc.models.catalogue import ALTERNATIVES
 from hmpc.models.diagnose import longitudinal as lon
 from hmpc.models.diagnose.candidates import Resolution, accept, candidate, fos_selects
 from hmpc.models.diagnose.common import DiagnoseConfig, corr_length
+from hmpc.models.diagnose.lon_joint import joint_response
 
 #: the actuator's dynamics among the longitudinal hypotheses (alternatives to each other)
 DYNAMICS = ("actuator_delay", "actuator_lag")
@@ -175,7 +176,7 @@ def _split_verdict(lr_dead: float, lr_lag: float) -> str:
 def actuator_response(cands: list, ch: dict, ld: lon.LonData, lon_scores: dict,
                       cfg: DiagnoseConfig, cl: float) -> dict | None:
     """The actuator's response as a dead time and a lag fitted together
-    (:func:`longitudinal.joint_response`), on top of the model the single delay and lag were
+    (:func:`lon_joint.joint_response`), on top of the model the single delay and lag were
     scored against: its total effective delay d + tau with intervals, its held-out speed
     RMSE, and whether the recording can tell a dead time from a lag (``ch``: the channels,
     for the cross-check on the GNSS speed). None when no delay or lag was found or hinted at.
@@ -202,7 +203,7 @@ def actuator_response(cands: list, ch: dict, ld: lon.LonData, lon_scores: dict,
         base = {"ext_name": sp.term, "comp_rate_per_s": sp.comp_rate_per_s,
                 "creep_speed_mps": sp.creep_speed_mps}
         before = lon_scores[below].heldout_rmse_mps
-    r = lon.joint_response(ld, base, cfg, cl)
+    r = joint_response(ld, base, cfg, cl)
     after = r["heldout_rmse_mps"]
     r.update(on_top_of=below, heldout_rmse_before=before,
              gain=(before - after) / before if before > 0 and np.isfinite(after) else 0.0)
@@ -242,6 +243,6 @@ def _response_on_gnss_speed(ch: dict, ld: lon.LonData, base: dict, cfg: Diagnose
     if (lg.ok & (lg.vs > cfg.v_stop_mps)).sum() < int(20.0 / lg.dt):
         return None
     cl = corr_length(lon.residual(lg, lon.fit(lg, lon.LonSpec(), lg.ok)))
-    r = lon.joint_response(lg, base, cfg, cl)
+    r = joint_response(lg, base, cfg, cl)
     return {k: r[k] for k in ("dead_time_s", "tau_s", "effective_delay_s", "intervals",
                               "heldout_rmse_mps")}

@@ -90,7 +90,17 @@ def _usable_offset(est: OffsetEstimate, path, problems: Problems) -> OffsetEstim
 
 
 def sha256_file(path: str | Path) -> str:
-    """Hex SHA-256 of a file's bytes (provenance of every input hmpc reads)."""
+    """Hex SHA-256 of a file's bytes (provenance of every input hmpc reads).
+
+    A folder (a ROS bag folder, a CSV topic export) hashes as the SHA-256 of its files' relative
+    paths and SHA-256s, one ``path sha256`` line each in sorted order, so that a changed,
+    added or renamed file changes it.
+    """
+    path = Path(path)
+    if path.is_dir():
+        lines = [f"{f.relative_to(path).as_posix()} {sha256_file(f)}\n"
+                 for f in sorted(path.rglob("*")) if f.is_file()]
+        return hashlib.sha256("".join(lines).encode()).hexdigest()
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):

@@ -40,11 +40,13 @@ def _cli(argv, capsys):
 
 
 def test_short_slalom_without_pedals_diagnoses_its_lateral_part(tmp_path, capsys):
-    """A 20 s slalom with no pedals exits 0 with the lateral part diagnosed;
-    at 15 s the longitudinal model (20 s of moving data) is named as not diagnosed, printed,
-    in the JSON and in the parameter file's not_identified, which hmpc loads back."""
-    for dur, lon_ran in ((20.0, None), (15.0, False)):
-        rec = _slalom.drive(duration_s=dur, path=f"slalom{dur:g}.csv")
+    """A 20 s slalom with no pedals exits 0 with the lateral part diagnosed
+    and the longitudinal part named as not diagnosed (no input: none is filled in); with pedals
+    at 15 s the longitudinal model (20 s of moving data) is named as not diagnosed for its
+    length; each is printed, in the JSON and in the parameter file's not_identified, which hmpc
+    loads back."""
+    for dur, pedals in ((20.0, False), (15.0, True)):
+        rec = _slalom.drive(duration_s=dur, pedals=pedals, path=f"slalom{dur:g}.csv")
         csv = tmp_path / f"slalom{dur:g}.csv"
         rec.to_csv(csv)
         js, p2, html = tmp_path / f"d{dur:g}.json", tmp_path / f"p{dur:g}.yaml", tmp_path / "r"
@@ -58,12 +60,14 @@ def test_short_slalom_without_pedals_diagnoses_its_lateral_part(tmp_path, capsys
         p = load_params(p2)
         assert p.steering is not None and p.steering.scale == pytest.approx(_slalom.SCALE,
                                                                             rel=0.05)
-        if lon_ran is False:
-            why = j["not_diagnosed"]["longitudinal"]
+        why = j["not_diagnosed"]["longitudinal"]
+        if pedals:
             assert "too little moving data" in why and "needs 20 s" in why
-            assert f"not diagnosed: longitudinal: {why}" in out.out
-            assert not p.zones and "longitudinal" in p.not_identified
-            assert j["longitudinal_input"] is None
+        else:
+            assert why.startswith("no longitudinal input") and "accel_pedal" in why
+        assert f"not diagnosed: longitudinal: {why}" in out.out
+        assert not p.zones and "longitudinal" in p.not_identified
+        assert j["longitudinal_input"] is None
 
 
 def test_no_part_supported_exits_2_in_one_line_and_writes_nothing(tmp_path, capsys):
