@@ -250,7 +250,7 @@ class MpcController:
         that raise too, the last resort: throttle released, brake pressed at its rate limit,
         steering held (``apply_limits`` on a non-finite command)."""
         self._plan = None
-        self.qp.warm = None
+        self.qp.forget()
         try:
             zone = self._zone if self._zone is not None else 0
             return self._controlled_stop(float(t_s), "", zone)
@@ -300,7 +300,7 @@ class MpcController:
         v_mode = float(x0[3]) if cold else float(Xb[0, 3])
         Xb[0] = x0
         iters = cfg.cold_start_iterations if cold else 1
-        total_solve, total_update, total_it = 0.0, 0.0, 0
+        total_solve, total_update, total_it, total_cpu = 0.0, 0.0, 0, 0.0
         first = None
         for it in range(iters):
             stage, first = self._stage_data(
@@ -311,6 +311,7 @@ class MpcController:
             total_solve += out.solve_time_s
             total_update += out.update_time_s
             total_it += out.iterations
+            total_cpu += out.solve_cpu_s
             if out.solution is None:
                 break
             sol = out.solution
@@ -336,7 +337,8 @@ class MpcController:
                              plan_inputs=Ub, zone_plan=zones, mode_plan=modes, zone=zone0,
                              pedal_mode=mode_l, iterations=total_it,
                              info={"v_ref_mps": stage.v_ref_mps, "s0_m": s0,
-                                   "update_time_s": total_update})
+                                   "update_time_s": total_update, "capped": out.capped,
+                                   "solve_cpu_s": total_cpu})
 
     def _standstill_hold(self, x_meas: np.ndarray, ref: Reference, t: float, d: float,
                          stop: bool, obstacle_m: float | None,
@@ -350,7 +352,7 @@ class MpcController:
             return None
         self._pedal.hold(t)
         self._plan = None
-        self.qp.warm = None
+        self.qp.forget()
         z = self.params.zones[0]
         hold_bp = self._standstill.hold_brake(z.offset_mps2, z.brake_scale_mps2)
         prev = self._last_cmd
