@@ -136,7 +136,8 @@ class SolveOutcome:
         update_time_s: time writing the new values into the solver [s].
         iterations: solver iterations.
         capped: the solver stopped at its iteration cap (``MpcConfig.max_iter``) and its
-            iterate was close enough to use (``MpcConfig.capped_prim_tol``, ``_dual_tol``).
+            iterate was close enough to use (``MpcConfig.capped_prim_tol``,
+            ``capped_dual_tol``).
     """
 
     solution: np.ndarray | None

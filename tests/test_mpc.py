@@ -212,7 +212,7 @@ def drive_from(ctl, ref, params, s, t0, seconds, period=0.1):
 
 def test_failure_without_plan_and_bad_state_is_a_controlled_stop(params):
     ref = straight(5.0)
-    ctl = MpcController(params, MpcConfig(max_iter=1, cold_start_iterations=1))
+    ctl = MpcController(params, MpcConfig(max_iter=1, max_iter_cold=1, cold_start_iterations=1))
     r = ctl.step(ref.initial_state(params), ref, 0.0)
     assert r.status.startswith("controlled_stop") and not r.ok
     assert r.command.accel_pedal == 0.0 and r.command.brake_pedal > 0.0

@@ -82,6 +82,32 @@ def _linspace6(start: float, stop: float) -> np.ndarray:
     return y
 
 
+def plan_in_new_model(plan: Plan, plant: HybridPlant, model) -> np.ndarray:
+    """The plan's inputs (N, 3) rewritten for new model values (``model``: a
+    ``controller.adapt.LearnedModel``) so that they do what the plan meant under ``plant``'s
+    current values: the same road-wheel angle (eq. 7) and, per stage, the same acceleration
+    from the pressed pedal in that stage's zone (eq. 8). The plan is the previous solution the
+    next QP is warm-started from and its first stages are held to (the replan term): in the old
+    model's pedal and steering-wheel units it would hold the car to what the new model says
+    is a different acceleration and road-wheel angle, and the learned correction would reach
+    the commands only as fast as the replan term lets the plan move."""
+    U = plan.inputs.copy()
+    sc_new = float(model.scale)
+    if abs(sc_new) > 1e-9:
+        delta = plant.offset_rad + plant.scale * U[:, 0]
+        U[:, 0] = (delta - float(model.offset_rad)) / sc_new
+    z = np.asarray(plan.zones, dtype=np.int64)
+    off, sc, br = plant.z_offset[z], plant.z_scale[z], plant.z_brake[z]
+    off_n = np.asarray(model.zone_offset_mps2, dtype=float)[z]
+    sc_n = np.maximum(np.asarray(model.zone_scale_mps2, dtype=float)[z], 1e-6)
+    br_n = np.maximum(np.asarray(model.zone_brake_mps2, dtype=float)[z], 1e-6)
+    acc = off + sc * U[:, 1] - br * U[:, 2]
+    thr, brk = U[:, 1] > 0.0, U[:, 2] > 0.0
+    U[thr, 1] = np.clip((acc[thr] - off_n[thr]) / sc_n[thr], 0.0, 1.0)
+    U[brk, 2] = np.clip((off_n[brk] - acc[brk]) / br_n[brk], 0.0, 1.0)
+    return U
+
+
 class MpcController:
     """The OSQP fast path. ``step`` returns a :class:`ControlResult`; see the module doc.
 
@@ -148,6 +174,8 @@ class MpcController:
         pl = self.plant
         if abs(model.scale - pl.scale) > LQR_SCALE_TOL * abs(pl.scale):
             self.cost._lqr_cache.clear()
+        if self._plan is not None:
+            self._plan = replace(self._plan, inputs=plan_in_new_model(self._plan, pl, model))
         pl.offset_rad, pl.scale = float(model.offset_rad), float(model.scale)
         pl.z_offset[:] = model.zone_offset_mps2
         pl.z_scale[:] = model.zone_scale_mps2

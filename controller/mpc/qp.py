@@ -281,9 +281,9 @@ class QpSolver:
         finite = res.x is not None and np.isfinite(res.x).all()
         if sv == _MAX_ITER and finite:
             # the iteration cap: the iterate is used when its residuals are within the
-            # capped tolerances (each step's command is only its first stages, and the next
-            # step starts from it); otherwise it is kept as the next warm start only and the
-            # step falls back (the previous plan, shifted)
+            # capped tolerances (each step's command is only its first stages, and
+            # the next step starts from it); otherwise it is kept as the next warm start
+            # only and the step falls back (the previous plan, shifted)
             if info.prim_res <= cfg.capped_prim_tol and info.dual_res <= cfg.capped_dual_tol:
                 out.inaccurate, out.capped = True, True
                 self.iterate = None
