@@ -61,6 +61,10 @@ class MpcConfig:
     # Pedals above steering (report VI).
     w_steer_replan: float = 3000.0
     w_pedal_replan: float = 6000.0
+    # The pedals' weight holds over the window; the steering's fades as a raised cosine to 0
+    # at twice the window (half weight at the window, the same sum; cost.replan_fade): a
+    # weight ending in a step bends every steering plan just past it, and the bend reaches
+    # the wheel as a reversal a few steps later
     replan_window_s: float = 1.0
     w_pedal_level: float = 0.02    # per pedal^2 per s: prefer the lighter pedal
     w_steer_level: float = 0.02    # per (sw - feedforward)^2 / max^2 per s

@@ -8,7 +8,8 @@ and the values of P and q written each step.
   should have a higher cost"; checked in :class:`MpcConfig`);
 - smoothness, terms of their own beside tracking: the change of the input rates (second
   differences, against the rate the last plan had), the unplanned part of the rate
-  (distance of the first ``replan_window_s`` of inputs from the last plan, shifted to now)
+  (distance of the first ``replan_window_s`` of inputs from the last plan, shifted to now;
+  for the steering faded out over twice that, :func:`replan_fade`)
   and the steering-wheel rate per metre driven (path sharpness, weight 1/v^2);
 - slack penalties of the soft limits (jerk, the speed band).
 
