@@ -85,12 +85,12 @@ def _linspace6(start: float, stop: float) -> np.ndarray:
 def plan_in_new_model(plan: Plan, plant: HybridPlant, model) -> np.ndarray:
     """The plan's inputs (N, 3) rewritten for new model values (``model``: a
     ``controller.adapt.LearnedModel``) so that they do what the plan meant under ``plant``'s
-    current values: the same road-wheel angle (eq. 7) and, per stage, the same acceleration
-    from the pressed pedal in that stage's zone (eq. 8). The plan is the previous solution the
-    next QP is warm-started from and its first stages are held to (the replan term): in the old
-    model's pedal and steering-wheel units it would hold the car to what the new model says
-    is a different acceleration and road-wheel angle, and the learned correction would reach
-    the commands only as fast as the replan term lets the plan move."""
+    current values: the same road-wheel angle (eq. 7's linear map) and, per stage, the same
+    acceleration from the pressed pedal in that stage's zone (eq. 8). The plan is the previous
+    solution the next QP is warm-started from and its first stages are held to (the replan
+    term): in the old model's pedal and steering-wheel units it would hold the car to what the
+    new model says is a different acceleration and road-wheel angle, and the learned
+    correction would reach the commands only as fast as the replan term lets the plan move."""
     U = plan.inputs.copy()
     sc_new = float(model.scale)
     if abs(sc_new) > 1e-9:
@@ -167,7 +167,8 @@ class MpcController:
     def use_model(self, model) -> None:
         """Predict with new model values from now on (the online model estimator's
         ``controller.adapt.LearnedModel``: eq. 7's offset and scale, eq. 8 per zone, the dead
-        times and lags). Values only: the QP's pattern, the plan and the warm start stay; the
+        times and lags). Values only: the QP's pattern and the warm start stay, and the plan
+        stays with its inputs rewritten for the new values (:func:`plan_in_new_model`); the
         prediction model's coefficients are written in place, the pedal bounds that derive
         from them recomputed, the terminal cost's cache dropped when the steering scale moved
         (it is a function of the scale), and the zones the limits read replaced."""

@@ -8,7 +8,10 @@ values are written in to CSC order. Each step the cost (controller/mpc/cost.py) 
 constraints (controller/mpc/constraints.py) write new values in that order;
 :class:`QpSolver` hands them to OSQP (``update(Px=, Ax=, q=, l=, u=)``: no new pattern, no
 new solver) and warm-starts it from the previous solution, primal and dual, shifted in time
-by the stages elapsed (:class:`_Shift`).
+by the stages elapsed (:class:`_Shift`). A warm-started solve stops at ``MpcConfig.max_iter``
+iterations: its iterate is used when close enough (``capped_prim_tol``, ``capped_dual_tol``),
+else the step fails (the controller shifts its last plan) and the next solve continues from
+that iterate.
 """
 from __future__ import annotations
 
@@ -21,7 +24,7 @@ from hmpc.controller.horizon import SolveOutcome
 from hmpc.controller.mpc.config import MpcConfig
 
 NX, NU, NS = 4, 3, 3  # state, input, slack (per stage)
-#: OSQP's status values (its C enum ``osqp_status_type``, the same in 0.6 and 1.x)
+#: OSQP 1.x's status values (its C enum ``osqp_status_type``; 0.6 numbered them otherwise)
 _SOLVED, _SOLVED_INACCURATE, _MAX_ITER = 1, 2, 7
 UT4 = [(a, b) for a in range(4) for b in range(a, 4)]   # upper triangle of a 4x4 block
 APAT = [(0, 0), (1, 1), (2, 2), (3, 3), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]  # A_d pattern
@@ -308,7 +311,9 @@ class QpSolver:
         """Primal and dual warm start: the previous solution shifted in time by the
         stages elapsed (linear interpolation per stage block, last stage repeated). The
         dual is None when the previous solution has none. Every block moves by the same
-        shift, so slacks and all row blocks are shifted at once (:class:`_Shift`)."""
+        shift, so slacks and all row blocks are shifted at once (:class:`_Shift`). After an
+        unfinished solve that could not be used (``iterate``), that iterate, primal and dual,
+        shifted by the stages elapsed since it."""
         L = self.layout
         if self.iterate is not None and shift_stages is not None:
             x_it, y_it, sh_it = self.iterate
