@@ -86,7 +86,7 @@ def plan_in_new_model(plan: Plan, plant: HybridPlant, model) -> np.ndarray:
     """The plan's inputs (N, 3) rewritten for new model values (``model``: a
     ``controller.adapt.LearnedModel``) so that they do what the plan meant under ``plant``'s
     current values: the same road-wheel angle (eq. 7's linear map) and, per stage, the same
-    acceleration from the pressed pedal in that stage's zone (eq. 8). The plan is the previous
+    acceleration from the stage's free pedal in its zone (eq. 8). The plan is the previous
     solution the next QP is warm-started from and its first stages are held to (the replan
     term): in the old model's pedal and steering-wheel units it would hold the car to what the
     new model says is a different acceleration and road-wheel angle, and the learned
@@ -102,9 +102,11 @@ def plan_in_new_model(plan: Plan, plant: HybridPlant, model) -> np.ndarray:
     sc_n = np.maximum(np.asarray(model.zone_scale_mps2, dtype=float)[z], 1e-6)
     br_n = np.maximum(np.asarray(model.zone_brake_mps2, dtype=float)[z], 1e-6)
     acc = off + sc * U[:, 1] - br * U[:, 2]
-    thr, brk = U[:, 1] > 0.0, U[:, 2] > 0.0
-    U[thr, 1] = np.clip((acc[thr] - off_n[thr]) / sc_n[thr], 0.0, 1.0)
-    U[brk, 2] = np.clip((off_n[brk] - acc[brk]) / br_n[brk], 0.0, 1.0)
+    # the stage's free pedal (its pedal mode) carries the change, when pressed
+    free_thr = np.asarray(plan.modes) == _THROTTLE
+    thr, brk = free_thr & (U[:, 1] > 0.0), ~free_thr & (U[:, 2] > 0.0)
+    U[thr, 1] = np.clip((acc[thr] - off_n[thr] + br_n[thr] * U[thr, 2]) / sc_n[thr], 0.0, 1.0)
+    U[brk, 2] = np.clip((off_n[brk] + sc_n[brk] * U[brk, 1] - acc[brk]) / br_n[brk], 0.0, 1.0)
     return U
 
 
