@@ -26,6 +26,7 @@ from hmpc.controller.mpc.config import MpcConfig
 NX, NU, NS = 4, 3, 3  # state, input, slack (per stage)
 #: OSQP 1.x's status values (its C enum ``osqp_status_type``; 0.6 numbered them otherwise)
 _SOLVED, _SOLVED_INACCURATE, _MAX_ITER = 1, 2, 7
+_OSQP_INFTY = 1e30  # OSQP's infinity (its OSQP_INFTY): bounds beyond it are clipped to it
 UT4 = [(a, b) for a in range(4) for b in range(a, 4)]   # upper triangle of a 4x4 block
 APAT = [(0, 0), (1, 1), (2, 2), (3, 3), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]  # A_d pattern
 BPAT = [(i, j) for i in range(4) for j in range(3)]
@@ -222,6 +223,7 @@ class QpSolver:
         self.solver = None
         self._update_s = 0.0
         self._max_iter = 0  # the iteration cap OSQP has now
+        self._raw = None
         self.forget()
 
     def forget(self) -> None:
@@ -259,9 +261,21 @@ class QpSolver:
                 settings["time_limit"] = cfg.time_limit_s
             self.solver.setup(Pm, q, Am, lo, hi, **settings)
             self._max_iter = cfg.max_iter
+            # OSQP 1.x's extension object: its update and solve called directly save the
+            # Python wrapper's per-call bookkeeping (about 0.1 ms a step); None: the wrapper
+            raw = getattr(self.solver, "_solver", None)
+            self._raw = raw if all(hasattr(raw, a) for a in (
+                "update_data_vec", "update_data_mat", "solve", "info", "solution")) else None
         else:
             t_up = time.perf_counter()
-            self.solver.update(Px=Pdata, Ax=Adata, q=q, l=lo, u=hi)  # values in place
+            raw = self._raw
+            if raw is not None:  # the same calls as OSQP.update, without its bookkeeping
+                np.maximum(lo, -_OSQP_INFTY, out=lo)
+                np.minimum(hi, _OSQP_INFTY, out=hi)
+                raw.update_data_vec(q=q, l=lo, u=hi)
+                raw.update_data_mat(P_x=Pdata, P_i=None, A_x=Adata, A_i=None)
+            else:
+                self.solver.update(Px=Pdata, Ax=Adata, q=q, l=lo, u=hi)  # values in place
             self._update_s = time.perf_counter() - t_up  # includes OSQP's KKT refactorisation
         cap = cfg.max_iter if shift_stages is not None else cfg.max_iter_cold
         if cap != self._max_iter:  # a cold start (no plan to shift) has its own cap
@@ -274,14 +288,20 @@ class QpSolver:
             else:
                 self.solver.warm_start(x=xw, y=yw)
         t0, c0 = time.perf_counter(), time.thread_time()
-        res = self.solver.solve(raise_error=False)
+        raw = self._raw
+        if raw is not None:  # OSQP.solve without copying its info into a namespace
+            raw.solve()
+            info, sol = raw.info, raw.solution
+            x, y = sol.x, sol.y
+        else:
+            res = self.solver.solve(raise_error=False)
+            info, x, y = res.info, res.x, res.y
         solve_s, solve_cpu_s = time.perf_counter() - t0, time.thread_time() - c0
-        info = res.info
         sv = int(info.status_val)
         out = SolveOutcome(None, str(info.status), "osqp", solve_time_s=solve_s,
                            update_time_s=self._update_s, iterations=int(info.iter),
                            solve_cpu_s=solve_cpu_s)
-        finite = res.x is not None and np.isfinite(res.x).all()
+        finite = x is not None and np.isfinite(x).all()
         if sv == _MAX_ITER and finite:
             # the iteration cap: the iterate is used when its residuals are within the
             # capped tolerances (each step's command is only its first stages, and
@@ -290,20 +310,20 @@ class QpSolver:
             if info.prim_res <= cfg.capped_prim_tol and info.dual_res <= cfg.capped_dual_tol:
                 out.inaccurate, out.capped = True, True
                 self.iterate = None
-                self.last_y = np.array(res.y)
-                out.solution = np.array(res.x)
+                self.last_y = np.array(y)
+                out.solution = np.array(x)
             elif shift_stages is not None:
                 # the next step starts from this iterate (shifted by the stages elapsed
                 # since its first stage), so that a hard QP converges over a few steps
-                self.iterate = (np.array(res.x), np.array(res.y), shift_stages)
+                self.iterate = (np.array(x), np.array(y), shift_stages)
             return out
         ok = sv == _SOLVED or (sv == _SOLVED_INACCURATE and cfg.accept_inaccurate)
         if not ok or not finite:
             return out
         out.inaccurate = sv != _SOLVED
         self.iterate = None
-        self.last_y = np.array(res.y)
-        out.solution = np.array(res.x)
+        self.last_y = np.array(y)
+        out.solution = np.array(x)
         return out
 
     def warm_start_vectors(self, Xb: np.ndarray, Ub: np.ndarray, shift_stages: float | None
