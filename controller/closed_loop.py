@@ -112,6 +112,8 @@ class ClosedLoopResult:
         adapt_time_s: its CPU time per control step [s] (learning and handing the model
             over to the controller and the estimator; the messages it sums are included;
             CPU time, so that a loaded host's preemptions do not count).
+        step_cpu_s, estimator_cpu_s: ``step_time_s`` and ``estimator_time_s`` in CPU time
+            of the loop's thread [s] (the work itself, without a loaded host's preemptions).
     """
 
     recording: Recording
@@ -131,6 +133,8 @@ class ClosedLoopResult:
     estimate_latency_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     adapter: object = None
     adapt_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    step_cpu_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    estimator_cpu_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def run_closed_loop(controller: Controller, reference: Reference, params: Params, *,
@@ -219,15 +223,19 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
         log.pending_est_s += _observe(fb, t, s, u[0], accel, plant.road_wheel_angle(sw_eff),
                                       adapter, faults, log)
         if i % every == 0:
-            t_w = time.perf_counter()
+            t_w, c_w = time.perf_counter(), time.thread_time()
             est = fb.estimate(t)
             meas = est[0] if est is not None else s.copy()  # reset above: never None
             t_est = time.perf_counter() - t_w
+            log.est_cpu_t.append(time.thread_time() - c_w + log.pending_est_cpu_s)
+            log.pending_est_cpu_s = 0.0
             if adapter is not None:  # its cost in CPU time: the host's load is not its own
                 t_w = time.thread_time()
                 _adapt(adapter, fb.estimator, controller, t)
                 log.pending_adapt_s += time.thread_time() - t_w
+            c_w = time.thread_time()
             res = controller.step(meas, reference, t)
+            log.step_cpu_t.append(time.thread_time() - c_w)
             # the actuation boundary applies the limits again, whatever the controller did
             cmd = apply_limits(res.command, prev_applied, lim, control_period_s)
             prev_applied = cmd
@@ -246,9 +254,10 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
         u = np.array([d_steer.push(cmd.steering_wheel_angle_rad), d_acc.push(cmd.accel_pedal),
                       d_brk.push(cmd.brake_pedal)])
         if u_fed is None or not np.array_equal(u, u_fed):
-            t_w = time.perf_counter()
+            t_w, c_w = time.perf_counter(), time.thread_time()
             fb.command(t, u)
             log.pending_est_s += time.perf_counter() - t_w
+            log.pending_est_cpu_s += time.thread_time() - c_w
             u_fed = u
         r, sw_eff = _plant_step(plant, truth, s, u, plant_dt_s, zone)
         _record(cols, i, t, s, u, cmd, plant, sw_eff)
@@ -269,7 +278,8 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
                               log.errors, np.array(log.est_t),
                               np.array(log.est_state).reshape(-1, 4),
                               np.array(log.true_state).reshape(-1, 4), np.array(log.est_now_t),
-                              adapter, np.array(log.adapt_t))
+                              adapter, np.array(log.adapt_t), np.array(log.step_cpu_t),
+                              np.array(log.est_cpu_t))
     result.metrics = metrics_of(result, lim)
     result.metrics["seed"] = seed
     result.metrics["estimator"] = _estimator_figures(result, fb)
@@ -419,10 +429,12 @@ def _observe(fb: SensorFeedback, t: float, s: np.ndarray, sw_rad: float, accel_m
     if faults:
         for m in msgs:
             log.faults_applied += _apply_faults(m, faults, log.fault_held)
-    t_w = time.perf_counter()
+    t_w, c_w = time.perf_counter(), time.thread_time()
     for m in msgs:
         fb.estimator.feed(m, t)
     t_a = time.perf_counter()
+    if log is not None:
+        log.pending_est_cpu_s += time.thread_time() - c_w
     if adapter is not None:
         c_a = time.thread_time()
         for m in msgs:
@@ -439,6 +451,8 @@ class _StepLog:
         self.solve_t, self.step_t, self.ctl_t, self.est_t, self.est_now_t = [], [], [], [], []
         self.est_state, self.true_state = [], []
         self.pending_est_s = 0.0  # estimator time spent after the last control step [s]
+        self.step_cpu_t, self.est_cpu_t = [], []  # the same two in CPU time [s]
+        self.pending_est_cpu_s = 0.0
         self.adapt_t = []          # the adapter's time per control step [s]
         self.pending_adapt_s = 0.0
         self.faults_applied = 0    # messages a sensor fault changed

@@ -130,9 +130,14 @@ class SolveOutcome:
         solver_status: the solver's own status text.
         solver: "osqp" or "ipopt".
         inaccurate: solved to the looser tolerance only.
-        solve_time_s: time in the solver [s].
+        solve_time_s: time in the solver [s] (wall).
+        solve_cpu_s: the same in CPU time of the calling thread [s] (a loaded host's
+            preemptions excluded).
         update_time_s: time writing the new values into the solver [s].
         iterations: solver iterations.
+        capped: the solver stopped at its iteration cap (``MpcConfig.max_iter``) and its
+            iterate was close enough to use (``MpcConfig.capped_prim_tol``,
+            ``capped_dual_tol``).
     """
 
     solution: np.ndarray | None
@@ -142,6 +147,8 @@ class SolveOutcome:
     solve_time_s: float = 0.0
     update_time_s: float = 0.0
     iterations: int = 0
+    capped: bool = False
+    solve_cpu_s: float = 0.0
 
     @property
     def reason(self) -> str:

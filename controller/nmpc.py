@@ -18,8 +18,8 @@ changes (second differences), the two inputs before the horizon as the fast path
 of moving the first ``replan_window_s`` of inputs away from the previous plan. The
 smoothness is thus a separate term from tracking in both, and both solve one problem.
 
-It is used to check the fast path (tests: both agree on simple cases) and as the
-baseline of ``tools/bench_mpc.py``. Its model is models/plant.py's eq. 1, 7 and 8, the same
+It is used to check the fast path (tests: both agree on simple cases) and as a
+reference in ``tools/bench_mpc.py``. Its model is models/plant.py's eq. 1, 7 and 8, the same
 functions the plant and the fast path call, evaluated on CasADi symbols (``ops=casadi``).
 """
 from __future__ import annotations

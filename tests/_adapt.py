@@ -1,40 +1,8 @@
-"""Hidden parameter sets for the online model estimator's tests (tests/adapt/) and its
-figures (docs/adaptation.md): a simulated car a seeded draw away from the file the controller
-is given.
-
-``hidden_params(base, seed)``: the steering scale and every zone's accelerator and brake gains
-each scaled by ``1 +- U(0.10, 0.25)`` (sign drawn too), the steering offset moved by +-13 mrad;
-zone offsets and boundaries, geometry and everything else as in ``base``.
-"""
+"""Hidden parameter sets for the online model estimator's tests (tests/adapt/): a
+simulated car a seeded draw away from the file the controller is given
+(``hmpc.models.sim.hidden``, also behind tools/adaptation_figures.py)."""
 from __future__ import annotations
 
-from dataclasses import replace
+from hmpc.models.sim.hidden import GAIN_CHANGE, OFFSET_SHIFT_RAD, hidden_params, write_hidden
 
-import numpy as np
-
-from hmpc.models.params import Params, dump_params
-
-#: the factor range of a hidden gain (either sign) and the offset's shift [rad]
-GAIN_CHANGE = (0.10, 0.25)
-OFFSET_SHIFT_RAD = 0.013
-
-
-def _factor(rng: np.random.Generator) -> float:
-    return 1.0 + float(rng.choice((-1.0, 1.0))) * float(rng.uniform(*GAIN_CHANGE))
-
-
-def hidden_params(base: Params, seed: int) -> Params:
-    """``base`` with its gains and steering offset moved by a seeded draw (module doc)."""
-    rng = np.random.default_rng(int(seed))
-    st = base.steering
-    steering = replace(st, scale=st.scale * _factor(rng),
-                       offset_rad=st.offset_rad + float(rng.choice((-1.0, 1.0))) * OFFSET_SHIFT_RAD)
-    zones = [replace(z, scale_mps2=z.scale_mps2 * _factor(rng),
-                     brake_scale_mps2=z.brake_scale_mps2 * _factor(rng)) for z in base.zones]
-    return replace(base, steering=steering, zones=zones, path=f"hidden-{seed}")
-
-
-def write_hidden(base: Params, seed: int, path) -> str:
-    """:func:`hidden_params` written as a parameter file at ``path``."""
-    dump_params(hidden_params(base, seed), path)
-    return str(path)
+__all__ = ["GAIN_CHANGE", "OFFSET_SHIFT_RAD", "hidden_params", "write_hidden"]

@@ -18,7 +18,14 @@ class MpcConfig:
     horizon_s: float = 10.0        # horizon length: 10-15 s
     dt_s: float = 0.2              # QP stage length: 0.1 or 0.2 s
     # tracking
-    w_lateral: float = 4.0         # per m^2 of lateral error, per s
+    # per m^2 of lateral error, per s. The lateral loop's bandwidth: the estimate's position
+    # error (about 1 cm RMS at the default sensors, correlated over seconds) is followed
+    # by the car at the loop's bandwidth, and the steering that takes grows with it (with
+    # noise-free sensors a straight run has no steering reversal; with them, a car whose
+    # steering gain exceeds the model's, the loop's margin smaller, wanders the wheel by
+    # +-1 deg at 8 m/s to follow mm of estimate error). 2 keeps the tracking at a few cm
+    # (tests/test_smooth_control.py, docs/results.md)
+    w_lateral: float = 2.0
     w_heading: float = 4.0         # per rad^2 of heading error, per s
     w_speed: float = 10.0          # per (m/s)^2 of speed error, per s
     # effort on the change of an input per stage, normalised to its range (steering-wheel
@@ -54,6 +61,10 @@ class MpcConfig:
     # Pedals above steering (report VI).
     w_steer_replan: float = 3000.0
     w_pedal_replan: float = 6000.0
+    # The pedals' weight holds over the window; the steering's fades as a raised cosine to 0
+    # at twice the window (half weight at the window, the same sum; cost.replan_fade): a
+    # weight ending in a step bends every steering plan just past it, and the bend reaches
+    # the wheel as a reversal a few steps later
     replan_window_s: float = 1.0
     w_pedal_level: float = 0.02    # per pedal^2 per s: prefer the lighter pedal
     w_steer_level: float = 0.02    # per (sw - feedforward)^2 / max^2 per s
@@ -82,15 +93,38 @@ class MpcConfig:
     # controlled stop after the plan ran out: brake decel target and ramp (jerk) [m/s^2, m/s^3]
     stop_brake_decel_mps2: float = 2.0
     # OSQP
-    max_iter: int = 4000
+    # iteration caps: a warm-started solve (a previous plan, shifted) converges in a few tens
+    # of iterations; the few that do not (a pedal-mode or zone change moves many bounds at
+    # once) are cut here so that a step's time stays bounded (tools/bench_mpc.py). A cold
+    # start (no plan: the first step, the first after a standstill hold) gets the solver's
+    # own default, once.
+    max_iter: int = 50
+    max_iter_cold: int = 4000
+    # the iteration cap's use of an unfinished iterate (OSQP stopped at ``max_iter``): used
+    # when its residuals (inf-norms, unscaled) are within these, else the step falls back to
+    # the previous plan, shifted, and the next step continues from the iterate. OSQP's own
+    # "solved" on these QPs allows eps_abs + eps_rel |z|, with positions of 100 m and more in
+    # |z|: 0.1 and more; capped iterates sit at 0.1-0.25 for many steps on a hard stretch
+    # (tests/test_mpc_extensions.py's drag run). 0.5 (m, m/s or rad of dynamics somewhere
+    # along the horizon; the command is the first stages, which the next steps refine). The
+    # gradient (dual) residual OSQP accepts is eps_abs + eps_rel |q| and more, |q| of some
+    # hundreds from the replan terms: 0.3 and more; capped iterates reach 1.3 (the idle
+    # hold): 5
+    capped_prim_tol: float = 0.5
+    capped_dual_tol: float = 5.0
     eps_abs: float = 1e-3          # 1 mm, 1 mm/s: far below what the plant can act on
     eps_rel: float = 1e-3
     # OSQP: test convergence every this many iterations. Warm-started (shifted primal and
     # dual) the QP converges in a few tens of iterations: a sparser test runs far past that
     check_termination: int = 5
-    # OSQP rho adaptation every this many iterations (0: OSQP's timing-based choice, which
-    # adapted too late for a 15-iteration solve) and the factor that triggers it
-    adaptive_rho_interval: int = 5
+    # OSQP's step size rho (initial value; adapted when ``adaptive_rho``): a fixed rho needs
+    # far more iterations on these QPs (tools/bench_mpc.py). Adapted every this many
+    # iterations (0: OSQP's timing-based choice, which adapts too late for a 15-iteration
+    # solve); each adaptation refactorises the KKT matrix, as costly as the step's data
+    # update, so at most ``max_iter / adaptive_rho_interval`` of them per solve
+    adaptive_rho: bool = True
+    rho: float = 0.1
+    adaptive_rho_interval: int = 10
     adaptive_rho_tolerance: float = 3.0
     # OSQP relaxation (its default 1.6): from a shifted warm start strong over-relaxation
     # overshoots, and 1.2 stops in fewer iterations (tools/bench_mpc.py); 1.0 stops as early
@@ -134,8 +168,10 @@ class MpcConfig:
             raise ValueError("MpcConfig.adaptive_rho_tolerance must be >= 1")
         if not 0 < self.admm_alpha < 2:
             raise ValueError("MpcConfig.admm_alpha must be in (0, 2)")
-        if self.max_iter < 1:
-            raise ValueError("MpcConfig.max_iter must be >= 1")
+        if not (self.capped_prim_tol >= 0 and self.capped_dual_tol >= 0):
+            raise ValueError("MpcConfig: capped_prim_tol and capped_dual_tol must be >= 0")
+        if self.max_iter < 1 or self.max_iter_cold < 1:
+            raise ValueError("MpcConfig.max_iter and max_iter_cold must be >= 1")
 
     @property
     def n_stages(self) -> int:

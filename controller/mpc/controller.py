@@ -82,6 +82,34 @@ def _linspace6(start: float, stop: float) -> np.ndarray:
     return y
 
 
+def plan_in_new_model(plan: Plan, plant: HybridPlant, model) -> np.ndarray:
+    """The plan's inputs (N, 3) rewritten for new model values (``model``: a
+    ``controller.adapt.LearnedModel``) so that they do what the plan meant under ``plant``'s
+    current values: the same road-wheel angle (eq. 7's linear map) and, per stage, the same
+    acceleration from the stage's free pedal in its zone (eq. 8). The plan is the previous
+    solution the next QP is warm-started from and its first stages are held to (the replan
+    term): in the old model's pedal and steering-wheel units it would hold the car to what the
+    new model says is a different acceleration and road-wheel angle, and the learned
+    correction would reach the commands only as fast as the replan term lets the plan move."""
+    U = plan.inputs.copy()
+    sc_new = float(model.scale)
+    if abs(sc_new) > 1e-9:
+        delta = plant.offset_rad + plant.scale * U[:, 0]
+        U[:, 0] = (delta - float(model.offset_rad)) / sc_new
+    z = np.asarray(plan.zones, dtype=np.int64)
+    off, sc, br = plant.z_offset[z], plant.z_scale[z], plant.z_brake[z]
+    off_n = np.asarray(model.zone_offset_mps2, dtype=float)[z]
+    sc_n = np.maximum(np.asarray(model.zone_scale_mps2, dtype=float)[z], 1e-6)
+    br_n = np.maximum(np.asarray(model.zone_brake_mps2, dtype=float)[z], 1e-6)
+    acc = off + sc * U[:, 1] - br * U[:, 2]
+    # the stage's free pedal (its pedal mode) carries the change, when pressed
+    free_thr = np.asarray(plan.modes) == _THROTTLE
+    thr, brk = free_thr & (U[:, 1] > 0.0), ~free_thr & (U[:, 2] > 0.0)
+    U[thr, 1] = np.clip((acc[thr] - off_n[thr] + br_n[thr] * U[thr, 2]) / sc_n[thr], 0.0, 1.0)
+    U[brk, 2] = np.clip((off_n[brk] + sc_n[brk] * U[brk, 1] - acc[brk]) / br_n[brk], 0.0, 1.0)
+    return U
+
+
 class MpcController:
     """The OSQP fast path. ``step`` returns a :class:`ControlResult`; see the module doc.
 
@@ -98,6 +126,8 @@ class MpcController:
     """
 
     name = "mpc"
+    #: the last good solution (None after :meth:`reset`)
+    _plan: Plan | None
 
     def __init__(self, params: Params, config: MpcConfig | None = None,
                  limits: ActuatorLimits | None = None, mode_config: ModeConfig | None = None):
@@ -141,13 +171,16 @@ class MpcController:
     def use_model(self, model) -> None:
         """Predict with new model values from now on (the online model estimator's
         ``controller.adapt.LearnedModel``: eq. 7's offset and scale, eq. 8 per zone, the dead
-        times and lags). Values only: the QP's pattern, the plan and the warm start stay; the
+        times and lags). Values only: the QP's pattern and the warm start stay, and the plan
+        stays with its inputs rewritten for the new values (:func:`plan_in_new_model`); the
         prediction model's coefficients are written in place, the pedal bounds that derive
         from them recomputed, the terminal cost's cache dropped when the steering scale moved
         (it is a function of the scale), and the zones the limits read replaced."""
         pl = self.plant
         if abs(model.scale - pl.scale) > LQR_SCALE_TOL * abs(pl.scale):
             self.cost._lqr_cache.clear()
+        if self._plan is not None:
+            self._plan = replace(self._plan, inputs=plan_in_new_model(self._plan, pl, model))
         pl.offset_rad, pl.scale = float(model.offset_rad), float(model.scale)
         pl.z_offset[:] = model.zone_offset_mps2
         pl.z_scale[:] = model.zone_scale_mps2
@@ -171,7 +204,7 @@ class MpcController:
     # ----------------------------------------------------------------- state
     def reset(self) -> None:
         """Forget the plan, the history and the modes (a new run)."""
-        self._plan: Plan | None = None  # the last good solution
+        self._plan = None  # the last good solution
         self._last_cmd: Command | None = None
         self._last_t: float | None = None
         self._zone: int | None = None
@@ -252,7 +285,7 @@ class MpcController:
         that raise too, the last resort: throttle released, brake pressed at its rate limit,
         steering held (``apply_limits`` on a non-finite command)."""
         self._plan = None
-        self.qp.warm = None
+        self.qp.forget()
         try:
             zone = self._zone if self._zone is not None else 0
             return self._controlled_stop(float(t_s), "", zone)
@@ -302,7 +335,7 @@ class MpcController:
         v_mode = float(x0[3]) if cold else float(Xb[0, 3])
         Xb[0] = x0
         iters = cfg.cold_start_iterations if cold else 1
-        total_solve, total_update, total_it = 0.0, 0.0, 0
+        total_solve, total_update, total_it, total_cpu = 0.0, 0.0, 0, 0.0
         first = None
         for it in range(iters):
             stage, first = self._stage_data(
@@ -313,6 +346,7 @@ class MpcController:
             total_solve += out.solve_time_s
             total_update += out.update_time_s
             total_it += out.iterations
+            total_cpu += out.solve_cpu_s
             if out.solution is None:
                 break
             sol = out.solution
@@ -338,7 +372,8 @@ class MpcController:
                              plan_inputs=Ub, zone_plan=zones, mode_plan=modes, zone=zone0,
                              pedal_mode=mode_l, iterations=total_it,
                              info={"v_ref_mps": stage.v_ref_mps, "s0_m": s0,
-                                   "update_time_s": total_update})
+                                   "update_time_s": total_update, "capped": out.capped,
+                                   "solve_cpu_s": total_cpu})
 
     def _standstill_hold(self, x_meas: np.ndarray, ref: Reference, t: float, d: float,
                          stop: bool, obstacle_m: float | None,
@@ -352,7 +387,7 @@ class MpcController:
             return None
         self._pedal.hold(t)
         self._plan = None
-        self.qp.warm = None
+        self.qp.forget()
         z = self.params.zones[0]
         hold_bp = self._standstill.hold_brake(z.offset_mps2, z.brake_scale_mps2)
         prev = self._last_cmd

@@ -8,7 +8,8 @@ and the values of P and q written each step.
   should have a higher cost"; checked in :class:`MpcConfig`);
 - smoothness, terms of their own beside tracking: the change of the input rates (second
   differences, against the rate the last plan had), the unplanned part of the rate
-  (distance of the first ``replan_window_s`` of inputs from the last plan, shifted to now)
+  (distance of the first ``replan_window_s`` of inputs from the last plan, shifted to now;
+  for the steering faded out over twice that, :func:`replan_fade`)
   and the steering-wheel rate per metre driven (path sharpness, weight 1/v^2);
 - slack penalties of the soft limits (jerk, the speed band).
 
@@ -59,6 +60,19 @@ def difference_bands(w_rate: np.ndarray, w_rate_change: np.ndarray
     return diag, off1, off2
 
 
+def replan_fade(window_s: float, dt_s: float, n_stages: int) -> np.ndarray:
+    """(n_stages,) weight of the replan term per stage: a raised cosine from 1 at stage 0
+    to 0 at twice ``window_s``, one half at ``window_s`` (the same sum as a window of
+    ``window_s`` at full weight). A weight that ends in a step bends every plan where it
+    ends (the inputs just past it are free to take the whole correction), and that bend
+    reaches the command one step later as a steering reversal."""
+    k = np.arange(n_stages) * dt_s
+    fade_s = 2.0 * window_s
+    if fade_s <= 0:
+        return np.zeros(n_stages)
+    return np.where(k < fade_s, 0.5 * (1.0 + np.cos(np.pi * np.minimum(k / fade_s, 1.0))), 0.0)
+
+
 _BLAS_THREADS = None  # threadpoolctl's controller of the loaded BLAS libraries, made once
 
 
@@ -98,9 +112,12 @@ class QpCost:
         self.w_sharp = c.w_steer_sharpness * sw_n / dt
         self.pedal_bands = difference_bands(np.full(N, self.w_pr), np.full(N, self.w_prc))
         P_slack = np.full(NS * N, c.w_slack_quadratic * dt)
-        k_re = min(int(round(c.replan_window_s / dt)), N)
+        fade = replan_fade(c.replan_window_s, dt, N)
         self.w_replan = np.zeros((N, NU))  # per unit^2 of distance from the last plan
-        self.w_replan[:k_re, 0] = c.w_steer_replan * sw_n * dt
+        self.w_replan[:, 0] = c.w_steer_replan * sw_n * dt * fade
+        # the pedals keep the full weight over the window: faded, the speed loop reacts
+        # later (idle hold 0.020 against 0.015 m/s RMS), and a pedal bend is no reversal
+        k_re = min(int(round(c.replan_window_s / dt)), N)
         self.w_replan[:k_re, 1:] = c.w_pedal_replan * dt
         self._Px_vals = np.zeros(layout.P.nnz)
         self._lqr_cache: dict = {}

@@ -8,7 +8,10 @@ values are written in to CSC order. Each step the cost (controller/mpc/cost.py) 
 constraints (controller/mpc/constraints.py) write new values in that order;
 :class:`QpSolver` hands them to OSQP (``update(Px=, Ax=, q=, l=, u=)``: no new pattern, no
 new solver) and warm-starts it from the previous solution, primal and dual, shifted in time
-by the stages elapsed (:class:`_Shift`).
+by the stages elapsed (:class:`_Shift`). A warm-started solve stops at ``MpcConfig.max_iter``
+iterations: its iterate is used when close enough (``capped_prim_tol``, ``capped_dual_tol``),
+else the step fails (the controller shifts its last plan) and the next solve continues from
+that iterate.
 """
 from __future__ import annotations
 
@@ -22,6 +25,9 @@ from hmpc.controller.horizon import SolveOutcome
 from hmpc.controller.mpc.config import MpcConfig
 
 NX, NU, NS = 4, 3, 3  # state, input, slack (per stage)
+#: OSQP 1.x's status values (its C enum ``osqp_status_type``; 0.6 numbered them otherwise)
+_SOLVED, _SOLVED_INACCURATE, _MAX_ITER = 1, 2, 7
+_OSQP_INFTY = 1e30  # OSQP's infinity (its OSQP_INFTY): bounds beyond it are clipped to it
 UT4 = [(a, b) for a in range(4) for b in range(a, 4)]   # upper triangle of a 4x4 block
 APAT = [(0, 0), (1, 1), (2, 2), (3, 3), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]  # A_d pattern
 BPAT = [(i, j) for i in range(4) for j in range(3)]
@@ -155,6 +161,9 @@ class QpLayout:
         self.A, self.A_perm = _pattern(ar, ac, self.m, self.n)
         self.slack_shift = _Shift([(slice(0, NS * N), NS)])  # warm start: slacks
         self.dual_shift = _Shift(self.row_blocks)             # and the dual
+        self.primal_shift = _Shift([(slice(0, self.nx_all), NX),  # an unfinished iterate
+                                    (slice(self.nx_all, self.nx_all + self.nu_all), NU),
+                                    (slice(self.nx_all + self.nu_all, self.n), NS)])
 
 
 def _pattern(rows, cols, m, n):
@@ -225,6 +234,8 @@ class QpSolver:
         self.config = config
         self.solver: Any = None  # osqp.OSQP once set up (osqp has no type information)
         self._update_s = 0.0
+        self._max_iter = 0  # the iteration cap OSQP has now
+        self._raw = None
         self.forget()
 
     def forget(self) -> None:
@@ -232,6 +243,10 @@ class QpSolver:
         #: the previous solution (primal, dual) to warm-start from, or None
         self.warm: tuple[np.ndarray, np.ndarray | None] | None = None
         self.last_y: np.ndarray | None = None
+        #: (primal, dual, shift) of an unfinished solve (the iteration cap) that could not
+        #: be used: the next warm start; ``shift``: its stage 0 in stages after the warm
+        #: start's plan's stage 0
+        self.iterate: tuple | None = None
 
     def solve(self, Pdata: np.ndarray, q: np.ndarray, Adata: np.ndarray, lo: np.ndarray,
               hi: np.ndarray, Xb: np.ndarray, Ub: np.ndarray,
@@ -250,35 +265,78 @@ class QpSolver:
             self.solver = osqp.OSQP()
             settings = dict(verbose=False, warm_starting=True, polishing=False,
                             eps_abs=cfg.eps_abs, eps_rel=cfg.eps_rel, max_iter=cfg.max_iter,
-                            adaptive_rho=True, check_termination=cfg.check_termination,
+                            adaptive_rho=cfg.adaptive_rho, rho=cfg.rho,
+                            check_termination=cfg.check_termination,
                             adaptive_rho_interval=cfg.adaptive_rho_interval,
                             adaptive_rho_tolerance=cfg.adaptive_rho_tolerance,
                             alpha=cfg.admm_alpha)
             if cfg.time_limit_s > 0:
                 settings["time_limit"] = cfg.time_limit_s
             self.solver.setup(Pm, q, Am, lo, hi, **settings)
+            self._max_iter = cfg.max_iter
+            # OSQP 1.x's extension object: its update and solve called directly save the
+            # Python wrapper's per-call bookkeeping (about 0.1 ms a step); None: the wrapper
+            raw = getattr(self.solver, "_solver", None)
+            self._raw = raw if all(hasattr(raw, a) for a in (
+                "update_data_vec", "update_data_mat", "solve", "info", "solution")) else None
         else:
             t_up = time.perf_counter()
-            self.solver.update(Px=Pdata, Ax=Adata, q=q, l=lo, u=hi)  # values in place
+            raw = self._raw
+            if raw is not None:  # the same calls as OSQP.update, without its bookkeeping
+                np.maximum(lo, -_OSQP_INFTY, out=lo)
+                np.minimum(hi, _OSQP_INFTY, out=hi)
+                raw.update_data_vec(q=q, l=lo, u=hi)
+                raw.update_data_mat(P_x=Pdata, P_i=None, A_x=Adata, A_i=None)
+            else:
+                self.solver.update(Px=Pdata, Ax=Adata, q=q, l=lo, u=hi)  # values in place
             self._update_s = time.perf_counter() - t_up  # includes OSQP's KKT refactorisation
+        cap = cfg.max_iter if shift_stages is not None else cfg.max_iter_cold
+        if cap != self._max_iter:  # a cold start (no plan to shift) has its own cap
+            self.solver.update_settings(max_iter=cap)
+            self._max_iter = cap
         if self.warm is not None and self.config.warm_start_shifted:
             xw, yw = self.warm_start_vectors(Xb, Ub, shift_stages)
             if yw is None:
                 self.solver.warm_start(x=xw)
             else:
                 self.solver.warm_start(x=xw, y=yw)
-        t0 = time.perf_counter()
-        res = self.solver.solve(raise_error=False)
-        solve_s = time.perf_counter() - t0
-        sv = int(res.info.status_val)
-        out = SolveOutcome(None, str(res.info.status), "osqp", solve_time_s=solve_s,
-                           update_time_s=self._update_s, iterations=int(res.info.iter))
-        ok = sv == 1 or (sv == 2 and cfg.accept_inaccurate)
-        if not ok or res.x is None or not np.isfinite(res.x).all():
+        t0, c0 = time.perf_counter(), time.thread_time()
+        raw = self._raw
+        if raw is not None:  # OSQP.solve without copying its info into a namespace
+            raw.solve()
+            info, sol = raw.info, raw.solution
+            x, y = sol.x, sol.y
+        else:
+            res = self.solver.solve(raise_error=False)
+            info, x, y = res.info, res.x, res.y
+        solve_s, solve_cpu_s = time.perf_counter() - t0, time.thread_time() - c0
+        sv = int(info.status_val)
+        out = SolveOutcome(None, str(info.status), "osqp", solve_time_s=solve_s,
+                           update_time_s=self._update_s, iterations=int(info.iter),
+                           solve_cpu_s=solve_cpu_s)
+        finite = x is not None and np.isfinite(x).all()
+        if sv == _MAX_ITER and finite:
+            # the iteration cap: the iterate is used when its residuals are within the
+            # capped tolerances (each step's command is only its first stages, and
+            # the next step starts from it); otherwise it is kept as the next warm start
+            # only and the step falls back (the previous plan, shifted)
+            if info.prim_res <= cfg.capped_prim_tol and info.dual_res <= cfg.capped_dual_tol:
+                out.inaccurate, out.capped = True, True
+                self.iterate = None
+                self.last_y = np.array(y)
+                out.solution = np.array(x)
+            elif shift_stages is not None:
+                # the next step starts from this iterate (shifted by the stages elapsed
+                # since its first stage), so that a hard QP converges over a few steps
+                self.iterate = (np.array(x), np.array(y), shift_stages)
             return out
-        out.inaccurate = sv != 1
-        self.last_y = np.array(res.y)
-        out.solution = np.array(res.x)
+        ok = sv == _SOLVED or (sv == _SOLVED_INACCURATE and cfg.accept_inaccurate)
+        if not ok or not finite:
+            return out
+        out.inaccurate = sv != _SOLVED
+        self.iterate = None
+        self.last_y = np.array(y)
+        out.solution = np.array(x)
         return out
 
     def warm_start_vectors(self, Xb: np.ndarray, Ub: np.ndarray, shift_stages: float | None
@@ -286,8 +344,14 @@ class QpSolver:
         """Primal and dual warm start: the previous solution shifted in time by the
         stages elapsed (linear interpolation per stage block, last stage repeated). The
         dual is None when the previous solution has none. Every block moves by the same
-        shift, so slacks and all row blocks are shifted at once (:class:`_Shift`)."""
+        shift, so slacks and all row blocks are shifted at once (:class:`_Shift`). After an
+        unfinished solve that could not be used (``iterate``), that iterate, primal and dual,
+        shifted by the stages elapsed since it."""
         L = self.layout
+        if self.iterate is not None and shift_stages is not None:
+            x_it, y_it, sh_it = self.iterate
+            return L.primal_shift(x_it, shift_stages - sh_it), L.dual_shift(y_it,
+                                                                           shift_stages - sh_it)
         assert self.warm is not None  # called only with a previous solution
         x_prev, y_prev = self.warm
         sh = shift_stages

@@ -2,12 +2,11 @@
 starts from params/report_2008.yaml, the simulated car is a seeded hidden parameter set
 (gains and scale moved 10-25 %, offset 13 mrad; tests/_adapt.py).
 
-What is checked, per seed: the learned values (figure8: offset within 2 mrad, scale within
-3 %; ramp_sequence: the low and high zones' accelerator gains within 6 %), tracking over the
-whole run within 2x of the controller given the truth (0.05 floor), no failures; the learned
-values untouched by a 2 s GNSS outage, a frozen wheel-speed channel and a yaw-rate spike; the
-CLI's JSON, learned file and plots; and a run that could not follow its reference (the
-steering wheel at its lock, a car that never pulls away) saying so with exit 1."""
+What is checked here: the learned values untouched by a 2 s GNSS outage, a frozen wheel-speed
+channel and a yaw-rate spike; the CLI's JSON, learned file and plots; and a run that could not
+follow its reference (the steering wheel at its lock, a car that never pulls away) saying so
+with exit 1. The acceptance per hidden set (learned values, tracking against the truth's
+controller, smoothness) is tests/test_adapt_sets.py."""
 from __future__ import annotations
 
 import json
@@ -39,41 +38,6 @@ def _run(params, truth, scenario, adapt=True, **kw):
     res = run_closed_loop(make_controller("mpc", ctl_params), ref, ctl_params,
                           plant_params=truth, adapter=ad, **kw)
     return res.metrics
-
-
-def _within_2x(m, m_truth):
-    for key in ("speed_error_rms_mps", "lateral_error_rms_m"):
-        assert m[key] <= max(2.0 * m_truth[key], 0.05), (key, m[key], m_truth[key])
-    assert m["failures"] == 0 and m["internal_errors"] == 0 and m["followed"]
-
-
-@pytest.mark.parametrize("seed", [2, 7])
-def test_figure8_learns_the_steering_map_and_tracks_like_the_truth(params, seed):
-    truth = hidden_params(params, seed)
-    m = _run(params, truth, "figure8")
-    a = m["adaptation"]
-    assert abs(a[OFF]["final"] - truth.steering.offset_rad) < 0.002
-    assert abs(a[SCALE]["final"] / truth.steering.scale - 1) < 0.03
-    assert a[OFF]["valid"] and a[SCALE]["identified"] and a[SCALE]["converged_t_s"] < 10.0
-    lo, hi = a[SCALE]["ci95"]
-    assert lo < a[SCALE]["final"] < hi
-    _within_2x(m, _run(params, truth, "figure8", adapt=False))
-    # the cost per control step: CPU time, tens of microseconds (a loaded host's counts)
-    assert m["adaptation_details"]["cost_us"]["p50"] < 1000.0
-
-
-@pytest.mark.parametrize("seed", [4, 7])
-def test_ramp_sequence_learns_the_pedal_gains_and_tracks_like_the_truth(params, seed):
-    truth = hidden_params(params, seed)
-    m = _run(params, truth, "ramp_sequence")
-    a = m["adaptation"]
-    for zone in (1, 2):
-        z = truth.zones[zone]
-        got = a[f"longitudinal.zones.{z.name}.scale_mps2"]["final"]
-        assert abs(got / z.scale_mps2 - 1) < 0.06, (z.name, got, z.scale_mps2)
-    # straight: the scale is held where the file has it, the offset drives straight with it
-    assert a[SCALE]["final"] == params.steering.scale and not a[SCALE]["identified"]
-    _within_2x(m, _run(params, truth, "ramp_sequence", adapt=False))
 
 
 def test_a_gnss_outage_a_frozen_wheel_and_a_yaw_spike_do_not_poison_the_estimate(params):

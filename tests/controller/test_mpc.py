@@ -1,6 +1,8 @@
 """The OSQP fast path (controller/mpc/): structure, modes, failure handling."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import copy
 
 import numpy as np
@@ -176,7 +178,10 @@ def test_solver_failure_shifts_the_plan_then_stops(params):
     ctl = MpcController(params)
     out = drive(ctl, ref, params, 2.0)
     assert out[-1][2].status == "solved"
-    ctl.qp.solver.update_settings(max_iter=1)  # force every later solve to fail
+    # force every later solve to fail: one iteration, warm or cold, and no capped iterate
+    # close enough to use
+    ctl.qp.config = replace(ctl.config, max_iter=1, max_iter_cold=1, capped_prim_tol=0.0,
+                            capped_dual_tol=0.0)
     later = drive_from(ctl, ref, params, out[-1][1], t0=2.1, seconds=12.0)
     st = [r.status for _, _, r in later]
     assert st[0] == "shifted_plan" and "maximum iterations" in later[0][2].reason
@@ -208,7 +213,7 @@ def drive_from(ctl, ref, params, s, t0, seconds, period=0.1):
 
 def test_failure_without_plan_and_bad_state_is_a_controlled_stop(params):
     ref = straight(5.0)
-    ctl = MpcController(params, MpcConfig(max_iter=1, cold_start_iterations=1))
+    ctl = MpcController(params, MpcConfig(max_iter=1, max_iter_cold=1, cold_start_iterations=1))
     r = ctl.step(ref.initial_state(params), ref, 0.0)
     assert r.status.startswith("controlled_stop") and not r.ok
     assert r.command.accel_pedal == 0.0 and r.command.brake_pedal > 0.0
