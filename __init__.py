@@ -5,4 +5,5 @@ The one import package. Its sub-packages are the repository's top-level folders,
 ``pyproject.toml``: ``hmpc.models`` (offline math), ``hmpc.controller`` (runtime) and
 ``hmpc.tools`` (the ``hmpc`` console script). Imports flow tools -> controller -> models.
 """
+
 __version__ = "0.1.0"

@@ -1,4 +1,5 @@
 """``python -m hmpc``: the same entry point as the ``hmpc`` console script."""
+
 import sys
 
 from hmpc.tools.cli import main

@@ -13,6 +13,7 @@ controller knows about) is :attr:`Status.INTERNAL_ERROR`, with the traceback in
 normal fallbacks (``internal_errors`` in the closed-loop metrics) so tests can assert that
 none happened.
 """
+
 from __future__ import annotations
 
 import enum
@@ -30,13 +31,13 @@ class Status(str, enum.Enum):
     """How a step's command was obtained. The value is the stable text used in run JSON
     (``statuses`` counts by value)."""
 
-    SOLVED = "solved"                        # the optimiser converged
+    SOLVED = "solved"  # the optimiser converged
     SOLVED_INACCURATE = "solved_inaccurate"  # converged to a looser tolerance (accepted)
-    OK = "ok"                                # a controller without an optimiser (PID) computed it
-    HOLD = "hold"                            # standstill hold: brake on, no solve needed
-    SHIFTED_PLAN = "shifted_plan"            # this solve failed: the previous plan, shifted
-    CONTROLLED_STOP = "controlled_stop"      # no usable plan (or a bad input): brake ramp
-    INTERNAL_ERROR = "internal_error"        # an unexpected exception: controlled stop
+    OK = "ok"  # a controller without an optimiser (PID) computed it
+    HOLD = "hold"  # standstill hold: brake on, no solve needed
+    SHIFTED_PLAN = "shifted_plan"  # this solve failed: the previous plan, shifted
+    CONTROLLED_STOP = "controlled_stop"  # no usable plan (or a bad input): brake ramp
+    INTERNAL_ERROR = "internal_error"  # an unexpected exception: controlled stop
 
     def __str__(self) -> str:
         return self.value
@@ -115,7 +116,14 @@ class Controller(Protocol):
     def reset(self) -> None:
         """Forget everything from a previous run."""
 
-    def step(self, state, reference, t_s: float, *, stop: bool = False,
-             obstacle_distance_m: float | None = None) -> ControlResult:
+    def step(
+        self,
+        state,
+        reference,
+        t_s: float,
+        *,
+        stop: bool = False,
+        obstacle_distance_m: float | None = None,
+    ) -> ControlResult:
         """One control step from the measured ``state`` [x_m, y_m, psi_rad, v_mps] at time
         ``t_s`` [s] on the reference's clock. Never raises, never returns None."""

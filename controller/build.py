@@ -4,9 +4,11 @@
 :func:`make_controller` builds the named controller (``mpc``: the hybrid MPC on OSQP,
 ``nmpc``: CasADi/IPOPT, ``pid``: the baseline) for it.
 """
+
 from __future__ import annotations
 
-from hmpc.models.params import Params, check_identifiable, load_params
+from hmpc.models.params import Params, load_params
+from hmpc.models.unidentifiable import check_identifiable
 
 from hmpc.controller.base import Controller
 
@@ -25,9 +27,15 @@ def load_model(path, *, accept_unidentifiable: bool = False) -> tuple[Params, li
     return params, check_identifiable(params, accept=accept_unidentifiable)
 
 
-def make_controller(name: str, params: Params, *, dt_s: float = 0.2, horizon_s: float = 10.0,
-                    transition_penalty: bool = True,
-                    accept_unidentifiable: bool = False) -> Controller:
+def make_controller(
+    name: str,
+    params: Params,
+    *,
+    dt_s: float = 0.2,
+    horizon_s: float = 10.0,
+    transition_penalty: bool = True,
+    accept_unidentifiable: bool = False,
+) -> Controller:
     """The controller ``name`` (one of :data:`CONTROLLERS`) for ``params``.
 
     Args:
@@ -48,14 +56,17 @@ def make_controller(name: str, params: Params, *, dt_s: float = 0.2, horizon_s: 
     # each controller's module (OSQP and scipy.sparse, CasADi) loads only when that controller
     # is built: commands that never build one (ingest, identify) start without them
     from hmpc.controller.mpc import MpcConfig, MpcController
+
     if name == "pid":
         from hmpc.controller.pid import PidController
+
         return PidController(params)
     kw: dict = {"dt_s": dt_s, "horizon_s": horizon_s}
     if not transition_penalty:
         kw["w_transition"] = 0.0
     cfg = MpcConfig(**kw)
     if name == "nmpc":
-        from hmpc.controller.nmpc import NmpcController   # CasADi loads only when asked for
+        from hmpc.controller.nmpc import NmpcController  # CasADi loads only when asked for
+
         return NmpcController(params, cfg)
     return MpcController(params, cfg)

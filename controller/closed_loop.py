@@ -13,6 +13,7 @@ solved/ok/hold), ``internal_errors`` those that were bugs (their tracebacks are 
 ``ClosedLoopResult.internal_errors``). The library prints nothing: progress goes to an
 optional callback (the CLI prints it).
 """
+
 from __future__ import annotations
 
 import math
@@ -33,8 +34,13 @@ from hmpc.models.reference import Reference
 from hmpc.controller.base import Controller, Status
 from hmpc.controller.estimator import Estimator, EstimatorConfig
 from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
-from hmpc.controller.metrics import follow_verdict, limit_times, pedal_switches, smoothness_of, \
-    stall_figures
+from hmpc.controller.metrics import (
+    follow_verdict,
+    limit_times,
+    pedal_switches,
+    smoothness_of,
+    stall_figures,
+)
 
 
 class SensorFeedback:
@@ -55,15 +61,29 @@ class SensorFeedback:
             until then :meth:`estimate` returns None).
     """
 
-    def __init__(self, params: Params, sensors=None, config: EstimatorConfig | None = None, *,
-                 seed: int = 0, t0_s: float = 0.0, initial_state=None):
+    def __init__(
+        self,
+        params: Params,
+        sensors=None,
+        config: EstimatorConfig | None = None,
+        *,
+        seed: int = 0,
+        t0_s: float = 0.0,
+        initial_state=None,
+    ):
         self.sensors = LiveSensors(params, sensors, seed, t0_s)
         self.estimator = Estimator(params, config or EstimatorConfig.matching(self.sensors.cfg))
         if initial_state is not None:
             self.estimator.reset(t0_s, initial_state)
 
-    def observe(self, t_s: float, state, steering_wheel_angle_rad: float,
-                accel_mps2: float = 0.0, delta_rad: float | None = None) -> int:
+    def observe(
+        self,
+        t_s: float,
+        state,
+        steering_wheel_angle_rad: float,
+        accel_mps2: float = 0.0,
+        delta_rad: float | None = None,
+    ) -> int:
         """Feed the truth at ``t_s`` to the sensors and what arrives to the estimator; returns
         the number of messages that arrived."""
         msgs = self.sensors.observe(t_s, state, steering_wheel_angle_rad, accel_mps2, delta_rad)
@@ -137,18 +157,27 @@ class ClosedLoopResult:
     estimator_cpu_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-def run_closed_loop(controller: Controller, reference: Reference, params: Params, *,
-                    plant_params: Params | None = None, control_period_s: float = 0.1,
-                    plant_dt_s: float = 0.02, seed: int = 0,
-                    speed_noise_mps: float | None = None,
-                    position_noise_m: float | None = None, extra_time_s: float = 0.0,
-                    limits: ActuatorLimits | None = None,
-                    progress: Callable[[float, float], None] | None = None,
-                    initial_state: np.ndarray | None = None,
-                    sensors: SensorConfig | None = None,
-                    estimator_config: EstimatorConfig | None = None,
-                    effects: list | None = None, adapter=None,
-                    sensor_faults: list | None = None) -> ClosedLoopResult:
+def run_closed_loop(
+    controller: Controller,
+    reference: Reference,
+    params: Params,
+    *,
+    plant_params: Params | None = None,
+    control_period_s: float = 0.1,
+    plant_dt_s: float = 0.02,
+    seed: int = 0,
+    speed_noise_mps: float | None = None,
+    position_noise_m: float | None = None,
+    extra_time_s: float = 0.0,
+    limits: ActuatorLimits | None = None,
+    progress: Callable[[float, float], None] | None = None,
+    initial_state: np.ndarray | None = None,
+    sensors: SensorConfig | None = None,
+    estimator_config: EstimatorConfig | None = None,
+    effects: list | None = None,
+    adapter=None,
+    sensor_faults: list | None = None,
+) -> ClosedLoopResult:
     """Closed loop: ``controller.step(estimated_state, reference, t)`` every control period.
 
     The controller never sees the plant state: the truth goes, every plant step, to the
@@ -202,26 +231,29 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
 
     t0 = float(reference.time_s[0])
     n = int(math.floor((reference.duration_s + extra_time_s) / plant_dt_s + 1e-9)) + 1
-    s = np.array(initial_state, dtype=float) if initial_state is not None \
+    s = (
+        np.array(initial_state, dtype=float)
+        if initial_state is not None
         else reference.initial_state(params)
-    fb = SensorFeedback(params, sensor_cfg, estimator_config, seed=seed, t0_s=t0,
-                        initial_state=s)
+    )
+    fb = SensorFeedback(params, sensor_cfg, estimator_config, seed=seed, t0_s=t0, initial_state=s)
     zone = plant.select_zone(float(s[3]), None)
     cols = {k: np.zeros(n) for k in _COLUMNS}
     zones = np.zeros(n, dtype=np.int64)
     log = _StepLog()
     cmd = Command(0.0, 0.0, 0.0)
     prev_applied: Command | None = None
-    u = np.zeros(3)        # plant input over the previous step (what the sensors saw)
-    u_fed = None           # the plant input the estimator holds
-    accel = 0.0            # true acceleration over the previous step [m/s^2]
-    sw_eff = 0.0           # steering-wheel angle the road wheels followed (after effects)
+    u = np.zeros(3)  # plant input over the previous step (what the sensors saw)
+    u_fed = None  # the plant input the estimator holds
+    accel = 0.0  # true acceleration over the previous step [m/s^2]
+    sw_eff = 0.0  # steering-wheel angle the road wheels followed (after effects)
     last_report = -1
     faults = list(sensor_faults or ())
     for i in range(n):
         t = t0 + i * plant_dt_s
-        log.pending_est_s += _observe(fb, t, s, u[0], accel, plant.road_wheel_angle(sw_eff),
-                                      adapter, faults, log)
+        log.pending_est_s += _observe(
+            fb, t, s, u[0], accel, plant.road_wheel_angle(sw_eff), adapter, faults, log
+        )
         if i % every == 0:
             t_w, c_w = time.perf_counter(), time.thread_time()
             est = fb.estimate(t)
@@ -241,8 +273,7 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
             prev_applied = cmd
             if adapter is not None:
                 t_w = time.thread_time()
-                adapter.commanded(t, cmd.steering_wheel_angle_rad, cmd.accel_pedal,
-                                  cmd.brake_pedal)
+                adapter.commanded(t, cmd.steering_wheel_angle_rad, cmd.accel_pedal, cmd.brake_pedal)
                 log.adapt_t.append(log.pending_adapt_s + time.thread_time() - t_w)
                 log.pending_adapt_s = 0.0
             log.add(t, res, t_est, meas, s)
@@ -251,8 +282,13 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
                 if tenth != last_report:
                     last_report = tenth
                     progress(tenth / 10, t - t0)
-        u = np.array([d_steer.push(cmd.steering_wheel_angle_rad), d_acc.push(cmd.accel_pedal),
-                      d_brk.push(cmd.brake_pedal)])
+        u = np.array(
+            [
+                d_steer.push(cmd.steering_wheel_angle_rad),
+                d_acc.push(cmd.accel_pedal),
+                d_brk.push(cmd.brake_pedal),
+            ]
+        )
         if u_fed is None or not np.array_equal(u, u_fed):
             t_w, c_w = time.perf_counter(), time.thread_time()
             fb.command(t, u)
@@ -264,30 +300,53 @@ def run_closed_loop(controller: Controller, reference: Reference, params: Params
         cols["accel_x"][i] = accel = r.accel_mps2
         zones[i] = r.zone
         s, zone = r.state, r.zone
-    if progress is not None and last_report != 10:   # the last control step came before the end
+    if progress is not None and last_report != 10:  # the last control step came before the end
         progress(1.0, float(cols["time"][-1]) - t0)
     cols["heading"] = (cols["heading"] + np.pi) % (2 * np.pi) - np.pi
-    rec = Recording(cols, {}, {"source": "hmpc closed loop",
-                               "controller": getattr(controller, "name", "?"),
-                               "reference": reference.name, "seed": seed,
-                               "rate_hz": 1.0 / plant_dt_s})
+    rec = Recording(
+        cols,
+        {},
+        {
+            "source": "hmpc closed loop",
+            "controller": getattr(controller, "name", "?"),
+            "reference": reference.name,
+            "seed": seed,
+            "rate_hz": 1.0 / plant_dt_s,
+        },
+    )
     v_ref = reference.speed_at(cols["time"])
     lat = reference.lateral_errors(cols["x"], cols["y"], cols["time"])
-    result = ClosedLoopResult(rec, {}, zones, v_ref, lat, log.statuses, np.array(log.solve_t),
-                              np.array(log.step_t), np.array(log.ctl_t), log.reasons,
-                              log.errors, np.array(log.est_t),
-                              np.array(log.est_state).reshape(-1, 4),
-                              np.array(log.true_state).reshape(-1, 4), np.array(log.est_now_t),
-                              adapter, np.array(log.adapt_t), np.array(log.step_cpu_t),
-                              np.array(log.est_cpu_t))
+    result = ClosedLoopResult(
+        rec,
+        {},
+        zones,
+        v_ref,
+        lat,
+        log.statuses,
+        np.array(log.solve_t),
+        np.array(log.step_t),
+        np.array(log.ctl_t),
+        log.reasons,
+        log.errors,
+        np.array(log.est_t),
+        np.array(log.est_state).reshape(-1, 4),
+        np.array(log.true_state).reshape(-1, 4),
+        np.array(log.est_now_t),
+        adapter,
+        np.array(log.adapt_t),
+        np.array(log.step_cpu_t),
+        np.array(log.est_cpu_t),
+    )
     result.metrics = metrics_of(result, lim)
     result.metrics["seed"] = seed
     result.metrics["estimator"] = _estimator_figures(result, fb)
     if adapter is not None:
         result.metrics["adaptation"] = adapter.report(t0)
-        result.metrics["adaptation_details"] = {**adapter.summary(),
-                                                "cost_us": _percentiles(log.adapt_t, 1e6),
-                                                "sensor_faults": log.faults_applied}
+        result.metrics["adaptation_details"] = {
+            **adapter.summary(),
+            "cost_us": _percentiles(log.adapt_t, 1e6),
+            "sensor_faults": log.faults_applied,
+        }
     return result
 
 
@@ -307,8 +366,11 @@ def _percentiles(values, scale: float) -> dict:
     a = np.asarray(values, dtype=float) * scale
     if not len(a):
         return {"p50": 0.0, "p99": 0.0, "max": 0.0}
-    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
-            "max": float(a.max())}
+    return {
+        "p50": float(np.percentile(a, 50)),
+        "p99": float(np.percentile(a, 99)),
+        "max": float(a.max()),
+    }
 
 
 @dataclass(frozen=True)
@@ -328,8 +390,9 @@ class SensorFault:
 
     def __post_init__(self):
         if self.kind not in SENSOR_FAULTS:
-            raise ValueError(f"unknown sensor fault {self.kind!r} (one of "
-                             f"{', '.join(SENSOR_FAULTS)})")
+            raise ValueError(
+                f"unknown sensor fault {self.kind!r} (one of {', '.join(SENSOR_FAULTS)})"
+            )
         if not self.t0_s < self.t1_s:
             raise ValueError("a sensor fault needs t0_s < t1_s")
 
@@ -361,13 +424,24 @@ def _apply_faults(m, faults: list, held: dict) -> int:
 
 
 #: the recording's channels: plant state, applied input, commands, yaw rate, acceleration
-_COLUMNS = ("time", "x", "y", "heading", "speed", "steering_wheel_angle", "accel_pedal",
-            "brake_pedal", "yaw_rate", "accel_x", "steering_cmd", "accel_pedal_cmd",
-            "brake_pedal_cmd")
+_COLUMNS = (
+    "time",
+    "x",
+    "y",
+    "heading",
+    "speed",
+    "steering_wheel_angle",
+    "accel_pedal",
+    "brake_pedal",
+    "yaw_rate",
+    "accel_x",
+    "steering_cmd",
+    "accel_pedal_cmd",
+    "brake_pedal_cmd",
+)
 
 
-def _plant_step(plant: HybridPlant, truth, s: np.ndarray, u: np.ndarray, dt_s: float,
-                zone: int):
+def _plant_step(plant: HybridPlant, truth, s: np.ndarray, u: np.ndarray, dt_s: float, zone: int):
     """One plant step: the hybrid plant, or the ground-truth plant with its concealed effects
     (``truth``). Returns the step result and the steering-wheel angle the road wheels
     followed [rad] (after the effects)."""
@@ -389,8 +463,16 @@ def _check_rates(control_period_s: float, plant_dt_s: float, progress) -> int:
     return int(round(ratio))
 
 
-def _record(cols: dict, i: int, t: float, s: np.ndarray, u: np.ndarray, cmd: Command,
-            plant: HybridPlant, sw_eff: float) -> None:
+def _record(
+    cols: dict,
+    i: int,
+    t: float,
+    s: np.ndarray,
+    u: np.ndarray,
+    cmd: Command,
+    plant: HybridPlant,
+    sw_eff: float,
+) -> None:
     """Row ``i`` of the recording: time, plant state, applied input, command, yaw rate (from
     the steering-wheel angle the road wheels followed, ``sw_eff``, after concealed effects)."""
     cols["time"][i] = t
@@ -403,23 +485,36 @@ def _record(cols: dict, i: int, t: float, s: np.ndarray, u: np.ndarray, cmd: Com
     cols["yaw_rate"][i] = heading_rate(s[3], float(delta), plant.wheelbase_m, ops=math)
 
 
-def sensor_config(sensors: SensorConfig | None = None, speed_noise_mps: float | None = None,
-                  position_noise_m: float | None = None) -> SensorConfig:
+def sensor_config(
+    sensors: SensorConfig | None = None,
+    speed_noise_mps: float | None = None,
+    position_noise_m: float | None = None,
+) -> SensorConfig:
     """``sensors`` (default ``SensorConfig()``) with the legacy noise arguments applied:
     ``speed_noise_mps`` sets the wheel-speed and GNSS speed noise [m/s], ``position_noise_m``
     the GNSS position noise [m]."""
     cfg = sensors or SensorConfig()
     kw: dict[str, Any] = {}
     if speed_noise_mps is not None:
-        kw.update(speed_noise_mps=float(speed_noise_mps),
-                  gnss_speed_noise_mps=float(speed_noise_mps))
+        kw.update(
+            speed_noise_mps=float(speed_noise_mps), gnss_speed_noise_mps=float(speed_noise_mps)
+        )
     if position_noise_m is not None:
         kw["position_noise_m"] = float(position_noise_m)
     return replace(cfg, **kw) if kw else cfg
 
 
-def _observe(fb: SensorFeedback, t: float, s: np.ndarray, sw_rad: float, accel_mps2: float,
-             delta_rad: float, adapter=None, faults=(), log=None) -> float:
+def _observe(
+    fb: SensorFeedback,
+    t: float,
+    s: np.ndarray,
+    sw_rad: float,
+    accel_mps2: float,
+    delta_rad: float,
+    adapter=None,
+    faults=(),
+    log=None,
+) -> float:
     """Truth at ``t`` to the sensors, arrived messages (after the sensor ``faults``) to the
     estimator and the ``adapter``; returns the wall time the estimator spent on them [s] (the
     sensors' simulation is not the controller's time; the adapter's goes to ``log``)."""
@@ -453,10 +548,10 @@ class _StepLog:
         self.pending_est_s = 0.0  # estimator time spent after the last control step [s]
         self.step_cpu_t, self.est_cpu_t = [], []  # the same two in CPU time [s]
         self.pending_est_cpu_s = 0.0
-        self.adapt_t = []          # the adapter's time per control step [s]
+        self.adapt_t = []  # the adapter's time per control step [s]
         self.pending_adapt_s = 0.0
-        self.faults_applied = 0    # messages a sensor fault changed
-        self.fault_held = {}       # the values frozen channels keep
+        self.faults_applied = 0  # messages a sensor fault changed
+        self.fault_held = {}  # the values frozen channels keep
 
     def add(self, t: float, res, t_est_s: float, est: np.ndarray, truth: np.ndarray) -> None:
         status = Status(res.status)
@@ -484,10 +579,14 @@ def _estimator_figures(res: ClosedLoopResult, fb: SensorFeedback) -> dict:
         sp = float(np.sqrt(np.mean(e[:, 3] ** 2)))
     else:
         pos = hd = sp = 0.0
-    return {"position_error_rms_m": pos, "heading_error_rms_rad": hd, "speed_error_rms_mps": sp,
-            "gnss_accepted": int(st["gnss"]["accepted"]),
-            "gnss_rejected": int(st["gnss"]["rejected"]),
-            "messages": dict(fb.sensors.counts)}
+    return {
+        "position_error_rms_m": pos,
+        "heading_error_rms_rad": hd,
+        "speed_error_rms_mps": sp,
+        "gnss_accepted": int(st["gnss"]["accepted"]),
+        "gnss_rejected": int(st["gnss"]["rejected"]),
+        "messages": dict(fb.sensors.counts),
+    }
 
 
 def control_updates(res: ClosedLoopResult) -> np.ndarray:
@@ -513,48 +612,75 @@ def metrics_of(res: ClosedLoopResult, limits: ActuatorLimits) -> dict:
     ev = v - res.speed_ref_mps
     solve_ms = res.solve_time_s[res.solve_time_s > 0] * 1e3
     step_ms = res.step_time_s * 1e3
-    whole_ms = step_ms + (res.estimator_time_s * 1e3 if len(res.estimator_time_s) == len(step_ms)
-                          else 0.0)
+    whole_ms = step_ms + (
+        res.estimator_time_s * 1e3 if len(res.estimator_time_s) == len(step_ms) else 0.0
+    )
 
     def pct(a, q):
         return float(np.percentile(a, q)) if len(a) else 0.0
+
     ap, bp = rec.channels["accel_pedal_cmd"], rec.channels["brake_pedal_cmd"]
     nz = int(np.count_nonzero(np.diff(res.zone)))
     upd = control_updates(res)
     sw_max = limits.steering_wheel_angle_max_rad
-    lim = limit_times(t, rec.channels["steering_cmd"], ap, bp, steering_wheel_angle_max_rad=sw_max,
-                      pedal_max=limits.pedal_max)
+    lim = limit_times(
+        t,
+        rec.channels["steering_cmd"],
+        ap,
+        bp,
+        steering_wheel_angle_max_rad=sw_max,
+        pedal_max=limits.pedal_max,
+    )
     stalls = stall_figures(t, v, res.speed_ref_mps)
-    followed, why = follow_verdict(lim, stalls, float(t[-1] - t[0]),
-                                   steering_wheel_angle_max_rad=sw_max)
+    followed, why = follow_verdict(
+        lim, stalls, float(t[-1] - t[0]), steering_wheel_angle_max_rad=sw_max
+    )
     return {
-        "speed_error_rms_mps": float(np.sqrt(np.mean(ev ** 2))),
-        "lateral_error_rms_m": float(np.sqrt(np.mean(res.lateral_error_m ** 2))),
+        "speed_error_rms_mps": float(np.sqrt(np.mean(ev**2))),
+        "lateral_error_rms_m": float(np.sqrt(np.mean(res.lateral_error_m**2))),
         "pedal_switches_per_min": pedal_switches(ap, bp, limits.pedal_deadband) / minutes,
         "zone_transitions_per_min": nz / minutes,
-        "solve_time_ms": {"p50": pct(solve_ms, 50), "p99": pct(solve_ms, 99),
-                          "max": float(solve_ms.max()) if len(solve_ms) else 0.0},
+        "solve_time_ms": {
+            "p50": pct(solve_ms, 50),
+            "p99": pct(solve_ms, 99),
+            "max": float(solve_ms.max()) if len(solve_ms) else 0.0,
+        },
         "steps": int(len(res.statuses)),
         "failures": int(sum(1 for s in res.statuses if not Status(s).ok)),
         "internal_errors": int(sum(1 for s in res.statuses if s == Status.INTERNAL_ERROR)),
         # the commands at the control updates (held in between): rates per update
-        **smoothness_of(t[upd], rec.channels["steering_cmd"][upd], ap[upd], bp[upd],
-                        duration_s=float(t[-1] - t[0])),
+        **smoothness_of(
+            t[upd],
+            rec.channels["steering_cmd"][upd],
+            ap[upd],
+            bp[upd],
+            duration_s=float(t[-1] - t[0]),
+        ),
         # extras (not acceptance figures, kept stable too)
-        "step_time_ms": {"p50": pct(step_ms, 50), "p99": pct(step_ms, 99),
-                         "max": float(step_ms.max()) if len(step_ms) else 0.0},
-        "step_with_estimator_ms": {"p50": pct(whole_ms, 50), "p99": pct(whole_ms, 99),
-                                   "max": float(whole_ms.max()) if len(whole_ms) else 0.0},
+        "step_time_ms": {
+            "p50": pct(step_ms, 50),
+            "p99": pct(step_ms, 99),
+            "max": float(step_ms.max()) if len(step_ms) else 0.0,
+        },
+        "step_with_estimator_ms": {
+            "p50": pct(whole_ms, 50),
+            "p99": pct(whole_ms, 99),
+            "max": float(whole_ms.max()) if len(whole_ms) else 0.0,
+        },
         "speed_error_max_mps": float(np.max(np.abs(ev))),
         "lateral_error_max_m": float(np.max(np.abs(res.lateral_error_m))),
         "pedal_switches": pedal_switches(ap, bp, limits.pedal_deadband),
         "zone_transitions": nz,
         "duration_s": float(t[-1] - t[0]),
-        "both_pedals_samples": int(np.count_nonzero((ap > limits.pedal_deadband)
-                                                    & (bp > limits.pedal_deadband))),
+        "both_pedals_samples": int(
+            np.count_nonzero((ap > limits.pedal_deadband) & (bp > limits.pedal_deadband))
+        ),
         "statuses": _count(res.statuses),
         # whether the car did what was asked (controller.metrics.follow_verdict)
-        "followed": followed, "not_followed": why, "limits": lim, "stalls": stalls,
+        "followed": followed,
+        "not_followed": why,
+        "limits": lim,
+        "stalls": stalls,
     }
 
 

@@ -15,6 +15,7 @@ and the reference sampled at the stages.
 Shapes: N stages, states (N+1, 4) = [x_m, y_m, psi_rad, v_mps], inputs (N, 3) =
 [steering_wheel_angle_rad, accel_pedal, brake_pedal].
 """
+
 from __future__ import annotations
 
 import math
@@ -155,9 +156,16 @@ class SolveOutcome:
         return f"{self.solver}: {self.solver_status}"
 
 
-def path_reference(ref: Reference, s_k: np.ndarray, Xb: np.ndarray, Ub: np.ndarray,
-                   x0: np.ndarray, seed_guess: bool, plant: HybridPlant,
-                   sw_max_rad: float) -> PathReference:
+def path_reference(
+    ref: Reference,
+    s_k: np.ndarray,
+    Xb: np.ndarray,
+    Ub: np.ndarray,
+    x0: np.ndarray,
+    seed_guess: bool,
+    plant: HybridPlant,
+    sw_max_rad: float,
+) -> PathReference:
     """The path at the stage positions ``s_k`` [m], its steering feed-forward on ``plant``'s
     eq. 7 within +-``sw_max_rad``. With ``seed_guess`` (the first iteration of a cold start)
     the nominal states ``Xb`` and steering ``Ub`` are first put on the path, in place (``x0``:
@@ -171,16 +179,24 @@ def path_reference(ref: Reference, s_k: np.ndarray, Xb: np.ndarray, Ub: np.ndarr
         Xb[1:, 2] += 2 * np.pi * np.round((x0[2] - psi_r[0]) / (2 * np.pi))
     psi_r = psi_r + 2 * np.pi * np.round((Xb[:, 2] - psi_r) / (2 * np.pi))
     sw_max = sw_max_rad
-    sw_ff = np.minimum(np.maximum(steering_wheel_angle_for(dref, pl.offset_rad, pl.scale),
-                                  -sw_max), sw_max)
+    sw_ff = np.minimum(
+        np.maximum(steering_wheel_angle_for(dref, pl.offset_rad, pl.scale), -sw_max), sw_max
+    )
     if seed_guess:
         Ub[:, 0] = sw_ff[:-1]
     return PathReference(xr, yr, th, psi_r, dref, sw_ff)
 
 
-def speed_reference(ref: Reference, tk: np.ndarray, v0: float, stop: bool,
-                    obstacle_m: float | None, s_rel: np.ndarray, stop_decel_mps2: float,
-                    obstacle_margin_m: float) -> np.ndarray:
+def speed_reference(
+    ref: Reference,
+    tk: np.ndarray,
+    v0: float,
+    stop: bool,
+    obstacle_m: float | None,
+    s_rel: np.ndarray,
+    stop_decel_mps2: float,
+    obstacle_margin_m: float,
+) -> np.ndarray:
     """The speed reference at the stage times ``tk`` [s]: the reference's, brought down at
     ``stop_decel_mps2`` from the speed ``v0`` [m/s] on a ``stop`` command, and to a stop
     ``obstacle_margin_m`` before an obstacle ``obstacle_m`` ahead [m] (``s_rel``: the

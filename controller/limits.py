@@ -13,6 +13,7 @@ controller's fallback after a failure: a minimum-risk manoeuvre) at
 ``ActuatorLimits`` is not ``models.params.VehicleLimits``: that is the optional ``limits:``
 section of a parameter file, which :meth:`ActuatorLimits.from_params` reads.
 """
+
 from __future__ import annotations
 
 import math
@@ -83,14 +84,22 @@ class ActuatorLimits:
     pedal_deadband: float = 1e-3
 
     def __post_init__(self):
-        for name in ("steering_wheel_angle_max_rad", "steering_wheel_rate_max_radps",
-                     "accel_max_mps2", "decel_max_mps2", "controlled_stop_decel_max_mps2",
-                     "jerk_max_mps3", "speed_max_mps", "accel_pedal_rate_max_ps",
-                     "brake_pedal_rate_max_ps"):
+        for name in (
+            "steering_wheel_angle_max_rad",
+            "steering_wheel_rate_max_radps",
+            "accel_max_mps2",
+            "decel_max_mps2",
+            "controlled_stop_decel_max_mps2",
+            "jerk_max_mps3",
+            "speed_max_mps",
+            "accel_pedal_rate_max_ps",
+            "brake_pedal_rate_max_ps",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"ActuatorLimits.{name} must be a positive finite number, "
-                                 f"got {v!r}")
+                raise ValueError(
+                    f"ActuatorLimits.{name} must be a positive finite number, got {v!r}"
+                )
         if not 0.0 <= self.pedal_min < self.pedal_max <= 1.0:
             raise ValueError("ActuatorLimits: need 0 <= pedal_min < pedal_max <= 1")
 
@@ -110,8 +119,14 @@ class ActuatorLimits:
             kw["steering_wheel_rate_max_radps"] = v.steering_wheel_rate_max_radps
         lim = params.limits
         if lim is not None:
-            for name in ("steering_wheel_angle_max_rad", "steering_wheel_rate_max_radps",
-                         "accel_max_mps2", "decel_max_mps2", "jerk_max_mps3", "speed_max_mps"):
+            for name in (
+                "steering_wheel_angle_max_rad",
+                "steering_wheel_rate_max_radps",
+                "accel_max_mps2",
+                "decel_max_mps2",
+                "jerk_max_mps3",
+                "speed_max_mps",
+            ):
                 val = getattr(lim, name)
                 if val is not None:
                     kw[name] = val
@@ -122,8 +137,15 @@ def _clamp(x: float, lo: float, hi: float) -> float:
     return lo if x < lo else hi if x > hi else x
 
 
-def apply_limits(command: Command, prev: Command | None, limits: ActuatorLimits, dt_s: float,
-                 zone: Zone | None = None, *, controlled_stop: bool = False) -> Command:
+def apply_limits(
+    command: Command,
+    prev: Command | None,
+    limits: ActuatorLimits,
+    dt_s: float,
+    zone: Zone | None = None,
+    *,
+    controlled_stop: bool = False,
+) -> Command:
     """Return ``command`` made safe: the last line of defence, independent of any optimiser.
 
     In order:

@@ -5,6 +5,7 @@ the commands per control update, and whether the car did what was asked: time at
 limit, stalls (the reference moves, the car does not) and the verdict that a run could not
 follow its reference. Pure functions of arrays; no controller, plant or bus.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -77,8 +78,9 @@ def rate_rms(time_s, signal) -> float:
     return float(np.sqrt(np.mean((np.diff(x) / np.diff(t)) ** 2)))
 
 
-def smoothness_of(time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd, *,
-                  duration_s: float | None = None) -> dict:
+def smoothness_of(
+    time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd, *, duration_s: float | None = None
+) -> dict:
     """The smoothness figures of a run's COMMANDS (stable keys): steering-wheel
     reversals per minute of at least 1 and 5 deg, the steering-wheel rate RMS [rad/s] and
     the pedal rates RMS [full travel / s] (see :func:`rate_rms`: one sample per control
@@ -89,8 +91,9 @@ def smoothness_of(time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd, *,
     minutes = max(float(span) / 60.0, 1e-9)
     sw_deg = np.degrees(np.asarray(steering_cmd_rad, dtype=float))
     return {
-        "steering_reversals_per_min": {f"{g}deg": steering_reversals(sw_deg, float(g)) / minutes
-                                       for g in (1, 5)},
+        "steering_reversals_per_min": {
+            f"{g}deg": steering_reversals(sw_deg, float(g)) / minutes for g in (1, 5)
+        },
         "steering_rate_rms_radps": rate_rms(t, steering_cmd_rad),
         "accel_pedal_rate_rms_ps": rate_rms(t, accel_pedal_cmd),
         "brake_pedal_rate_rms_ps": rate_rms(t, brake_pedal_cmd),
@@ -124,8 +127,15 @@ def _durations(time_s: np.ndarray) -> np.ndarray:
     return np.append(d, np.median(d))
 
 
-def limit_times(time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd, *,
-                steering_wheel_angle_max_rad: float, pedal_max: float = 1.0) -> dict:
+def limit_times(
+    time_s,
+    steering_cmd_rad,
+    accel_pedal_cmd,
+    brake_pedal_cmd,
+    *,
+    steering_wheel_angle_max_rad: float,
+    pedal_max: float = 1.0,
+) -> dict:
     """Time [s] each command spent at its limit: the steering wheel at its lock (either
     side), the accelerator and the brake pedal at full travel."""
     dt = _durations(time_s)
@@ -133,9 +143,11 @@ def limit_times(time_s, steering_cmd_rad, accel_pedal_cmd, brake_pedal_cmd, *,
     ap = np.asarray(accel_pedal_cmd, dtype=float)
     bp = np.asarray(brake_pedal_cmd, dtype=float)
     tol = 1.0 - LIMIT_TOL
-    return {"steering_at_lock_s": float(dt[sw >= tol * steering_wheel_angle_max_rad].sum()),
-            "accel_pedal_at_max_s": float(dt[ap >= tol * pedal_max].sum()),
-            "brake_pedal_at_max_s": float(dt[bp >= tol * pedal_max].sum())}
+    return {
+        "steering_at_lock_s": float(dt[sw >= tol * steering_wheel_angle_max_rad].sum()),
+        "accel_pedal_at_max_s": float(dt[ap >= tol * pedal_max].sum()),
+        "brake_pedal_at_max_s": float(dt[bp >= tol * pedal_max].sum()),
+    }
 
 
 def stall_figures(time_s, speed_mps, speed_ref_mps) -> dict:
@@ -143,8 +155,9 @@ def stall_figures(time_s, speed_mps, speed_ref_mps) -> dict:
     does not (below ``STALL_SPEED_MPS``): {total_s, longest_s, count, first_t_s}."""
     t = np.asarray(time_s, dtype=float)
     dt = _durations(t)
-    on = (np.asarray(speed_ref_mps, dtype=float) > STALL_REF_SPEED_MPS) & \
-        (np.asarray(speed_mps, dtype=float) < STALL_SPEED_MPS)
+    on = (np.asarray(speed_ref_mps, dtype=float) > STALL_REF_SPEED_MPS) & (
+        np.asarray(speed_mps, dtype=float) < STALL_SPEED_MPS
+    )
     longest = run = 0.0
     count, first = 0, None
     for i in range(len(t)):
@@ -156,23 +169,32 @@ def stall_figures(time_s, speed_mps, speed_ref_mps) -> dict:
             longest = max(longest, run)
         else:
             run = 0.0
-    return {"total_s": float(dt[on].sum()), "longest_s": float(longest), "count": int(count),
-            "first_t_s": first}
+    return {
+        "total_s": float(dt[on].sum()),
+        "longest_s": float(longest),
+        "count": int(count),
+        "first_t_s": first,
+    }
 
 
-def follow_verdict(limits: dict, stalls: dict, duration_s: float, *,
-                   steering_wheel_angle_max_rad: float) -> tuple[bool, list[str]]:
+def follow_verdict(
+    limits: dict, stalls: dict, duration_s: float, *, steering_wheel_angle_max_rad: float
+) -> tuple[bool, list[str]]:
     """Whether a run followed its reference, and if not why, one line each: a stall longer
     than ``STALL_MAX_S``, an actuator at its limit for more than ``LIMIT_MAX_SHARE`` of the run
     (and at least ``LIMIT_MIN_S``)."""
     why = []
     if stalls["longest_s"] > STALL_MAX_S:
-        why.append(f"the car stood still {stalls['longest_s']:.1f} s while the reference moved "
-                   f"(from {stalls['first_t_s']:.1f} s; {stalls['total_s']:.1f} s in all)")
-    names = {"steering_at_lock_s": f"the steering wheel sat at its "
-                                   f"{steering_wheel_angle_max_rad:.2f} rad lock",
-             "accel_pedal_at_max_s": "the accelerator was at full travel",
-             "brake_pedal_at_max_s": "the brake was at full travel"}
+        why.append(
+            f"the car stood still {stalls['longest_s']:.1f} s while the reference moved "
+            f"(from {stalls['first_t_s']:.1f} s; {stalls['total_s']:.1f} s in all)"
+        )
+    names = {
+        "steering_at_lock_s": f"the steering wheel sat at its "
+        f"{steering_wheel_angle_max_rad:.2f} rad lock",
+        "accel_pedal_at_max_s": "the accelerator was at full travel",
+        "brake_pedal_at_max_s": "the brake was at full travel",
+    }
     for key, text in names.items():
         s = limits[key]
         if s >= LIMIT_MIN_S and s > LIMIT_MAX_SHARE * max(duration_s, 1e-9):

@@ -21,6 +21,7 @@ with a stop requested, the brake holds the car against idle creep.
 :func:`transition_allowed` is the report's section VI rule: a change of speed zone is
 allowed only when the horizon shows no acceleration change coming around the crossing.
 """
+
 from __future__ import annotations
 
 import enum
@@ -38,8 +39,8 @@ class PedalMode(enum.IntEnum):
     """Which pedal is free in a QP stage."""
 
     THROTTLE = 0  #: accelerator free in [0, 1], brake fixed at 0
-    BRAKE = 1     #: brake free in [0, 1], accelerator fixed at 0
-    HOLD = 2      #: standstill: brake held, accelerator 0 (no QP stage uses it)
+    BRAKE = 1  #: brake free in [0, 1], accelerator fixed at 0
+    HOLD = 2  #: standstill: brake held, accelerator 0 (no QP stage uses it)
 
 
 @dataclass(frozen=True)
@@ -73,9 +74,15 @@ class ModeConfig:
     hold_brake_min: float = 0.2
 
     def __post_init__(self):
-        for name in ("accel_hysteresis_mps2", "error_time_constant_s", "urgent_mps2",
-                     "standstill_speed_mps", "go_speed_mps", "hold_lookahead_s",
-                     "hold_brake_margin"):
+        for name in (
+            "accel_hysteresis_mps2",
+            "error_time_constant_s",
+            "urgent_mps2",
+            "standstill_speed_mps",
+            "go_speed_mps",
+            "hold_lookahead_s",
+            "hold_brake_margin",
+        ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ModeConfig.{name} must be positive")
         if self.min_dwell_s < 0:
@@ -84,8 +91,9 @@ class ModeConfig:
             raise ValueError("ModeConfig.hold_brake_min must be in [0, 1]")
 
 
-def desired_accel(v_ref_mps: np.ndarray, v_mps: np.ndarray, dt_s: float,
-                  tau_s: float) -> np.ndarray:
+def desired_accel(
+    v_ref_mps: np.ndarray, v_mps: np.ndarray, dt_s: float, tau_s: float
+) -> np.ndarray:
     """a_des[k] = (v_ref[k+1] - v_ref[k]) / dt + (v_ref[k] - v[k]) / tau  [m/s^2].
 
     Args:
@@ -120,8 +128,9 @@ class PedalModeLogic:
         self.mode = None
         self._t_switch_s = -np.inf
 
-    def first(self, a_des_mps2: float, coast_mps2: float, t_s: float,
-              exhausted: bool = True) -> PedalMode:
+    def first(
+        self, a_des_mps2: float, coast_mps2: float, t_s: float, exhausted: bool = True
+    ) -> PedalMode:
         """Mode of stage 0 at time ``t_s``; remembers it.
 
         ``exhausted``: the current pedal is released in the plan's first stages, i.e. it
@@ -133,8 +142,11 @@ class PedalModeLogic:
         if self.mode is None or self.mode == PedalMode.HOLD:
             new = PedalMode.THROTTLE if a_des_mps2 > coast_mps2 else PedalMode.BRAKE
             if self.mode == PedalMode.HOLD:
-                new = PedalMode.BRAKE if a_des_mps2 <= coast_mps2 + c.accel_hysteresis_mps2 \
+                new = (
+                    PedalMode.BRAKE
+                    if a_des_mps2 <= coast_mps2 + c.accel_hysteresis_mps2
                     else PedalMode.THROTTLE
+                )
         else:
             new = next_mode(self.mode, a_des_mps2, coast_mps2, c.accel_hysteresis_mps2)
             dwell_ok = t_s - self._t_switch_s >= c.min_dwell_s - 1e-9
@@ -152,9 +164,15 @@ class PedalModeLogic:
             self._t_switch_s = t_s
         self.mode = PedalMode.HOLD
 
-    def schedule(self, first: PedalMode, a_des_mps2: np.ndarray, coast_mps2: np.ndarray,
-                 dt_s: float, since_switch_s: float | None = None,
-                 pedals: np.ndarray | None = None) -> np.ndarray:
+    def schedule(
+        self,
+        first: PedalMode,
+        a_des_mps2: np.ndarray,
+        coast_mps2: np.ndarray,
+        dt_s: float,
+        since_switch_s: float | None = None,
+        pedals: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Modes of stages 0..N-1: ``first``, then hysteresis with dwell along the horizon.
 
         ``pedals`` (N, 2): the nominal plan's [accel, brake] pedal per stage; a stage may
@@ -168,8 +186,8 @@ class PedalModeLogic:
         n = len(a_des_mps2)
         coast = np.asarray(coast_mps2, dtype=float)
         a_arr = np.asarray(a_des_mps2, dtype=float)
-        up_arr = coast + c.accel_hysteresis_mps2     # brake -> throttle above
-        down_arr = coast - c.accel_hysteresis_mps2   # else -> brake below
+        up_arr = coast + c.accel_hysteresis_mps2  # brake -> throttle above
+        down_arr = coast - c.accel_hysteresis_mps2  # else -> brake below
         mode = int(first)
         # the common case, no stage asks to leave the first mode: it holds throughout
         if mode == PedalMode.BRAKE and not (a_arr[1:] > up_arr[1:]).any():
@@ -182,7 +200,7 @@ class PedalModeLogic:
         thr, brk, hold = int(PedalMode.THROTTLE), int(PedalMode.BRAKE), int(PedalMode.HOLD)
         dwell = c.min_dwell_s
         out = [mode] * n
-        age = (0.0 if since_switch_s is None else since_switch_s)
+        age = 0.0 if since_switch_s is None else since_switch_s
         for k in range(1, n):
             age += dt_s
             ak = a[k]

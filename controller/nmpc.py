@@ -22,6 +22,7 @@ It is used to check the fast path (tests: both agree on simple cases) and as a
 reference in ``tools/bench_mpc.py``. Its model is models/plant.py's eq. 1, 7 and 8, the same
 functions the plant and the fast path call, evaluated on CasADi symbols (``ops=casadi``).
 """
+
 from __future__ import annotations
 
 import time
@@ -50,12 +51,18 @@ class NmpcController(MpcController):
 
     name = "nmpc"
 
-    def __init__(self, params: Params, config: MpcConfig | None = None,
-                 limits: ActuatorLimits | None = None, mode_config: ModeConfig | None = None,
-                 ipopt_max_iter: int = 200):
+    def __init__(
+        self,
+        params: Params,
+        config: MpcConfig | None = None,
+        limits: ActuatorLimits | None = None,
+        mode_config: ModeConfig | None = None,
+        ipopt_max_iter: int = 200,
+    ):
         cfg = config or MpcConfig()
         if cfg.cold_start_iterations != 1:  # the NLP needs no SQP iterations
             from dataclasses import replace
+
             cfg = replace(cfg, cold_start_iterations=1)
         self.ipopt_max_iter = int(ipopt_max_iter)
         self._opti: ca.Opti | None = None
@@ -88,14 +95,28 @@ class NmpcController(MpcController):
         U = o.variable(NU, N)
         S = o.variable(NS, N)
         p = {
-            "x0": o.parameter(NX), "ref": o.parameter(NX, N), "nvec": o.parameter(2, N),
-            "PT": o.parameter(NX, NX), "rN": o.parameter(NX), "sw_ff": o.parameter(N),
-            "z_off": o.parameter(N), "z_scale": o.parameter(N), "z_brake": o.parameter(N),
-            "u_lo": o.parameter(NU, N), "u_hi": o.parameter(NU, N), "sr_lo": o.parameter(N),
-            "sr_hi": o.parameter(N), "prior": o.parameter(NU, 2), "w_rate_s": o.parameter(N),
-            "u_plan": o.parameter(NU, N), "has_plan": o.parameter(),
-            "a_prev": o.parameter(), "v_lo": o.parameter(N),
-            "v_hi": o.parameter(N), "w_lo": o.parameter(N), "w_hi": o.parameter(N),
+            "x0": o.parameter(NX),
+            "ref": o.parameter(NX, N),
+            "nvec": o.parameter(2, N),
+            "PT": o.parameter(NX, NX),
+            "rN": o.parameter(NX),
+            "sw_ff": o.parameter(N),
+            "z_off": o.parameter(N),
+            "z_scale": o.parameter(N),
+            "z_brake": o.parameter(N),
+            "u_lo": o.parameter(NU, N),
+            "u_hi": o.parameter(NU, N),
+            "sr_lo": o.parameter(N),
+            "sr_hi": o.parameter(N),
+            "prior": o.parameter(NU, 2),
+            "w_rate_s": o.parameter(N),
+            "u_plan": o.parameter(NU, N),
+            "has_plan": o.parameter(),
+            "a_prev": o.parameter(),
+            "v_lo": o.parameter(N),
+            "v_hi": o.parameter(N),
+            "w_lo": o.parameter(N),
+            "w_hi": o.parameter(N),
         }
         off: float | ca.MX
         sc: float | ca.MX
@@ -106,9 +127,12 @@ class NmpcController(MpcController):
 
         def f(x, u, k):  # the plant's eq. 1, 7, 8 on CasADi symbols
             xd, yd, psid = bicycle_rates(x[2], x[3], road_wheel_angle(u[0], off, sc), b, ops=ca)
-            return ca.vertcat(xd, yd, psid,
-                              zone_accel(p["z_off"][k], p["z_scale"][k], p["z_brake"][k], u[1],
-                                         u[2]))
+            return ca.vertcat(
+                xd,
+                yd,
+                psid,
+                zone_accel(p["z_off"][k], p["z_scale"][k], p["z_brake"][k], u[1], u[2]),
+            )
 
         J: ca.MX | int = 0
         wl, wh, wv = cfg.w_lateral * dt, cfg.w_heading * dt, cfg.w_speed * dt
@@ -119,15 +143,20 @@ class NmpcController(MpcController):
             o.subject_to(X[:, k + 1] == xk + dt * f(xm, uk, k))
             r = p["ref"][:, k]
             e_lat = p["nvec"][0, k] * (X[0, k + 1] - r[0]) + p["nvec"][1, k] * (X[1, k + 1] - r[1])
-            J += 0.5 * (wl * e_lat ** 2 + wh * (X[2, k + 1] - r[2]) ** 2
-                        + wv * (X[3, k + 1] - r[3]) ** 2)
-            J += (cfg.w_limit_violation * dt * S[0, k] + p["w_lo"][k] * S[1, k]
-                  + p["w_hi"][k] * S[2, k]
-                  + 0.5 * cfg.w_slack_quadratic * dt * ca.sumsqr(S[:, k]))
+            J += 0.5 * (
+                wl * e_lat**2 + wh * (X[2, k + 1] - r[2]) ** 2 + wv * (X[3, k + 1] - r[3]) ** 2
+            )
+            J += (
+                cfg.w_limit_violation * dt * S[0, k]
+                + p["w_lo"][k] * S[1, k]
+                + p["w_hi"][k] * S[2, k]
+                + 0.5 * cfg.w_slack_quadratic * dt * ca.sumsqr(S[:, k])
+            )
             o.subject_to(o.bounded(p["u_lo"][:, k], uk, p["u_hi"][:, k]))
             # row 0's bounds already hold the last command (QpConstraints.input_bounds)
-            o.subject_to(o.bounded(p["sr_lo"][k], uk[0] - U[0, k - 1] if k else uk[0],
-                                   p["sr_hi"][k]))
+            o.subject_to(
+                o.bounded(p["sr_lo"][k], uk[0] - U[0, k - 1] if k else uk[0], p["sr_hi"][k])
+            )
             a_k = (X[3, k + 1] - X[3, k]) / dt
             o.subject_to(a_k + S[0, k] >= -lim.decel_max_mps2)
             o.subject_to(a_k - S[0, k] <= lim.accel_max_mps2)
@@ -142,9 +171,17 @@ class NmpcController(MpcController):
         J += 0.5 * ca.mtimes([eN.T, p["PT"], eN])
         J += self._input_cost(U, p)
         o.minimize(J)
-        o.solver("ipopt", {"print_time": False, "error_on_fail": False, "expand": True},
-                 {"print_level": 0, "max_iter": self.ipopt_max_iter, "sb": "yes",
-                  "tol": 1e-6, "acceptable_tol": 1e-4})
+        o.solver(
+            "ipopt",
+            {"print_time": False, "error_on_fail": False, "expand": True},
+            {
+                "print_level": 0,
+                "max_iter": self.ipopt_max_iter,
+                "sb": "yes",
+                "tol": 1e-6,
+                "acceptable_tol": 1e-4,
+            },
+        )
         self._opti, self._X, self._U, self._S, self._p = o, X, U, S, p
 
     def _input_cost(self, U, p):
@@ -158,14 +195,21 @@ class NmpcController(MpcController):
             u, u1 = U[:, k], (U[:, k - 1] if k >= 1 else p["prior"][:, 1])
             u2 = U[:, k - 2] if k >= 2 else p["prior"][:, k]  # k=0: u_-2, k=1: u_-1
             d1, d2 = u - u1, u - 2 * u1 + u2
-            J += 0.5 * (p["w_rate_s"][k] * d1[0] ** 2 + w_pr * (d1[1] ** 2 + d1[2] ** 2)
-                        + w_src * d2[0] ** 2 + w_prc * (d2[1] ** 2 + d2[2] ** 2)
-                        + c.w_sl * (u[0] - p["sw_ff"][k]) ** 2
-                        + c.w_pl * (u[1] ** 2 + u[2] ** 2))
+            J += 0.5 * (
+                p["w_rate_s"][k] * d1[0] ** 2
+                + w_pr * (d1[1] ** 2 + d1[2] ** 2)
+                + w_src * d2[0] ** 2
+                + w_prc * (d2[1] ** 2 + d2[2] ** 2)
+                + c.w_sl * (u[0] - p["sw_ff"][k]) ** 2
+                + c.w_pl * (u[1] ** 2 + u[2] ** 2)
+            )
             w_re = c.w_replan[k]
             if np.any(w_re > 0):
-                J += 0.5 * p["has_plan"] * sum(float(w_re[i]) * (u[i] - p["u_plan"][i, k]) ** 2
-                                               for i in range(NU))
+                J += (
+                    0.5
+                    * p["has_plan"]
+                    * sum(float(w_re[i]) * (u[i] - p["u_plan"][i, k]) ** 2 for i in range(NU))
+                )
         return J
 
     def _solve(self, stage: StageData) -> SolveOutcome:
@@ -186,14 +230,19 @@ class NmpcController(MpcController):
             sol = None
         solve_s = time.perf_counter() - t0
         stats = o.stats()
-        out = SolveOutcome(None, str(stats.get("return_status", "unknown")), "ipopt",
-                           solve_time_s=solve_s, iterations=int(stats.get("iter_count", 0)))
+        out = SolveOutcome(
+            None,
+            str(stats.get("return_status", "unknown")),
+            "ipopt",
+            solve_time_s=solve_s,
+            iterations=int(stats.get("iter_count", 0)),
+        )
         if sol is None or not stats.get("success", False):
             return out
         z = np.zeros(L.n)
-        z[:L.nx_all] = np.asarray(sol.value(self._X)).T.ravel()
-        z[L.nx_all:L.nx_all + L.nu_all] = np.asarray(sol.value(self._U)).T.ravel()
-        z[L.nx_all + L.nu_all:] = np.asarray(sol.value(self._S)).T.ravel()
+        z[: L.nx_all] = np.asarray(sol.value(self._X)).T.ravel()
+        z[L.nx_all : L.nx_all + L.nu_all] = np.asarray(sol.value(self._U)).T.ravel()
+        z[L.nx_all + L.nu_all :] = np.asarray(sol.value(self._S)).T.ravel()
         if np.all(np.isfinite(z)):
             out.solution = z
         return out
@@ -204,15 +253,15 @@ class NmpcController(MpcController):
         o, p = self._opti, self._p
         assert o is not None  # _solve builds the NLP first
         path, band, zones = stage.path, stage.band, stage.zones
-        xr, yr, th, psi_r, v_r = path.x_m, path.y_m, path.heading_rad, path.psi_rad, \
-            stage.v_ref_mps
+        xr, yr, th, psi_r, v_r = path.x_m, path.y_m, path.heading_rad, path.psi_rad, stage.v_ref_mps
         o.set_value(p["x0"], stage.x0)
         o.set_value(p["ref"], np.vstack([xr[1:], yr[1:], psi_r[1:], v_r[1:]]))
         o.set_value(p["nvec"], np.vstack([-np.sin(th[1:]), np.cos(th[1:])]))
         nx_, ny_ = -np.sin(th[-1]), np.cos(th[-1])
         T = np.array([[nx_, ny_, 0.0, 0.0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
-        P3 = self.cost.lqr_terminal(float(stage.states[-1, 3]),
-                                    float(path.road_wheel_angle_rad[-1]), self.plant)
+        P3 = self.cost.lqr_terminal(
+            float(stage.states[-1, 3]), float(path.road_wheel_angle_rad[-1]), self.plant
+        )
         o.set_value(p["PT"], T.T @ P3 @ T)
         o.set_value(p["rN"], np.array([xr[-1], yr[-1], psi_r[-1], v_r[-1]]))
         o.set_value(p["sw_ff"], path.steering_ff_rad[:N])
@@ -222,8 +271,9 @@ class NmpcController(MpcController):
         if self._map_as_parameters:
             o.set_value(p["sw_off"], pl.offset_rad)
             o.set_value(p["sw_scale"], pl.scale)
-        ulo, uhi, srlo, srhi = self.constraints.input_bounds(stage.modes, None, self.delay.fixed,
-                                                             self._last_cmd)
+        ulo, uhi, srlo, srhi = self.constraints.input_bounds(
+            stage.modes, None, self.delay.fixed, self._last_cmd
+        )
         big = 1e4  # IPOPT takes finite bounds: "free" rate rows get a huge band
         o.set_value(p["u_lo"], ulo.T)
         o.set_value(p["u_hi"], uhi.T)

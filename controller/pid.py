@@ -16,6 +16,7 @@ steering-wheel output are rate-limited, and pure pursuit's steering target is lo
 filtered. These cut the chatter an estimate's noise excites; the sign split stays naive,
 so the pedals still switch near idle where the MPC's mode logic does not.
 """
+
 from __future__ import annotations
 
 import math
@@ -38,8 +39,8 @@ class PidConfig:
     """Gains and filters (a hand tuning that tracks the ramps; not an optimised baseline).
     Time constants and rates are SI; 0 disables a filter, ``inf`` a rate limit."""
 
-    kp_per_mps: float = 0.6        # pedal per m/s of speed error
-    ki_per_m: float = 0.3          # pedal per m of integrated speed error
+    kp_per_mps: float = 0.6  # pedal per m/s of speed error
+    ki_per_m: float = 0.3  # pedal per m of integrated speed error
     # derivative on the filtered measured speed (pedal per m/s^2 of acceleration), never
     # on the error (no kick on a reference step). Off: the plant is first order, and 0.05
     # raised idle_hold's brake rate RMS 0.09 -> 0.14 /s through the estimator
@@ -51,7 +52,7 @@ class PidConfig:
     # speed measurement low-pass [s]: the estimator's speed wanders by its 0.05 m/s wheel-speed
     # noise; 0.3 s is 3 control periods, well under the 1-2 s of the speed ramps
     speed_filter_tau_s: float = 0.3
-    integral_max: float = 2.0      # anti-windup clamp on the integral [m]
+    integral_max: float = 2.0  # anti-windup clamp on the integral [m]
     # signed pedal output rate [full travel / s]: full travel in 2 s, 4x slower than the
     # actuation backstop (ActuatorLimits, 0.5 s); at the largest zone scale (about 3.5 m/s^2
     # per pedal) still 1.75 m/s^3, under the 2.5 m/s^3 jerk limit
@@ -70,8 +71,14 @@ class PidConfig:
     steering_rate_max_radps: float = 4.0
 
     def __post_init__(self):
-        for name in ("kp_per_mps", "ki_per_m", "kd_per_mps2", "speed_filter_tau_s",
-                     "steer_filter_tau_s", "integral_max"):
+        for name in (
+            "kp_per_mps",
+            "ki_per_m",
+            "kd_per_mps2",
+            "speed_filter_tau_s",
+            "steer_filter_tau_s",
+            "integral_max",
+        ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"PidConfig.{name} must be >= 0")
         if not 0.0 <= self.setpoint_weight <= 1.0:
@@ -99,8 +106,9 @@ class PidController:
 
     name = "pid"
 
-    def __init__(self, params: Params, config: PidConfig | None = None,
-                 limits: ActuatorLimits | None = None):
+    def __init__(
+        self, params: Params, config: PidConfig | None = None, limits: ActuatorLimits | None = None
+    ):
         if not params.is_model:
             raise ValueError("PidController needs a complete model (steering and zones)")
         self.params = params
@@ -113,20 +121,31 @@ class PidController:
         """New model values (``controller.adapt.LearnedModel``): the PID uses only eq. 7's
         offset and scale, for its steering feed-forward."""
         assert self.params.steering is not None
-        self.params = replace(self.params, steering=replace(
-            self.params.steering, offset_rad=float(model.offset_rad), scale=float(model.scale)))
+        self.params = replace(
+            self.params,
+            steering=replace(
+                self.params.steering, offset_rad=float(model.offset_rad), scale=float(model.scale)
+            ),
+        )
 
     def reset(self) -> None:
         self._i = 0.0
-        self._v_f: float | None = None      # filtered speed [m/s]
+        self._v_f: float | None = None  # filtered speed [m/s]
         self._t_prev: float | None = None
-        self._u: float | None = None        # signed pedal output [1]
+        self._u: float | None = None  # signed pedal output [1]
         self._delta_f: float | None = None  # filtered road-wheel angle target [rad]
         self._last: Command | None = None
         self._s: float | None = None
 
-    def step(self, state, reference: Reference, t_s: float, *, stop: bool = False,
-             obstacle_distance_m: float | None = None) -> ControlResult:
+    def step(
+        self,
+        state,
+        reference: Reference,
+        t_s: float,
+        *,
+        stop: bool = False,
+        obstacle_distance_m: float | None = None,
+    ) -> ControlResult:
         """One step (the contract of :class:`controller.base.Controller`; ``stop`` and
         ``obstacle_distance_m`` are ignored: a naive baseline). Never raises."""
         t_wall = time.perf_counter()
@@ -144,8 +163,7 @@ class PidController:
     def _stop(self) -> Command:
         """Stop command: throttle released, brake 0.3 (rate-limited), steering held."""
         prev = self._last or Command(0.0, 0.0, 0.0)
-        cmd = apply_limits(Command(prev.steering_wheel_angle_rad, 0.0, 0.3), prev,
-                           self.limits, 0.1)
+        cmd = apply_limits(Command(prev.steering_wheel_angle_rad, 0.0, 0.3), prev, self.limits, 0.1)
         self._last = cmd
         self._u = -cmd.brake_pedal
         return cmd
@@ -160,8 +178,11 @@ class PidController:
         dv = 0.0 if v_prev is None else (v_f - v_prev) / dt
         e = v_ref - v_f
         i_new = float(np.clip(self._i + e * dt, -c.integral_max, c.integral_max))
-        want = c.kp_per_mps * (c.setpoint_weight * v_ref - v_f) + c.ki_per_m * i_new \
+        want = (
+            c.kp_per_mps * (c.setpoint_weight * v_ref - v_f)
+            + c.ki_per_m * i_new
             - c.kd_per_mps2 * dv
+        )
         u = float(np.clip(_toward(self._u, want, c.pedal_rate_max_ps * dt), -1.0, 1.0))
         if abs(u - want) < 1e-12 or (want - u) * e < 0:  # not held back towards the error
             self._i = i_new

@@ -5,6 +5,7 @@ One class serves both users: the drive loop's clock interface (``monotonic()``, 
 advances by hand (``clock()``, ``advance(dt)``; the tele-operation link under test).
 Imports nothing of hmpc.
 """
+
 from __future__ import annotations
 
 

@@ -2,4 +2,3 @@
 
 Nothing here imports ``controller`` or ``tools``; everything is testable without a bus.
 """
-

@@ -5,6 +5,7 @@ Every reader raises :class:`InputError` for bad input that leaves nothing usable
 problems (a malformed line, a frame that does not decode) in a :class:`Problems`
 collector, which the CLI prints on stderr and writes to ``--json``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -22,8 +23,16 @@ class InputError(HmpcError):
     ``can.log:17: payload 'ZZ' is not hex``.
     """
 
-    def __init__(self, reason: str, path: str | None = None, *, line: int | None = None,
-                 frame: int | None = None, channel: str | None = None, key: str | None = None):
+    def __init__(
+        self,
+        reason: str,
+        path: str | None = None,
+        *,
+        line: int | None = None,
+        frame: int | None = None,
+        channel: str | None = None,
+        key: str | None = None,
+    ):
         self.reason = reason
         self.path = None if path is None else str(path)
         self.line = line
@@ -75,8 +84,13 @@ class Problem:
     info: bool = False
 
     def to_dict(self) -> dict:
-        return {"kind": self.kind, "file": self.path, "count": int(self.count),
-                "first": [int(x) for x in self.first], "detail": self.detail}
+        return {
+            "kind": self.kind,
+            "file": self.path,
+            "count": int(self.count),
+            "first": [int(x) for x in self.first],
+            "detail": self.detail,
+        }
 
 
 class Problems:
@@ -87,8 +101,15 @@ class Problems:
     def __init__(self) -> None:
         self._items: dict[tuple[str, str], Problem] = {}
 
-    def add(self, kind: str, path: str, where: Iterable[int] | int | None = None,
-            count: int | None = None, detail: str = "", info: bool = False) -> None:
+    def add(
+        self,
+        kind: str,
+        path: str,
+        where: Iterable[int] | int | None = None,
+        count: int | None = None,
+        detail: str = "",
+        info: bool = False,
+    ) -> None:
         """Record ``count`` occurrences of ``kind`` in ``path`` at line/frame numbers ``where``;
         ``info=True`` for what is information rather than a problem (see :class:`Problem`)."""
         if where is None:
@@ -100,8 +121,9 @@ class Problems:
         n = len(places) if count is None else int(count)
         if n <= 0:
             return
-        p = self._items.setdefault((kind, str(path)),
-                                   Problem(kind, str(path), detail=detail, info=info))
+        p = self._items.setdefault(
+            (kind, str(path)), Problem(kind, str(path), detail=detail, info=info)
+        )
         p.count += n
         room = self.MAX_FIRST - len(p.first)
         if room > 0:

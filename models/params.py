@@ -4,7 +4,7 @@ The contract is ``docs/conventions.md``: every numeric key carries its unit as a
 (``_m``, ``_s``, ``_rad``, ``_mps``, ``_mps2``, ...), a file with only ``vehicle``,
 ``steering`` and ``longitudinal.zones`` is a complete model, and everything else is optional.
 Unknown keys and keys without a unit are rejected (:class:`ParamError`), never defaulted; so is
-a geometry no road vehicle has (a wheelbase in millimetres, :data:`GEOMETRY_RANGES_M`), and
+a geometry no road vehicle has (a wheelbase in millimetres; :mod:`hmpc.models.geometry`), and
 :func:`dump_params` never writes a file the loader would refuse.
 
 Optional keys (all documented here, nowhere else):
@@ -62,6 +62,7 @@ Optional keys (all documented here, nowhere else):
   every speed) and must be flagged ``identifiable: false``, so a tool refuses it unless told
   to accept it.
 """
+
 from __future__ import annotations
 
 import difflib
@@ -75,12 +76,24 @@ from typing import Any
 import yaml
 
 from hmpc.models.errors import ParamError
+from hmpc.models.geometry import check_geometry
 from hmpc.models.catalogue import CATALOGUE, EXTENSION_TEXT_KEYS
 from hmpc.models.zones import zone_of_speed
 
 #: Unit suffixes a numeric key may carry (``_ps``: per second, 1/s).
-UNIT_SUFFIXES = ("_m", "_s", "_rad", "_mps", "_mps2", "_mps3", "_radps", "_pct", "_kg", "_hz",
-                 "_ps")
+UNIT_SUFFIXES = (
+    "_m",
+    "_s",
+    "_rad",
+    "_mps",
+    "_mps2",
+    "_mps3",
+    "_radps",
+    "_pct",
+    "_kg",
+    "_hz",
+    "_ps",
+)
 #: Dimensionless keys (ratios, counts) need no suffix: scale, scale_ci95, steering_ratio, samples.
 
 
@@ -109,8 +122,13 @@ def _flag(path, key, v) -> bool:
     return v
 
 
-_KIND = {float: _num, tuple: _pair, str: _text, bool: _flag,
-         dict: lambda path, key, v: _scores(path, key, v)}
+_KIND = {
+    float: _num,
+    tuple: _pair,
+    str: _text,
+    bool: _flag,
+    dict: lambda path, key, v: _scores(path, key, v),
+}
 
 
 def _check_keys(path: str, section: str, data: Any, cls) -> dict:
@@ -126,8 +144,9 @@ def _check_keys(path: str, section: str, data: Any, cls) -> dict:
             hint = ""
             with_unit = [n for n in known if any(n == f"{k}{s}" for s in UNIT_SUFFIXES)]
             if with_unit:
-                raise ParamError(f"key has no unit suffix (did you mean '{with_unit[0]}'?)", path,
-                                 key=full)
+                raise ParamError(
+                    f"key has no unit suffix (did you mean '{with_unit[0]}'?)", path, key=full
+                )
             close = difflib.get_close_matches(str(k), list(stems), n=1)
             if close:
                 hint = f" (did you mean '{close[0]}'?)"
@@ -145,8 +164,17 @@ def _typed(cls):
     kinds = {}
     for f in fields(cls):
         t = str(f.type)
-        kinds[f.name] = (tuple if "tuple" in t else str if "str" in t else
-                         bool if "bool" in t else dict if "dict" in t else float)
+        kinds[f.name] = (
+            tuple
+            if "tuple" in t
+            else str
+            if "str" in t
+            else bool
+            if "bool" in t
+            else dict
+            if "dict" in t
+            else float
+        )
     cls.__annotations_types__ = kinds
     return cls
 
@@ -218,12 +246,19 @@ class Zone:
     samples: float | None = None
     identifiable: bool | None = None
     note: str | None = None
-    __required__ = ("name", "v_min_mps", "v_max_mps", "offset_mps2", "scale_mps2",
-                    "brake_scale_mps2")
+    __required__ = (
+        "name",
+        "v_min_mps",
+        "v_max_mps",
+        "offset_mps2",
+        "scale_mps2",
+        "brake_scale_mps2",
+    )
 
     def accel_mps2(self, accel_pedal: float, brake_pedal: float) -> float:
-        return (self.offset_mps2 + self.scale_mps2 * accel_pedal
-                - self.brake_scale_mps2 * brake_pedal)
+        return (
+            self.offset_mps2 + self.scale_mps2 * accel_pedal - self.brake_scale_mps2 * brake_pedal
+        )
 
 
 @_typed
@@ -313,9 +348,18 @@ class Params:
     def to_dict(self) -> dict:
         def clean(obj):
             d = asdict(obj)
-            return {k: (list(v) if isinstance(v, tuple) else
-                        int(v) if k == "samples" and float(v).is_integer() else v)   # a count
-                    for k, v in d.items() if v is not None}
+            return {
+                k: (
+                    list(v)
+                    if isinstance(v, tuple)
+                    else int(v)
+                    if k == "samples" and float(v).is_integer()
+                    else v
+                )  # a count
+                for k, v in d.items()
+                if v is not None
+            }
+
         out: dict[str, Any] = {"vehicle": clean(self.vehicle)}
         if self.steering is not None:
             out["steering"] = clean(self.steering)
@@ -346,10 +390,19 @@ class Params:
         return out
 
 
-_TOP = {"vehicle", "steering", "longitudinal", "limits", "provenance", "not_identified",
-        "extensions"}
+_TOP = {
+    "vehicle",
+    "steering",
+    "longitudinal",
+    "limits",
+    "provenance",
+    "not_identified",
+    "extensions",
+}
 #: the parts ``not_identified:`` may name
 _PARTS = ("steering", "longitudinal")
+
+
 def _scores(path, key, v) -> dict:
     """A mapping name -> finite number (e.g. ``accel_source_scores_mps2``)."""
     if not isinstance(v, dict) or not v:
@@ -358,68 +411,26 @@ def _scores(path, key, v) -> dict:
 
 
 #: vehicle keys that are lengths, masses, ratios or ranges: positive when given
-_POSITIVE_VEHICLE = ("wheelbase_m", "track_front_m", "track_rear_m", "wheel_radius_m", "mass_kg",
-                     "steering_ratio", "steering_wheel_angle_max_rad",
-                     "steering_wheel_rate_max_radps")
+_POSITIVE_VEHICLE = (
+    "wheelbase_m",
+    "track_front_m",
+    "track_rear_m",
+    "wheel_radius_m",
+    "mass_kg",
+    "steering_ratio",
+    "steering_wheel_angle_max_rad",
+    "steering_wheel_rate_max_radps",
+)
 
-#: [m] plausible geometry of a road vehicle, from a 1:10 model car (wheelbase ~0.33 m, track
-#: ~0.28 m, wheel radius ~0.05 m) to a long bus or a mining truck (wheelbase ~7 m, track
-#: ~2.5 m, wheel radius ~1.8 m): a value outside is a unit mistake (mm, cm, inches), and
-#: identification with it finds no trustworthy sample instead of saying so.
-GEOMETRY_RANGES_M = {"wheelbase_m": (0.1, 10.0), "track_front_m": (0.1, 5.0),
-                     "track_rear_m": (0.1, 5.0), "wheel_radius_m": (0.02, 2.0)}
-#: [1] plausible track / wheelbase: ~0.3 for a truck or bus, ~0.6 for a passenger car, ~0.9
-#: for a kart or a 1:10 model; outside, the two lengths are in different units or swapped.
-TRACK_WHEELBASE_RATIO = (0.2, 1.5)
-#: units a length is mistakenly given in, with their size [m]
-_LENGTH_UNITS = (("millimetres", 1e-3), ("centimetres", 1e-2), ("inches", 0.0254),
-                 ("feet", 0.3048))
-
-
-def _unit_hint(value: float, lo: float, hi: float, ratio_to: float | None = None) -> str:
-    """The units in which ``value`` would be a plausible length in [lo, hi] m, as text; with
-    ``ratio_to`` (the other of wheelbase and track, in range), only those that also give a
-    plausible track / wheelbase when there are any."""
-    fits = [(name, value * size) for name, size in _LENGTH_UNITS if lo <= value * size <= hi]
-    if ratio_to is not None:
-        r_lo, r_hi = TRACK_WHEELBASE_RATIO
-        both = [(n, x) for n, x in fits if r_lo <= min(x, ratio_to) / max(x, ratio_to) <= r_hi]
-        fits = both or fits
-    named = [f"{name} ({x:.4g} m)" for name, x in fits]
-    if not named:
-        return ""
-    return "; likely given in " + (named[0] if len(named) == 1 else
-                                  ", ".join(named[:-1]) + " or " + named[-1])
-
-
-def _check_geometry(path: str, vehicle: Vehicle) -> None:
-    """Refuse a geometry no road vehicle has (:data:`GEOMETRY_RANGES_M`,
-    :data:`TRACK_WHEELBASE_RATIO`), naming the key and the likely unit mistake."""
-    def in_range(k):
-        lo, hi = GEOMETRY_RANGES_M[k]
-        v = getattr(vehicle, k)
-        return v if v is not None and lo <= v <= hi else None
-
-    for k, (lo, hi) in GEOMETRY_RANGES_M.items():
-        v = getattr(vehicle, k)
-        if v is not None and not lo <= v <= hi:
-            other = (in_range("track_front_m") if k == "wheelbase_m" else
-                     in_range("wheelbase_m") if k.startswith("track_") else None)
-            raise ParamError(f"{v:g} m is not a plausible length (road vehicles from 1:10 models "
-                             f"up have {lo:g}-{hi:g} m){_unit_hint(v, lo, hi, other)}", path,
-                             key=f"vehicle.{k}")
-    lo, hi = TRACK_WHEELBASE_RATIO
-    for k in ("track_front_m", "track_rear_m"):
-        t = getattr(vehicle, k)
-        if t is not None and not lo <= t / vehicle.wheelbase_m <= hi:
-            raise ParamError(f"{k} / wheelbase_m = {t:g} / {vehicle.wheelbase_m:g} = "
-                             f"{t / vehicle.wheelbase_m:.3g} is not plausible (road vehicles "
-                             f"have {lo:g}-{hi:g}): the two are likely in different units or "
-                             "swapped", path, key=f"vehicle.{k}")
-
-_LONG: dict[str, Any] = {"zones": None, "input": _text, "dead_time_s": _num,
-                         "hysteresis_mps": _num, "accel_source": _text,
-                         "accel_source_chosen": _text, "accel_source_scores_mps2": _scores}
+_LONG: dict[str, Any] = {
+    "zones": None,
+    "input": _text,
+    "dead_time_s": _num,
+    "hysteresis_mps": _num,
+    "accel_source": _text,
+    "accel_source_chosen": _text,
+    "accel_source_scores_mps2": _scores,
+}
 
 
 def parse_params(data: Any, path: str = "<params>", *, require_model: bool = False) -> Params:
@@ -438,18 +449,25 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
         v = getattr(vehicle, k)
         if v is not None and v <= 0:
             raise ParamError(f"must be positive, got {v:g}", path, key=f"vehicle.{k}")
-    _check_geometry(path, vehicle)
+    check_geometry(path, vehicle)
     p = Params(vehicle=vehicle, path=path)
     if "steering" in data:
         p.steering = Steering(**_check_keys(path, "steering", data["steering"], Steering))
         if not p.steering.scale > 0:
             # CONVENTIONS: a left turn is a positive steering-wheel AND road-wheel angle
-            raise ParamError(f"must be positive (a left turn has positive steering-wheel and "
-                             f"road-wheel angles), got {p.steering.scale:g}", path,
-                             key="steering.scale")
+            raise ParamError(
+                f"must be positive (a left turn has positive steering-wheel and "
+                f"road-wheel angles), got {p.steering.scale:g}",
+                path,
+                key="steering.scale",
+            )
         if p.steering.input is not None and p.steering.input not in STEERING_INPUTS:
-            raise ParamError(f"unknown steering input {p.steering.input!r} (one of "
-                             f"{', '.join(STEERING_INPUTS)})", path, key="steering.input")
+            raise ParamError(
+                f"unknown steering input {p.steering.input!r} (one of "
+                f"{', '.join(STEERING_INPUTS)})",
+                path,
+                key="steering.input",
+            )
     if "longitudinal" in data:
         lon = data["longitudinal"]
         if not isinstance(lon, dict):
@@ -464,11 +482,17 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
         zone_list: Sequence[Zone | CommandZone] = p.zones or p.command_zones
         for i, z in enumerate(zone_list):
             if not z.v_max_mps > z.v_min_mps:
-                raise ParamError("v_max_mps must exceed v_min_mps", path,
-                                 key=f"longitudinal.zones[{i}].v_max_mps")
+                raise ParamError(
+                    "v_max_mps must exceed v_min_mps",
+                    path,
+                    key=f"longitudinal.zones[{i}].v_max_mps",
+                )
             if i and abs(z.v_min_mps - zone_list[i - 1].v_max_mps) > 1e-9:
-                raise ParamError("zones must be contiguous (v_min_mps = previous v_max_mps)", path,
-                                 key=f"longitudinal.zones[{i}].v_min_mps")
+                raise ParamError(
+                    "zones must be contiguous (v_min_mps = previous v_max_mps)",
+                    path,
+                    key=f"longitudinal.zones[{i}].v_min_mps",
+                )
         if "dead_time_s" in lon:
             p.longitudinal_dead_time_s = _num(path, "longitudinal.dead_time_s", lon["dead_time_s"])
         if "hysteresis_mps" in lon:
@@ -487,35 +511,48 @@ def parse_params(data: Any, path: str = "<params>", *, require_model: bool = Fal
     if "not_identified" in data:
         ni = data["not_identified"]
         if not isinstance(ni, dict):
-            raise ParamError("section 'not_identified' must map a part to its reason", path,
-                             key="not_identified")
+            raise ParamError(
+                "section 'not_identified' must map a part to its reason", path, key="not_identified"
+            )
         for k, v in ni.items():
             if str(k).startswith(_ZONE_VALUE):
                 _check_zone_value_named(path, p, str(k), v)
                 continue
             if k not in _PARTS:
-                raise ParamError(f"unknown part (one of {', '.join(_PARTS)})", path,
-                                 key=f"not_identified.{k}")
+                raise ParamError(
+                    f"unknown part (one of {', '.join(_PARTS)})", path, key=f"not_identified.{k}"
+                )
             if not isinstance(v, str) or not v.strip():
                 raise ParamError("expected the reason as text", path, key=f"not_identified.{k}")
             if k in data:
-                raise ParamError(f"'{k}' is both given and listed as not identified", path,
-                                 key=f"not_identified.{k}")
+                raise ParamError(
+                    f"'{k}' is both given and listed as not identified",
+                    path,
+                    key=f"not_identified.{k}",
+                )
         p.not_identified = dict(ni)
     if "extensions" in data:
         p.extensions = _parse_extensions(path, data["extensions"])
     if require_model and p.command_zones:
         assert p.command_input is not None  # command zones come with their input
         gain = COMMAND_GAIN_KEYS[p.command_input]
-        raise ParamError(f"this command needs the pedal model (eq. 8: scale_mps2, "
-                         f"brake_scale_mps2 per zone); the file holds a {p.command_input} model "
-                         f"(acceleration from the command, '{gain}'), which hmpc does not "
-                         "simulate or drive", path, key=f"longitudinal.zones[0].{gain}")
+        raise ParamError(
+            f"this command needs the pedal model (eq. 8: scale_mps2, "
+            f"brake_scale_mps2 per zone); the file holds a {p.command_input} model "
+            f"(acceleration from the command, '{gain}'), which hmpc does not "
+            "simulate or drive",
+            path,
+            key=f"longitudinal.zones[0].{gain}",
+        )
     if require_model and not p.is_model:
         missing = "steering" if p.steering is None else "longitudinal"
         why = p.not_identified.get(missing)
-        raise ParamError("this command needs a complete model; section is missing"
-                         + (f" (not identified: {why})" if why else ""), path, key=missing)
+        raise ParamError(
+            "this command needs a complete model; section is missing"
+            + (f" (not identified: {why})" if why else ""),
+            path,
+            key=missing,
+        )
     return p
 
 
@@ -525,37 +562,52 @@ def _parse_zones(path: str, p: Params, lon: dict, zones: list) -> None:
     the input's gain key (:data:`COMMAND_GAIN_KEYS`) and no other input's; gains are >= 0."""
     inp = _text(path, "longitudinal.input", lon["input"]) if "input" in lon else "accel_pedal"
     if inp not in LONGITUDINAL_INPUTS:
-        raise ParamError(f"unknown input {inp!r} (one of {', '.join(LONGITUDINAL_INPUTS)})",
-                         path, key="longitudinal.input")
+        raise ParamError(
+            f"unknown input {inp!r} (one of {', '.join(LONGITUDINAL_INPUTS)})",
+            path,
+            key="longitudinal.input",
+        )
     for i, z in enumerate(zones):
         zk = f"longitudinal.zones[{i}]"
         if inp == "accel_pedal":
             if isinstance(z, dict):
                 for k, cmd in ((g, c) for c, g in COMMAND_GAIN_KEYS.items()):
                     if k in z:
-                        raise ParamError(f"a {cmd} gain needs 'longitudinal.input: {cmd}'",
-                                         path, key=f"{zk}.{k}")
+                        raise ParamError(
+                            f"a {cmd} gain needs 'longitudinal.input: {cmd}'", path, key=f"{zk}.{k}"
+                        )
             zone = Zone(**_check_keys(path, zk, z, Zone))
             for k in ("scale_mps2", "brake_scale_mps2"):
                 if getattr(zone, k) < 0:
-                    raise ParamError(f"must be >= 0 (pressing the pedal never works against "
-                                     f"it; the brake term is subtracted), got "
-                                     f"{getattr(zone, k):g}", path, key=f"{zk}.{k}")
+                    raise ParamError(
+                        f"must be >= 0 (pressing the pedal never works against "
+                        f"it; the brake term is subtracted), got "
+                        f"{getattr(zone, k):g}",
+                        path,
+                        key=f"{zk}.{k}",
+                    )
             p.zones.append(zone)
             continue
         cz = CommandZone(**_check_keys(path, zk, z, CommandZone))
         gain = COMMAND_GAIN_KEYS[inp]
         for other in COMMAND_GAIN_KEYS.values():
             if other != gain and getattr(cz, other) is not None:
-                raise ParamError(f"'longitudinal.input: {inp}' zones hold '{gain}', not "
-                                 f"'{other}'", path, key=f"{zk}.{other}")
+                raise ParamError(
+                    f"'longitudinal.input: {inp}' zones hold '{gain}', not '{other}'",
+                    path,
+                    key=f"{zk}.{other}",
+                )
         value = getattr(cz, gain)
         if value is None:
-            raise ParamError(f"required key is missing ('longitudinal.input: {inp}')", path,
-                             key=f"{zk}.{gain}")
+            raise ParamError(
+                f"required key is missing ('longitudinal.input: {inp}')", path, key=f"{zk}.{gain}"
+            )
         if value < 0:
-            raise ParamError(f"must be >= 0 (a larger command never slows the car), got "
-                             f"{value:g}", path, key=f"{zk}.{gain}")
+            raise ParamError(
+                f"must be >= 0 (a larger command never slows the car), got {value:g}",
+                path,
+                key=f"{zk}.{gain}",
+            )
         p.command_zones.append(cz)
     p.command_input = None if inp == "accel_pedal" else inp
 
@@ -563,8 +615,7 @@ def _parse_zones(path: str, p: Params, lon: dict, zones: list) -> None:
 #: ``not_identified:`` may also name one written zone value the recording did not determine
 #: (copied from another zone, or a prior): ``longitudinal.zones.<name>.<key>``
 _ZONE_VALUE = "longitudinal.zones."
-_ZONE_VALUE_KEYS = ("offset_mps2", "scale_mps2", "brake_scale_mps2",
-                    *COMMAND_GAIN_KEYS.values())
+_ZONE_VALUE_KEYS = ("offset_mps2", "scale_mps2", "brake_scale_mps2", *COMMAND_GAIN_KEYS.values())
 
 
 def _check_zone_value_named(path: str, p: Params, k: str, why: Any) -> None:
@@ -574,26 +625,37 @@ def _check_zone_value_named(path: str, p: Params, k: str, why: Any) -> None:
     key = f"not_identified.{k}"
     if not isinstance(why, str) or not why.strip():
         raise ParamError("expected the reason as text", path, key=key)
-    name, _, coef = k[len(_ZONE_VALUE):].rpartition(".")
+    name, _, coef = k[len(_ZONE_VALUE) :].rpartition(".")
     zone = next((z for z in p.zones or p.command_zones if z.name == name), None)
     if zone is None or coef not in _ZONE_VALUE_KEYS:
-        raise ParamError(f"names no zone value of this file (longitudinal.zones.<zone name>."
-                         f"<{'|'.join(_ZONE_VALUE_KEYS)}>)", path, key=key)
+        raise ParamError(
+            f"names no zone value of this file (longitudinal.zones.<zone name>."
+            f"<{'|'.join(_ZONE_VALUE_KEYS)}>)",
+            path,
+            key=key,
+        )
     if zone.identifiable is not False:
-        raise ParamError(f"zone '{name}' must be flagged 'identifiable: false' when a value of "
-                         "it is named as not identified", path, key=key)
+        raise ParamError(
+            f"zone '{name}' must be flagged 'identifiable: false' when a value of "
+            "it is named as not identified",
+            path,
+            key=key,
+        )
 
 
 def _parse_extensions(path: str, data: Any) -> dict:
     """Validate the ``extensions:`` section against the diagnosis catalogue (module doc)."""
+
     def unknown(what, key, known):
         close = difflib.get_close_matches(str(key).split(".")[-1], sorted(known), n=1)
-        return ParamError(f"unknown {what}" + (f" (did you mean '{close[0]}'?)" if close else ""),
-                          path, key=key)
+        return ParamError(
+            f"unknown {what}" + (f" (did you mean '{close[0]}'?)" if close else ""), path, key=key
+        )
 
     if not isinstance(data, dict):
-        raise ParamError("section 'extensions' must map catalogue ids to subsystems", path,
-                         key="extensions")
+        raise ParamError(
+            "section 'extensions' must map catalogue ids to subsystems", path, key="extensions"
+        )
     out: dict = {}
     for eid, subs in data.items():
         if eid not in CATALOGUE:
@@ -614,32 +676,42 @@ def _parse_extensions(path: str, data: Any) -> dict:
                     clean[k] = _num(path, f"{key}.{k}", v)
                 elif k == "intervals":
                     if not isinstance(v, dict):
-                        raise ParamError("expected {parameter: [low, high]}", path,
-                                         key=f"{key}.intervals")
+                        raise ParamError(
+                            "expected {parameter: [low, high]}", path, key=f"{key}.intervals"
+                        )
                     for pk in v:
                         if pk not in names:
                             raise unknown("parameter", f"{key}.intervals.{pk}", names)
-                    clean[k] = {pk: list(_pair(path, f"{key}.intervals.{pk}", pv))
-                                for pk, pv in v.items()}
+                    clean[k] = {
+                        pk: list(_pair(path, f"{key}.intervals.{pk}", pv)) for pk, pv in v.items()
+                    }
                 elif k in EXTENSION_TEXT_KEYS:
                     clean[k] = _text(path, f"{key}.{k}", v)
                 elif k == "base":
                     clean[k] = _extension_base(path, f"{key}.base", sub, v)
                 else:
-                    raise unknown("parameter", f"{key}.{k}", [*names, "intervals",
-                                                               *EXTENSION_TEXT_KEYS])
+                    raise unknown(
+                        "parameter", f"{key}.{k}", [*names, "intervals", *EXTENSION_TEXT_KEYS]
+                    )
             below = clean.get("on_top_of")
             if below is not None and below not in data:
-                raise ParamError(f"names '{below}', which is not in the section", path,
-                                 key=f"{key}.on_top_of")
+                raise ParamError(
+                    f"names '{below}', which is not in the section", path, key=f"{key}.on_top_of"
+                )
             out.setdefault(eid, {})[sub] = clean
     return out
 
 
 #: ``base:`` of an extension entry: the coefficients it was fitted jointly with
 _BASE_STEERING = ("offset_rad", "scale")
-_BASE_ZONE = ("offset_mps2", "scale_mps2", "brake_scale_mps2", "accel_cmd_gain",
-              "speed_cmd_gain_ps", "engine_braking_per_krpm_mps2")
+_BASE_ZONE = (
+    "offset_mps2",
+    "scale_mps2",
+    "brake_scale_mps2",
+    "accel_cmd_gain",
+    "speed_cmd_gain_ps",
+    "engine_braking_per_krpm_mps2",
+)
 
 
 def _extension_base(path: str, key: str, sub: str, v: Any) -> dict:
@@ -651,8 +723,9 @@ def _extension_base(path: str, key: str, sub: str, v: Any) -> dict:
     if sub == "steering":
         for k in v:
             if k not in _BASE_STEERING:
-                raise ParamError(f"unknown key (one of {', '.join(_BASE_STEERING)})", path,
-                                 key=f"{key}.{k}")
+                raise ParamError(
+                    f"unknown key (one of {', '.join(_BASE_STEERING)})", path, key=f"{key}.{k}"
+                )
         return {k: _num(path, f"{key}.{k}", x) for k, x in v.items()}
     if set(v) != {"zones"} or not isinstance(v["zones"], list):
         raise ParamError("expected {zones: [...]}", path, key=key)
@@ -663,10 +736,15 @@ def _extension_base(path: str, key: str, sub: str, v: Any) -> dict:
             raise ParamError("expected a mapping with a name", path, key=zk)
         for k in z:
             if k != "name" and k not in _BASE_ZONE:
-                raise ParamError(f"unknown key (one of name, {', '.join(_BASE_ZONE)})", path,
-                                 key=f"{zk}.{k}")
-        out.append({k: (_text(path, f"{zk}.{k}", x) if k == "name" else _num(path, f"{zk}.{k}", x))
-                    for k, x in z.items()})
+                raise ParamError(
+                    f"unknown key (one of name, {', '.join(_BASE_ZONE)})", path, key=f"{zk}.{k}"
+                )
+        out.append(
+            {
+                k: (_text(path, f"{zk}.{k}", x) if k == "name" else _num(path, f"{zk}.{k}", x))
+                for k, x in z.items()
+            }
+        )
     return {"zones": out}
 
 
@@ -681,8 +759,9 @@ def load_params(path: str | Path, *, require_model: bool = False) -> Params:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = None if mark is None else mark.line + 1
-        raise ParamError(f"not valid YAML ({getattr(exc, 'problem', exc)})", path,
-                         line=line) from None
+        raise ParamError(
+            f"not valid YAML ({getattr(exc, 'problem', exc)})", path, line=line
+        ) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ParamError(f"cannot read ({exc.__class__.__name__})", path) from None
     return parse_params(data, path, require_model=require_model)
@@ -704,8 +783,9 @@ def dump_params(params: Params, path: str | Path) -> None:
     try:
         parse_params(yaml.safe_load(text), str(path))
     except ParamError as exc:
-        raise ParamError(f"{exc.reason} (not written: hmpc would refuse the file)", exc.path,
-                         key=exc.key) from None
+        raise ParamError(
+            f"{exc.reason} (not written: hmpc would refuse the file)", exc.path, key=exc.key
+        ) from None
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         with open(tmp, "w", encoding="utf-8") as fh:
@@ -714,42 +794,3 @@ def dump_params(params: Params, path: str | Path) -> None:
     finally:
         if tmp.exists():
             tmp.unlink()
-
-
-#: the command-line flag that accepts values flagged ``identifiable: false`` (named in the refusal)
-ACCEPT_UNIDENTIFIABLE_FLAG = "--accept-unidentifiable"
-
-
-def unidentifiable_keys(params: Params) -> list[tuple[str, str]]:
-    """The parts of ``params`` that identification flagged ``identifiable: false``, as
-    ``(key, note)`` pairs: ``("steering", note)`` and ``("longitudinal.zones[i]", note)``.
-    An absent flag (a hand-written file) is not a refusal: only an explicit ``false`` is."""
-    out = []
-    if params.steering is not None and params.steering.identifiable is False:
-        out.append(("steering", params.steering.note or ""))
-    for i, z in enumerate(params.zones):
-        if z.identifiable is False:
-            out.append((f"longitudinal.zones[{i}]", f"zone '{z.name}'"
-                        + (f": {z.note}" if z.note else "")))
-    return out
-
-
-def check_identifiable(params: Params, *, accept: bool = False,
-                       flag: str = ACCEPT_UNIDENTIFIABLE_FLAG) -> list[str]:
-    """Refuse values the recording could not identify: a steering map or zone flagged
-    ``identifiable: false`` raises :class:`ParamError` in one line naming the key(s) and
-    ``flag``, the option that accepts them. With ``accept`` nothing is raised and one warning
-    line naming every flagged key is returned for the caller to print."""
-    bad = unidentifiable_keys(params)
-    if not bad:
-        return []
-    if not accept:
-        key, note = bad[0]
-        note = f"{key}: {note}" if note else key
-        if len(note) > 160:
-            note = note[:157] + "..."
-        raise ParamError(f"values flagged 'identifiable: false' ({note}); {flag} accepts "
-                         "them", params.path, key=", ".join(k for k, _ in bad))
-    where = params.path or "<params>"
-    keys = ", ".join(f"'{k}'" for k, _ in bad)
-    return [f"{where}: using values flagged 'identifiable: false' ({flag}) at {keys}"]

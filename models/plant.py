@@ -32,6 +32,7 @@ Above the last zone the plant uses the last zone's model and ``above_last_zone``
 At standstill a negative acceleration holds the car at rest: it never rolls backwards under
 the brake.
 """
+
 from __future__ import annotations
 
 import math
@@ -99,14 +100,20 @@ class BicycleJacobian(NamedTuple):
     dpsi_du: Any
 
 
-def bicycle_jacobian(psi_rad, v_mps, delta_rad, wheelbase_m, scale=1.0,
-                     ops=np) -> BicycleJacobian:
+def bicycle_jacobian(psi_rad, v_mps, delta_rad, wheelbase_m, scale=1.0, ops=np) -> BicycleJacobian:
     """Eq. 1's Jacobian at (psi, v, delta); ``scale`` is d delta / d u (eq. 7's scale for
     the steering-wheel angle; 1.0 for the road-wheel angle itself)."""
     c, s = ops.cos(psi_rad + delta_rad), ops.sin(psi_rad + delta_rad)
-    return BicycleJacobian(-v_mps * s, c, v_mps * c, s, ops.sin(delta_rad) / wheelbase_m,
-                           -v_mps * s * scale, v_mps * c * scale,
-                           v_mps * ops.cos(delta_rad) * scale / wheelbase_m)
+    return BicycleJacobian(
+        -v_mps * s,
+        c,
+        v_mps * c,
+        s,
+        ops.sin(delta_rad) / wheelbase_m,
+        -v_mps * s * scale,
+        v_mps * c * scale,
+        v_mps * ops.cos(delta_rad) * scale / wheelbase_m,
+    )
 
 
 def zone_accel(offset_mps2, scale_mps2, brake_scale_mps2, accel_pedal, brake_pedal):
@@ -114,29 +121,35 @@ def zone_accel(offset_mps2, scale_mps2, brake_scale_mps2, accel_pedal, brake_ped
     return offset_mps2 + scale_mps2 * accel_pedal - brake_scale_mps2 * brake_pedal
 
 
-def derivative_batch(plant: HybridPlant, X: np.ndarray, U: np.ndarray,
-                     zones: np.ndarray) -> np.ndarray:
+def derivative_batch(
+    plant: HybridPlant, X: np.ndarray, U: np.ndarray, zones: np.ndarray
+) -> np.ndarray:
     """Continuous-time ds/dt for many (state, input, zone) rows at once: (n, 4)."""
     delta = road_wheel_angle(U[:, ISW], plant.offset_rad, plant.scale)
     out = np.empty_like(X)
-    out[:, IX], out[:, IY], out[:, IPSI] = bicycle_rates(X[:, IPSI], X[:, IV], delta,
-                                                         plant.wheelbase_m)
-    out[:, IV] = zone_accel(plant.z_offset[zones], plant.z_scale[zones], plant.z_brake[zones],
-                            U[:, IAP], U[:, IBP])
+    out[:, IX], out[:, IY], out[:, IPSI] = bicycle_rates(
+        X[:, IPSI], X[:, IV], delta, plant.wheelbase_m
+    )
+    out[:, IV] = zone_accel(
+        plant.z_offset[zones], plant.z_scale[zones], plant.z_brake[zones], U[:, IAP], U[:, IBP]
+    )
     ext = plant.ext
     if ext is not None:  # opt-in physics of ``extensions:`` (PlantExtensions)
         if ext.steering:
-            delta = ext.road_wheel_angle(U[:, ISW], X[:, IV], plant.offset_rad, plant.scale,
-                                         plant.wheelbase_m)
-            out[:, IX], out[:, IY], out[:, IPSI] = bicycle_rates(X[:, IPSI], X[:, IV], delta,
-                                                                 plant.wheelbase_m)
+            delta = ext.road_wheel_angle(
+                U[:, ISW], X[:, IV], plant.offset_rad, plant.scale, plant.wheelbase_m
+            )
+            out[:, IX], out[:, IY], out[:, IPSI] = bicycle_rates(
+                X[:, IPSI], X[:, IV], delta, plant.wheelbase_m
+            )
         if ext.longitudinal:
             out[:, IV] += ext.accel(X[:, IV], U[:, IAP])
     return out
 
 
-def jacobians_batch(plant: HybridPlant, X: np.ndarray, U: np.ndarray, zones: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def jacobians_batch(
+    plant: HybridPlant, X: np.ndarray, U: np.ndarray, zones: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Continuous-time Jacobians for many rows at once: A = df/ds (n, 4, 4),
     B = df/du (n, 4, 3)."""
     n = len(X)
@@ -155,8 +168,9 @@ def jacobians_batch(plant: HybridPlant, X: np.ndarray, U: np.ndarray, zones: np.
     return A, B
 
 
-def _extension_jacobians(plant: HybridPlant, X: np.ndarray, U: np.ndarray, A: np.ndarray,
-                         B: np.ndarray) -> None:
+def _extension_jacobians(
+    plant: HybridPlant, X: np.ndarray, U: np.ndarray, A: np.ndarray, B: np.ndarray
+) -> None:
     """The Jacobian entries the opt-in extensions change, in place: the steering shape
     (d delta / d sw and, with understeer, d delta / d v through eq. 1) and the speed
     dependence of the resistances and the creep (the (v, v) entry)."""
@@ -166,8 +180,7 @@ def _extension_jacobians(plant: HybridPlant, X: np.ndarray, U: np.ndarray, A: np
     if ext.steering:
         b = plant.wheelbase_m
         delta = ext.road_wheel_angle(U[:, ISW], v, plant.offset_rad, plant.scale, b)
-        dd_du, dd_dv = ext.road_wheel_angle_partials(U[:, ISW], v, plant.offset_rad,
-                                                     plant.scale, b)
+        dd_du, dd_dv = ext.road_wheel_angle_partials(U[:, ISW], v, plant.offset_rad, plant.scale, b)
         j = bicycle_jacobian(X[:, IPSI], v, delta, b, 1.0)  # d/d delta in the *_du slots
         A[:, IX, IPSI], A[:, IY, IPSI] = j.dx_dpsi, j.dy_dpsi
         A[:, IX, IV] = j.dx_dv + j.dx_du * dd_dv
@@ -185,8 +198,14 @@ def _extension_jacobians(plant: HybridPlant, X: np.ndarray, U: np.ndarray, A: np
 CREEP_PEDAL_MAX = 0.01
 #: the catalogue ids this plant can add (the others are sensor or dead-time physics, which
 #: the parameter file's keys or the controller's delay compensation carry)
-PLANT_EXTENSION_IDS = ("aero_drag", "rolling_resistance", "idle_creep", "actuator_lag",
-                       "steering_nonlinearity", "understeer")
+PLANT_EXTENSION_IDS = (
+    "aero_drag",
+    "rolling_resistance",
+    "idle_creep",
+    "actuator_lag",
+    "steering_nonlinearity",
+    "understeer",
+)
 
 
 @dataclass(frozen=True)
@@ -225,8 +244,9 @@ class PlantExtensions:
     @property
     def longitudinal(self) -> bool:
         """Whether v' has an extra term."""
-        return bool(self.drag_per_m or self.rolling_per_s or self.creep_accel_mps2
-                    or self.grade_rad)
+        return bool(
+            self.drag_per_m or self.rolling_per_s or self.creep_accel_mps2 or self.grade_rad
+        )
 
     @property
     def steering(self) -> bool:
@@ -241,8 +261,11 @@ class PlantExtensions:
     def accel(self, v_mps, accel_pedal):
         """Extra acceleration [m/s^2] (arrays broadcast): resistances, creep, grade."""
         v = np.asarray(v_mps, dtype=float)
-        a = -self.drag_per_m * v * np.abs(v) - self.rolling_per_s * v \
+        a = (
+            -self.drag_per_m * v * np.abs(v)
+            - self.rolling_per_s * v
             - G_MPS2 * math.sin(self.grade_rad)
+        )
         if self.creep_accel_mps2:
             creep = self.creep_accel_mps2 * np.maximum(0.0, 1.0 - v / self.creep_speed_mps)
             a = a + np.where(np.asarray(accel_pedal) < CREEP_PEDAL_MAX, creep, 0.0)
@@ -259,20 +282,21 @@ class PlantExtensions:
 
     def road_wheel_angle(self, sw_rad, v_mps, offset_rad, scale, wheelbase_m):
         """Road-wheel angle [rad] with the steering extensions (eq. 7 when there are none)."""
-        delta = road_wheel_angle(sw_rad + self.cubic_per_rad2 * sw_rad ** 3, offset_rad, scale)
+        delta = road_wheel_angle(sw_rad + self.cubic_per_rad2 * sw_rad**3, offset_rad, scale)
         if self.understeer_rad_per_mps2:
-            delta = delta * wheelbase_m / (wheelbase_m + self.understeer_rad_per_mps2
-                                           * v_mps * v_mps)
+            delta = (
+                delta * wheelbase_m / (wheelbase_m + self.understeer_rad_per_mps2 * v_mps * v_mps)
+            )
         return delta
 
     def road_wheel_angle_partials(self, sw_rad, v_mps, offset_rad, scale, wheelbase_m):
         """(d delta / d sw [1], d delta / d v [rad s/m]) of :meth:`road_wheel_angle`."""
         k, b = self.understeer_rad_per_mps2, wheelbase_m
-        d_sw = scale * (1.0 + 3.0 * self.cubic_per_rad2 * sw_rad ** 2)
+        d_sw = scale * (1.0 + 3.0 * self.cubic_per_rad2 * sw_rad**2)
         if not k:
             return d_sw, 0.0 * v_mps
         g = b / (b + k * v_mps * v_mps)
-        delta0 = road_wheel_angle(sw_rad + self.cubic_per_rad2 * sw_rad ** 3, offset_rad, scale)
+        delta0 = road_wheel_angle(sw_rad + self.cubic_per_rad2 * sw_rad**3, offset_rad, scale)
         return d_sw * g, -delta0 * g * g * 2.0 * k * v_mps / b
 
 
@@ -294,16 +318,20 @@ def _extension_bases(params: Params, used: dict) -> tuple[dict | None, list | No
     (``on_top_of``) holds the joint fit, so it is preferred."""
     st, lon = None, None
     for sub in ("steering", "longitudinal"):
-        ents = [params.extensions[e][sub] for e in used[sub]
-                if "base" in params.extensions[e].get(sub, {})]
+        ents = [
+            params.extensions[e][sub]
+            for e in used[sub]
+            if "base" in params.extensions[e].get(sub, {})
+        ]
         ents.sort(key=lambda e: "on_top_of" not in e)
         if not ents:
             continue
         base = ents[0]["base"]
         if sub == "steering":
             st = base
-        elif [z.get("name") for z in base["zones"]] == [z.name for z in params.zones] \
-                and all("scale_mps2" in z for z in base["zones"]):
+        elif [z.get("name") for z in base["zones"]] == [z.name for z in params.zones] and all(
+            "scale_mps2" in z for z in base["zones"]
+        ):
             lon = base["zones"]
     return st, lon
 
@@ -320,27 +348,35 @@ def plant_extensions(params: Params) -> tuple[PlantExtensions | None, dict | Non
     entry without a base is taken as a term on top of the file's own keys.
     """
     x = params.extensions or {}
-    used = {"steering": [e for e in PLANT_EXTENSION_IDS if "steering" in x.get(e, {})],
-            "longitudinal": [e for e in PLANT_EXTENSION_IDS if "longitudinal" in x.get(e, {})]}
+    used = {
+        "steering": [e for e in PLANT_EXTENSION_IDS if "steering" in x.get(e, {})],
+        "longitudinal": [e for e in PLANT_EXTENSION_IDS if "longitudinal" in x.get(e, {})],
+    }
     st, lon = _extension_bases(params, used)
-    kw = {"cubic_per_rad2": _ext_value(params, "steering_nonlinearity", "steering",
-                                       "cubic_per_rad2"),
-          "understeer_rad_per_mps2": _ext_value(params, "understeer", "steering",
-                                                "gradient_rad_per_mps2"),
-          "lag_steer_s": _ext_value(params, "actuator_lag", "steering", "tau_s"),
-          "lag_long_s": _ext_value(params, "actuator_lag", "longitudinal", "tau_s")}
+    kw = {
+        "cubic_per_rad2": _ext_value(params, "steering_nonlinearity", "steering", "cubic_per_rad2"),
+        "understeer_rad_per_mps2": _ext_value(
+            params, "understeer", "steering", "gradient_rad_per_mps2"
+        ),
+        "lag_steer_s": _ext_value(params, "actuator_lag", "steering", "tau_s"),
+        "lag_long_s": _ext_value(params, "actuator_lag", "longitudinal", "tau_s"),
+    }
     lon_ids = used["longitudinal"]
-    cmd_fit = any("base" in x[e]["longitudinal"] and not all(
-        "scale_mps2" in z for z in x[e]["longitudinal"]["base"]["zones"]) for e in lon_ids)
+    cmd_fit = any(
+        "base" in x[e]["longitudinal"]
+        and not all("scale_mps2" in z for z in x[e]["longitudinal"]["base"]["zones"])
+        for e in lon_ids
+    )
     if not cmd_fit:
-        kw.update(drag_per_m=_ext_value(params, "aero_drag", "longitudinal", "coeff_per_m"),
-                  rolling_per_s=_ext_value(params, "rolling_resistance", "longitudinal",
-                                           "coeff_per_s"),
-                  creep_accel_mps2=_ext_value(params, "idle_creep", "longitudinal",
-                                              "accel_mps2"))
+        kw.update(
+            drag_per_m=_ext_value(params, "aero_drag", "longitudinal", "coeff_per_m"),
+            rolling_per_s=_ext_value(params, "rolling_resistance", "longitudinal", "coeff_per_s"),
+            creep_accel_mps2=_ext_value(params, "idle_creep", "longitudinal", "accel_mps2"),
+        )
         if kw["creep_accel_mps2"]:
-            kw["creep_speed_mps"] = _ext_value(params, "idle_creep", "longitudinal",
-                                               "creep_speed_mps")
+            kw["creep_speed_mps"] = _ext_value(
+                params, "idle_creep", "longitudinal", "creep_speed_mps"
+            )
     ext = PlantExtensions(**kw)
     if not ext.active:
         return None, None, None
@@ -377,8 +413,9 @@ class HybridPlant:
     #: the opt-in extensions (:class:`PlantExtensions`), None: the report's model
     ext: PlantExtensions | None = None
 
-    def __init__(self, params: Params, hysteresis_mps: float | None = None, *,
-                 extensions: bool = False):
+    def __init__(
+        self, params: Params, hysteresis_mps: float | None = None, *, extensions: bool = False
+    ):
         if not params.is_model:
             raise ValueError("HybridPlant needs a parameter file with steering and zones")
         self.params = params
@@ -400,8 +437,7 @@ class HybridPlant:
         self._v_min_list = self.v_min.tolist()
         self._v_max_list = self.v_max.tolist()
         # eq. 8 per zone as Python floats for the scalar step: (offset, scale, brake scale)
-        self._eq8 = list(zip(self.z_offset.tolist(), self.z_scale.tolist(),
-                             self.z_brake.tolist()))
+        self._eq8 = list(zip(self.z_offset.tolist(), self.z_scale.tolist(), self.z_brake.tolist()))
 
     def _use_extensions(self, params: Params) -> None:
         """Set ``ext`` and take the base coefficients of :func:`plant_extensions`."""
@@ -416,9 +452,15 @@ class HybridPlant:
             # a recording without braking has no brake scale in its base: the file's; so
             # too for a non-positive one (a brake that accelerates is no physics: hmpc
             # diagnose wrote the base's brake gain with its sign flipped)
-            self.z_brake = np.array([b["brake_scale_mps2"] if b.get("brake_scale_mps2", 0.0)
-                                     > 0.0 else q.brake_scale_mps2
-                                     for b, q in zip(zones, params.zones)], dtype=float)
+            self.z_brake = np.array(
+                [
+                    b["brake_scale_mps2"]
+                    if b.get("brake_scale_mps2", 0.0) > 0.0
+                    else q.brake_scale_mps2
+                    for b, q in zip(zones, params.zones)
+                ],
+                dtype=float,
+            )
 
     # ----------------------------------------------------------------- zones
     def zone_by_speed(self, v_mps: float) -> int:
@@ -427,21 +469,27 @@ class HybridPlant:
 
     def select_zone(self, v_mps: float, current: int | None) -> int:
         """Zone with hysteresis: keep ``current`` while v is within its band widened by h."""
-        return zone_with_hysteresis(v_mps, current, self._v_min_list, self._v_max_list,
-                                    self.hysteresis_mps, clamp=True)
+        return zone_with_hysteresis(
+            v_mps, current, self._v_min_list, self._v_max_list, self.hysteresis_mps, clamp=True
+        )
 
     def zone_schedule(self, v_mps: np.ndarray, start: int | None) -> np.ndarray:
         """:meth:`select_zone` along a speed sequence, starting from zone ``start``."""
-        return zones_with_hysteresis(v_mps, self._v_min_list, self._v_max_list,
-                                     self.hysteresis_mps, start=start, clamp=True)
+        return zones_with_hysteresis(
+            v_mps, self._v_min_list, self._v_max_list, self.hysteresis_mps, start=start, clamp=True
+        )
 
     # ------------------------------------------------------------- dynamics
     def road_wheel_angle(self, steering_wheel_angle_rad, v_mps=0.0):
         """Eq. 7 [rad] (with the steering extensions, at speed ``v_mps`` [m/s], if any)."""
         if self.ext is not None and self.ext.steering:
-            return self.ext.road_wheel_angle(np.asarray(steering_wheel_angle_rad, dtype=float),
-                                             v_mps, self.offset_rad, self.scale,
-                                             self.wheelbase_m)
+            return self.ext.road_wheel_angle(
+                np.asarray(steering_wheel_angle_rad, dtype=float),
+                v_mps,
+                self.offset_rad,
+                self.scale,
+                self.wheelbase_m,
+            )
         return road_wheel_angle(np.asarray(steering_wheel_angle_rad), self.offset_rad, self.scale)
 
     def accel(self, zone: int, accel_pedal: float, brake_pedal: float) -> float:
@@ -451,12 +499,21 @@ class HybridPlant:
 
     def derivative(self, s: np.ndarray, u: np.ndarray, zone: int) -> np.ndarray:
         """Continuous-time ds/dt (no standstill clamp): :func:`derivative_batch` of one row."""
-        return derivative_batch(self, np.atleast_2d(np.asarray(s, dtype=float)),
-                                np.atleast_2d(np.asarray(u, dtype=float)), np.array([zone]))[0]
+        return derivative_batch(
+            self,
+            np.atleast_2d(np.asarray(s, dtype=float)),
+            np.atleast_2d(np.asarray(u, dtype=float)),
+            np.array([zone]),
+        )[0]
 
-    def step(self, s: np.ndarray, u: np.ndarray | Sequence[float], dt_s: float,
-             zone: int | None = None,
-             accel_extra_mps2: float = 0.0) -> StepResult:
+    def step(
+        self,
+        s: np.ndarray,
+        u: np.ndarray | Sequence[float],
+        dt_s: float,
+        zone: int | None = None,
+        accel_extra_mps2: float = 0.0,
+    ) -> StepResult:
         """Advance ``dt_s`` with inputs held, zone chosen with hysteresis from ``zone``.
 
         ``accel_extra_mps2`` adds unmodelled acceleration (drag, grade: used by the simulator
@@ -509,14 +566,19 @@ class HybridPlant:
         delta = float(self.road_wheel_angle(float(u[ISW]), 0.5 * (v0 + v1)))
         dpsi = heading_rate(dist, delta, self.wheelbase_m, ops=math)
         dx, dy = position_rates(psi0 + 0.5 * dpsi, dist, delta, ops=math)
-        return StepResult(np.array([x0 + dx, y0 + dy, psi0 + dpsi, v1]), z, a_eff,
-                          bool(vs > self.v_max[-1]))
+        return StepResult(
+            np.array([x0 + dx, y0 + dy, psi0 + dpsi, v1]), z, a_eff, bool(vs > self.v_max[-1])
+        )
 
     def jacobians(self, s: np.ndarray, u: np.ndarray, zone: int) -> tuple[np.ndarray, np.ndarray]:
         """Continuous-time Jacobians (A = df/ds, B = df/du) at (s, u) in ``zone``:
         :func:`jacobians_batch` of one row."""
-        A, B = jacobians_batch(self, np.atleast_2d(np.asarray(s, dtype=float)),
-                               np.atleast_2d(np.asarray(u, dtype=float)), np.array([zone]))
+        A, B = jacobians_batch(
+            self,
+            np.atleast_2d(np.asarray(s, dtype=float)),
+            np.atleast_2d(np.asarray(u, dtype=float)),
+            np.array([zone]),
+        )
         return A[0], B[0]
 
 

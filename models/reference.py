@@ -11,6 +11,7 @@ either by file type (:func:`load_reference`), or from the simulator's named scen
 (``models.sim.scenarios``). This module is what the controllers and the drive loop take;
 it does not import the simulator.
 """
+
 from __future__ import annotations
 
 import csv
@@ -47,8 +48,10 @@ class Reference:
     _path: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self):
-        arrs = [np.asarray(a, dtype=float) for a in
-                (self.time_s, self.x_m, self.y_m, self.heading_rad, self.speed_mps)]
+        arrs = [
+            np.asarray(a, dtype=float)
+            for a in (self.time_s, self.x_m, self.y_m, self.heading_rad, self.speed_mps)
+        ]
         n = len(arrs[0])
         if n < 2 or any(len(a) != n for a in arrs):
             raise ValueError("Reference needs >= 2 samples and arrays of equal length")
@@ -106,8 +109,7 @@ class Reference:
         ps = p["s"]
         if len(ps) == 1:
             th = np.full_like(s, p["th"][0])
-            return (p["x"][0] + s * np.cos(th), p["y"][0] + s * np.sin(th), th,
-                    np.zeros_like(s))
+            return (p["x"][0] + s * np.cos(th), p["y"][0] + s * np.sin(th), th, np.zeros_like(s))
         sc = np.clip(s, ps[0], ps[-1])
         x = np.interp(sc, ps, p["x"])
         y = np.interp(sc, ps, p["y"])
@@ -119,8 +121,9 @@ class Reference:
         k = np.where(extra != 0, 0.0, k)
         return x, y, th, k
 
-    def project(self, x_m: float, y_m: float, s_hint_m: float, window_m: float = 10.0
-                ) -> tuple[float, float]:
+    def project(
+        self, x_m: float, y_m: float, s_hint_m: float, window_m: float = 10.0
+    ) -> tuple[float, float]:
         """Closest path point to (x, y) within ``s_hint +- window``.
 
         Returns (s [m], signed lateral error [m], left of the path positive). The window
@@ -131,21 +134,23 @@ class Reference:
         if len(ps) == 1:
             th = p["th"][0]
             dx, dy = x_m - p["x"][0], y_m - p["y"][0]
-            return float(dx * math.cos(th) + dy * math.sin(th)), \
-                float(-dx * math.sin(th) + dy * math.cos(th))
+            return float(dx * math.cos(th) + dy * math.sin(th)), float(
+                -dx * math.sin(th) + dy * math.cos(th)
+            )
         i0 = int(np.searchsorted(ps, s_hint_m - window_m))
         i1 = int(np.searchsorted(ps, s_hint_m + window_m)) + 1
         i0 = max(min(i0, len(ps) - 2), 0)
         i1 = min(max(i1, i0 + 2), len(ps))
-        ax, ay = p["x"][i0:i1 - 1], p["y"][i0:i1 - 1]
-        bx, by = p["x"][i0 + 1:i1], p["y"][i0 + 1:i1]
+        ax, ay = p["x"][i0 : i1 - 1], p["y"][i0 : i1 - 1]
+        bx, by = p["x"][i0 + 1 : i1], p["y"][i0 + 1 : i1]
         ex, ey = bx - ax, by - ay
         L2 = ex * ex + ey * ey
         tt = np.clip(((x_m - ax) * ex + (y_m - ay) * ey) / np.maximum(L2, 1e-12), 0.0, 1.0)
         # past the ends: extend straight
         if i1 - 1 == len(ps) - 1:
-            tt[-1] = max(((x_m - ax[-1]) * ex[-1] + (y_m - ay[-1]) * ey[-1]) / max(L2[-1], 1e-12),
-                         0.0)
+            tt[-1] = max(
+                ((x_m - ax[-1]) * ex[-1] + (y_m - ay[-1]) * ey[-1]) / max(L2[-1], 1e-12), 0.0
+            )
         if i0 == 0:
             tt[0] = min(((x_m - ax[0]) * ex[0] + (y_m - ay[0]) * ey[0]) / max(L2[0], 1e-12), 1.0)
         cx, cy = ax + tt * ex, ay + tt * ey
@@ -156,13 +161,17 @@ class Reference:
         lat = ((y_m - cy[j]) * ex[j] - (x_m - cx[j]) * ey[j]) / L
         return float(s), float(lat)
 
-    def lateral_errors(self, x_m: np.ndarray, y_m: np.ndarray, t_s: np.ndarray,
-                       window_m: float = 10.0) -> np.ndarray:
+    def lateral_errors(
+        self, x_m: np.ndarray, y_m: np.ndarray, t_s: np.ndarray, window_m: float = 10.0
+    ) -> np.ndarray:
         """Signed distance of a driven trajectory to the path [m], lap by lap."""
         out = np.empty(len(x_m))
         s0 = float(self.s_at_time(t_s[0]))
-        s = float(self.project(float(x_m[0]), float(y_m[0]), s0, 1e9)[0]) \
-            if self.length_m < 2 * window_m else s0
+        s = (
+            float(self.project(float(x_m[0]), float(y_m[0]), s0, 1e9)[0])
+            if self.length_m < 2 * window_m
+            else s0
+        )
         for i in range(len(x_m)):
             s, out[i] = self.project(float(x_m[i]), float(y_m[i]), s, window_m)
         return out
@@ -199,8 +208,9 @@ def load_reference_csv(path: str | Path) -> Reference:
     allowed = {"time", "x", "y", "speed", "heading"}
     for h in header:
         if h not in allowed:
-            raise InputError("unknown column (expected time, x, y, speed[, heading])", path,
-                             line=1, channel=h)
+            raise InputError(
+                "unknown column (expected time, x, y, speed[, heading])", path, line=1, channel=h
+            )
     for need in ("time", "x", "y", "speed"):
         if need not in header:
             raise InputError("required column is missing", path, line=1, channel=need)
@@ -275,13 +285,17 @@ def front_speed(rec: Recording) -> np.ndarray:
         if np.isfinite(v).sum() >= 2:
             return v
     if "speed" not in ch:
-        raise InputError("a replay needs the speed (or front wheel speeds)",
-                         rec.meta.get("path", "recording"), channel="speed")
+        raise InputError(
+            "a replay needs the speed (or front wheel speeds)",
+            rec.meta.get("path", "recording"),
+            channel="speed",
+        )
     return ch["speed"]
 
 
-def recording_reference(rec: Recording, params: Params, *, source: str = "auto",
-                        name: str = "recording") -> Reference:
+def recording_reference(
+    rec: Recording, params: Params, *, source: str = "auto", name: str = "recording"
+) -> Reference:
     """The recorded drive as a :class:`Reference` (time from 0 [s], front-wheel point).
 
     Args:
@@ -298,21 +312,25 @@ def recording_reference(rec: Recording, params: Params, *, source: str = "auto",
     v = np.maximum(_finite_fill(t, front_speed(rec), "speed", path), 0.0)
     plant = HybridPlant(params)
     if "steering_wheel_angle" not in ch:
-        raise InputError("a replay needs the steering-wheel angle", path,
-                         channel="steering_wheel_angle")
-    sw = _finite_fill(t, np.asarray(ch["steering_wheel_angle"], float), "steering_wheel_angle",
-                      path)
+        raise InputError(
+            "a replay needs the steering-wheel angle", path, channel="steering_wheel_angle"
+        )
+    sw = _finite_fill(
+        t, np.asarray(ch["steering_wheel_angle"], float), "steering_wheel_angle", path
+    )
     delta = np.asarray(plant.road_wheel_angle(sw), dtype=float)
     has_nav = all(k in ch and np.isfinite(ch[k]).sum() >= 2 for k in ("x", "y", "heading"))
     if source == "nav" and not has_nav:
-        raise InputError("--reference-source nav needs x, y and heading (ingest with --nav)",
-                         path, channel="x")
+        raise InputError(
+            "--reference-source nav needs x, y and heading (ingest with --nav)", path, channel="x"
+        )
     if source in ("nav", "auto") and has_nav:
         x = _finite_fill(t, np.asarray(ch["x"], float), "x", path)
         y = _finite_fill(t, np.asarray(ch["y"], float), "y", path)
         psi = np.unwrap(_finite_fill(t, np.asarray(ch["heading"], float), "heading", path))
         # the path tangent is the front wheel's direction of motion: yaw + road-wheel angle
         return Reference(t - t[0], x, y, psi + delta, v, name=name)
+
     def first_finite(name: str) -> float:
         if name not in ch or not np.isfinite(ch[name]).any():
             return 0.0
@@ -349,7 +367,7 @@ def load_reference(path: str | Path, params: Params) -> Reference:
         with open(path, encoding="utf-8", newline="") as fh:
             header = [h.strip() for h in fh.readline().split(",")]
     except (OSError, UnicodeDecodeError):
-        header = []                       # load_reference_csv says what is wrong, in one line
+        header = []  # load_reference_csv says what is wrong, in one line
     if set(header) - {"time", "x", "y", "speed", "heading"} and set(header) <= set(CHANNELS):
         return recording_reference(Recording.load(path), params, name=Path(path).stem)
     return load_reference_csv(path)

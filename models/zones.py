@@ -11,6 +11,7 @@ boundary cannot make it chatter.
 The parameter file (``Params.zone_for``), the plant, the MPC, the estimator and
 identification all select zones here. Imports numpy only.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,8 +34,9 @@ def zone_of_speed(v_mps: float, v_max_mps: Sequence[float], *, clamp: bool = Fal
     return len(v_max_mps) - 1 if clamp else -1
 
 
-def zones_of_speed(v_mps: np.ndarray, v_max_mps: Sequence[float], *,
-                   clamp: bool = False) -> np.ndarray:
+def zones_of_speed(
+    v_mps: np.ndarray, v_max_mps: Sequence[float], *, clamp: bool = False
+) -> np.ndarray:
     """:func:`zone_of_speed` for an array of speeds (vectorised), as int64."""
     v = np.asarray(v_mps, dtype=float)
     vmax = np.asarray(v_max_mps, dtype=float)
@@ -42,9 +44,15 @@ def zones_of_speed(v_mps: np.ndarray, v_max_mps: Sequence[float], *,
     return np.where(z < len(vmax), z, len(vmax) - 1 if clamp else -1).astype(np.int64)
 
 
-def zone_with_hysteresis(v_mps: float, current: int | None, v_min_mps: Sequence[float],
-                         v_max_mps: Sequence[float], hysteresis_mps: float, *,
-                         clamp: bool = False) -> int:
+def zone_with_hysteresis(
+    v_mps: float,
+    current: int | None,
+    v_min_mps: Sequence[float],
+    v_max_mps: Sequence[float],
+    hysteresis_mps: float,
+    *,
+    clamp: bool = False,
+) -> int:
     """Zone with hysteresis: ``current`` while ``v_mps`` is within its band widened by
     ``hysteresis_mps`` [m/s], otherwise :func:`zone_of_speed`. ``current`` None or -1: no
     zone yet (by speed). A NaN speed leaves every band."""
@@ -60,9 +68,15 @@ def zone_with_hysteresis(v_mps: float, current: int | None, v_min_mps: Sequence[
     return zone_of_speed(v_mps, v_max_mps, clamp=clamp)
 
 
-def zones_with_hysteresis(v_mps: np.ndarray, v_min_mps: Sequence[float],
-                          v_max_mps: Sequence[float], hysteresis_mps: float, *,
-                          start: int | None = None, clamp: bool = False) -> np.ndarray:
+def zones_with_hysteresis(
+    v_mps: np.ndarray,
+    v_min_mps: Sequence[float],
+    v_max_mps: Sequence[float],
+    hysteresis_mps: float,
+    *,
+    start: int | None = None,
+    clamp: bool = False,
+) -> np.ndarray:
     """:func:`zone_with_hysteresis` along a speed sequence, each sample starting from the
     previous one's zone (the first from ``start``); int64 array. A loop by nature (each
     sample depends on the last), on Python floats: a 50-stage MPC horizon takes ~20 us."""

@@ -3,6 +3,7 @@
 The tests do not ask ``hmpc.tools`` where the data is (nothing imports tools/): a test that
 used the package's own lookup could not notice when that lookup breaks.
 """
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -1,5 +1,6 @@
 """Helpers of the drive tests: one real-time run of the drive loop against the vehicle simulator
 node on python-can's virtual bus (a fresh channel per run), audited from its own candump."""
+
 from __future__ import annotations
 
 import itertools
@@ -19,8 +20,10 @@ from hmpc.models.params import load_params
 from hmpc.models.reference import Reference
 from hmpc.models.sim.scenarios import make_scenario
 
-PROFILES = {"toyota": PARAMS_DIR / "toyota_rav4_2017.actuation.yaml",
-            "bywire": PARAMS_DIR / "bywire.actuation.yaml"}
+PROFILES = {
+    "toyota": PARAMS_DIR / "toyota_rav4_2017.actuation.yaml",
+    "bywire": PARAMS_DIR / "bywire.actuation.yaml",
+}
 _n = itertools.count()
 
 
@@ -45,12 +48,19 @@ def controller_params(profile: str):
 def truncated(ref: Reference, t_end_s: float) -> Reference:
     """The first ``t_end_s`` seconds of a reference."""
     n = int(np.searchsorted(ref.time_s, ref.time_s[0] + t_end_s)) + 1
-    return Reference(ref.time_s[:n], ref.x_m[:n], ref.y_m[:n], ref.heading_rad[:n],
-                     ref.speed_mps[:n], name=f"{ref.name}[:{t_end_s:g}s]")
+    return Reference(
+        ref.time_s[:n],
+        ref.x_m[:n],
+        ref.y_m[:n],
+        ref.heading_rad[:n],
+        ref.speed_mps[:n],
+        name=f"{ref.name}[:{t_end_s:g}s]",
+    )
 
 
-def drive(profile: str, scenario: str, duration_s: float, tmp_path, faults=(),
-          ref_s: float | None = None):
+def drive(
+    profile: str, scenario: str, duration_s: float, tmp_path, faults=(), ref_s: float | None = None
+):
     """One real-time run; run once more (a fresh bus and node) only after a host stall:
     a ``deadline_misses`` stop (three consecutive control steps more than a period late), or
     a ``feedback_loss`` stop while the simulator node's own thread went silent for more than
@@ -80,8 +90,10 @@ def host_stall(profile: str, summary: dict, faults=()) -> str:
         period = 1.0 / (TOYOTA_RATES_HZ if profile == "toyota" else BYWIRE_RATES_HZ)[msg]
         gap = summary["node"]["max_gap_s"].get(msg, 0.0)
         if gap > 3.0 * period:
-            return (f"feedback_loss at t = {stop['t_s']} s: the node's thread did not publish "
-                    f"{msg} for {gap * 1e3:.0f} ms (period {period * 1e3:.0f} ms)")
+            return (
+                f"feedback_loss at t = {stop['t_s']} s: the node's thread did not publish "
+                f"{msg} for {gap * 1e3:.0f} ms (period {period * 1e3:.0f} ms)"
+            )
     return ""
 
 
@@ -94,8 +106,17 @@ def _drive_once(profile, scenario, duration_s, tmp_path, faults, ref_s, attempt)
     kw = {"interface": "virtual", "channel": f"hmpc-test-{os.getpid()}-{next(_n)}"}
     node = VehicleNode(prof, p, kw, start_state=ref.initial_state(p))
     log = tmp_path / f"{profile}-{scenario}-{attempt}.log"
-    loop = DriveLoop(prof, p, MpcController(controller_params(profile), MpcConfig()), ref, kw, log,
-                     duration_s=duration_s, faults=[parse_fault(f) for f in faults], node=node)
+    loop = DriveLoop(
+        prof,
+        p,
+        MpcController(controller_params(profile), MpcConfig()),
+        ref,
+        kw,
+        log,
+        duration_s=duration_s,
+        faults=[parse_fault(f) for f in faults],
+        node=node,
+    )
     res = loop.run()
     audit = audit_candump(prof, p, log)
     res.summary["limit_violations"] = audit["limit_violations"]

@@ -1,6 +1,7 @@
 """Helpers of the tele-operation loopback tests: the drive loop with the operator link as its
 command source (``controller/teleop/vehicle.py``), against the vehicle simulator node on a
 fresh python-can virtual channel, fed by an operator thread over real loopback UDP."""
+
 from __future__ import annotations
 
 import itertools
@@ -51,12 +52,13 @@ class Operator(threading.Thread):
     ``attack(link, t_s)`` runs each period too. ``end_packets``: send the operator's end
     (disengage, dead-man released) like ``run_operator``; False: just go silent (a cut link)."""
 
-    def __init__(self, src: TeleopController, addr, script: Script, *, attack=None,
-                 end_packets: bool = True):
+    def __init__(
+        self, src: TeleopController, addr, script: Script, *, attack=None, end_packets: bool = True
+    ):
         super().__init__(daemon=True)
         self.src, self.script, self.attack, self.end_packets = src, script, attack, end_packets
         self.link = OperatorLink(KEY, addr)
-        self.sent: list[tuple[float, TeleopCommand]] = []   # (wall time, command) of each send
+        self.sent: list[tuple[float, TeleopCommand]] = []  # (wall time, command) of each send
         self.stop_flag = False
 
     def run(self) -> None:
@@ -82,9 +84,18 @@ class Operator(threading.Thread):
         self.link.close()
 
 
-def teleop_run(profile: str, ops: Script, tmp_path, *, attack=None, end_packets: bool = True,
-               scenario: str = "figure8", run_s: float = 60.0, with_mpc: bool = False,
-               config: DriveConfig = DriveConfig()):
+def teleop_run(
+    profile: str,
+    ops: Script,
+    tmp_path,
+    *,
+    attack=None,
+    end_packets: bool = True,
+    scenario: str = "figure8",
+    run_s: float = 60.0,
+    with_mpc: bool = False,
+    config: DriveConfig = DriveConfig(),
+):
     """One real-time teleop run; returns (summary, trace, link stats, candump path, operator).
     ``with_mpc``: an MPC to hand over to (otherwise none: a handover would stop the car)."""
     p = params()
@@ -97,8 +108,7 @@ def teleop_run(profile: str, ops: Script, tmp_path, *, attack=None, end_packets:
     src = TeleopController(rx, p, mpc, run_s=run_s)
     op = Operator(src, rx.address, ops, attack=attack, end_packets=end_packets)
     log = tmp_path / f"teleop-{profile}.log"
-    loop = DriveLoop(prof, p, src, ref, kw, log, duration_s=float("inf"), node=node,
-                     config=config)
+    loop = DriveLoop(prof, p, src, ref, kw, log, duration_s=float("inf"), node=node, config=config)
     op.start()
     try:
         res = loop.run()
@@ -120,14 +130,22 @@ def command_frames(profile: str, log) -> dict[str, np.ndarray]:
     ft = read_log(log, Problems())
     db = prof.db
     ids = {db.get_message_by_name(n).frame_id: n for n in ("BW_STEER_CMD", "BW_PEDAL_CMD")}
-    out = {"steer_t": [], "steer": [], "steer_en": [], "pedal_t": [], "accel": [], "brake": [],
-           "pedal_en": []}
+    out = {
+        "steer_t": [],
+        "steer": [],
+        "steer_en": [],
+        "pedal_t": [],
+        "accel": [],
+        "brake": [],
+        "pedal_en": [],
+    }
     for i in range(len(ft)):
         name = ids.get(int(ft.arb_id[i]))
-        if name is None:   # only hmpc sends command frames on this bus
+        if name is None:  # only hmpc sends command frames on this bus
             continue
-        d = db.get_message_by_name(name).decode(bytes(ft.data[i, : ft.dlc[i]]),
-                                                decode_choices=False)
+        d = db.get_message_by_name(name).decode(
+            bytes(ft.data[i, : ft.dlc[i]]), decode_choices=False
+        )
         if name == "BW_STEER_CMD":
             out["steer_t"].append(float(ft.t_s[i]))
             out["steer"].append(d["STEER_ANGLE_CMD"])
@@ -138,4 +156,3 @@ def command_frames(profile: str, log) -> dict[str, np.ndarray]:
             out["brake"].append(d["BRAKE_PEDAL_CMD"])
             out["pedal_en"].append(d["ACCEL_ENABLE"])
     return {k: np.asarray(v, dtype=float) for k, v in out.items()}
-

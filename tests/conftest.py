@@ -1,5 +1,6 @@
 """Shared fixtures: paths of the real data bundled under tools/data (gzip copies of
 ../shared/data), and the bundled recordings ingested once per test process."""
+
 from pathlib import Path
 
 import numpy as np
@@ -42,8 +43,9 @@ def _shared(res):
             arr.flags.writeable = False
     names = (sorted(rec.channels), sorted(rec.raw))
     yield res
-    assert (sorted(rec.channels), sorted(rec.raw)) == names, \
+    assert (sorted(rec.channels), sorted(rec.raw)) == names, (
         "a test changed the shared ingest's channels; copy the recording before changing it"
+    )
 
 
 @pytest.fixture(scope="session")
@@ -51,18 +53,26 @@ def comma_ingest(comma_log, comma_dbc):
     """The comma minute as ``ingest_files`` reads it with every option at its default: the CAN
     log through params/toyota_rav4_2017.signals.yaml, with the bundled INS and IMU files."""
     from hmpc.models.logs.ingest import ingest_files
-    yield from _shared(ingest_files(comma_log, comma_dbc,
-                                    PARAMS_DIR / "toyota_rav4_2017.signals.yaml",
-                                    nav_path=bundled("rav4-comma2k19/nav.csv.gz"),
-                                    imu_path=bundled("rav4-comma2k19/imu.csv.gz")))
+
+    yield from _shared(
+        ingest_files(
+            comma_log,
+            comma_dbc,
+            PARAMS_DIR / "toyota_rav4_2017.signals.yaml",
+            nav_path=bundled("rav4-comma2k19/nav.csv.gz"),
+            imu_path=bundled("rav4-comma2k19/imu.csv.gz"),
+        )
+    )
 
 
 @pytest.fixture(scope="session")
 def comma_can_ingest(comma_log, comma_dbc):
     """The comma minute from its CAN log alone (no INS, no IMU), options at their defaults."""
     from hmpc.models.logs.ingest import ingest_files
-    yield from _shared(ingest_files(comma_log, comma_dbc,
-                                    PARAMS_DIR / "toyota_rav4_2017.signals.yaml"))
+
+    yield from _shared(
+        ingest_files(comma_log, comma_dbc, PARAMS_DIR / "toyota_rav4_2017.signals.yaml")
+    )
 
 
 @pytest.fixture(scope="session")
@@ -70,8 +80,10 @@ def vcan_ingest(vcan_log, vcan_dbc):
     """The VerifiedCAN drive through params/toyota_rav4_2019.signals.yaml, options at their
     defaults (the drive has CAN only)."""
     from hmpc.models.logs.ingest import ingest_files
-    yield from _shared(ingest_files(vcan_log, vcan_dbc,
-                                    PARAMS_DIR / "toyota_rav4_2019.signals.yaml"))
+
+    yield from _shared(
+        ingest_files(vcan_log, vcan_dbc, PARAMS_DIR / "toyota_rav4_2019.signals.yaml")
+    )
 
 
 def pytest_configure(config):
@@ -80,4 +92,5 @@ def pytest_configure(config):
     a small LAPACK call (the MPC's 3x3 DARE) waits 30x longer for them."""
     from threadpoolctl import threadpool_limits
     import numpy  # noqa: F401  (load the BLAS the limit applies to)
+
     config._hmpc_blas_limit = threadpool_limits(limits=1, user_api="blas")

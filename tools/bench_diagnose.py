@@ -14,6 +14,7 @@ message.
     .venv/bin/python -m hmpc.tools.bench_diagnose --closed-loop --lag-methods stage delay none
     .venv/bin/python -m hmpc.tools.bench_diagnose --speed-only              # 10-minute timing
 """
+
 from __future__ import annotations
 
 import argparse
@@ -48,14 +49,21 @@ def run_cases(seeds) -> list[dict]:
             dg = diagnose(rec, info["params"].vehicle)
             el = time.perf_counter() - t0
             top = dg.findings[0] if dg.findings else None
-            row = {"case": case, "seed": seed, "duration_s": float(rec.time[-1] - rec.time[0]),
-                   "time_s": el, "top": top and f"{top['effect']}/{top['subsystem']}",
-                   "findings": [(f["effect"], f["subsystem"], round(f["gain"], 3))
-                                for f in dg.findings],
-                   "unexplained": dg.unexplained}
+            row = {
+                "case": case,
+                "seed": seed,
+                "duration_s": float(rec.time[-1] - rec.time[0]),
+                "time_s": el,
+                "top": top and f"{top['effect']}/{top['subsystem']}",
+                "findings": [
+                    (f["effect"], f["subsystem"], round(f["gain"], 3)) for f in dg.findings
+                ],
+                "unexplained": dg.unexplained,
+            }
             if effect is not None:
-                row["detected"] = bool(top and (top["effect"], top["subsystem"])
-                                       == (effect, subsystem))
+                row["detected"] = bool(
+                    top and (top["effect"], top["subsystem"]) == (effect, subsystem)
+                )
                 row["gain"] = top["gain"] if row["detected"] else 0.0
                 if row["detected"]:
                     row["param_err"] = _recovered(param[0], param[1], top["parameters"][param[0]])
@@ -63,17 +71,27 @@ def run_cases(seeds) -> list[dict]:
             if case == "mass_change":
                 u = dg.unexplained[0] if dg.unexplained else None
                 row["change_t_s"] = info["change_t_s"]
-                row["localisation_err_s"] = (abs(u["windows"][0][0] - info["change_t_s"])
-                                             if u else None)
+                row["localisation_err_s"] = (
+                    abs(u["windows"][0][0] - info["change_t_s"]) if u else None
+                )
                 row["share_of_error"] = u["share_of_error"] if u else None
             rows.append(row)
-            print(f"{case:28s} seed {seed}: {rec.time[-1] - rec.time[0]:5.0f} s in {el:5.2f} s  "
-                  f"top {row['top']}  "
-                  + (f"param err {100 * row['param_err']:.1f} %  gain {100 * row['gain']:.0f} %"
-                     if row.get("param_err") is not None else "")
-                  + (f"  unexplained from {row['unexplained'][0]['windows'][0][0]:.0f} s "
-                     f"(change at {row['change_t_s']:.0f} s)" if case == "mass_change"
-                     and row["unexplained"] else ""), flush=True)
+            print(
+                f"{case:28s} seed {seed}: {rec.time[-1] - rec.time[0]:5.0f} s in {el:5.2f} s  "
+                f"top {row['top']}  "
+                + (
+                    f"param err {100 * row['param_err']:.1f} %  gain {100 * row['gain']:.0f} %"
+                    if row.get("param_err") is not None
+                    else ""
+                )
+                + (
+                    f"  unexplained from {row['unexplained'][0]['windows'][0][0]:.0f} s "
+                    f"(change at {row['change_t_s']:.0f} s)"
+                    if case == "mass_change" and row["unexplained"]
+                    else ""
+                ),
+                flush=True,
+            )
     return rows
 
 
@@ -97,10 +115,12 @@ def _freerun(d, idx, accel_fn):
 
 def baseline_pysindy(d, train, idx):
     import pysindy as ps
+
     use = train & np.isfinite(d.a) & (d.vs > DiagnoseConfig.v_stop_mps)
     U = np.nan_to_num(d.U)
-    model = ps.SINDy(feature_library=ps.PolynomialLibrary(degree=2),
-                     optimizer=ps.STLSQ(threshold=0.005))
+    model = ps.SINDy(
+        feature_library=ps.PolynomialLibrary(degree=2), optimizer=ps.STLSQ(threshold=0.005)
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         model.fit(d.vs[use][:, None], t=d.dt, u=U[use], x_dot=d.a[use][:, None])
@@ -112,11 +132,19 @@ def baseline_sysidentpy(d, train, idx):
     from sysidentpy.basis_function import Polynomial
     from sysidentpy.model_structure_selection import FROLS
     from sysidentpy.parameter_estimation import LeastSquares
+
     step = max(int(round(0.1 / d.dt)), 1)  # 10 Hz: a one-step NARX at 50 Hz is near identity
     sel = np.flatnonzero(train)[::step]
     U = np.nan_to_num(d.U)
-    m = FROLS(order_selection=True, n_info_values=8, ylag=1, xlag=[[1]] * U.shape[1],
-              info_criteria="bic", estimator=LeastSquares(), basis_function=Polynomial(degree=2))
+    m = FROLS(
+        order_selection=True,
+        n_info_values=8,
+        ylag=1,
+        xlag=[[1]] * U.shape[1],
+        info_criteria="bic",
+        estimator=LeastSquares(),
+        basis_function=Polynomial(degree=2),
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         m.fit(X=U[sel], y=d.v[sel][:, None])
@@ -161,8 +189,12 @@ def side_by_side(seed: int) -> list[dict]:
                 row[name + "_mps"], row[name + "_model"] = float("nan"), f"failed: {exc}"
             row[name + "_time_s"] = time.perf_counter() - t0
         rows.append(row)
-        print(f"  {case:28s} hmpc report model {b:.3f}  hmpc + {eff or '-':15s} {e:.3f}  "
-              + "  ".join(f"{n} {row[n + '_mps']:.3f}" for n in libs) + "  [m/s]", flush=True)
+        print(
+            f"  {case:28s} hmpc report model {b:.3f}  hmpc + {eff or '-':15s} {e:.3f}  "
+            + "  ".join(f"{n} {row[n + '_mps']:.3f}" for n in libs)
+            + "  [m/s]",
+            flush=True,
+        )
         for n in libs:
             if n == "pysindy":
                 print(f"      pysindy: {row['pysindy_model']}")
@@ -172,11 +204,13 @@ def side_by_side(seed: int) -> list[dict]:
 def ten_minutes(seed: int) -> dict:
     from hmpc.models.identify.pipeline import concat_recordings
     from hmpc.models.sim.simulator import random_params, run_experiment
+
     truth = random_params(seed)
     recs, dur, i = [], 0.0, 0
     while dur < 600.0:
-        r = run_experiment(ALL_EXPERIMENTS[i % len(ALL_EXPERIMENTS)], truth,
-                           seed=seed + i).recording
+        r = run_experiment(
+            ALL_EXPERIMENTS[i % len(ALL_EXPERIMENTS)], truth, seed=seed + i
+        ).recording
         recs.append(r)
         dur += float(r.time[-1])
         i += 1
@@ -188,10 +222,14 @@ def ten_minutes(seed: int) -> dict:
         times.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
     # CPU time beside the wall time: on a shared machine the wall time also counts the waits
-    out = {"duration_s": float(rec.time[-1] - rec.time[0]), "hmpc_s": float(np.median(times)),
-           "hmpc_cpu_s": float(np.median(cpu))}
+    out = {
+        "duration_s": float(rec.time[-1] - rec.time[0]),
+        "hmpc_s": float(np.median(times)),
+        "hmpc_cpu_s": float(np.median(cpu)),
+    }
     try:  # baseline in the same run: one PySINDy term selection on the same recording
         import pysindy  # noqa: F401
+
         d = lon.prepare(rec.channels)
         train, idx = _split(d)
         t0 = time.perf_counter()
@@ -207,8 +245,16 @@ def ten_minutes(seed: int) -> dict:
 CL_SCENARIO = {"steering": "figure8", "longitudinal": "ramps", "idle_creep": "idle_hold"}
 
 
-def _track(model, truth, effects, ref, plant_dt_s: float = 0.02, period_s: float = 0.1,
-           seed: int = 0, lag_method: str | None = None) -> dict:
+def _track(
+    model,
+    truth,
+    effects,
+    ref,
+    plant_dt_s: float = 0.02,
+    period_s: float = 0.1,
+    seed: int = 0,
+    lag_method: str | None = None,
+) -> dict:
     """The MPC built on ``model`` drives the ground-truth plant (``truth`` with the concealed
     ``effects``: ``run_closed_loop(effects=)``, models.sim.truth_plant.TruthPlant) along ``ref``,
     fed as a car is: simulated sensors through the EKF, at the default noise, the same seed for
@@ -221,12 +267,22 @@ def _track(model, truth, effects, ref, plant_dt_s: float = 0.02, period_s: float
     mpc = MpcController(model)
     if lag_method is not None:
         mpc.use_lag_method(lag_method)
-    res = run_closed_loop(mpc, ref, model, plant_params=truth,
-                          control_period_s=period_s, plant_dt_s=plant_dt_s, seed=seed,
-                          effects=effects)
+    res = run_closed_loop(
+        mpc,
+        ref,
+        model,
+        plant_params=truth,
+        control_period_s=period_s,
+        plant_dt_s=plant_dt_s,
+        seed=seed,
+        effects=effects,
+    )
     m = res.metrics
-    return {"speed_rmse_mps": m["speed_error_rms_mps"], "lateral_rmse_m": m["lateral_error_rms_m"],
-            "not_ok_steps": int(m["failures"])}
+    return {
+        "speed_rmse_mps": m["speed_error_rms_mps"],
+        "lateral_rmse_m": m["lateral_error_rms_m"],
+        "not_ok_steps": int(m["failures"]),
+    }
 
 
 def controller_view(p) -> tuple[object, list[str]]:
@@ -247,17 +303,24 @@ def controller_view(p) -> tuple[object, list[str]]:
     for eid, subs in p.extensions.items():
         for sub in subs:
             if eid == "actuator_lag":
-                notes.append(f"{eid}/{sub}: lag simulated in the MPC's prediction, command "
-                             "u + tau du/dt of the plan")
+                notes.append(
+                    f"{eid}/{sub}: lag simulated in the MPC's prediction, command "
+                    "u + tau du/dt of the plan"
+                )
             elif eid in ("aero_drag", "rolling_resistance", "idle_creep"):
-                notes.append(f"{eid}/{sub}: in the MPC's eq. 8, with the zones it was fitted "
-                             "with (base)")
+                notes.append(
+                    f"{eid}/{sub}: in the MPC's eq. 8, with the zones it was fitted with (base)"
+                )
             elif eid in ("steering_nonlinearity", "understeer"):
-                notes.append(f"{eid}/{sub}: in the MPC's road-wheel angle, with the steering "
-                             "map it was fitted with (base)")
+                notes.append(
+                    f"{eid}/{sub}: in the MPC's road-wheel angle, with the steering "
+                    "map it was fitted with (base)"
+                )
             elif eid == "road_grade":
-                notes.append(f"{eid}/{sub}: zones fitted with the grade taken out; the MPC has "
-                             "no grade preview")
+                notes.append(
+                    f"{eid}/{sub}: zones fitted with the grade taken out; the MPC has "
+                    "no grade preview"
+                )
     return p, notes
 
 
@@ -269,6 +332,7 @@ def ideal_model(truth, effects):
     import copy
     from hmpc.models.sim import effects as fx
     from hmpc.models.sim import effects_extra as fx2
+
     m = copy.deepcopy(truth)
     m.extensions = dict(m.extensions or {})
     for e in effects:
@@ -279,16 +343,19 @@ def ideal_model(truth, effects):
         elif isinstance(e, fx.SteeringLag):
             m.extensions["actuator_lag"] = {"steering": {"tau_s": e.tau_s}}
         elif isinstance(e, fx.SteeringCubic):
-            m.extensions["steering_nonlinearity"] = {"steering": {"cubic_per_rad2":
-                                                                  e.cubic_per_rad2}}
+            m.extensions["steering_nonlinearity"] = {
+                "steering": {"cubic_per_rad2": e.cubic_per_rad2}
+            }
         elif isinstance(e, fx.Understeer):
-            m.extensions["understeer"] = {"steering": {"gradient_rad_per_mps2":
-                                                       e.gradient_rad_per_mps2}}
+            m.extensions["understeer"] = {
+                "steering": {"gradient_rad_per_mps2": e.gradient_rad_per_mps2}
+            }
         elif isinstance(e, fx.AeroDrag):
             m.extensions["aero_drag"] = {"longitudinal": {"coeff_per_m": e.coeff_per_m}}
         elif isinstance(e, fx2.IdleCreep):
-            m.extensions["idle_creep"] = {"longitudinal": {
-                "accel_mps2": e.accel_mps2, "creep_speed_mps": e.creep_speed_mps}}
+            m.extensions["idle_creep"] = {
+                "longitudinal": {"accel_mps2": e.accel_mps2, "creep_speed_mps": e.creep_speed_mps}
+            }
         else:
             return None
     return m
@@ -299,6 +366,7 @@ def closed_loop(seed: int, cases=None, lag_methods=()) -> list[dict]:
     model and with the extended model, both from ``diagnose`` on that case's recording; with
     an actuator lag found, also with each of ``lag_methods`` (``MpcController.lag_method``)."""
     from hmpc.models.sim.scenarios import make_scenario
+
     rows = []
     for case, (effect, subsystem, make_effects, _, _) in CASES.items():
         if effect is None or (cases and case not in cases):
@@ -309,11 +377,19 @@ def closed_loop(seed: int, cases=None, lag_methods=()) -> list[dict]:
         scn = CL_SCENARIO.get(effect, CL_SCENARIO[subsystem])
         ref = make_scenario(scn, truth)
         ext, notes = controller_view(dg.params_out)
-        row = {"case": case, "scenario": scn, "notes": notes,
-               "found": [f"{f['effect']}/{f['subsystem']}" for f in dg.findings]}
+        row = {
+            "case": case,
+            "scenario": scn,
+            "notes": notes,
+            "found": [f"{f['effect']}/{f['subsystem']}" for f in dg.findings],
+        }
         ideal = ideal_model(truth, make_effects())
-        for label, model in (("truth", truth), ("baseline", dg.baseline_out), ("extended", ext),
-                             ("ideal", ideal)):
+        for label, model in (
+            ("truth", truth),
+            ("baseline", dg.baseline_out),
+            ("extended", ext),
+            ("ideal", ideal),
+        ):
             if model is not None:
                 row[label] = _track(model, truth, make_effects(), ref)
         key = "lateral_rmse_m" if subsystem == "steering" else "speed_rmse_mps"
@@ -324,12 +400,18 @@ def closed_loop(seed: int, cases=None, lag_methods=()) -> list[dict]:
         b, e = row["baseline"][key], row["extended"][key]
         row.update(metric=key, change=(e - b) / b if b > 0 else 0.0)
         rows.append(row)
-        print(f"  {case:28s} {scn:9s} {key:15s} true model without the effect "
-              f"{row['truth'][key]:.4f}  "
-              f"baseline {b:.4f}  extended {e:.4f}  ({100 * row['change']:+.1f} %)"
-              + (f"  ideal (true model with the effect) {row['ideal'][key]:.4f}"
-                 if "ideal" in row else "")
-              + "".join(f"\n      {n}" for n in notes), flush=True)
+        print(
+            f"  {case:28s} {scn:9s} {key:15s} true model without the effect "
+            f"{row['truth'][key]:.4f}  "
+            f"baseline {b:.4f}  extended {e:.4f}  ({100 * row['change']:+.1f} %)"
+            + (
+                f"  ideal (true model with the effect) {row['ideal'][key]:.4f}"
+                if "ideal" in row
+                else ""
+            )
+            + "".join(f"\n      {n}" for n in notes),
+            flush=True,
+        )
     return rows
 
 
@@ -337,28 +419,42 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--json", help="write every figure here")
-    ap.add_argument("--speed-only", action="store_true",
-                    help="only the time to diagnose a 10-minute recording")
-    ap.add_argument("--closed-loop", action="store_true",
-                    help="only the closed-loop comparison: the MPC on each case's ground-truth "
-                         "plant with the baseline and with the extended model")
-    ap.add_argument("--lag-methods", nargs="*", default=[],
-                    choices=["inverse", "stage", "delay", "none"],
-                    help="with --closed-loop: also track the actuator-lag case with each way "
-                         "the MPC can handle a lag")
+    ap.add_argument(
+        "--speed-only", action="store_true", help="only the time to diagnose a 10-minute recording"
+    )
+    ap.add_argument(
+        "--closed-loop",
+        action="store_true",
+        help="only the closed-loop comparison: the MPC on each case's ground-truth "
+        "plant with the baseline and with the extended model",
+    )
+    ap.add_argument(
+        "--lag-methods",
+        nargs="*",
+        default=[],
+        choices=["inverse", "stage", "delay", "none"],
+        help="with --closed-loop: also track the actuator-lag case with each way "
+        "the MPC can handle a lag",
+    )
     args = ap.parse_args(argv)
     print(f"seeds {args.seeds}")
     if args.speed_only:
         tm = ten_minutes(args.seeds[0])
-        print(f"diagnose {tm['duration_s'] / 60:.1f} min at 50 Hz: hmpc {tm['hmpc_s']:.2f} s wall, "
-              f"{tm['hmpc_cpu_s']:.2f} s CPU (target < 30 s)"
-              + (f"; baseline one PySINDy fit+replay {tm['pysindy_one_fit_s']:.2f} s, ratio "
-                 f"{tm['hmpc_s'] / tm['pysindy_one_fit_s']:.1f}x" if "pysindy_one_fit_s" in tm
-                 else ""))
+        print(
+            f"diagnose {tm['duration_s'] / 60:.1f} min at 50 Hz: hmpc {tm['hmpc_s']:.2f} s wall, "
+            f"{tm['hmpc_cpu_s']:.2f} s CPU (target < 30 s)"
+            + (
+                f"; baseline one PySINDy fit+replay {tm['pysindy_one_fit_s']:.2f} s, ratio "
+                f"{tm['hmpc_s'] / tm['pysindy_one_fit_s']:.1f}x"
+                if "pysindy_one_fit_s" in tm
+                else ""
+            )
+        )
         return 0
     if args.closed_loop:
-        print("=== closed loop: MPC tracking RMSE on the ground-truth plant "
-              "(sensors -> EKF -> MPC)")
+        print(
+            "=== closed loop: MPC tracking RMSE on the ground-truth plant (sensors -> EKF -> MPC)"
+        )
         cl = closed_loop(args.seeds[0], lag_methods=args.lag_methods)
         if args.json:
             with open(args.json, "w") as fh:
@@ -375,33 +471,50 @@ def main(argv=None) -> int:
     gains = [r["gain"] for r in eff if r["detected"]]
     print("\n=== summary")
     print(f"detection rate (top finding = concealed effect): {100 * det:.0f} % of {len(eff)}")
-    print(f"false alarms: clean recordings with a finding > 10 % gain: {100 * fa_clean:.0f} % "
-          f"of {len(clean)}; other findings per effect recording: {extra:.2f}")
-    print(f"parameter recovery: median error {100 * np.median(perr):.1f} %, worst "
-          f"{100 * np.max(perr):.1f} % (target <= 20 %)")
-    print(f"held-out gain of the top finding: median {100 * np.median(gains):.0f} %, "
-          f"min {100 * np.min(gains):.0f} %")
+    print(
+        f"false alarms: clean recordings with a finding > 10 % gain: {100 * fa_clean:.0f} % "
+        f"of {len(clean)}; other findings per effect recording: {extra:.2f}"
+    )
+    print(
+        f"parameter recovery: median error {100 * np.median(perr):.1f} %, worst "
+        f"{100 * np.max(perr):.1f} % (target <= 20 %)"
+    )
+    print(
+        f"held-out gain of the top finding: median {100 * np.median(gains):.0f} %, "
+        f"min {100 * np.min(gains):.0f} %"
+    )
     for r in mass:
         loc, share = r["localisation_err_s"], r["share_of_error"]
         where = "not reported" if loc is None else f"{loc:.1f} s off the change"
-        print(f"out-of-catalogue mass change (seed {r['seed']}): unexplained {where}, "
-              f"share of error {'-' if share is None else f'{share:.2f}'}")
-    print("\n=== held-out free-run speed RMSE on the last 20 % (10-s windows), "
-          "same candidate terms")
+        print(
+            f"out-of-catalogue mass change (seed {r['seed']}): unexplained {where}, "
+            f"share of error {'-' if share is None else f'{share:.2f}'}"
+        )
+    print(
+        "\n=== held-out free-run speed RMSE on the last 20 % (10-s windows), same candidate terms"
+    )
     sbs = side_by_side(args.seeds[0])
     print("\n=== speed")
     tm = ten_minutes(args.seeds[0])
-    line = (f"diagnose {tm['duration_s'] / 60:.1f} min at 50 Hz: hmpc {tm['hmpc_s']:.2f} s "
-            f"wall, {tm['hmpc_cpu_s']:.2f} s CPU (target < 30 s)")
+    line = (
+        f"diagnose {tm['duration_s'] / 60:.1f} min at 50 Hz: hmpc {tm['hmpc_s']:.2f} s "
+        f"wall, {tm['hmpc_cpu_s']:.2f} s CPU (target < 30 s)"
+    )
     if "pysindy_one_fit_s" in tm:
-        line += (f"; baseline one PySINDy fit+replay on it {tm['pysindy_one_fit_s']:.2f} s, "
-                 f"ratio {tm['hmpc_s'] / tm['pysindy_one_fit_s']:.1f}x (hmpc fits "
-                 "~400 models: 11 hypotheses x 6 folds x grids)")
+        line += (
+            f"; baseline one PySINDy fit+replay on it {tm['pysindy_one_fit_s']:.2f} s, "
+            f"ratio {tm['hmpc_s'] / tm['pysindy_one_fit_s']:.1f}x (hmpc fits "
+            "~400 models: 11 hypotheses x 6 folds x grids)"
+        )
     print(line)
     if args.json:
         with open(args.json, "w") as fh:
-            json.dump({"cases": rows, "side_by_side": sbs, "ten_minutes": tm}, fh, indent=1,
-                      default=lambda o: o.item() if hasattr(o, "item") else str(o))
+            json.dump(
+                {"cases": rows, "side_by_side": sbs, "ten_minutes": tm},
+                fh,
+                indent=1,
+                default=lambda o: o.item() if hasattr(o, "item") else str(o),
+            )
     return 0
 
 

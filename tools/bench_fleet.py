@@ -20,6 +20,7 @@ Dask scheduler with two workers started as separate processes.
 Each run's wall time includes starting its cluster (a LocalCluster: a few seconds). Progress
 goes to stderr, results to stdout; ``--json`` writes them.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -39,8 +40,11 @@ from hmpc.models.fleet.simfleet import SimVehicle, write_fleet
 from hmpc.models.fleet.store import STEPS
 
 #: three cars (seeds of their random truths); C's pedal gains fall 20 % from its third drive
-VEHICLES = [SimVehicle("A", 11), SimVehicle("B", 22),
-            SimVehicle("C", 33, drift_from=3, pedal_factor=0.8)]
+VEHICLES = [
+    SimVehicle("A", 11),
+    SimVehicle("B", 22),
+    SimVehicle("C", 33, drift_from=3, pedal_factor=0.8),
+]
 #: how long to wait for the scheduler's address file [s]: its start-up is a second or two
 _SCHEDULER_START_S = 60.0
 
@@ -60,16 +64,34 @@ def _run(manifest, store, steps, **kw) -> dict:
     peaks: dict = {}
     for s in res.statuses.values():
         peaks[s["worker"]] = max(peaks.get(s["worker"], 0.0), s["worker_peak_rss_mb"])
-    return {"wall_s": res.wall_s, "done": len(res.done), "skipped": len(res.skipped),
-            "peak_rss_mb_per_worker": sorted(peaks.values())}
+    return {
+        "wall_s": res.wall_s,
+        "done": len(res.done),
+        "skipped": len(res.skipped),
+        "peak_rss_mb_per_worker": sorted(peaks.values()),
+    }
 
 
 def _scheduler_run(manifest, store, steps, tmp: Path) -> dict:
     dask = [sys.executable, "-m", "dask"]
     sched_file = tmp / "scheduler.json"
-    procs = [subprocess.Popen(dask + ["scheduler", "--host", "127.0.0.1", "--port", "0",
-                                      "--no-dashboard", "--scheduler-file", str(sched_file)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    procs = [
+        subprocess.Popen(
+            dask
+            + [
+                "scheduler",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                "0",
+                "--no-dashboard",
+                "--scheduler-file",
+                str(sched_file),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+    ]
     try:
         t_end = time.monotonic() + _SCHEDULER_START_S
         while not (sched_file.exists() and sched_file.stat().st_size):
@@ -78,10 +100,23 @@ def _scheduler_run(manifest, store, steps, tmp: Path) -> dict:
             time.sleep(0.1)
         address = json.loads(sched_file.read_text())["address"]
         for _ in range(2):
-            procs.append(subprocess.Popen(
-                dask + ["worker", "--scheduler-file", str(sched_file), "--nthreads", "1",
-                        "--no-dashboard", "--host", "127.0.0.1"],
-                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            procs.append(
+                subprocess.Popen(
+                    dask
+                    + [
+                        "worker",
+                        "--scheduler-file",
+                        str(sched_file),
+                        "--nthreads",
+                        "1",
+                        "--no-dashboard",
+                        "--host",
+                        "127.0.0.1",
+                    ],
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.DEVNULL,
+                )
+            )
         out = _run(manifest, store, steps, scheduler=address)
         out["address"] = address
         return out
@@ -109,8 +144,7 @@ def main(argv=None) -> int:
     tmp.mkdir(parents=True, exist_ok=True)
     try:
         _say(f"simulating {per_vehicle * len(VEHICLES)} drives of {a.minutes:g} min")
-        manifest = write_fleet(tmp / "drives", VEHICLES, per_vehicle,
-                               duration_s=60.0 * a.minutes)
+        manifest = write_fleet(tmp / "drives", VEHICLES, per_vehicle, duration_s=60.0 * a.minutes)
         n = per_vehicle * len(VEHICLES)
         drive_h = sum(_duration_h(p) for p in sorted((tmp / "drives").glob("*.parquet")))
         _say("1 local worker (the baseline)")
@@ -123,40 +157,63 @@ def main(argv=None) -> int:
         sched = _scheduler_run(manifest, tmp / "store3", steps, tmp)
         hashes = {k: _table_sha256(tmp / k) for k in ("store1", "store2", "store3")}
         rep = build_report(tmp / "store2")
-        drift = {k: e["drift"] for k, e in rep["vehicles"]["C"]["parameters"].items()
-                 if e["drift"]}
-        false = [(v, k) for v in ("A", "B") for k, e in rep["vehicles"][v]["parameters"].items()
-                 if e["drift"]]
+        drift = {k: e["drift"] for k, e in rep["vehicles"]["C"]["parameters"].items() if e["drift"]}
+        false = [
+            (v, k)
+            for v in ("A", "B")
+            for k, e in rep["vehicles"][v]["parameters"].items()
+            if e["drift"]
+        ]
     finally:
         if not a.keep:
             shutil.rmtree(tmp, ignore_errors=True)
     thr1 = drive_h / (one["wall_s"] / 3600.0)
     thr2 = drive_h / (two["wall_s"] / 3600.0)
     thr_s = drive_h / (sched["wall_s"] / 3600.0)
-    res = {"drives": n, "drive_hours": drive_h, "steps": list(steps),
-           "one_worker": {**one, "drive_h_per_h": thr1},
-           "two_workers": {**two, "drive_h_per_h": thr2},
-           "scheduler_two_workers": {**sched, "drive_h_per_h": thr_s},
-           "speedup": thr2 / thr1, "scaling_efficiency": thr2 / thr1 / 2,
-           "rerun_wall_s": rerun["wall_s"], "rerun_skipped": rerun["skipped"],
-           "tables_equal": len(set(hashes.values())) == 1, "table_sha256": hashes,
-           "drift_found_on_C": drift, "drift_on_A_B": false}
+    res = {
+        "drives": n,
+        "drive_hours": drive_h,
+        "steps": list(steps),
+        "one_worker": {**one, "drive_h_per_h": thr1},
+        "two_workers": {**two, "drive_h_per_h": thr2},
+        "scheduler_two_workers": {**sched, "drive_h_per_h": thr_s},
+        "speedup": thr2 / thr1,
+        "scaling_efficiency": thr2 / thr1 / 2,
+        "rerun_wall_s": rerun["wall_s"],
+        "rerun_skipped": rerun["skipped"],
+        "tables_equal": len(set(hashes.values())) == 1,
+        "table_sha256": hashes,
+        "drift_found_on_C": drift,
+        "drift_on_A_B": false,
+    }
     print(f"{n} drives, {drive_h:.2f} drive-hours, steps {','.join(steps)}")
     print(f"baseline 1 local worker : {one['wall_s']:8.1f} s wall, {thr1:7.1f} drive-h per h")
-    print(f"hmpc 2 local workers    : {two['wall_s']:8.1f} s wall, {thr2:7.1f} drive-h per h; "
-          f"ratio {thr2 / thr1:.2f}x, scaling efficiency {100 * thr2 / thr1 / 2:.0f} %")
-    print(f"scheduler + 2 workers   : {sched['wall_s']:8.1f} s wall, {thr_s:7.1f} drive-h per h; "
-          f"ratio to the baseline {thr_s / thr1:.2f}x")
-    print(f"peak memory per worker [MB]: 1 worker {one['peak_rss_mb_per_worker']}, "
-          f"2 workers {two['peak_rss_mb_per_worker']}, scheduler's workers "
-          f"{sched['peak_rss_mb_per_worker']}")
-    print(f"rerun: {rerun['skipped']} of {n} skipped in {rerun['wall_s']:.2f} s "
-          f"({100 * rerun['wall_s'] / two['wall_s']:.1f} % of the run)")
-    print(f"per-drive tables identical across the three runs: {res['tables_equal']} "
-          f"(sha256 {hashes['store1'][:16]})")
+    print(
+        f"hmpc 2 local workers    : {two['wall_s']:8.1f} s wall, {thr2:7.1f} drive-h per h; "
+        f"ratio {thr2 / thr1:.2f}x, scaling efficiency {100 * thr2 / thr1 / 2:.0f} %"
+    )
+    print(
+        f"scheduler + 2 workers   : {sched['wall_s']:8.1f} s wall, {thr_s:7.1f} drive-h per h; "
+        f"ratio to the baseline {thr_s / thr1:.2f}x"
+    )
+    print(
+        f"peak memory per worker [MB]: 1 worker {one['peak_rss_mb_per_worker']}, "
+        f"2 workers {two['peak_rss_mb_per_worker']}, scheduler's workers "
+        f"{sched['peak_rss_mb_per_worker']}"
+    )
+    print(
+        f"rerun: {rerun['skipped']} of {n} skipped in {rerun['wall_s']:.2f} s "
+        f"({100 * rerun['wall_s'] / two['wall_s']:.1f} % of the run)"
+    )
+    print(
+        f"per-drive tables identical across the three runs: {res['tables_equal']} "
+        f"(sha256 {hashes['store1'][:16]})"
+    )
     for k, d in sorted(drift.items()):
-        print(f"C drift {k}: {d['kind']} from {d['from_drive']}, after/before "
-              f"{d['after'] / d['before']:.3f}")
+        print(
+            f"C drift {k}: {d['kind']} from {d['from_drive']}, after/before "
+            f"{d['after'] / d['before']:.3f}"
+        )
     print(f"drift reported on A or B (no change there): {false or 'none'}")
     if a.json:
         Path(a.json).write_text(json.dumps(res, indent=2) + "\n")

@@ -20,6 +20,7 @@ BLAS runs single-threaded (``OPENBLAS_NUM_THREADS=1`` etc., unless already set):
 shared 2-core machine a multi-threaded BLAS call can stall for a second waking its threads,
 which would time the machine's load, not hmpc. Progress goes to stderr, results to stdout.
 """
+
 from __future__ import annotations
 
 import os
@@ -44,9 +45,9 @@ TARGET_S = 10.0  # the target: identification of one hour of 50 Hz recording in 
 # Accuracy the run must reach, or it exits 1 (the acceptance tolerances, the outer bound that
 # tests/identify/test_identify_sim.py also keeps): a fast wrong answer is a failed benchmark.
 STEER_OFFSET_TOL_RAD = 0.002
-STEER_SCALE_TOL = 0.02       # relative
+STEER_SCALE_TOL = 0.02  # relative
 ZONE_OFFSET_TOL_MPS2 = 0.05
-ZONE_SCALE_TOL = 0.05        # relative, throttle and brake scale
+ZONE_SCALE_TOL = 0.05  # relative, throttle and brake scale
 
 
 def progress(msg: str) -> None:
@@ -89,21 +90,29 @@ def accuracy_failures(params, truth) -> list[str]:
     bad = []
     st, ts = params.steering, truth.steering
     if not abs(st.offset_rad - ts.offset_rad) <= STEER_OFFSET_TOL_RAD:
-        bad.append(f"steering offset error {st.offset_rad - ts.offset_rad:+.5f} rad "
-                   f"(tolerance {STEER_OFFSET_TOL_RAD} rad)")
+        bad.append(
+            f"steering offset error {st.offset_rad - ts.offset_rad:+.5f} rad "
+            f"(tolerance {STEER_OFFSET_TOL_RAD} rad)"
+        )
     if not abs(st.scale / ts.scale - 1.0) <= STEER_SCALE_TOL:
-        bad.append(f"steering scale error {100 * (st.scale / ts.scale - 1):+.3f}% "
-                   f"(tolerance {100 * STEER_SCALE_TOL:g}%)")
+        bad.append(
+            f"steering scale error {100 * (st.scale / ts.scale - 1):+.3f}% "
+            f"(tolerance {100 * STEER_SCALE_TOL:g}%)"
+        )
     if [z.name for z in params.zones] != [z.name for z in truth.zones]:
         return bad + [f"zones {[z.name for z in params.zones]} != {[z.name for z in truth.zones]}"]
     for z, t in zip(params.zones, truth.zones):
         if not abs(z.offset_mps2 - t.offset_mps2) <= ZONE_OFFSET_TOL_MPS2:
             bad.append(f"zone {z.name} offset error {z.offset_mps2 - t.offset_mps2:+.4f} m/s^2")
-        for what, got, true in (("scale", z.scale_mps2, t.scale_mps2),
-                                ("brake scale", z.brake_scale_mps2, t.brake_scale_mps2)):
+        for what, got, true in (
+            ("scale", z.scale_mps2, t.scale_mps2),
+            ("brake scale", z.brake_scale_mps2, t.brake_scale_mps2),
+        ):
             if not abs(got / true - 1.0) <= ZONE_SCALE_TOL:
-                bad.append(f"zone {z.name} {what} error {100 * (got / true - 1):+.2f}% "
-                           f"(tolerance {100 * ZONE_SCALE_TOL:g}%)")
+                bad.append(
+                    f"zone {z.name} {what} error {100 * (got / true - 1):+.2f}% "
+                    f"(tolerance {100 * ZONE_SCALE_TOL:g}%)"
+                )
     return bad
 
 
@@ -122,13 +131,19 @@ def main(argv=None) -> int:
     st = res.params.steering
     print(f"identify: {len(rec)} samples ({dur:.1f} min at {rec.rate_hz:.0f} Hz) in {wall:.2f} s")
     scale = 60.0 / dur
-    print(f"  scaled to one hour: {wall * scale:.2f} s; target < {TARGET_S:.0f} s per hour; "
-          f"ratio target/hmpc = {TARGET_S / (wall * scale):.2f}x "
-          f"({'met' if wall * scale < TARGET_S else 'MISSED'})")
-    print(f"  check: steering offset error {st.offset_rad - truth.steering.offset_rad:+.5f} rad, "
-          f"scale error {100 * (st.scale / truth.steering.scale - 1):+.3f}%; zone scale errors "
-          + ", ".join(f"{z.name} {100 * (z.scale_mps2 / t.scale_mps2 - 1):+.2f}%"
-                      for z, t in zip(res.params.zones, truth.zones)))
+    print(
+        f"  scaled to one hour: {wall * scale:.2f} s; target < {TARGET_S:.0f} s per hour; "
+        f"ratio target/hmpc = {TARGET_S / (wall * scale):.2f}x "
+        f"({'met' if wall * scale < TARGET_S else 'MISSED'})"
+    )
+    print(
+        f"  check: steering offset error {st.offset_rad - truth.steering.offset_rad:+.5f} rad, "
+        f"scale error {100 * (st.scale / truth.steering.scale - 1):+.3f}%; zone scale errors "
+        + ", ".join(
+            f"{z.name} {100 * (z.scale_mps2 / t.scale_mps2 - 1):+.2f}%"
+            for z, t in zip(res.params.zones, truth.zones)
+        )
+    )
     wrong = accuracy_failures(res.params, truth)
     print("  accuracy: " + ("ok" if not wrong else "FAILED: " + "; ".join(wrong)))
 
@@ -153,10 +168,12 @@ def main(argv=None) -> int:
         sel = naive_forward(P, y, k)
         t_naive = min(t_naive, time.perf_counter() - t0)
     same = sel == fr.indices
-    print(f"term selection, {P.shape[0]} samples x {P.shape[1]} candidates, {k} terms: "
-          f"FOS {1000 * t_fos:.1f} ms, naive forward selection (lstsq refits) "
-          f"{1000 * t_naive:.1f} ms (best of 3 each), ratio naive/FOS {t_naive / t_fos:.1f}x; "
-          f"same terms: {same}")
+    print(
+        f"term selection, {P.shape[0]} samples x {P.shape[1]} candidates, {k} terms: "
+        f"FOS {1000 * t_fos:.1f} ms, naive forward selection (lstsq refits) "
+        f"{1000 * t_naive:.1f} ms (best of 3 each), ratio naive/FOS {t_naive / t_fos:.1f}x; "
+        f"same terms: {same}"
+    )
     if not same:
         print("FOS and naive forward selection chose different terms", file=sys.stderr)
     return 0 if (same and not wrong) else 1

@@ -12,6 +12,7 @@
    Latency = receiver's read time - operator's send time (one clock: the same machine).
 3. Receiver cost per datagram (10,000 random datagrams drained at once).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,8 +47,11 @@ for k in range(n):
 
 
 def _sender(port: int, n: int, kind: str, key: bytes) -> subprocess.Popen:
-    p = subprocess.Popen([sys.executable, "-c", _SENDER, str(port), str(n), kind, key.hex()],
-                         stdin=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        [sys.executable, "-c", _SENDER, str(port), str(n), kind, key.hex()],
+        stdin=subprocess.PIPE,
+        text=True,
+    )
     time.sleep(0.5)  # let the interpreter start before the clock of the run starts
     p.stdin.write("go\n")
     p.stdin.flush()
@@ -66,7 +70,7 @@ def latency_immediate(key: bytes, n: int) -> tuple[np.ndarray, dict]:
         if select.select([rx], [], [], 0.2)[0]:
             rx.poll()
     st = rx.stats()
-    lat = rx._lat[:min(rx._n_lat, len(rx._lat))].copy()
+    lat = rx._lat[: min(rx._n_lat, len(rx._lat))].copy()
     rx.close()
     return lat, st
 
@@ -82,7 +86,7 @@ def latency_loop(key: bytes, n: int) -> tuple[np.ndarray, dict]:
         time.sleep(max(t0 + k * 0.02 - time.monotonic(), 0.0))
     rx.poll()
     st = rx.stats()
-    lat = rx._lat[:min(rx._n_lat, len(rx._lat))].copy()
+    lat = rx._lat[: min(rx._n_lat, len(rx._lat))].copy()
     rx.close()
     return lat, st
 
@@ -119,10 +123,14 @@ def main(argv=None) -> int:
     lat_i, st_i = latency_immediate(key, n)
     lat_l, st_l = latency_loop(key, n)
     lat_r = latency_raw(key, n)
-    print(f"  hmpc link, read at once          {_pct(lat_i)}  (accepted {st_i['accepted']}, "
-          f"rejected {st_i['rejected_total']})")
-    print(f"  hmpc link, 50 Hz receive loop    {_pct(lat_l)}  (accepted {st_l['accepted']}, "
-          f"rejected {st_l['rejected_total']})")
+    print(
+        f"  hmpc link, read at once          {_pct(lat_i)}  (accepted {st_i['accepted']}, "
+        f"rejected {st_i['rejected_total']})"
+    )
+    print(
+        f"  hmpc link, 50 Hz receive loop    {_pct(lat_l)}  (accepted {st_l['accepted']}, "
+        f"rejected {st_l['rejected_total']})"
+    )
     print(f"  baseline: raw UDP, no HMAC       {_pct(lat_r)}")
     ratio = np.percentile(lat_i, 50) / np.percentile(lat_r, 50)
     print(f"  ratio hmpc/raw (p50)             {ratio:.2f}")
@@ -133,15 +141,17 @@ def main(argv=None) -> int:
     got = 0
     cost = 0.0
     for i in range(0, len(dg), 1000):
-        for d in dg[i:i + 1000]:
+        for d in dg[i : i + 1000]:
             s.sendto(d, rx.address)
         time.sleep(0.05)
         t = time.perf_counter()
         got += rx.poll().datagrams
         cost += time.perf_counter() - t
-    print(f"\nreceiver cost: {got} random datagrams in {cost * 1e3:.1f} ms = "
-          f"{cost / max(got, 1) * 1e6:.2f} us each (budget {L.LinkConfig().max_datagrams_per_poll}"
-          f" per 20 ms poll)")
+    print(
+        f"\nreceiver cost: {got} random datagrams in {cost * 1e3:.1f} ms = "
+        f"{cost / max(got, 1) * 1e6:.2f} us each (budget {L.LinkConfig().max_datagrams_per_poll}"
+        f" per 20 ms poll)"
+    )
     rx.close()
     s.close()
     return 0

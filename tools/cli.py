@@ -3,6 +3,7 @@
 Exit status (docs/conventions.md): 0 success, 2 bad input (one line on stderr naming
 the file and the line, frame or channel), 1 internal failure.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -19,25 +20,36 @@ from hmpc.models.errors import HmpcError, InputError
 
 #: subcommand -> module under tools/ that provides ``add_arguments(p)`` and ``run(args) -> int``.
 SUBCOMMANDS = {
-    "info": ("hmpc.tools.cmd_info",
-             "what a CAN log holds: frames and rates per bus/ID, gaps, clock problems"),
+    "info": (
+        "hmpc.tools.cmd_info",
+        "what a CAN log holds: frames and rates per bus/ID, gaps, clock problems",
+    ),
     "ingest": ("hmpc.tools.cmd_ingest", "raw CAN/nav/IMU logs to one canonical recording"),
     "identify": ("hmpc.tools.cmd_identify", "recover the report's steering and accelerator models"),
     "simulate": ("hmpc.tools.cmd_simulate", "simulate an experiment or run the closed loop"),
     "drive": ("hmpc.tools.cmd_drive", "the real-time actuation loop on a CAN bus"),
-    "diagnose": ("hmpc.tools.cmd_diagnose",
-                 "where model and recording differ, the missing physics named"),
-    "teleop": ("hmpc.tools.cmd_teleop",
-               "the vehicle side of tele-operation: the drive loop fed by the authenticated "
-               "operator link"),
-    "operator": ("hmpc.tools.cmd_operator",
-                 "the tele-operation station: scripted, experiment, keyboard or gamepad operator"),
-    "fleet": ("hmpc.tools.cmd_fleet",
-              "many drives on a Dask cluster (run), and each vehicle across its drives: pooled "
-              "values, drift (report)"),
-    "replay": ("hmpc.tools.cmd_replay",
-               "offline closed-loop replay of a recorded drive: on the plant, or its log through "
-               "the drive loop"),
+    "diagnose": (
+        "hmpc.tools.cmd_diagnose",
+        "where model and recording differ, the missing physics named",
+    ),
+    "teleop": (
+        "hmpc.tools.cmd_teleop",
+        "the vehicle side of tele-operation: the drive loop fed by the authenticated operator link",
+    ),
+    "operator": (
+        "hmpc.tools.cmd_operator",
+        "the tele-operation station: scripted, experiment, keyboard or gamepad operator",
+    ),
+    "fleet": (
+        "hmpc.tools.cmd_fleet",
+        "many drives on a Dask cluster (run), and each vehicle across its drives: pooled "
+        "values, drift (report)",
+    ),
+    "replay": (
+        "hmpc.tools.cmd_replay",
+        "offline closed-loop replay of a recorded drive: on the plant, or its log through "
+        "the drive loop",
+    ),
 }
 
 
@@ -58,9 +70,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         MissingSubcommandError: a subcommand's module is not installed.
     """
     parser = argparse.ArgumentParser(
-        prog="hmpc", description="Recover a car's steering and accelerator models from its own "
+        prog="hmpc",
+        description="Recover a car's steering and accelerator models from its own "
         "CAN and GNSS/INS data (UC Berkeley EECS-2008-92) and drive it with a hybrid-mode MPC. "
-        "'hmpc COMMAND --help' describes each command.")
+        "'hmpc COMMAND --help' describes each command.",
+    )
     parser.add_argument("--version", action="version", version=f"hmpc {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (modname, helptext) in SUBCOMMANDS.items():
@@ -75,7 +89,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
             # A declared subcommand without its module is a broken install or a typo in
             # SUBCOMMANDS, never a subcommand to drop quietly from --help.
             raise MissingSubcommandError(
-                f"subcommand {name!r}: its module {modname} is missing") from exc
+                f"subcommand {name!r}: its module {modname} is missing"
+            ) from exc
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run, _outputs=getattr(mod, "OUTPUTS", {}))
     return parser
@@ -93,8 +108,13 @@ def _chosen(argv: list[str]) -> str | None:
 #: what they hold: checked before the work starts, so a typo in an output path costs nothing
 #: and leaves no other output half-done (e.g. --out written, then --json refused). A
 #: subcommand module may name its outputs more precisely in ``OUTPUTS`` ({dest: noun}).
-OUTPUT_FILES = {"out": "the output", "json": "JSON", "candump": "the candump log",
-                "params_out": "the parameter file", "write_script": "the script"}
+OUTPUT_FILES = {
+    "out": "the output",
+    "json": "JSON",
+    "candump": "the candump log",
+    "params_out": "the parameter file",
+    "write_script": "the script",
+}
 OUTPUT_DIRS = {"plots": "the plots", "report": "the report"}
 
 
@@ -109,8 +129,7 @@ def check_output_file(path: str, option: str, what: str = "the output") -> None:
         raise InputError(f"cannot write {what} ({option}: is a folder, expected a file)", path)
     parent = p.parent
     if not parent.is_dir():
-        raise InputError(f"cannot write {what} ({option}: folder '{parent}' does not exist)",
-                         path)
+        raise InputError(f"cannot write {what} ({option}: folder '{parent}' does not exist)", path)
     if p.exists():
         if not os.access(p, os.W_OK):
             raise InputError(f"cannot write {what} ({option}: permission denied)", path)
@@ -118,8 +137,7 @@ def check_output_file(path: str, option: str, what: str = "the output") -> None:
     try:  # create and remove: the only test that also holds for root and /proc
         fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     except OSError as exc:
-        raise InputError(f"cannot write {what} ({option}: {exc.strerror or exc})",
-                         path) from None
+        raise InputError(f"cannot write {what} ({option}: {exc.strerror or exc})", path) from None
     os.close(fd)
     os.unlink(p)
 
@@ -134,8 +152,7 @@ def check_output_dir(path: str, option: str, what: str = "the output") -> None:
     while not anc.exists() and anc != anc.parent:
         anc = anc.parent
     if not anc.is_dir() or not os.access(anc, os.W_OK):
-        raise InputError(f"cannot write {what} ({option}: '{anc}' is not a writable folder)",
-                         path)
+        raise InputError(f"cannot write {what} ({option}: '{anc}' is not a writable folder)", path)
 
 
 def check_outputs(args: argparse.Namespace) -> None:
@@ -156,8 +173,10 @@ def main(argv: list[str] | None = None) -> int:
         parser = build_parser(command) if command is not None else build_parser("")
     except MissingSubcommandError as exc:
         traceback.print_exc()
-        print(f"hmpc: internal error: {exc} (a bug in hmpc's install; please report it)",
-              file=sys.stderr)
+        print(
+            f"hmpc: internal error: {exc} (a bug in hmpc's install; please report it)",
+            file=sys.stderr,
+        )
         return 1
     args = parser.parse_args(argv)
     try:
@@ -178,8 +197,10 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except Exception:  # internal failure: keep the traceback for the bug report
         traceback.print_exc()
-        print(f"hmpc {args.command}: internal error (a bug in hmpc; please report it)",
-              file=sys.stderr)
+        print(
+            f"hmpc {args.command}: internal error (a bug in hmpc; please report it)",
+            file=sys.stderr,
+        )
         return 1
 
 

@@ -1,5 +1,6 @@
 """`hmpc diagnose`: where the report's model and a recording differ, which physics is missing
 (a named catalogue hypothesis, or "unexplained"), and the held-out fit with it added."""
+
 from __future__ import annotations
 
 import argparse
@@ -13,7 +14,6 @@ from hmpc.models.diagnose import display as show
 from hmpc.models.errors import InputError
 from hmpc.tools.common import add_ingest_options, progress_printer, recording_or_log, write_json
 from hmpc.models.params import load_params, parse_params
-
 
 
 EPILOG = """\
@@ -31,21 +31,34 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.epilog = EPILOG
     p.formatter_class = argparse.RawDescriptionHelpFormatter
 
-    p.add_argument("recording", metavar="REC",
-                   help="canonical recording (.csv, .csv.gz, .parquet), or a raw CAN log when "
-                        "--dbc and --signals are given")
-    p.add_argument("--vehicle", required=True, metavar="GEOMETRY.yaml",
-                   help="vehicle geometry (params/*.yaml; at least wheelbase_m, track_front_m)")
-    p.add_argument("--params", metavar="P.yaml",
-                   help="the model to replay (its zones are used); default: the report's model "
-                        "identified from the same recording")
+    p.add_argument(
+        "recording",
+        metavar="REC",
+        help="canonical recording (.csv, .csv.gz, .parquet), or a raw CAN log when "
+        "--dbc and --signals are given",
+    )
+    p.add_argument(
+        "--vehicle",
+        required=True,
+        metavar="GEOMETRY.yaml",
+        help="vehicle geometry (params/*.yaml; at least wheelbase_m, track_front_m)",
+    )
+    p.add_argument(
+        "--params",
+        metavar="P.yaml",
+        help="the model to replay (its zones are used); default: the report's model "
+        "identified from the same recording",
+    )
     p.add_argument("--json", metavar="FILE", help="findings, unexplained mismatch, replay")
     p.add_argument("--report", metavar="DIR", help="write an HTML report with figures")
-    p.add_argument("--params-out", metavar="P2.yaml",
-                   help="write the extended model: the conventions' keys plus the findings in "
-                        "its extensions: section (catalogue id -> subsystem -> parameters); a "
-                        "part not diagnosed is named under not_identified:, and the given "
-                        "file's identifiable: false flags stay")
+    p.add_argument(
+        "--params-out",
+        metavar="P2.yaml",
+        help="write the extended model: the conventions' keys plus the findings in "
+        "its extensions: section (catalogue id -> subsystem -> parameters); a "
+        "part not diagnosed is named under not_identified:, and the given "
+        "file's identifiable: false flags stay",
+    )
     g = p.add_argument_group("raw log input (the options of `hmpc ingest`)")
     add_ingest_options(g, log_required=False)
 
@@ -63,33 +76,45 @@ def summary_lines(dg) -> list[str]:
     if not dg.findings:
         out.append("no catalogue hypothesis improves the held-out fit")
     for i, f in enumerate(dg.findings, 1):
-        ps = ", ".join(show.value_with_interval(k, v, f["intervals"].get(k))
-                       for k, v in f["parameters"].items() if isinstance(v, float))
+        ps = ", ".join(
+            show.value_with_interval(k, v, f["intervals"].get(k))
+            for k, v in f["parameters"].items()
+            if isinstance(v, float)
+        )
         below = f" (on top of {', '.join(f['on_top_of'])})" if f.get("on_top_of") else ""
         k, unit = show.shown(1.0, show.CHANNEL_UNITS.get(f["channel"], ""))
         angle = f" {unit}" if k != 1.0 else ""  # the channel lines below give the SI units
         out.append(f"{i}. {f['effect']} ({f['subsystem']}){below}: {ps}")
-        out.append(f"   held-out {f['channel']} RMSE {k * f['heldout_rmse_before']:.4g} -> "
-                   f"{k * f['heldout_rmse_after']:.4g}{angle} ({100 * f['gain']:.0f} % better)")
+        out.append(
+            f"   held-out {f['channel']} RMSE {k * f['heldout_rmse_before']:.4g} -> "
+            f"{k * f['heldout_rmse_after']:.4g}{angle} ({100 * f['gain']:.0f} % better)"
+        )
         if f.get("chosen_because"):
-            alt = ", ".join(f"{a['effect']} ({_values(a['parameters'])})"
-                            for a in f.get("alternatives", []))
+            alt = ", ".join(
+                f"{a['effect']} ({_values(a['parameters'])})" for a in f.get("alternatives", [])
+            )
             out.append(f"   named over {alt}: {f['chosen_because']}")
     for u in dg.unexplained:
-        out.append(f"unexplained ({u['channel']}): windows {u['windows']}, "
-                   f"{100 * u['share_of_error']:.0f} % of the error")
+        out.append(
+            f"unexplained ({u['channel']}): windows {u['windows']}, "
+            f"{100 * u['share_of_error']:.0f} % of the error"
+        )
     out.append("evidence:")
     if dg.longitudinal_input is not None:
         out.append(f"  longitudinal input: {dg.longitudinal_input}")
     for name, c in dg.channels.items():
         base = c.get("heldout_rmse_baseline", c.get("rmse_baseline"))
-        out.append(f"  channel {name:17s} baseline RMSE {show.number(base, c['unit'])}  "
-                   f"noise floor {show.number(c.get('noise_floor'), c['unit'], '.3g')}")
+        out.append(
+            f"  channel {name:17s} baseline RMSE {show.number(base, c['unit'])}  "
+            f"noise floor {show.number(c.get('noise_floor'), c['unit'], '.3g')}"
+        )
     ss = dg.steering_samples
     if ss:
         drops = "; ".join(f"{k}: {n}" for k, n in ss.get("dropped", {}).items()) or "none"
-        out.append(f"  steering samples: {ss['angle_fit']} of {ss['total']} in the angle fit, "
-                   f"{ss['replay']} in the heading replay; dropped: {drops}")
+        out.append(
+            f"  steering samples: {ss['angle_fit']} of {ss['total']} in the angle fit, "
+            f"{ss['replay']} in the heading replay; dropped: {drops}"
+        )
     for e in dg.evidence:
         out.append(f"baseline check: {e['why']}")
     for n in dg.notes:
@@ -99,8 +124,9 @@ def summary_lines(dg) -> list[str]:
 
 def _values(parameters: dict) -> str:
     """A finding's numeric parameters, ``name value`` joined by commas (angles in deg)."""
-    return ", ".join(show.value_with_interval(k, v) for k, v in parameters.items()
-                     if isinstance(v, float))
+    return ", ".join(
+        show.value_with_interval(k, v) for k, v in parameters.items() if isinstance(v, float)
+    )
 
 
 def _plain(obj):
@@ -132,8 +158,9 @@ def write_params(text: str, out: Path) -> None:
         load_params(tmp)  # what we wrote must load strictly (absent parts under not_identified)
         os.replace(tmp, out)
     except OSError as exc:
-        raise InputError(f"cannot write the parameter file ({exc.strerror or exc})",
-                         str(out)) from None
+        raise InputError(
+            f"cannot write the parameter file ({exc.strerror or exc})", str(out)
+        ) from None
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -157,17 +184,21 @@ def run(args) -> int:
         out = Path(args.params_out)
         write_params(text, out)
         print(f"wrote {out}")
-        payload["params_out"] = {"file": str(out),
-                                 "extensions": sorted(dg.params_out.extensions),
-                                 "not_identified": sorted(dg.params_out.not_identified)}
+        payload["params_out"] = {
+            "file": str(out),
+            "extensions": sorted(dg.params_out.extensions),
+            "not_identified": sorted(dg.params_out.not_identified),
+        }
     if args.report:
         from hmpc.models.diagnose.report import write_report
+
         _progress(f"writing the HTML report to {args.report}")
         try:
             index = write_report(dg, args.report, title=str(args.recording))
         except OSError as exc:
-            raise InputError(f"cannot write the report ({exc.strerror or exc})",
-                             args.report) from None
+            raise InputError(
+                f"cannot write the report ({exc.strerror or exc})", args.report
+            ) from None
         print(f"wrote {index}")
         payload["report"] = str(index)
     if args.json:

@@ -5,6 +5,7 @@ largest gap of each id against its median period, clock problems (steps backward
 jumps, duplicates) and malformed lines; recoverable problems go to stderr; ``--json`` gets the
 same figures (stable keys, SI units).
 """
+
 from __future__ import annotations
 
 import math
@@ -17,14 +18,27 @@ from hmpc.models.logs.info import format_info, log_info
 
 
 def add_arguments(p) -> None:
-    p.add_argument("log", metavar="LOG", help="CAN log: candump -L, libpanda CSV, or any "
-                   "python-can format (.asc .blf .trc .csv), optionally .gz")
+    p.add_argument(
+        "log",
+        metavar="LOG",
+        help="CAN log: candump -L, libpanda CSV, or any "
+        "python-can format (.asc .blf .trc .csv), optionally .gz",
+    )
     p.add_argument("--dbc", metavar="DBC", help="DBC file (optionally .gz) for message names")
     p.add_argument("--json", metavar="FILE", help="write the figures as JSON")
-    p.add_argument("--format", dest="fmt", choices=FORMATS,
-                   help="log format (default: from the suffix and first line)")
-    p.add_argument("--jump-s", type=float, default=1.0, metavar="S",
-                   help="report forward clock jumps longer than S seconds (default 1.0)")
+    p.add_argument(
+        "--format",
+        dest="fmt",
+        choices=FORMATS,
+        help="log format (default: from the suffix and first line)",
+    )
+    p.add_argument(
+        "--jump-s",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="report forward clock jumps longer than S seconds (default 1.0)",
+    )
 
 
 def run(args) -> int:

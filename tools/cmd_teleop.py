@@ -24,6 +24,7 @@ the link's ``stop`` event on the loop's clock. Exit status: 0 (also when the ope
 engaged: ``engaged_s`` 0), 2 bad input (key file refused, address in use, no car on the bus),
 1 internal failure.
 """
+
 from __future__ import annotations
 
 import math
@@ -34,31 +35,69 @@ import numpy as np
 from hmpc.models.errors import InputError
 from hmpc.controller.build import make_controller
 from hmpc.models.reference import load_reference
-from hmpc.tools.common import (CONTROLLERS, adapter_for_profile, add_adapt_arguments,
-                               add_bus_arguments, bus_kwargs, finish_adapter, load_model_params,
-                               stop_times, write_json)
+from hmpc.tools.common import (
+    CONTROLLERS,
+    adapter_for_profile,
+    add_adapt_arguments,
+    add_bus_arguments,
+    bus_kwargs,
+    finish_adapter,
+    load_model_params,
+    stop_times,
+    write_json,
+)
 
 
 def add_arguments(p) -> None:
     p.add_argument("--params", required=True, metavar="P.yaml", help="the controller's model")
-    p.add_argument("--actuation", required=True, metavar="A.yaml",
-                   help="actuation profile (params/*.actuation.yaml)")
-    p.add_argument("--key", required=True, metavar="KEYFILE",
-                   help="pre-shared key file: one line of hex, >= 32 bytes, mode 0600")
-    p.add_argument("--listen", default="127.0.0.1:47700", metavar="HOST:PORT",
-                   help="where the operator's packets arrive (default 127.0.0.1:47700)")
+    p.add_argument(
+        "--actuation",
+        required=True,
+        metavar="A.yaml",
+        help="actuation profile (params/*.actuation.yaml)",
+    )
+    p.add_argument(
+        "--key",
+        required=True,
+        metavar="KEYFILE",
+        help="pre-shared key file: one line of hex, >= 32 bytes, mode 0600",
+    )
+    p.add_argument(
+        "--listen",
+        default="127.0.0.1:47700",
+        metavar="HOST:PORT",
+        help="where the operator's packets arrive (default 127.0.0.1:47700)",
+    )
     add_bus_arguments(p)
-    p.add_argument("--controller", choices=CONTROLLERS, default="mpc",
-                   help="who drives after a handover and follows reference commands (default mpc)")
+    p.add_argument(
+        "--controller",
+        choices=CONTROLLERS,
+        default="mpc",
+        help="who drives after a handover and follows reference commands (default mpc)",
+    )
     what = p.add_mutually_exclusive_group()
-    what.add_argument("--scenario", metavar="NAME",
-                      help="the reference a handover follows (figure8, ramp_sequence, ...)")
-    what.add_argument("--reference", metavar="REF.csv",
-                      help="a reference CSV or a canonical recording, for handovers")
-    p.add_argument("--duration", type=float, metavar="S",
-                   help="end the run after S seconds of run time (default: until interrupted)")
-    p.add_argument("--candump", required=True, metavar="RUN.log",
-                   help="write every frame sent and received here (candump -L)")
+    what.add_argument(
+        "--scenario",
+        metavar="NAME",
+        help="the reference a handover follows (figure8, ramp_sequence, ...)",
+    )
+    what.add_argument(
+        "--reference",
+        metavar="REF.csv",
+        help="a reference CSV or a canonical recording, for handovers",
+    )
+    p.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="end the run after S seconds of run time (default: until interrupted)",
+    )
+    p.add_argument(
+        "--candump",
+        required=True,
+        metavar="RUN.log",
+        help="write every frame sent and received here (candump -L)",
+    )
     p.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
     add_adapt_arguments(p)
 
@@ -66,6 +105,7 @@ def add_arguments(p) -> None:
 def standstill_reference():
     """The default handover reference: stand still where the car is."""
     from hmpc.models.reference import Reference
+
     t = np.array([0.0, 10.0])
     z = np.zeros(2)
     return Reference(t, z, z, z, z, name="standstill")
@@ -98,25 +138,44 @@ def run(args) -> int:
         addr = L.parse_address(args.listen)
         rx = L.LinkReceiver(key, addr)
     except (ValueError, OSError) as exc:
-        raise InputError(f"--listen {args.listen}: cannot listen there (expected HOST:PORT of "
-                         f"this machine, e.g. 127.0.0.1:47700; {exc})") from None
+        raise InputError(
+            f"--listen {args.listen}: cannot listen there (expected HOST:PORT of "
+            f"this machine, e.g. 127.0.0.1:47700; {exc})"
+        ) from None
     try:
         kw = bus_kwargs(args.bus)
-        node = VehicleNode(profile, truth, kw, start_state=ref.initial_state(truth)) \
-            if args.vehicle_sim else None
-        ctl = make_controller(args.controller, params,
-                              accept_unidentifiable=args.accept_unidentifiable)
+        node = (
+            VehicleNode(profile, truth, kw, start_state=ref.initial_state(truth))
+            if args.vehicle_sim
+            else None
+        )
+        ctl = make_controller(
+            args.controller, params, accept_unidentifiable=args.accept_unidentifiable
+        )
         cfg = getattr(ctl, "config", None)
-        if hasattr(cfg, "cold_start_iterations"):   # MPC/NMPC: a cheaper first plan
+        if hasattr(cfg, "cold_start_iterations"):  # MPC/NMPC: a cheaper first plan
             ctl = type(ctl)(params, handover_config(cfg))
         src = TeleopController(rx, params, ctl, run_s=args.duration)
-        print(f"hmpc teleop: listening on {rx.address[0]}:{rx.address[1]}, {profile.name} on "
-              f"{args.bus}{' (vehicle sim)' if node else ''}, handover to {args.controller} on "
-              f"{ref.name}", file=sys.stderr)
+        print(
+            f"hmpc teleop: listening on {rx.address[0]}:{rx.address[1]}, {profile.name} on "
+            f"{args.bus}{' (vehicle sim)' if node else ''}, handover to {args.controller} on "
+            f"{ref.name}",
+            file=sys.stderr,
+        )
         adapter = adapter_for_profile(args, params, profile, "teleop")
-        loop = DriveLoop(profile, params, src, ref, kw, args.candump, duration_s=math.inf,
-                         node=node, adapter=adapter)
+        loop = DriveLoop(
+            profile,
+            params,
+            src,
+            ref,
+            kw,
+            args.candump,
+            duration_s=math.inf,
+            node=node,
+            adapter=adapter,
+        )
         import signal
+
         old = signal.signal(signal.SIGINT, lambda *_: loop.request_stop("interrupted"))
         try:
             res = loop.run()
@@ -128,16 +187,23 @@ def run(args) -> int:
     finish_adapter(args, adapter, "teleop", float(out["engaged_s"]))
     write_json(args.json, out)
     st, lk = out["stop"], out["link"]
-    print(f"hmpc teleop: engaged {out['engaged_s']:.1f} s, stop {st['reason']} "
-          f"({stop_times(st)}); link "
-          f"accepted {lk['accepted']}, rejected {lk['rejected_total']}, latency p50/p99 "
-          f"{lk['latency_ms']['p50']}/{lk['latency_ms']['p99']} ms; frames sent "
-          f"{out['frames_sent']}, limit violations {out['limit_violations']}", file=sys.stderr)
+    print(
+        f"hmpc teleop: engaged {out['engaged_s']:.1f} s, stop {st['reason']} "
+        f"({stop_times(st)}); link "
+        f"accepted {lk['accepted']}, rejected {lk['rejected_total']}, latency p50/p99 "
+        f"{lk['latency_ms']['p50']}/{lk['latency_ms']['p99']} ms; frames sent "
+        f"{out['frames_sent']}, limit violations {out['limit_violations']}",
+        file=sys.stderr,
+    )
     if st["reason"] in ("no_feedback", "car_not_accepting"):
-        raise InputError(f"bus {args.bus}: never engaged: "
-                         + ("no wheel speeds on the bus (is the car, or --vehicle-sim, there?)"
-                            if st["reason"] == "no_feedback"
-                            else "the car's status never accepted commands"))
+        raise InputError(
+            f"bus {args.bus}: never engaged: "
+            + (
+                "no wheel speeds on the bus (is the car, or --vehicle-sim, there?)"
+                if st["reason"] == "no_feedback"
+                else "the car's status never accepted commands"
+            )
+        )
     return 0
 
 
@@ -146,7 +212,7 @@ def finish_summary(summary: dict, src, audit: dict) -> dict:
     out = dict(summary)
     out["limit_violations"] = audit["limit_violations"]
     out["limit_audit"] = audit
-    out["speed_error_rms_mps"] = None   # the operator sets the course, not the reference
+    out["speed_error_rms_mps"] = None  # the operator sets the course, not the reference
     out["lateral_error_rms_m"] = None
     out["link"] = src.stats()
     return out

@@ -1,4 +1,5 @@
 """Where the bundled real data lives: tools/data/ (gzip copies of ../shared/data)."""
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -7,6 +7,7 @@ model with the RAV4 geometry unless ``--params`` is given, runs ``controller.est
 every raw message (``estimate_recording``), and writes ``estimate_comma.png`` and
 ``estimate_comma.json`` (final state, 1-sigma, per-sensor accepted/rejected counts).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -17,8 +18,19 @@ from pathlib import Path
 
 import numpy as np
 
-from hmpc.controller.estimator import (IBR, IDOFF, IKWS, IPSI, IV, IX, IY, STATE_NAMES,
-                                       EstimateRun, EstimatorConfig, estimate_recording)
+from hmpc.controller.estimator import (
+    IBR,
+    IDOFF,
+    IKWS,
+    IPSI,
+    IV,
+    IX,
+    IY,
+    STATE_NAMES,
+    EstimateRun,
+    EstimatorConfig,
+    estimate_recording,
+)
 from hmpc.models.params import Params, load_params
 from hmpc.models.report.figure import new_figure, save_png
 from hmpc.tools.datafiles import PARAMS_DIR, bundled
@@ -61,8 +73,13 @@ def plot_estimate(run: EstimateRun, rec, params: Params, path, title: str) -> st
     wt = rec.raw["wheel_speed_fl"][0]
     wmean = sum(rec.raw[f"wheel_speed_{w}"][1] for w in ("fl", "fr", "rl", "rr")) / 4.0
     ax[2].plot(wt - t0, wmean, lw=0.6, color="0.6", label="CAN wheel-speed mean (raw, 83 Hz)")
-    ax[2].plot(rec.raw["gps_speed"][0] - t0, rec.raw["gps_speed"][1], lw=0.8, color="C1",
-               label="GNSS speed (raw)")
+    ax[2].plot(
+        rec.raw["gps_speed"][0] - t0,
+        rec.raw["gps_speed"][1],
+        lw=0.8,
+        color="C1",
+        label="GNSS speed (raw)",
+    )
     ax[2].plot(t, x[:, IV], lw=1.0, color="C0", label="estimate v")
     ax[2].set_xlabel("time [s]")
     ax[2].set_ylabel("speed [m/s]")
@@ -80,29 +97,56 @@ def plot_estimate(run: EstimateRun, rec, params: Params, path, title: str) -> st
     yt, yv = rec.raw["yaw_rate"]
     ax[4].plot(yt - t0, yv, lw=0.5, color="0.6", label="IMU gyro (raw, 104 Hz)")
     track_r = params.vehicle.track_rear_m or params.vehicle.track_front_m
-    ax[4].plot(wt - t0, (rec.raw["wheel_speed_rr"][1] - rec.raw["wheel_speed_rl"][1]) / track_r,
-               lw=0.4, color="C2", alpha=0.3, zorder=1,
-               label="rear wheel difference / track (eq. 5, not fed by default)")
+    ax[4].plot(
+        wt - t0,
+        (rec.raw["wheel_speed_rr"][1] - rec.raw["wheel_speed_rl"][1]) / track_r,
+        lw=0.4,
+        color="C2",
+        alpha=0.3,
+        zorder=1,
+        label="rear wheel difference / track (eq. 5, not fed by default)",
+    )
     swt, swv = rec.raw["steering_wheel_angle"]
-    delta = params.steering.offset_rad + params.steering.scale * np.interp(run.t_s, swt, swv) \
+    delta = (
+        params.steering.offset_rad
+        + params.steering.scale * np.interp(run.t_s, swt, swv)
         + x[:, IDOFF]
-    ax[4].plot(t, x[:, IV] * np.sin(delta) / params.vehicle.wheelbase_m, lw=1.0, color="C0",
-               label="estimate v sin(delta) / b")
-    ax[4].plot(t, x[:, IV] * np.sin(delta) / params.vehicle.wheelbase_m + x[:, IBR], lw=0.8,
-               color="C3", ls="--", label="+ estimated gyro bias")
+    )
+    ax[4].plot(
+        t,
+        x[:, IV] * np.sin(delta) / params.vehicle.wheelbase_m,
+        lw=1.0,
+        color="C0",
+        label="estimate v sin(delta) / b",
+    )
+    ax[4].plot(
+        t,
+        x[:, IV] * np.sin(delta) / params.vehicle.wheelbase_m + x[:, IBR],
+        lw=0.8,
+        color="C3",
+        ls="--",
+        label="+ estimated gyro bias",
+    )
     ax[4].set_ylim(-0.06, 0.06)
     ax[4].set_xlabel("time [s]")
     ax[4].set_ylabel("yaw rate [rad/s] (clipped to +-0.06)")
     ax[4].set_title("yaw rate")
     ax[4].legend(fontsize=8)
     # 6: augmented states
-    for i, scale, lab in ((IDOFF, 1e3, "road-wheel angle correction [mrad]"),
-                          (IBR, 1e3, "gyro bias [mrad/s]"),
-                          (IKWS, 100.0, "wheel-speed scale - 1 [%]")):
+    for i, scale, lab in (
+        (IDOFF, 1e3, "road-wheel angle correction [mrad]"),
+        (IBR, 1e3, "gyro bias [mrad/s]"),
+        (IKWS, 100.0, "wheel-speed scale - 1 [%]"),
+    ):
         val = (x[:, i] - (1.0 if i == IKWS else 0.0)) * scale
-        line, = ax[5].plot(t, val, lw=1.0, label=lab)
-        ax[5].fill_between(t, val - 2 * scale * s[:, i], val + 2 * scale * s[:, i],
-                           color=line.get_color(), alpha=0.15)
+        (line,) = ax[5].plot(t, val, lw=1.0, label=lab)
+        ax[5].fill_between(
+            t,
+            val - 2 * scale * s[:, i],
+            val + 2 * scale * s[:, i],
+            color=line.get_color(),
+            alpha=0.15,
+        )
     ax[5].set_xlabel("time [s]")
     ax[5].set_ylabel("value [unit in legend]")
     ax[5].set_title("augmented states (+-2 sigma)")
@@ -115,31 +159,51 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="out/estimator", help="output folder (default out/estimator)")
     ap.add_argument("--params", help="model to use (default: identified from the minute)")
-    ap.add_argument("--gnss-latency", type=float, default=0.0, metavar="S",
-                    help="deliver each fix this late [s] (exercises the rewind on real data)")
+    ap.add_argument(
+        "--gnss-latency",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="deliver each fix this late [s] (exercises the rewind on real data)",
+    )
     args = ap.parse_args(argv)
     from hmpc.models.logs.ingest import ingest_files
+
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    res = ingest_files(bundled(f"{COMMA}/can.log.gz"), bundled("dbc/toyota_rav4_2017.dbc.gz"),
-                       PARAMS_DIR / "toyota_rav4_2017.signals.yaml",
-                       bundled(f"{COMMA}/nav.csv.gz"), bundled(f"{COMMA}/imu.csv.gz"))
+    res = ingest_files(
+        bundled(f"{COMMA}/can.log.gz"),
+        bundled("dbc/toyota_rav4_2017.dbc.gz"),
+        PARAMS_DIR / "toyota_rav4_2017.signals.yaml",
+        bundled(f"{COMMA}/nav.csv.gz"),
+        bundled(f"{COMMA}/imu.csv.gz"),
+    )
     rec = res.recording
     if args.params:
         params = load_params(args.params, require_model=True)
     else:
         from hmpc.models.identify.pipeline import identify
+
         params = identify(rec, load_params(PARAMS_DIR / "toyota_rav4_2017.yaml").vehicle).params
     cfg = EstimatorConfig()
     run = estimate_recording(rec, params, cfg, gnss_latency_s=args.gnss_latency)
-    png = plot_estimate(run, rec, params, out / "estimate_comma.png",
-                        "controller.estimator on the comma2k19 RAV4 minute (I-280), raw channels")
+    png = plot_estimate(
+        run,
+        rec,
+        params,
+        out / "estimate_comma.png",
+        "controller.estimator on the comma2k19 RAV4 minute (I-280), raw channels",
+    )
     last = int(np.flatnonzero(np.isfinite(run.state[:, 0]))[-1])
-    summary = {"gnss_latency_s": args.gnss_latency, "ticks": int(len(run.t_s)),
-               "messages": run.events, "stats": run.stats,
-               "final_state": dict(zip(STATE_NAMES, map(float, run.state[last]))),
-               "final_sigma": dict(zip(STATE_NAMES, map(float, run.sigma[last]))),
-               "speed_vs_ingest_gps_ratio": res.summary.get("speed_vs_gps", {}).get("ratio_mean")}
+    summary = {
+        "gnss_latency_s": args.gnss_latency,
+        "ticks": int(len(run.t_s)),
+        "messages": run.events,
+        "stats": run.stats,
+        "final_state": dict(zip(STATE_NAMES, map(float, run.state[last]))),
+        "final_sigma": dict(zip(STATE_NAMES, map(float, run.sigma[last]))),
+        "speed_vs_ingest_gps_ratio": res.summary.get("speed_vs_gps", {}).get("ratio_mean"),
+    }
     (out / "estimate_comma.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
     print(json.dumps(summary, indent=1))
     print(f"wrote {png}", file=sys.stderr)

@@ -9,6 +9,7 @@ Raises :class:`EncodeError` (a ``ValueError``) when a value is not finite or doe
 signal: a frame is never wrapped around or silently clipped here; the limits are applied before
 (``safety.py``), and a value that still does not fit is a bug to stop on.
 """
+
 from __future__ import annotations
 
 import math
@@ -30,16 +31,22 @@ def _raw(sig, value: float) -> int:
         raise EncodeError(f"{sig.name}: value {value!r} is not finite")
     x = (v - sig.offset) / sig.scale
     raw = int(math.floor(abs(x) + 0.5)) * (1 if x >= 0 else -1)
-    lo, hi = (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed \
+    lo, hi = (
+        (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1)
+        if sig.is_signed
         else (0, (1 << sig.length) - 1)
+    )
     if not lo <= raw <= hi:
-        raise EncodeError(f"{sig.name}: value {v:g} does not fit {sig.length} bits "
-                          f"({'signed' if sig.is_signed else 'unsigned'}, scale {sig.scale:g})")
+        raise EncodeError(
+            f"{sig.name}: value {v:g} does not fit {sig.length} bits "
+            f"({'signed' if sig.is_signed else 'unsigned'}, scale {sig.scale:g})"
+        )
     return raw
 
 
-def encode_command(spec: CommandSpec, quantities: dict[str, float], enabled: bool,
-                   counter: int | None) -> can.Message:
+def encode_command(
+    spec: CommandSpec, quantities: dict[str, float], enabled: bool, counter: int | None
+) -> can.Message:
     """The frame of ``spec`` carrying ``quantities`` (quantity -> physical value).
 
     Args:
@@ -69,13 +76,18 @@ def encode_command(spec: CommandSpec, quantities: dict[str, float], enabled: boo
     if spec.checksum is not None:
         assert spec.scheme is not None  # the profile loader sets both or neither
         data[-1] = SCHEMES[spec.scheme](msg.frame_id, data, len(data))
-    return can.Message(arbitration_id=msg.frame_id, data=bytes(data), dlc=len(data),
-                       is_extended_id=msg.is_extended_frame)
+    return can.Message(
+        arbitration_id=msg.frame_id,
+        data=bytes(data),
+        dlc=len(data),
+        is_extended_id=msg.is_extended_frame,
+    )
 
 
 # ------------------------------------------------------------------------------ Toyota
-def steering_lka(spec: CommandSpec, steer_torque: float, steer_request: bool,
-                 counter: int) -> can.Message:
+def steering_lka(
+    spec: CommandSpec, steer_torque: float, steer_request: bool, counter: int
+) -> can.Message:
     """``STEERING_LKA`` (0x2E4): EPS torque request [raw units, +-1500], request bit, 6-bit
     counter, Toyota checksum."""
     return encode_command(spec, {"steer_torque": steer_torque}, steer_request, counter)
@@ -87,18 +99,22 @@ def acc_control(spec: CommandSpec, accel_mps2: float) -> can.Message:
 
 
 # ------------------------------------------------------------------------ by-wire kit
-def bw_steer_cmd(spec: CommandSpec, steering_wheel_angle_rad: float, enable: bool,
-                 counter: int) -> can.Message:
+def bw_steer_cmd(
+    spec: CommandSpec, steering_wheel_angle_rad: float, enable: bool, counter: int
+) -> can.Message:
     """``BW_STEER_CMD``: steering-wheel angle [rad], enable bit, 4-bit counter, CRC-8."""
-    return encode_command(spec, {"steering_wheel_angle_rad": steering_wheel_angle_rad},
-                          enable, counter)
+    return encode_command(
+        spec, {"steering_wheel_angle_rad": steering_wheel_angle_rad}, enable, counter
+    )
 
 
-def bw_pedal_cmd(spec: CommandSpec, accel_pedal: float, brake_pedal: float, enable: bool,
-                 counter: int) -> can.Message:
+def bw_pedal_cmd(
+    spec: CommandSpec, accel_pedal: float, brake_pedal: float, enable: bool, counter: int
+) -> can.Message:
     """``BW_PEDAL_CMD``: accelerator and brake positions [0..1], enable bits, counter, CRC-8."""
-    return encode_command(spec, {"accel_pedal": accel_pedal, "brake_pedal": brake_pedal},
-                          enable, counter)
+    return encode_command(
+        spec, {"accel_pedal": accel_pedal, "brake_pedal": brake_pedal}, enable, counter
+    )
 
 
 def bw_heartbeat(spec: CommandSpec, engage: bool, counter: int) -> can.Message:

@@ -2,6 +2,7 @@
 order while the loop runs (:class:`OrderedCandump`), and re-checked after the run against fresh
 limit checks (:func:`audit_candump`, the run JSON's ``limit_violations``).
 """
+
 from __future__ import annotations
 
 import math
@@ -14,8 +15,14 @@ from hmpc.models.errors import Problems
 from hmpc.models.params import Params
 
 from hmpc.controller.actuation.profiles import ActuationProfile
-from hmpc.controller.actuation.safety import (AngleCheck, AngleLimits, ToyotaLimits,
-                                              ToyotaSteerCheck, accel_ok, pedals_ok)
+from hmpc.controller.actuation.safety import (
+    AngleCheck,
+    AngleLimits,
+    ToyotaLimits,
+    ToyotaSteerCheck,
+    accel_ok,
+    pedals_ok,
+)
 
 
 class OrderedCandump:
@@ -32,7 +39,7 @@ class OrderedCandump:
     def __init__(self, path: Path):
         self._writer = can.CanutilsLogWriter(str(path), channel="can0")
         self._held: list = []
-        self._mark = -math.inf   # the previous tick's first read [s, the frames' clock]
+        self._mark = -math.inf  # the previous tick's first read [s, the frames' clock]
         self._read_at = -math.inf
 
     def on_message_received(self, msg: can.Message) -> None:
@@ -59,7 +66,6 @@ class OrderedCandump:
         self._writer.stop()
 
 
-
 def audit_candump(profile: ActuationProfile, params: Params, path: str | Path) -> dict:
     """Re-check every command frame of a drive's candump, read back with hmpc's own reader and
     decoder, with fresh limit checks (independent of the loop's state): the ``limit_violations``
@@ -72,8 +78,11 @@ def audit_candump(profile: ActuationProfile, params: Params, path: str | Path) -
     tl = ToyotaLimits()
     chk_t = ToyotaSteerCheck(tl)
     al = AngleLimits.from_params(params)
-    chk_a = AngleCheck(al, profile.commands["steer_angle"].period_s) \
-        if "steer_angle" in profile.commands else None
+    chk_a = (
+        AngleCheck(al, profile.commands["steer_angle"].period_s)
+        if "steer_angle" in profile.commands
+        else None
+    )
     by: dict[str, int] = {}
     checked = 0
     allowed = False
@@ -94,8 +103,9 @@ def audit_candump(profile: ActuationProfile, params: Params, path: str | Path) -
             checked += 1
             why = ""
             if spec.role == "steer_torque":
-                why = chk_t.check(int(raw[spec.values["steer_torque"]]),
-                                  bool(raw[spec.enable[0]]), t, allowed)
+                why = chk_t.check(
+                    int(raw[spec.values["steer_torque"]]), bool(raw[spec.enable[0]]), t, allowed
+                )
             elif spec.role == "accel":
                 s = m.get_signal_by_name(spec.values["accel_mps2"])
                 a = raw[spec.values["accel_mps2"]] * s.scale
@@ -107,8 +117,9 @@ def audit_candump(profile: ActuationProfile, params: Params, path: str | Path) -
             elif spec.role == "pedals":
                 sa = m.get_signal_by_name(spec.values["accel_pedal"]).scale
                 sb = m.get_signal_by_name(spec.values["brake_pedal"]).scale
-                why = pedals_ok(raw[spec.values["accel_pedal"]] * sa,
-                                raw[spec.values["brake_pedal"]] * sb, al)
+                why = pedals_ok(
+                    raw[spec.values["accel_pedal"]] * sa, raw[spec.values["brake_pedal"]] * sb, al
+                )
             if why:
                 by[why] = by.get(why, 0) + 1
             continue

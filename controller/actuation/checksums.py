@@ -4,6 +4,7 @@ Both are pure functions of the frame's arbitration id and payload; the builders
 (``builders.py``) write them, the vehicle simulator node (``vehicle_node.py``) checks them like
 an ECU would.
 """
+
 from __future__ import annotations
 
 

@@ -15,6 +15,7 @@ modelled in ``vehicle_node.py``): torque = k_ff(v) * angle_cmd + kp * e + ki * i
 - kd * rate, gains in :class:`InnerAngleLoop`; the integral is frozen while the torque
 limiter binds (anti-windup).
 """
+
 from __future__ import annotations
 
 import math
@@ -28,9 +29,18 @@ from hmpc.models.params import Params
 from hmpc.controller.actuation import builders
 from hmpc.controller.actuation.feedback import Feedback
 from hmpc.controller.actuation.profiles import ActuationProfile
-from hmpc.controller.actuation.safety import (AngleCheck, AngleLimiter, AngleLimits, ToyotaLimits,
-                                              ToyotaSteerCheck, ToyotaTorqueLimiter, accel_ok,
-                                              clip_accel, clip_pedals, pedals_ok)
+from hmpc.controller.actuation.safety import (
+    AngleCheck,
+    AngleLimiter,
+    AngleLimits,
+    ToyotaLimits,
+    ToyotaSteerCheck,
+    ToyotaTorqueLimiter,
+    accel_ok,
+    clip_accel,
+    clip_pedals,
+    pedals_ok,
+)
 
 
 @dataclass(frozen=True)
@@ -39,11 +49,11 @@ class InnerAngleLoop:
     node (J 0.04 kg m^2, g 0.005 N m/unit): kp and kd place the loop at about 10 rad/s with
     damping 0.8; the feedforward cancels the self-aligning stiffness (k(v)/g)."""
 
-    kff0: float = 60.0     # units/rad: 0.3 N m/rad / 0.005 N m/unit
-    kff2: float = 0.8      # units s^2/(rad m^2): 0.004 / 0.005
-    kp: float = 800.0      # units/rad
-    ki: float = 400.0      # units/(rad s)
-    kd: float = 110.0      # units/(rad/s)
+    kff0: float = 60.0  # units/rad: 0.3 N m/rad / 0.005 N m/unit
+    kff2: float = 0.8  # units s^2/(rad m^2): 0.004 / 0.005
+    kp: float = 800.0  # units/rad
+    ki: float = 400.0  # units/(rad s)
+    kd: float = 110.0  # units/(rad/s)
 
 
 INNER = InnerAngleLoop()
@@ -55,9 +65,15 @@ def limit_speed(fb: Feedback, v_meas: float) -> float:
     have decoded newer ones, logged before this frame). The ISO 11270 bounds tighten as
     the speed grows: a stale, lower speed would allow more than the car's state does,
     and the candump audit, which takes the latest speed frame, would count it."""
-    vals = [v for v in (v_meas, fb.value("speed"),
-                        0.5 * (fb.value("wheel_speed_fl") + fb.value("wheel_speed_fr")))
-            if np.isfinite(v)]
+    vals = [
+        v
+        for v in (
+            v_meas,
+            fb.value("speed"),
+            0.5 * (fb.value("wheel_speed_fl") + fb.value("wheel_speed_fr")),
+        )
+        if np.isfinite(v)
+    ]
     return max(vals) if vals else 0.0
 
 
@@ -80,21 +96,33 @@ class CommandPath:
         self.chk_t = ToyotaSteerCheck(tl)
         self.al = al
         self.lim_a = AngleLimiter(al)
-        self.chk_a = AngleCheck(al, profile.commands["steer_angle"].period_s) \
-            if "steer_angle" in profile.commands else None
-        self.integ = 0.0              # inner angle loop's integral [raw torque units]
-        self.rate_f = 0.0             # filtered steering-wheel rate [rad/s]
-        self.last_sw: float | None = None   # last measured steering-wheel angle [rad]
+        self.chk_a = (
+            AngleCheck(al, profile.commands["steer_angle"].period_s)
+            if "steer_angle" in profile.commands
+            else None
+        )
+        self.integ = 0.0  # inner angle loop's integral [raw torque units]
+        self.rate_f = 0.0  # filtered steering-wheel rate [rad/s]
+        self.last_sw: float | None = None  # last measured steering-wheel angle [rad]
         self.prev_pedals: tuple | None = None
-        self.last_accel_req = math.nan      # the last acceleration request sent [m/s^2]
+        self.last_accel_req = math.nan  # the last acceleration request sent [m/s^2]
         self.clips = {"steer": 0, "long": 0}
         self.blocked: dict[str, int] = {}
 
     def _block(self, why: str) -> None:
         self.blocked[why] = self.blocked.get(why, 0) + 1
 
-    def steer_torque(self, fb: Feedback, spec, cnt: int, t: float, sw_meas: float,
-                     v_meas: float, sw_cmd: float, steer_active: bool) -> can.Message:
+    def steer_torque(
+        self,
+        fb: Feedback,
+        spec,
+        cnt: int,
+        t: float,
+        sw_meas: float,
+        v_meas: float,
+        sw_cmd: float,
+        steer_active: bool,
+    ) -> can.Message:
         """Toyota: the inner angle loop's EPS torque, limited and checked (STEERING_LKA)."""
         if np.isfinite(sw_meas):
             if self.last_sw is not None:
@@ -108,8 +136,12 @@ class CommandPath:
         if steer_active and np.isfinite(sw_meas):
             vv = v_meas if np.isfinite(v_meas) else 0.0
             e = sw_cmd - sw_meas
-            want = (INNER.kff0 + INNER.kff2 * vv * vv) * sw_cmd + INNER.kp * e + self.integ \
+            want = (
+                (INNER.kff0 + INNER.kff2 * vv * vv) * sw_cmd
+                + INNER.kp * e
+                + self.integ
                 - INNER.kd * self.rate_f
+            )
         emin, emax = min(fb.eps), max(fb.eps)
         tq = self.lim_t.clip(want, t, emin, emax, active=steer_active and steer_ok)
         if steer_active and np.isfinite(sw_meas):
@@ -120,7 +152,7 @@ class CommandPath:
         else:
             self.integ = 0.0
         req = bool(steer_active and steer_ok)
-        self.chk_t.meas.clear()          # the check's EPS samples: the decoded ones
+        self.chk_t.meas.clear()  # the check's EPS samples: the decoded ones
         self.chk_t.meas.extend(fb.eps)
         why = self.chk_t.check(tq, req, t, allowed)
         if why:
@@ -144,8 +176,16 @@ class CommandPath:
         self.last_accel_req = a2
         return builders.acc_control(spec, a2)
 
-    def steer_angle(self, fb: Feedback, spec, cnt: int, sw_meas: float, v_meas: float,
-                    sw_cmd: float, steer_active: bool) -> can.Message:
+    def steer_angle(
+        self,
+        fb: Feedback,
+        spec,
+        cnt: int,
+        sw_meas: float,
+        v_meas: float,
+        sw_cmd: float,
+        steer_active: bool,
+    ) -> can.Message:
         """By-wire: the steering-wheel angle command, limited and checked (BW_STEER_CMD)."""
         vv = limit_speed(fb, v_meas)
         ang = sw_cmd if steer_active else (sw_meas if np.isfinite(sw_meas) else 0.0)
@@ -159,8 +199,9 @@ class CommandPath:
             a = self.chk_a.last if self.chk_a.last is not None else 0.0
         return builders.bw_steer_cmd(spec, a, steer_active, cnt)
 
-    def pedals(self, spec, cnt: int, ap_cmd: float, bp_cmd: float, active: bool,
-               dt: float) -> can.Message:
+    def pedals(
+        self, spec, cnt: int, ap_cmd: float, bp_cmd: float, active: bool, dt: float
+    ) -> can.Message:
         """By-wire: the pedal positions, rate-limited over ``dt`` [s] and checked (BW_PEDAL_CMD)."""
         ap, bp = (ap_cmd, bp_cmd) if active else (0.0, 0.0)
         ap2, bp2 = clip_pedals(ap, bp, self.prev_pedals, dt, self.al)

@@ -46,6 +46,7 @@ so its adapter learns the command's response, ``inputs="accel_cmd"``). The run J
 
 After the run, ``candump.audit_candump`` re-checks every command frame of the written log.
 """
+
 from __future__ import annotations
 
 import gc
@@ -70,10 +71,18 @@ from hmpc.controller.limits import ActuatorLimits
 from hmpc.controller.actuation import builders
 from hmpc.controller.actuation.candump import OrderedCandump
 from hmpc.controller.actuation.command_path import CommandPath
-from hmpc.controller.actuation.drive_summary import TRACE_KEYS, cpu_percentiles, record_row, \
-    summarize
-from hmpc.controller.actuation.faults import (Fault, check_node_faults, fault_active,
-                                              schedule_node_faults)
+from hmpc.controller.actuation.drive_summary import (
+    TRACE_KEYS,
+    cpu_percentiles,
+    record_row,
+    summarize,
+)
+from hmpc.controller.actuation.faults import (
+    Fault,
+    check_node_faults,
+    fault_active,
+    schedule_node_faults,
+)
 from hmpc.controller.actuation.feedback import Feedback
 from hmpc.controller.actuation.profiles import ActuationProfile
 from hmpc.controller.actuation.watchdog import Watchdog, WatchdogConfig
@@ -165,8 +174,14 @@ class _Run:
     failures: int = 0
     state: str = "disengaged"
     engaged_at: float | None = None
-    stop: dict = field(default_factory=lambda: {"reason": None, "t_s": None,
-                                                "detected_t_s": None, "standstill_t_s": None})
+    stop: dict = field(
+        default_factory=lambda: {
+            "reason": None,
+            "t_s": None,
+            "detected_t_s": None,
+            "standstill_t_s": None,
+        }
+    )
     sw_cmd: float = 0.0
     ap_cmd: float = 0.0
     bp_cmd: float = 0.0
@@ -192,7 +207,7 @@ class SystemClock:
 
     monotonic = staticmethod(time.monotonic)
     sleep = staticmethod(time.sleep)
-    time = staticmethod(time.time)   # last: it shadows the module name in this class body
+    time = staticmethod(time.time)  # last: it shadows the module name in this class body
 
 
 @dataclass
@@ -230,12 +245,24 @@ class DriveLoop:
         adapter: an online model estimator (module docstring), or None.
     """
 
-    def __init__(self, profile: ActuationProfile, params: Params, controller, reference: Reference,
-                 bus_kwargs: dict, candump: str | Path, *, duration_s: float,
-                 faults: list[Fault] | tuple[()] = (), node=None,
-                 config: DriveConfig = DriveConfig(), clock=None, adapter=None):
+    def __init__(
+        self,
+        profile: ActuationProfile,
+        params: Params,
+        controller,
+        reference: Reference,
+        bus_kwargs: dict,
+        candump: str | Path,
+        *,
+        duration_s: float,
+        faults: list[Fault] | tuple[()] = (),
+        node=None,
+        config: DriveConfig = DriveConfig(),
+        clock=None,
+        adapter=None,
+    ):
         self.adapter = adapter
-        self.adapt_cpu_s: list = []   # the adapter's CPU time per control step [s]
+        self.adapt_cpu_s: list = []  # the adapter's CPU time per control step [s]
         self._adapt_pending_s = 0.0
         self.profile = profile
         self.params = params
@@ -255,8 +282,11 @@ class DriveLoop:
         for role, spec in profile.commands.items():
             k = spec.period_s / config.tick_s
             if abs(k - round(k)) > 0.02 * k or round(k) < 1:
-                raise InputError(f"command {role} at {spec.rate_hz:g} Hz is not a whole number of "
-                                 f"{config.tick_s * 1e3:g} ms ticks", profile.path)
+                raise InputError(
+                    f"command {role} at {spec.rate_hz:g} Hz is not a whole number of "
+                    f"{config.tick_s * 1e3:g} ms ticks",
+                    profile.path,
+                )
             ticks[role] = int(round(k))
         self.ticks = ticks
         self.ctl_every = int(round(config.control_period_s / config.tick_s))
@@ -301,22 +331,40 @@ class DriveLoop:
             if self.node is not None:
                 self.node.stop()
         fb = r.fb
-        car_rejected = int(fb.item("rejected_frames")) \
-            if "rejected_frames" in self.profile.feedback else None
+        car_rejected = (
+            int(fb.item("rejected_frames")) if "rejected_frames" in self.profile.feedback else None
+        )
         summary = summarize(
-            r.trace, r.periods, r.late_steps, r.solve_ms, r.statuses, r.failures, r.sent,
-            r.act.blocked, r.act.clips, r.engaged_at, r.stop, r.k,
+            r.trace,
+            r.periods,
+            r.late_steps,
+            r.solve_ms,
+            r.statuses,
+            r.failures,
+            r.sent,
+            r.act.blocked,
+            r.act.clips,
+            r.engaged_at,
+            r.stop,
+            r.k,
             profile_name=self.profile.name,
             controller_name=getattr(self.controller, "name", type(self.controller).__name__),
-            reference=self.reference, node=self.node, car_rejected=car_rejected,
-            control_period_s=self.config.control_period_s, candump=str(self.candump),
+            reference=self.reference,
+            node=self.node,
+            car_rejected=car_rejected,
+            control_period_s=self.config.control_period_s,
+            candump=str(self.candump),
             estimator=self.config.estimator,
             steering_wheel_angle_max_rad=ActuatorLimits.from_params(
-                self.params).steering_wheel_angle_max_rad)
+                self.params
+            ).steering_wheel_angle_max_rad,
+        )
         if self.adapter is not None:
             summary["adaptation"] = self.adapter.report()
-            summary["adaptation_details"] = {**self.adapter.summary(),
-                                             "cost_us": cpu_percentiles(self.adapt_cpu_s)}
+            summary["adaptation_details"] = {
+                **self.adapter.summary(),
+                "cost_us": cpu_percentiles(self.adapt_cpu_s),
+            }
         return DriveResult(summary, {kk: np.asarray(vv) for kk, vv in r.trace.items()})
 
     def _start_run(self) -> _Run:
@@ -332,7 +380,7 @@ class DriveLoop:
         self.controller.reset()
         try:
             bus = can.Bus(**self.bus_kwargs)
-        except (OSError, can.CanError, ValueError) as exc:   # no such interface, no driver
+        except (OSError, can.CanError, ValueError) as exc:  # no such interface, no driver
             where = ":".join(str(self.bus_kwargs.get(k)) for k in ("interface", "channel"))
             raise InputError(f"bus {where}: cannot open it ({exc})") from None
         self.candump.parent.mkdir(parents=True, exist_ok=True)
@@ -340,18 +388,27 @@ class DriveLoop:
         ekf = None
         if cfg.estimator == "ekf":
             from hmpc.controller.estimator import Estimator, EstimatorConfig
+
             # CAN resolution, not a phone-grade sensor: the wheel speeds are quantised to
             # 0.01 km/h (Toyota) / 1 mm/s (kit) and carry no other noise on the node
-            ekf = Estimator(self.params,
-                            EstimatorConfig(can_speed_mps=0.005, init_wheel_scale=0.002))
+            ekf = Estimator(
+                self.params, EstimatorConfig(can_speed_mps=0.005, init_wheel_scale=0.002)
+            )
             ekf.reset(0.0, x0)
         r = _Run(
-            fb=Feedback(prof), wd=Watchdog(cfg.watchdog), act=act, bus=bus, writer=writer,
+            fb=Feedback(prof),
+            wd=Watchdog(cfg.watchdog),
+            act=act,
+            bus=bus,
+            writer=writer,
             counters={role: 0 for role in prof.commands},
             sent={spec.message.name: 0 for spec in prof.commands.values()},
             trace={k: [] for k in TRACE_KEYS},
-            est=x0.copy(), ekf=ekf, mono0=self.clock.monotonic(),
-            epoch0=self.clock.time())
+            est=x0.copy(),
+            ekf=ekf,
+            mono0=self.clock.monotonic(),
+            epoch0=self.clock.time(),
+        )
         if self.node is not None:
             self.node.start(r.mono0)
             schedule_node_faults(self.node, self.faults)
@@ -440,14 +497,20 @@ class DriveLoop:
         fb, t, v_meas, sw_meas = r.fb, tk.t, tk.v_meas, tk.sw_meas
         if r.ekf is not None:
             ekf = r.ekf
-            ekf.predict(max(t, ekf.time_s), (sw_meas if np.isfinite(sw_meas) else r.sw_cmd,
-                                             r.ap_cmd, r.bp_cmd))
+            ekf.predict(
+                max(t, ekf.time_s),
+                (sw_meas if np.isfinite(sw_meas) else r.sw_cmd, r.ap_cmd, r.bp_cmd),
+            )
             if fb.speed_msg in tk.seen:
                 yaw = fb.value("yaw_rate")
-                ekf.update_can(t, wheel_speeds_mps=[fb.value(f"wheel_speed_{w}")
-                                                    for w in ("fl", "fr", "rl", "rr")],
-                               steering_wheel_angle_rad=sw_meas,
-                               yaw_rate_radps=yaw if np.isfinite(yaw) else None)
+                ekf.update_can(
+                    t,
+                    wheel_speeds_mps=[
+                        fb.value(f"wheel_speed_{w}") for w in ("fl", "fr", "rl", "rr")
+                    ],
+                    steering_wheel_angle_rad=sw_meas,
+                    yaw_rate_radps=yaw if np.isfinite(yaw) else None,
+                )
             r.est = ekf.state()
         elif r.t_est is not None and np.isfinite(v_meas) and np.isfinite(sw_meas) and t > r.t_est:
             est = r.est
@@ -469,8 +532,9 @@ class DriveLoop:
         wheel-speed message came, the yaw rate and the acceleration when theirs did."""
         fb, t, sig = r.fb, tk.t, self.adapter.signals
         if fb.speed_msg in tk.seen:
-            sig.add_can(t, [fb.value(f"wheel_speed_{w}") for w in ("fl", "fr", "rl", "rr")],
-                        tk.sw_meas)
+            sig.add_can(
+                t, [fb.value(f"wheel_speed_{w}") for w in ("fl", "fr", "rl", "rr")], tk.sw_meas
+            )
         for ch, add in (("yaw_rate", sig.add_yaw), ("accel_x", sig.add_accel)):
             tv = fb.channels.get(ch)
             if tv is not None and tv[0] == t:
@@ -498,11 +562,12 @@ class DriveLoop:
         poll = getattr(self.controller, "poll", None)
         if poll is None:
             return
-        gate = poll(tk.t, loop_state=r.state, speed_mps=tk.v_meas,
-                    steering_wheel_angle_rad=tk.sw_meas)
+        gate = poll(
+            tk.t, loop_state=r.state, speed_mps=tk.v_meas, steering_wheel_angle_rad=tk.sw_meas
+        )
         self._source_engage = bool(gate.engage)
         if gate.stop and r.state == "disengaged":
-            self.request_stop(gate.stop)          # never engaged: the run ends
+            self.request_stop(gate.stop)  # never engaged: the run ends
         elif gate.stop:
             r.stop_reason_pending = r.stop_reason_pending or gate.stop
 
@@ -510,18 +575,27 @@ class DriveLoop:
         """Step 3: engagement, override, the car's status. True: end the run now (never engaged)."""
         cfg, prof, fb, t = self.config, self.profile, r.fb, tk.t
         accepts = fb.flag("accepts_steer") and fb.flag("accepts_long")
-        tk.fresh = tk.period_ws is not None \
-            and not r.wd.feedback(t, tk.last_ws, max(tk.period_ws, 1e-3))
+        tk.fresh = tk.period_ws is not None and not r.wd.feedback(
+            t, tk.last_ws, max(tk.period_ws, 1e-3)
+        )
         src = getattr(self, "_source_engage", None)  # None: no command source (_poll_source)
-        if r.state == "disengaged" and t >= cfg.engage_at_s and tk.fresh and accepts \
-                and src is not False:
+        if (
+            r.state == "disengaged"
+            and t >= cfg.engage_at_s
+            and tk.fresh
+            and accepts
+            and src is not False
+        ):
             r.state, r.engaged_at = "engaged", t
         if r.state == "engaged":
             why = ""
             if not tk.fresh:
                 why = "feedback_loss"
-            elif abs(fb.item("driver_torque")) > prof.driver_torque_threshold \
-                    or fb.flag("brake_pressed") or fb.flag("gas_pressed"):
+            elif (
+                abs(fb.item("driver_torque")) > prof.driver_torque_threshold
+                or fb.flag("brake_pressed")
+                or fb.flag("gas_pressed")
+            ):
                 why = "driver_override"
             elif not accepts:
                 why = "vehicle_rejects"
@@ -539,8 +613,11 @@ class DriveLoop:
         elif r.state == "disengaged" and self._stop_request:
             r.stop["reason"] = self._stop_request  # never engaged: nothing to stop
             return True
-        elif r.state == "disengaged" and t > cfg.engage_at_s + 5.0 \
-                and not (src is False and tk.fresh and accepts):  # a source waits for its operator
+        elif (
+            r.state == "disengaged"
+            and t > cfg.engage_at_s + 5.0
+            and not (src is False and tk.fresh and accepts)
+        ):  # a source waits for its operator
             r.stop["reason"] = "car_not_accepting" if tk.fresh else "no_feedback"
             return True
         return False
@@ -572,8 +649,22 @@ class DriveLoop:
             self.adapter.commanded(t, r.sw_cmd, r.ap_cmd, r.bp_cmd, float(r.est[3]))
             self.adapt_cpu_s.append(self._adapt_pending_s + time.thread_time() - c0)
             self._adapt_pending_s = 0.0
-        record_row(r.trace, self.node, ref, t, t_ref, r.est, r.sw_cmd, tk.sw_meas, r.ap_cmd,
-                   r.bp_cmd, r.act.last_accel_req, res, engaged=1, stopping=0)
+        record_row(
+            r.trace,
+            self.node,
+            ref,
+            t,
+            t_ref,
+            r.est,
+            r.sw_cmd,
+            tk.sw_meas,
+            r.ap_cmd,
+            r.bp_cmd,
+            r.act.last_accel_req,
+            res,
+            engaged=1,
+            stopping=0,
+        )
         late = (self.clock.monotonic() - (r.mono0 + r.k * cfg.tick_s)) > cfg.control_period_s
         r.late_steps += int(late)
         why = r.wd.deadline(late)
@@ -583,23 +674,47 @@ class DriveLoop:
     def _stop_profile(self, r: _Run, tk: _Tick) -> None:
         """Step 5: the jerk-limited stop to standstill, then the hold (brake pedal ramp)."""
         cfg, t, v_meas = self.config, tk.t, tk.v_meas
-        if r.state == "stopping" and np.isfinite(v_meas) and tk.fresh \
-                and v_meas < cfg.standstill_mps and r.stop["t_s"] is not None:
+        if (
+            r.state == "stopping"
+            and np.isfinite(v_meas)
+            and tk.fresh
+            and v_meas < cfg.standstill_mps
+            and r.stop["t_s"] is not None
+        ):
             r.state = "holding"
             r.stop["standstill_t_s"] = t
             r.hold_from = t
         dt = cfg.tick_s
-        r.stop_accel = max(r.stop_accel - cfg.stop_jerk_mps3 * dt, -cfg.stop_decel_mps2) \
-            if r.state == "stopping" else cfg.hold_accel_mps2
+        r.stop_accel = (
+            max(r.stop_accel - cfg.stop_jerk_mps3 * dt, -cfg.stop_decel_mps2)
+            if r.state == "stopping"
+            else cfg.hold_accel_mps2
+        )
         z = self.params.zones[self.plant.zone_by_speed(v_meas if np.isfinite(v_meas) else 0.0)]
         target_bp = min(max((z.offset_mps2 - r.stop_accel) / z.brake_scale_mps2, 0.0), 1.0)
-        r.stop_bp = min(target_bp, r.stop_bp + cfg.stop_jerk_mps3 / z.brake_scale_mps2 * dt) \
-            if target_bp > r.stop_bp else target_bp
+        r.stop_bp = (
+            min(target_bp, r.stop_bp + cfg.stop_jerk_mps3 / z.brake_scale_mps2 * dt)
+            if target_bp > r.stop_bp
+            else target_bp
+        )
         r.ap_cmd, r.bp_cmd = 0.0, r.stop_bp
         if r.k % self.ctl_every == 0:
-            record_row(r.trace, self.node, self.reference, t, math.nan, r.est, r.sw_cmd,
-                       tk.sw_meas, r.ap_cmd, r.bp_cmd, r.act.last_accel_req, None, engaged=0,
-                       stopping=1)
+            record_row(
+                r.trace,
+                self.node,
+                self.reference,
+                t,
+                math.nan,
+                r.est,
+                r.sw_cmd,
+                tk.sw_meas,
+                r.ap_cmd,
+                r.bp_cmd,
+                r.act.last_accel_req,
+                None,
+                engaged=0,
+                stopping=1,
+            )
 
     def _send_frames(self, r: _Run, tk: _Tick) -> None:
         """Step 6: each command frame at its own rate, limited, checked, encoded and sent."""
@@ -611,17 +726,19 @@ class DriveLoop:
         if late:
             r.late_seen = r.fb.update(late, t)
         active = r.state in ("engaged", "stopping", "holding")
-        steer_active = r.state == "engaged" or (r.state in ("stopping", "holding")
-                                                and r.stop["reason"] not in ("driver_override",
-                                                                             "feedback_loss"))
+        steer_active = r.state == "engaged" or (
+            r.state in ("stopping", "holding")
+            and r.stop["reason"] not in ("driver_override", "feedback_loss")
+        )
         act, fb = r.act, r.fb
         for role, spec in self.profile.commands.items():
             if r.k % self.ticks[role]:
                 continue
             cnt = r.counters[role]  # advanced only when the frame left (below)
             if role == "steer_torque":
-                msg = act.steer_torque(fb, spec, cnt, t, tk.sw_meas, tk.v_meas, r.sw_cmd,
-                                       steer_active)
+                msg = act.steer_torque(
+                    fb, spec, cnt, t, tk.sw_meas, tk.v_meas, r.sw_cmd, steer_active
+                )
             elif role == "accel":
                 if r.state == "engaged":
                     a = self._accel_now(r.ap_cmd, r.bp_cmd, tk.v_meas)
@@ -633,24 +750,32 @@ class DriveLoop:
             elif role == "steer_angle":
                 msg = act.steer_angle(fb, spec, cnt, tk.sw_meas, tk.v_meas, r.sw_cmd, steer_active)
             elif role == "pedals":
-                msg = act.pedals(spec, cnt, r.ap_cmd, r.bp_cmd, active,
-                                 self.config.tick_s * self.ticks[role])
+                msg = act.pedals(
+                    spec, cnt, r.ap_cmd, r.bp_cmd, active, self.config.tick_s * self.ticks[role]
+                )
             else:  # heartbeat
                 msg = builders.bw_heartbeat(spec, active or t >= self.config.engage_at_s, cnt)
             ok = self._send(r, msg, t)
             if ok:
                 r.counters[role] = (cnt + 1) % max(spec.counter_modulo, 1)
-            if ok and r.state == "stopping" and r.stop["t_s"] is None \
-                    and role in ("accel", "pedals"):
-                r.stop["t_s"] = t   # the first stop command that left
+            if (
+                ok
+                and r.state == "stopping"
+                and r.stop["t_s"] is None
+                and role in ("accel", "pedals")
+            ):
+                r.stop["t_s"] = t  # the first stop command that left
 
     def _run_over(self, r: _Run, tk: _Tick) -> bool:
         """Step 7: the hold has lasted ``hold_s``, or the stop has timed out."""
         cfg, t = self.config, tk.t
         if r.state == "holding" and r.hold_from is not None and t - r.hold_from >= cfg.hold_s:
             return True
-        return r.state == "stopping" and r.stop["detected_t_s"] is not None \
+        return (
+            r.state == "stopping"
+            and r.stop["detected_t_s"] is not None
             and t - r.stop["detected_t_s"] > cfg.stop_timeout_s
+        )
 
     # ---------------------------------------------------------------- helpers
     def _accel_now(self, ap: float, bp: float, v_mps: float) -> float:

@@ -6,6 +6,7 @@ and the profile's status items (the car accepting commands, driver override, EPS
 It also learns the wheel speeds' period from their arrival times: the watchdog's stale-feedback
 rule counts in those periods.
 """
+
 from __future__ import annotations
 
 import math
@@ -28,11 +29,11 @@ class Feedback:
         self.profile = profile
         self.smap = profile.signal_map
         self.names = profile.feedback_messages()
-        self.channels: dict[str, tuple[float, float]] = {}   # channel -> (t_s, SI value)
-        self.items: dict[str, tuple[float, float]] = {}      # item -> (t_s, value)
+        self.channels: dict[str, tuple[float, float]] = {}  # channel -> (t_s, SI value)
+        self.items: dict[str, tuple[float, float]] = {}  # item -> (t_s, value)
         self.eps = deque([0.0] * ToyotaLimits().eps_samples, maxlen=ToyotaLimits().eps_samples)
-        self.ws_times: deque = deque(maxlen=40)    # ticks that decoded wheel speeds [s]
-        self.ws_counts: deque = deque(maxlen=40)   # wheel-speed frames in each of them
+        self.ws_times: deque = deque(maxlen=40)  # ticks that decoded wheel speeds [s]
+        self.ws_counts: deque = deque(maxlen=40)  # wheel-speed frames in each of them
         self.problems = Problems()
         by_msg: dict[str, list] = {}
         for ch in self.smap.channels.values():
@@ -55,13 +56,20 @@ class Feedback:
         data = np.zeros((n, 8), np.uint8)
         for i, m in enumerate(msgs):
             data[i, : len(m.data)] = np.frombuffer(bytes(m.data), np.uint8)[:8]
-        ft = FrameTable(np.full(n, t_s), np.zeros(n, np.int16),
-                        np.array([m.arbitration_id for m in msgs], np.uint32), np.zeros(n, bool),
-                        np.array([len(m.data) for m in msgs], np.uint8), data,
-                        np.arange(1, n + 1, dtype=np.int64), "<bus>")
+        ft = FrameTable(
+            np.full(n, t_s),
+            np.zeros(n, np.int16),
+            np.array([m.arbitration_id for m in msgs], np.uint32),
+            np.zeros(n, bool),
+            np.array([len(m.data) for m in msgs], np.uint8),
+            data,
+            np.arange(1, n + 1, dtype=np.int64),
+            "<bus>",
+        )
         present = {self.profile.db.get_message_by_frame_id(i).name for i in set(ft.arb_id.tolist())}
-        dec = decode_frames(ft, self.profile.db, self.problems,
-                            names=[x for x in self.names if x in present])
+        dec = decode_frames(
+            ft, self.profile.db, self.problems, names=[x for x in self.names if x in present]
+        )
         for name, d in dec.items():
             if len(d) == 0:
                 continue
@@ -110,4 +118,3 @@ class Feedback:
     def item(self, item: str, default: float = 0.0) -> float:
         x = self.items.get(item)
         return default if x is None else x[1]
-

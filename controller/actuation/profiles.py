@@ -27,6 +27,7 @@ Every key is checked: an unknown key, a missing one, a message or signal the DBC
 counter or checksum that does not fit its signal raises :class:`ParamError` naming the file,
 the YAML line and the key (``commands.steer_torque.rate_hz``). Nothing falls back to a default.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -53,18 +54,47 @@ ROLES: dict[str, tuple[str, ...]] = {
 NEEDS = {"torque": ("steer_torque", "accel"), "angle": ("steer_angle", "pedals", "heartbeat")}
 #: feedback items the drive loop understands: name -> (kind, required for steering kinds)
 FEEDBACK = {
-    "driver_torque": "value", "eps_torque": "value", "brake_pressed": "flag",
-    "gas_pressed": "flag", "accepts_steer": "flag", "accepts_long": "flag",
+    "driver_torque": "value",
+    "eps_torque": "value",
+    "brake_pressed": "flag",
+    "gas_pressed": "flag",
+    "accepts_steer": "flag",
+    "accepts_long": "flag",
     "rejected_frames": "value",
 }
-FEEDBACK_NEEDS = {"torque": ("driver_torque", "eps_torque", "brake_pressed", "gas_pressed",
-                             "accepts_steer", "accepts_long"),
-                  "angle": ("driver_torque", "brake_pressed", "gas_pressed", "accepts_steer",
-                            "accepts_long")}
-TOP_KEYS = ("profile", "note", "dbc", "signals", "bus", "steering", "limits", "commands",
-            "feedback", "driver_torque_threshold")
-COMMAND_KEYS = ("message", "rate_hz", "values", "enable", "counter", "checksum", "constants",
-                "note")
+FEEDBACK_NEEDS = {
+    "torque": (
+        "driver_torque",
+        "eps_torque",
+        "brake_pressed",
+        "gas_pressed",
+        "accepts_steer",
+        "accepts_long",
+    ),
+    "angle": ("driver_torque", "brake_pressed", "gas_pressed", "accepts_steer", "accepts_long"),
+}
+TOP_KEYS = (
+    "profile",
+    "note",
+    "dbc",
+    "signals",
+    "bus",
+    "steering",
+    "limits",
+    "commands",
+    "feedback",
+    "driver_torque_threshold",
+)
+COMMAND_KEYS = (
+    "message",
+    "rate_hz",
+    "values",
+    "enable",
+    "counter",
+    "checksum",
+    "constants",
+    "note",
+)
 FEEDBACK_KEYS = ("signal", "active", "invert", "note")
 LIMIT_SETS = ("toyota_panda", "bywire_iso11270")
 
@@ -163,8 +193,9 @@ def load_profile(path: str | Path) -> ActuationProfile:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
-        raise ParamError("not valid YAML", str(p),
-                         line=None if mark is None else mark.line + 1) from None
+        raise ParamError(
+            "not valid YAML", str(p), line=None if mark is None else mark.line + 1
+        ) from None
     return parse_profile(data, p, _key_lines(text))
 
 
@@ -179,8 +210,9 @@ def parse_profile(data: Any, path: Path, lines: dict | None = None) -> Actuation
             line = lines.get(tuple(str(k) for k in keys[:i]))
             if line is not None:
                 break
-        return ParamError(reason, spath, line=line,
-                          key=".".join(str(k) for k in keys) if keys else None)
+        return ParamError(
+            reason, spath, line=line, key=".".join(str(k) for k in keys) if keys else None
+        )
 
     if not isinstance(data, dict):
         raise err("an actuation profile must be a mapping")
@@ -235,9 +267,20 @@ def parse_profile(data: Any, path: Path, lines: dict | None = None) -> Actuation
     note = data.get("note")
     if note is not None and not isinstance(note, str):
         raise err("expected text", "note")
-    return ActuationProfile(spath, data["profile"], db, str(dbc_path), smap, int(bus),
-                            data["steering"], data["limits"], commands, feedback, float(thr),
-                            note)
+    return ActuationProfile(
+        spath,
+        data["profile"],
+        db,
+        str(dbc_path),
+        smap,
+        int(bus),
+        data["steering"],
+        data["limits"],
+        commands,
+        feedback,
+        float(thr),
+        note,
+    )
 
 
 def _find(*candidates: Path) -> Path | None:
@@ -287,8 +330,12 @@ def _command(role: str, entry: Any, db, err) -> CommandSpec:
     need = ROLES[role]
     for q in vals:
         if q not in need:
-            raise err(f"unknown quantity for role {role} (expected {', '.join(need) or 'none'})",
-                      *base, "values", q)
+            raise err(
+                f"unknown quantity for role {role} (expected {', '.join(need) or 'none'})",
+                *base,
+                "values",
+                q,
+            )
     for q in need:
         if q not in vals:
             raise err(f"missing quantity '{q}'", *base, "values")
@@ -311,12 +358,20 @@ def _command(role: str, entry: Any, db, err) -> CommandSpec:
             raise err("expected {signal: NAME, scheme: NAME}", *base, "checksum")
         sig = _signal(msg, ck["signal"], err, *base, "checksum", "signal")
         if ck["scheme"] not in SCHEMES:
-            raise err(f"unknown scheme (expected one of {', '.join(SCHEMES)})",
-                      *base, "checksum", "scheme")
+            raise err(
+                f"unknown scheme (expected one of {', '.join(SCHEMES)})",
+                *base,
+                "checksum",
+                "scheme",
+            )
         # both schemes write the last byte of the frame
         if sig.length != 8 or sig.is_signed or (msg.length - 1) * 8 != _lsb_start(sig):
-            raise err("the checksum must be the frame's last byte (unsigned, 8 bits)",
-                      *base, "checksum", "signal")
+            raise err(
+                "the checksum must be the frame's last byte (unsigned, 8 bits)",
+                *base,
+                "checksum",
+                "signal",
+            )
         checksum, scheme = ck["signal"], ck["scheme"]
     consts = entry.get("constants", {}) or {}
     if not isinstance(consts, dict):
@@ -329,15 +384,32 @@ def _command(role: str, entry: Any, db, err) -> CommandSpec:
         if not _number(v):
             raise err("expected a number", *base, "constants", s)
         sig = _signal(msg, s, err, *base, "constants", s)
-        lo, hi = (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed \
+        lo, hi = (
+            (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1)
+            if sig.is_signed
             else (0, (1 << sig.length) - 1)
+        )
         if v != int(v) or not lo <= v <= hi:
             # a constant is a raw value: it must fit the signal's bits as written
-            raise err(f"expected a whole raw value in {lo}..{hi} (a {sig.length}-bit "
-                      f"{'signed' if sig.is_signed else 'unsigned'} signal), got {v!r}",
-                      *base, "constants", s)
-    return CommandSpec(role, msg, float(rate), {q: vals[q] for q in need}, tuple(enable),
-                       counter, modulo, checksum, scheme, {str(k): v for k, v in consts.items()})
+            raise err(
+                f"expected a whole raw value in {lo}..{hi} (a {sig.length}-bit "
+                f"{'signed' if sig.is_signed else 'unsigned'} signal), got {v!r}",
+                *base,
+                "constants",
+                s,
+            )
+    return CommandSpec(
+        role,
+        msg,
+        float(rate),
+        {q: vals[q] for q in need},
+        tuple(enable),
+        counter,
+        modulo,
+        checksum,
+        scheme,
+        {str(k): v for k, v in consts.items()},
+    )
 
 
 def _lsb_start(sig) -> int:

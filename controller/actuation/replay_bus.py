@@ -14,6 +14,7 @@ moves when the loop sleeps (:class:`SimClock`):
 Nothing depends on the wall clock, so the same log and the same controller give the same frames
 byte for byte (openpilot's process replay does the same for its processes).
 """
+
 from __future__ import annotations
 
 import copy
@@ -63,17 +64,25 @@ class ReplaySource:
         i = self.pos
         self.pos += 1
         n = int(self.dlc[i])
-        return can.Message(timestamp=float(self.t_s[i]), arbitration_id=int(self.arb_id[i]),
-                           is_extended_id=bool(self.is_extended[i]), dlc=n,
-                           data=bytes(self.data[i, :n]), channel=channel, is_rx=True)
+        return can.Message(
+            timestamp=float(self.t_s[i]),
+            arbitration_id=int(self.arb_id[i]),
+            is_extended_id=bool(self.is_extended[i]),
+            dlc=n,
+            data=bytes(self.data[i, :n]),
+            channel=channel,
+            is_rx=True,
+        )
 
     def sent_sha256(self, decimals: int = 4) -> str:
         """sha256 over every sent frame's id, data and timestamp rounded to ``decimals`` [s]:
         equal for two runs that sent the same bytes at the same simulated times."""
         h = hashlib.sha256()
         for m in self.sent:
-            h.update(f"{m.arbitration_id:08x} {bytes(m.data).hex()} "
-                     f"{m.timestamp:.{decimals}f}\n".encode())
+            h.update(
+                f"{m.arbitration_id:08x} {bytes(m.data).hex()} "
+                f"{m.timestamp:.{decimals}f}\n".encode()
+            )
         return h.hexdigest()
 
 
@@ -89,7 +98,8 @@ class ReplayBus(can.BusABC):
     def __init__(self, channel=None, *, source: ReplaySource, clock: SimClock, **kwargs):
         if not isinstance(source, ReplaySource) or clock is None:
             raise can.CanInitializationError(
-                "hmpc_replay needs source=ReplaySource and clock=SimClock")
+                "hmpc_replay needs source=ReplaySource and clock=SimClock"
+            )
         self.source = source
         self.clock = clock
         self.channel_info = f"hmpc replay {channel or ''}".strip()

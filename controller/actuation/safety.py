@@ -15,6 +15,7 @@ By-wire angle profile: ISO 11270:2014 (lane keeping assistance systems), lateral
 and lateral jerk bounds, turned into a steering-wheel angle and rate per speed through the
 bicycle model (eq. 1) and the steering map (eq. 7) of the vehicle's parameter file.
 """
+
 from __future__ import annotations
 
 import math
@@ -85,8 +86,9 @@ class ToyotaTorqueLimiter:
         self.rt_ref = 0
         self.rt_t0_s = t_s
 
-    def clip(self, desired: float, t_s: float, eps_min: float, eps_max: float,
-             active: bool = True) -> int:
+    def clip(
+        self, desired: float, t_s: float, eps_min: float, eps_max: float, active: bool = True
+    ) -> int:
         """Args: desired torque [raw units]; t_s now [s]; eps_min/eps_max: min/max of the recent
         measured EPS torque [command units]; active: controls allowed (else 0)."""
         lim = self.limits
@@ -105,8 +107,9 @@ class ToyotaTorqueLimiter:
         if lo <= hi:
             out = int(min(max(round(desired), math.ceil(lo)), math.floor(hi)))
         else:  # no room (cannot happen from a state this limiter made): step towards 0
-            out = int(max(last - lim.max_rate_down, 0) if last > 0
-                      else min(last + lim.max_rate_down, 0))
+            out = int(
+                max(last - lim.max_rate_down, 0) if last > 0 else min(last + lim.max_rate_down, 0)
+            )
         if t_s - self.rt_t0_s >= lim.rt_interval_s:  # panda's window: checked, then moved
             self.rt_ref, self.rt_t0_s = out, t_s
         self.last = out
@@ -128,8 +131,8 @@ class ToyotaSteerCheck:
         self.desired_last = 0
         self.rt_last = 0
         self.ts_last_s = 0.0
-        self.valid_req = 0          # consecutive frames with the request bit matching
-        self.invalid_req = 0        # consecutive frames of torque without the request bit
+        self.valid_req = 0  # consecutive frames with the request bit matching
+        self.invalid_req = 0  # consecutive frames of torque without the request bit
         self.req_cut_last_s = -math.inf  # time of the last cut (or reset) [s]
 
     def eps_torque(self, eps_raw: float) -> None:
@@ -156,8 +159,11 @@ class ToyotaSteerCheck:
             lo = max(lo, min(last + lim.max_rate_down, min(mmin, 0) - lim.max_torque_error))
             if not reason and not lo <= torque <= hi:
                 reason = "torque rate / error vs EPS torque"
-            if not reason and not (min(self.rt_last, 0) - lim.max_rt_delta <= torque
-                                   <= max(self.rt_last, 0) + lim.max_rt_delta):
+            if not reason and not (
+                min(self.rt_last, 0) - lim.max_rt_delta
+                <= torque
+                <= max(self.rt_last, 0) + lim.max_rt_delta
+            ):
                 reason = "real-time delta over 250 ms"  # panda: rt_rate_limit_check
             if not reason and t_s - self.ts_last_s >= lim.rt_interval_s:
                 self.rt_last, self.ts_last_s = torque, t_s
@@ -196,8 +202,9 @@ class ToyotaSteerCheck:
         return reason
 
 
-def clip_accel(accel_mps2: float, limits: ToyotaLimits = ToyotaLimits(),
-               active: bool = True) -> float:
+def clip_accel(
+    accel_mps2: float, limits: ToyotaLimits = ToyotaLimits(), active: bool = True
+) -> float:
     """After the controller: the acceleration request inside the panda bounds; 0 when not
     active; a NaN becomes -1 m/s^2 (a controlled stop's request, not a jump to full braking)."""
     if not active:
@@ -257,8 +264,12 @@ class AngleLimits:
         if lock is not None:
             kw.setdefault("lock_rad", float(lock))
         assert params.steering is not None
-        return cls(float(params.vehicle.wheelbase_m), float(params.steering.offset_rad),
-                   float(params.steering.scale), **kw)
+        return cls(
+            float(params.vehicle.wheelbase_m),
+            float(params.steering.offset_rad),
+            float(params.steering.scale),
+            **kw,
+        )
 
     def angle_range_rad(self, v_mps: float) -> tuple[float, float]:
         """Allowed steering-wheel angles at speed v [rad]: those whose road-wheel angle (eq. 7,
@@ -338,8 +349,13 @@ class AngleCheck:
         return reason
 
 
-def clip_pedals(accel_pedal: float, brake_pedal: float, prev: tuple[float, float] | None,
-                dt_s: float, limits: AngleLimits) -> tuple[float, float]:
+def clip_pedals(
+    accel_pedal: float,
+    brake_pedal: float,
+    prev: tuple[float, float] | None,
+    dt_s: float,
+    limits: AngleLimits,
+) -> tuple[float, float]:
     """After the controller: pedals in [0, 1], pressing rate-limited, never both (the brake
     wins), below the deadband released. A NaN releases the throttle and keeps the brake."""
     ap, bp = float(accel_pedal), float(brake_pedal)
@@ -371,4 +387,3 @@ def pedals_ok(accel_pedal: float, brake_pedal: float, limits: AngleLimits) -> st
     if accel_pedal > limits.pedal_deadband and brake_pedal > limits.pedal_deadband:
         return "throttle with brake"
     return ""
-

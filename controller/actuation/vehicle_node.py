@@ -29,6 +29,7 @@ By-wire kit: the steering servo follows the angle command with a 50 ms lag and a
 safety driver holds the speed (as the Toyota's own cruise control does before openpilot
 takes over).
 """
+
 from __future__ import annotations
 
 import math
@@ -49,24 +50,36 @@ from hmpc.controller.actuation.profiles import ActuationProfile
 #: feedback message -> rate [Hz] the node publishes at. Toyota: frames per second of each id in
 #: the bundled comma2k19 minute (0x0AA 4974 frames / 60 s, 0x260 3000, 0x262 1499, 0x1D2 1890,
 #: 0x224 2487, 0x2C1 1890, 0x3BC about 1 Hz).
-TOYOTA_RATES_HZ = {"WHEEL_SPEEDS": 83.3, "STEER_ANGLE_SENSOR": 83.3, "KINEMATICS": 83.3,
-                   "STEER_TORQUE_SENSOR": 50.0, "EPS_STATUS": 25.0, "PCM_CRUISE": 31.5,
-                   "BRAKE_MODULE": 41.4, "GAS_PEDAL": 31.5, "GEAR_PACKET": 1.0}
+TOYOTA_RATES_HZ = {
+    "WHEEL_SPEEDS": 83.3,
+    "STEER_ANGLE_SENSOR": 83.3,
+    "KINEMATICS": 83.3,
+    "STEER_TORQUE_SENSOR": 50.0,
+    "EPS_STATUS": 25.0,
+    "PCM_CRUISE": 31.5,
+    "BRAKE_MODULE": 41.4,
+    "GAS_PEDAL": 31.5,
+    "GEAR_PACKET": 1.0,
+}
 #: the by-wire kit's report rates (its DBC's comments)
-BYWIRE_RATES_HZ = {"BW_STEER_REPORT": 100.0, "BW_PEDAL_REPORT": 50.0, "BW_WHEEL_SPEEDS": 50.0,
-                   "BW_STATUS": 10.0}
+BYWIRE_RATES_HZ = {
+    "BW_STEER_REPORT": 100.0,
+    "BW_PEDAL_REPORT": 50.0,
+    "BW_WHEEL_SPEEDS": 50.0,
+    "BW_STATUS": 10.0,
+}
 
 # The car's own limits (modelled): above panda's so that allowed frames never fault the car.
-EPS_MAX_TORQUE = 1800           # raw units; panda allows 1500
-EPS_MAX_STEP = 100              # raw units per frame, rising; panda allows 15 up (any drop to 0)
-ACC_MIN_MPS2, ACC_MAX_MPS2 = -5.0, 3.0   # panda allows -3.5 .. 2.0
-FAULT_S = 1.0                   # a fault lasts this long [s]
+EPS_MAX_TORQUE = 1800  # raw units; panda allows 1500
+EPS_MAX_STEP = 100  # raw units per frame, rising; panda allows 15 up (any drop to 0)
+ACC_MIN_MPS2, ACC_MAX_MPS2 = -5.0, 3.0  # panda allows -3.5 .. 2.0
+FAULT_S = 1.0  # a fault lasts this long [s]
 KIT_RATE_MAX_RADPS = 2 * math.pi
 # steering column (Toyota node): J th'' = G_EPS T + T_driver - (K0 + K2 v^2) th - C_COL th'
-J_COL = 0.04       # kg m^2, wheel + column + motor inertia at the wheel
-C_COL = 0.1        # N m s/rad, column damping
-K0, K2 = 0.3, 0.004   # N m/rad and N m s^2/(rad m^2): self-aligning stiffness felt at the wheel
-G_EPS = 0.005      # N m per raw torque unit at the wheel (1500 units = 7.5 N m)
+J_COL = 0.04  # kg m^2, wheel + column + motor inertia at the wheel
+C_COL = 0.1  # N m s/rad, column damping
+K0, K2 = 0.3, 0.004  # N m/rad and N m s^2/(rad m^2): self-aligning stiffness felt at the wheel
+G_EPS = 0.005  # N m per raw torque unit at the wheel (1500 units = 7.5 N m)
 KIT_ANGLE_MAX_RAD = 2.5 * math.pi
 
 
@@ -82,11 +95,14 @@ class NodeStats:
     max_gap_s: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return {"accepted": dict(self.accepted), "rejected": dict(self.rejected),
-                "rejected_total": int(sum(self.rejected.values())),
-                "faults": [{"t_s": round(t, 4), "what": w} for t, w in self.faults],
-                "published": dict(self.published),
-                "max_gap_s": {k: round(v, 4) for k, v in self.max_gap_s.items()}}
+        return {
+            "accepted": dict(self.accepted),
+            "rejected": dict(self.rejected),
+            "rejected_total": int(sum(self.rejected.values())),
+            "faults": [{"t_s": round(t, 4), "what": w} for t, w in self.faults],
+            "published": dict(self.published),
+            "max_gap_s": {k: round(v, 4) for k, v in self.max_gap_s.items()},
+        }
 
 
 class VehicleNode:
@@ -101,8 +117,16 @@ class VehicleNode:
         tick_s: the node's internal step [s].
     """
 
-    def __init__(self, profile: ActuationProfile, truth: Params, bus_kwargs: dict, *,
-                 start_state=None, effects=(), tick_s: float = 0.004):
+    def __init__(
+        self,
+        profile: ActuationProfile,
+        truth: Params,
+        bus_kwargs: dict,
+        *,
+        start_state=None,
+        effects=(),
+        tick_s: float = 0.004,
+    ):
         self.profile = profile
         self.plant = HybridPlant(truth)
         self.truth = truth
@@ -126,9 +150,9 @@ class VehicleNode:
         self._thread: threading.Thread | None = None
         self.t0: float | None = None
         # actuator state
-        self.sw_rad = 0.0        # steering-wheel angle
+        self.sw_rad = 0.0  # steering-wheel angle
         self.sw_rate = 0.0
-        self.eps_torque = 0.0    # motor torque [raw command units]
+        self.eps_torque = 0.0  # motor torque [raw command units]
         self.torque_req = 0.0
         self.steer_req = False
         self.last_torque_frame = 0.0
@@ -138,8 +162,8 @@ class VehicleNode:
         self.steer_enable = False
         self.pedal_cmd = (0.0, 0.0)
         self.pedal_enable = False
-        self.engaged = False     # kit engaged (heartbeat)
-        self.cruise_active = True   # the driver engaged cruise before the run (Toyota)
+        self.engaged = False  # kit engaged (heartbeat)
+        self.cruise_active = True  # the driver engaged cruise before the run (Toyota)
         self.fault_until = -1.0
         self.reject_until = -1.0
         self.driver_torque_until = -1.0
@@ -182,8 +206,13 @@ class VehicleNode:
 
     def snapshot(self) -> dict:
         with self._lock:
-            return {"state": self.state.copy(), "sw_rad": self.sw_rad, "ap": self.ap,
-                    "bp": self.bp, "accel_mps2": self.accel_mps2}
+            return {
+                "state": self.state.copy(),
+                "sw_rad": self.sw_rad,
+                "ap": self.ap,
+                "bp": self.bp,
+                "accel_mps2": self.accel_mps2,
+            }
 
     # ------------------------------------------------------------------- thread
     def _run(self) -> None:
@@ -216,8 +245,9 @@ class VehicleNode:
                         self._bus.send(self._feedback(name, t))
                         self.stats.published[name] = self.stats.published.get(name, 0) + 1
                         if name in last_pub:
-                            self.stats.max_gap_s[name] = max(self.stats.max_gap_s.get(name, 0.0),
-                                                             t - last_pub[name])
+                            self.stats.max_gap_s[name] = max(
+                                self.stats.max_gap_s.get(name, 0.0), t - last_pub[name]
+                            )
                         last_pub[name] = t
                     except can.CanError:
                         pass
@@ -234,8 +264,11 @@ class VehicleNode:
         data = bytes(msg.data)
         if len(data) != m.length:
             return self._reject("length")
-        if spec.checksum is not None and spec.scheme is not None \
-                and SCHEMES[spec.scheme](m.frame_id, data) != data[-1]:
+        if (
+            spec.checksum is not None
+            and spec.scheme is not None
+            and SCHEMES[spec.scheme](m.frame_id, data) != data[-1]
+        ):
             return self._reject("checksum")
         raw = m.decode(data, decode_choices=False, scaling=False)
         if spec.counter is not None:
@@ -282,8 +315,10 @@ class VehicleNode:
             self.torque_req, self.steer_req = (tq if req else 0.0), req
             self.last_torque_frame = t
         elif spec.role == "accel":
-            a = float(raw[sig["accel_mps2"]]) * spec.message.get_signal_by_name(
-                sig["accel_mps2"]).scale
+            a = (
+                float(raw[sig["accel_mps2"]])
+                * spec.message.get_signal_by_name(sig["accel_mps2"]).scale
+            )
             if not ACC_MIN_MPS2 <= a <= ACC_MAX_MPS2:
                 self.accel_req = 0.0
                 return self._fault(t, f"ACC: request {a:.2f} m/s^2 beyond the car's limits")
@@ -337,8 +372,12 @@ class VehicleNode:
         self.ap, self.bp = ap, bp
 
     def _toyota_actuators(self, t: float, dt: float, v: float):
-        active = self.steer_req and t < self.last_torque_frame + 0.05 and t >= self.fault_until \
+        active = (
+            self.steer_req
+            and t < self.last_torque_frame + 0.05
+            and t >= self.fault_until
             and not self._rejecting(t)
+        )
         target = self.torque_req if active else 0.0
         self.eps_torque += (target - self.eps_torque) * min(dt / 0.02, 1.0)
         k = K0 + K2 * v * v
@@ -355,8 +394,11 @@ class VehicleNode:
         if abs(self.sw_rad) > lock:
             self.sw_rad = math.copysign(lock, self.sw_rad)
             self.sw_rate = 0.0
-        long_ok = self.cruise_active and t < getattr(self, "_last_accel_frame", -1) + 0.15 \
+        long_ok = (
+            self.cruise_active
+            and t < getattr(self, "_last_accel_frame", -1) + 0.15
             and not self._rejecting(t)
+        )
         a_req = self.accel_req if long_ok else 0.0
         self.accel_filt += (a_req - self.accel_filt) * min(dt / 0.25, 1.0)
         if not long_ok:
@@ -364,7 +406,7 @@ class VehicleNode:
         return (self.sw_rad,) + self._pedals_for(self.accel_filt, v)
 
     def _kit_actuators(self, t: float, dt: float):
-        hb_ok = t < getattr(self, "_last_heartbeat", -1) + 0.3   # 3 missed 10 Hz heartbeats
+        hb_ok = t < getattr(self, "_last_heartbeat", -1) + 0.3  # 3 missed 10 Hz heartbeats
         ok = self.engaged and hb_ok and t >= self.fault_until and not self._rejecting(t)
         if ok and self.steer_enable and t < getattr(self, "_last_steer_frame", -1) + 0.05:
             err = self.angle_cmd - self.sw_rad
@@ -402,8 +444,9 @@ class VehicleNode:
         if ck is not None:
             scheme = "toyota" if self.toyota else "crc8_j1850"
             data[-1] = SCHEMES[scheme](m.frame_id, data)
-        return can.Message(arbitration_id=m.frame_id, data=bytes(data), is_extended_id=False,
-                           dlc=len(data))
+        return can.Message(
+            arbitration_id=m.frame_id, data=bytes(data), is_extended_id=False, dlc=len(data)
+        )
 
     def _wheels(self, v_front: float, scale: float) -> dict:
         """Speeds of the four wheels of a rigid car without slip [m/s], each read ``scale``
@@ -429,22 +472,32 @@ class VehicleNode:
         if name == "STEER_ANGLE_SENSOR":
             coarse = 1.5 * round(deg / 1.5)
             frac = min(max(round((deg - coarse) / 0.1) * 0.1, -0.7), 0.7)
-            return {"STEER_ANGLE": coarse, "STEER_FRACTION": frac,
-                    "STEER_RATE": math.degrees(self.sw_rate)}
+            return {
+                "STEER_ANGLE": coarse,
+                "STEER_FRACTION": frac,
+                "STEER_RATE": math.degrees(self.sw_rate),
+            }
         if name == "KINEMATICS":
-            return {"YAW_RATE": math.degrees(yaw), "ACCEL_X": -self.accel_mps2,
-                    "ACCEL_Y": -v * yaw}
+            return {"YAW_RATE": math.degrees(yaw), "ACCEL_X": -self.accel_mps2, "ACCEL_Y": -v * yaw}
         if name == "STEER_TORQUE_SENSOR":
             drv = 300.0 * self.driver_torque
-            return {"STEER_TORQUE_EPS": self.eps_torque / 0.73, "STEER_TORQUE_DRIVER": drv,
-                    "STEER_ANGLE": deg, "STEER_OVERRIDE": int(abs(drv) > 100)}
+            return {
+                "STEER_TORQUE_EPS": self.eps_torque / 0.73,
+                "STEER_TORQUE_DRIVER": drv,
+                "STEER_ANGLE": deg,
+                "STEER_OVERRIDE": int(abs(drv) > 100),
+            }
         if name == "EPS_STATUS":
             state = 25 if faulted else (5 if self.steer_req else 1)
             return {"LKA_STATE": state}
         if name == "PCM_CRUISE":
             act = self.cruise_active and not faulted
-            return {"CRUISE_ACTIVE": int(act), "GAS_RELEASED": 1, "CRUISE_STATE": 8 if act else 0,
-                    "ACCEL_NET": self.accel_mps2}
+            return {
+                "CRUISE_ACTIVE": int(act),
+                "GAS_RELEASED": 1,
+                "CRUISE_STATE": 8 if act else 0,
+                "ACCEL_NET": self.accel_mps2,
+            }
         if name == "BRAKE_MODULE":
             return {"BRAKE_PRESSED": 0}
         if name == "GAS_PEDAL":
@@ -452,18 +505,30 @@ class VehicleNode:
         if name == "GEAR_PACKET":
             return {"GEAR": 0}
         if name == "BW_STEER_REPORT":
-            return {"STEER_ANGLE": self.sw_rad, "STEER_TORQUE_DRIVER": 3.0 * self.driver_torque,
-                    "STEER_ENABLED": int(self.steer_enable and self.engaged),
-                    "STEER_OVERRIDE": int(self.driver_torque > 0), "COUNTER": self._pub_counter}
+            return {
+                "STEER_ANGLE": self.sw_rad,
+                "STEER_TORQUE_DRIVER": 3.0 * self.driver_torque,
+                "STEER_ENABLED": int(self.steer_enable and self.engaged),
+                "STEER_OVERRIDE": int(self.driver_torque > 0),
+                "COUNTER": self._pub_counter,
+            }
         if name == "BW_PEDAL_REPORT":
-            return {"ACCEL_PEDAL": self.ap, "BRAKE_PEDAL": self.bp,
-                    "PEDALS_ENABLED": int(self.pedal_enable and self.engaged),
-                    "ACCEL_OVERRIDE": 0, "BRAKE_OVERRIDE": 0, "COUNTER": self._pub_counter}
+            return {
+                "ACCEL_PEDAL": self.ap,
+                "BRAKE_PEDAL": self.bp,
+                "PEDALS_ENABLED": int(self.pedal_enable and self.engaged),
+                "ACCEL_OVERRIDE": 0,
+                "BRAKE_OVERRIDE": 0,
+                "COUNTER": self._pub_counter,
+            }
         if name == "BW_WHEEL_SPEEDS":
             return {f"WHEEL_SPEED_{w}": x for w, x in self._wheels(v, ws_scale).items()}
         if name == "BW_STATUS":
-            return {"SYSTEM_READY": int(not faulted), "ENGAGED": int(self.engaged),
-                    "FAULT": int(faulted),
-                    "REJECTED_FRAMES": int(sum(self.stats.rejected.values())) % 256,
-                    "COUNTER": self._pub_counter}
+            return {
+                "SYSTEM_READY": int(not faulted),
+                "ENGAGED": int(self.engaged),
+                "FAULT": int(faulted),
+                "REJECTED_FRAMES": int(sum(self.stats.rejected.values())) % 256,
+                "COUNTER": self._pub_counter,
+            }
         raise KeyError(name)

@@ -6,6 +6,7 @@ Reasons (stable strings, in the run JSON's ``stop.reason``): ``feedback_loss``,
 ``interrupted`` (Ctrl-C). A run that never engaged ends with ``no_feedback`` (no wheel speeds
 on the bus within 5 s) or ``car_not_accepting`` (the car's status never allowed commands).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -58,5 +59,8 @@ class Watchdog:
 
     def deadline(self, late: bool) -> str:
         self.consecutive_misses = self.consecutive_misses + 1 if late else 0
-        return "deadline_misses" if self.consecutive_misses >= self.config.deadline_misses_to_stop \
+        return (
+            "deadline_misses"
+            if self.consecutive_misses >= self.config.deadline_misses_to_stop
             else ""
+        )

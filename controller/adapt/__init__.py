@@ -12,6 +12,7 @@ history) and ``learned`` (the learned state as a parameter file: restore and sav
 May import ``hmpc.models`` (not ``hmpc.models.sim``); never ``hmpc.tools``, nor the rest of
 ``hmpc.controller``.
 """
+
 from hmpc.controller.adapt.adapter import LearnedModel, ModelAdapter
 from hmpc.controller.adapt.config import AdaptConfig
 

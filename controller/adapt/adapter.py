@@ -23,6 +23,7 @@ Cost: the learners work on Python floats and preallocated arrays; per control st
 of microseconds (``details.adaptation_details.cost_us`` of a run). What it reports is
 ``controller.adapt.report``'s.
 """
+
 from __future__ import annotations
 
 import math
@@ -31,9 +32,16 @@ from dataclasses import dataclass
 from hmpc.models.params import Params
 from hmpc.models.plant import plant_extensions
 
-from hmpc.controller.adapt.config import (KEY_LONG_DELAY, KEY_LONG_LAG, KEY_STEER_DELAY,
-                                          KEY_STEER_LAG, KEY_STEER_OFFSET, KEY_STEER_SCALE,
-                                          AdaptConfig, zone_key)
+from hmpc.controller.adapt.config import (
+    KEY_LONG_DELAY,
+    KEY_LONG_LAG,
+    KEY_STEER_DELAY,
+    KEY_STEER_LAG,
+    KEY_STEER_OFFSET,
+    KEY_STEER_SCALE,
+    AdaptConfig,
+    zone_key,
+)
 from hmpc.controller.adapt.longitudinal import ZoneLearner
 from hmpc.controller.adapt.report import History, adaptation_counts, adaptation_report
 from hmpc.controller.adapt.signals import PeriodSignals
@@ -78,10 +86,12 @@ def file_timing(params: Params) -> tuple[float, float, float, float]:
     parameter file, as the controller reads them."""
     ext, _st, _lon = plant_extensions(params)
     assert params.steering is not None
-    return (float(params.steering.dead_time_s or 0.0),
-            float(params.longitudinal_dead_time_s or 0.0),
-            ext.lag_steer_s if ext is not None else 0.0,
-            ext.lag_long_s if ext is not None else 0.0)
+    return (
+        float(params.steering.dead_time_s or 0.0),
+        float(params.longitudinal_dead_time_s or 0.0),
+        ext.lag_steer_s if ext is not None else 0.0,
+        ext.lag_long_s if ext is not None else 0.0,
+    )
 
 
 class ModelAdapter:
@@ -97,9 +107,16 @@ class ModelAdapter:
             the config's.
     """
 
-    def __init__(self, params: Params, period_s: float, config: AdaptConfig | None = None, *,
-                 inputs: str = "pedals", yaw_rate_noise_radps: float | None = None,
-                 accel_noise_mps2: float | None = None):
+    def __init__(
+        self,
+        params: Params,
+        period_s: float,
+        config: AdaptConfig | None = None,
+        *,
+        inputs: str = "pedals",
+        yaw_rate_noise_radps: float | None = None,
+        accel_noise_mps2: float | None = None,
+    ):
         if not params.is_model:
             raise ValueError("the online model estimator needs a complete model")
         c = self.cfg = config or AdaptConfig()
@@ -108,18 +125,20 @@ class ModelAdapter:
         veh = params.vehicle
         self.signals = PeriodSignals(c, float(veh.track_rear_m or veh.track_front_m))
         self.steering = SteeringLearner(params, c, yaw_rate_noise_radps or c.yaw_rate_noise_radps)
-        self.zones = ZoneLearner(params, c, period_s, inputs,
-                                 accel_noise_mps2 or c.accel_noise_mps2)
+        self.zones = ZoneLearner(
+            params, c, period_s, inputs, accel_noise_mps2 or c.accel_noise_mps2
+        )
         self.inputs = inputs
         # the response fits of the two channels (0 steering, 1 longitudinal), every
         # ``_fit_every`` control periods (the fit's period: about TIMING_PERIOD_S)
         self._fit_every = max(int(round(TIMING_PERIOD_S / period_s)), 1)
-        self.fit = ResponseFit(c, period_s * self._fit_every,
-                               (c.timing_steer_step_rad, c.timing_long_step_mps2))
-        self._fit_n = 0                 # commands summed into the fit's period
-        self._fit_periods = 0           # control periods ended in it
-        self._fit_cmd = [0.0, 0.0]      # the commands' sums
-        self._fit_y = [0.0, 0.0]        # their usable responses' sums, and counts
+        self.fit = ResponseFit(
+            c, period_s * self._fit_every, (c.timing_steer_step_rad, c.timing_long_step_mps2)
+        )
+        self._fit_n = 0  # commands summed into the fit's period
+        self._fit_periods = 0  # control periods ended in it
+        self._fit_cmd = [0.0, 0.0]  # the commands' sums
+        self._fit_y = [0.0, 0.0]  # their usable responses' sums, and counts
         self._fit_ny = [0, 0]
         self._cmd2 = [0.0, 0.0]
         self.timing_file = file_timing(params)
@@ -128,34 +147,40 @@ class ModelAdapter:
         self.zones.use_timing(self.timing_used[1], self.timing_used[3])
         self._v_max = [z.v_max_mps for z in params.zones]
         self._t_prev: float | None = None
-        self.t0_s: float | None = None   # time of the first learning step [s]
+        self.t0_s: float | None = None  # time of the first learning step [s]
         self._v_prev = math.nan
         self._sw_prev = math.nan
         self._t_timing = -math.inf
         self._drift_s = 0.0
-        self._force_push = False            # hand the model over at the next step (restore)
-        self._changed = False               # a learner moved since the last hand-over check
+        self._force_push = False  # hand the model over at the next step (restore)
+        self._changed = False  # a learner moved since the last hand-over check
         self._t_push = -math.inf
-        self._ab_num = self._ab_den = 0.0   # accelerometer bias: forgotten sums (learn)
+        self._ab_num = self._ab_den = 0.0  # accelerometer bias: forgotten sums (learn)
         self.events: list[tuple[float, str]] = []
-        self._coefs = ("offset_mps2", "scale_mps2", "brake_scale_mps2") if inputs == "pedals" \
+        self._coefs = (
+            ("offset_mps2", "scale_mps2", "brake_scale_mps2")
+            if inputs == "pedals"
             else ("offset_mps2", "accel_cmd_gain")
+        )
         self._plist = self._param_list()
         self.valid = [False] * len(self._plist)
         self.identified = [False] * len(self._plist)
         self._groups = [(self.steering.filter, [0, 1])] + [
             (zf, list(range(2 + zi * len(self._coefs), 2 + (zi + 1) * len(self._coefs))))
-            for zi, zf in enumerate(self.zones.filters)]
+            for zi, zf in enumerate(self.zones.filters)
+        ]
         self.keys = self._keys()
         self.initial = self._values_now()
         self._pushed_values = self._used_values()
         nz = len(params.zones)
-        self._push_tol = ([(c.push_offset_rad, 0.0), (0.0, c.push_scale_rel)]
-                          + [(c.push_zone_offset_mps2, 0.0)] * nz
-                          + [(0.0, c.push_gain_rel)] * (2 * nz)
-                          + [(0.5 * c.push_timing_s, 0.0)] * 4)
+        self._push_tol = (
+            [(c.push_offset_rad, 0.0), (0.0, c.push_scale_rel)]
+            + [(c.push_zone_offset_mps2, 0.0)] * nz
+            + [(0.0, c.push_gain_rel)] * (2 * nz)
+            + [(0.5 * c.push_timing_s, 0.0)] * 4
+        )
         self.history = History(len(self.keys), c.history_period_s)
-        self.cost_s: list = []   # not filled here: the loop times learn() and use_model()
+        self.cost_s: list = []  # not filled here: the loop times learn() and use_model()
 
     # ------------------------------------------------------------------ inputs
     def feed(self, m) -> None:
@@ -163,13 +188,23 @@ class ModelAdapter:
         ``values``): CAN wheel speeds, steering angle, yaw rate; IMU yaw rate, acceleration."""
         v = m.values
         if m.kind == "can":
-            self.signals.add_can(m.t_meas_s, v.get("wheel_speeds_mps"),
-                                 v.get("steering_wheel_angle_rad"), v.get("yaw_rate_radps"))
+            self.signals.add_can(
+                m.t_meas_s,
+                v.get("wheel_speeds_mps"),
+                v.get("steering_wheel_angle_rad"),
+                v.get("yaw_rate_radps"),
+            )
         elif m.kind == "imu":
             self.signals.add_imu(m.t_meas_s, v.get("yaw_rate_radps"), v.get("accel_x_mps2"))
 
-    def commanded(self, t_s: float, steering_wheel_angle_rad: float, accel_pedal: float,
-                  brake_pedal: float, v_mps: float | None = None) -> None:
+    def commanded(
+        self,
+        t_s: float,
+        steering_wheel_angle_rad: float,
+        accel_pedal: float,
+        brake_pedal: float,
+        v_mps: float | None = None,
+    ) -> None:
         """The command sent to the actuators at ``t_s`` [s] (held for one period); ``v_mps``
         the speed then (the zone of an acceleration request; default the last one)."""
         v = self._v_prev if v_mps is None else v_mps
@@ -186,8 +221,7 @@ class ModelAdapter:
         self._fit_n += 1
 
     # ------------------------------------------------------------------ learning
-    def learn(self, t_s: float, v_mps: float, gyro_bias_radps: float = 0.0
-              ) -> LearnedModel | None:
+    def learn(self, t_s: float, v_mps: float, gyro_bias_radps: float = 0.0) -> LearnedModel | None:
         """Learn from the period that ended at ``t_s`` [s] (module docstring); ``v_mps`` and
         ``gyro_bias_radps``: the state estimator's speed [m/s] and gyro bias [rad/s] now.
         Returns the model to hand over when it changed materially, else None."""
@@ -202,8 +236,9 @@ class ModelAdapter:
             return None
         dt = t_s - t_prev
         self._drift_s += dt
-        v_lo, v_hi = (min(v_prev, v_mps), max(v_prev, v_mps)) if v_prev == v_prev \
-            else (v_mps, v_mps)
+        v_lo, v_hi = (
+            (min(v_prev, v_mps), max(v_prev, v_mps)) if v_prev == v_prev else (v_mps, v_mps)
+        )
         v = 0.5 * (v_lo + v_hi)
         suspect = sig.suspect(t_s)
         changed = force = self._force_push
@@ -265,7 +300,7 @@ class ModelAdapter:
         usable when every control period of it was (a partly usable period teaches no
         timing)."""
         fit, fy, fn, k = self.fit, self._fit_y, self._fit_ny, self._fit_periods
-        fc, n = self._fit_cmd, self._fit_n   # the commands that acted over the period
+        fc, n = self._fit_cmd, self._fit_n  # the commands that acted over the period
         self._cmd2[0], self._cmd2[1] = fc[0] / n, fc[1] / n
         fit.command(t_s, self._cmd2)
         fc[0] = fc[1] = 0.0
@@ -293,9 +328,14 @@ class ModelAdapter:
             est = self.fit.estimate(k)
             self.timing_est[ch] = est
             d0, l0 = self.timing_file[i_d], self.timing_file[i_l]
-            if est is not None and est["valid"] and not (
+            if (
+                est is not None
+                and est["valid"]
+                and not (
                     est["delay_ci95_s"][0] <= d0 <= est["delay_ci95_s"][1]
-                    and est["lag_ci95_s"][0] <= l0 <= est["lag_ci95_s"][1]):
+                    and est["lag_ci95_s"][0] <= l0 <= est["lag_ci95_s"][1]
+                )
+            ):
                 d, lag = est["delay_s"], est["lag_s"]
             else:
                 d, lag = d0, l0
@@ -309,8 +349,10 @@ class ModelAdapter:
         """(KEY, filter, index, threshold, relative) of every filter parameter, in key order."""
         c = self.cfg
         f = self.steering.filter
-        out = [(KEY_STEER_OFFSET, f, OFFSET, c.valid_steer_offset_ci_rad, False),
-               (KEY_STEER_SCALE, f, SCALE, c.valid_steer_scale_rel_ci, True)]
+        out = [
+            (KEY_STEER_OFFSET, f, OFFSET, c.valid_steer_offset_ci_rad, False),
+            (KEY_STEER_SCALE, f, SCALE, c.valid_steer_scale_rel_ci, True),
+        ]
         for name, zf in zip(self.zones.names, self.zones.filters):
             for i, coef in enumerate(self._coefs):
                 thr = c.valid_offset_ci_mps2 if i == 0 else c.valid_gain_rel_ci
@@ -333,8 +375,11 @@ class ModelAdapter:
                 lim *= VALID_HYSTERESIS
             ident[j] = (f.updates[i] > 0 or f.restored) and 3.8416 * f.P[i][i] <= lim * lim
         for f, js in self._groups:
-            ok = ((f.restored or max(f.updates) >= MIN_UPDATES) and not any(f.at_bound)
-                  and f.rejects_run < f.widen_after // 2)
+            ok = (
+                (f.restored or max(f.updates) >= MIN_UPDATES)
+                and not any(f.at_bound)
+                and f.rejects_run < f.widen_after // 2
+            )
             for j in js:
                 valid[j] = ok
 
@@ -350,8 +395,10 @@ class ModelAdapter:
             return "the last samples disagree with it"
         if not self.identified[j]:
             lim = thr * abs(f.theta[i]) if rel else thr
-            return (f"not identified: its 95 % interval +-{1.96 * f.sigma(i):.4g} is wider "
-                    f"than {lim:.4g}")
+            return (
+                f"not identified: its 95 % interval +-{1.96 * f.sigma(i):.4g} is wider "
+                f"than {lim:.4g}"
+            )
         return ""
 
     def _used_values(self) -> list:
@@ -361,8 +408,10 @@ class ModelAdapter:
         valid, zl = self.valid, self.zones
         st = self.steering
         th = st.filter.theta
-        out = [th[OFFSET] if valid[0] else st.file[OFFSET],
-               th[SCALE] if valid[1] else st.file[SCALE]]
+        out = [
+            th[OFFSET] if valid[0] else st.file[OFFSET],
+            th[SCALE] if valid[1] else st.file[SCALE],
+        ]
         nz, nc = len(zl.names), len(self._coefs)
         zo, zs, zb = [0.0] * nz, [0.0] * nz, [0.0] * nz
         for zi, zf in enumerate(zl.filters):
@@ -374,14 +423,21 @@ class ModelAdapter:
                 zs[zi] = t[1] if valid[j0 + 1] else z.scale_mps2
                 zb[zi] = t[2] if valid[j0 + 2] else z.brake_scale_mps2
             else:  # offset and command gain act together on all three
-                zo[zi], zs[zi], zb[zi] = zl.effective(zi, (
-                    zf.theta[0] if valid[j0] else 0.0, zf.theta[1] if valid[j0 + 1] else 1.0))
+                zo[zi], zs[zi], zb[zi] = zl.effective(
+                    zi, (zf.theta[0] if valid[j0] else 0.0, zf.theta[1] if valid[j0 + 1] else 1.0)
+                )
         return out + zo + zs + zb + list(self.timing_used)
 
     def _model_of(self, u: list) -> LearnedModel:
         nz = len(self.zones.names)
-        return LearnedModel(u[0], u[1], tuple(u[2:2 + nz]), tuple(u[2 + nz:2 + 2 * nz]),
-                            tuple(u[2 + 2 * nz:2 + 3 * nz]), *u[2 + 3 * nz:])
+        return LearnedModel(
+            u[0],
+            u[1],
+            tuple(u[2 : 2 + nz]),
+            tuple(u[2 + nz : 2 + 2 * nz]),
+            tuple(u[2 + 2 * nz : 2 + 3 * nz]),
+            *u[2 + 3 * nz :],
+        )
 
     def model(self) -> LearnedModel:
         """The model in use now: each learned value while valid, the file's otherwise."""
@@ -394,8 +450,9 @@ class ModelAdapter:
         self._check_validity()
         for j, was in enumerate(prev):
             if was and not self.valid[j]:
-                self.events.append((t_s, f"{self._plist[j][0]}: {self._why_not(j)}; the "
-                                         "file's value is used"))
+                self.events.append(
+                    (t_s, f"{self._plist[j][0]}: {self._why_not(j)}; the file's value is used")
+                )
         u = self._used_values()
         p, tol = self._pushed_values, self._push_tol
         for a, b, (ta, tr) in zip(u, p, tol):
@@ -406,14 +463,20 @@ class ModelAdapter:
 
     # ------------------------------------------------------------------ results
     def _keys(self) -> list[str]:
-        return [k for k, *_ in self._plist] + [KEY_STEER_DELAY, KEY_STEER_LAG, KEY_LONG_DELAY,
-                                               KEY_LONG_LAG]
+        return [k for k, *_ in self._plist] + [
+            KEY_STEER_DELAY,
+            KEY_STEER_LAG,
+            KEY_LONG_DELAY,
+            KEY_LONG_LAG,
+        ]
 
     def _values_now(self) -> dict:
         """KEY -> (estimate, 1-sigma) now (the timing's sigma from its 95 % set)."""
         out = {k: (f.theta[i], f.sigma(i)) for k, f, i, _t, _r in self._plist}
-        for ch, (kd, kl), (i_d, i_l) in (("steering", (KEY_STEER_DELAY, KEY_STEER_LAG), (0, 2)),
-                                         ("longitudinal", (KEY_LONG_DELAY, KEY_LONG_LAG), (1, 3))):
+        for ch, (kd, kl), (i_d, i_l) in (
+            ("steering", (KEY_STEER_DELAY, KEY_STEER_LAG), (0, 2)),
+            ("longitudinal", (KEY_LONG_DELAY, KEY_LONG_LAG), (1, 3)),
+        ):
             est = self.timing_est[ch]
             if est is None:
                 out[kd] = (self.timing_file[i_d], math.nan)

@@ -8,6 +8,7 @@ learned value may leave the parameter file it started from before it is taken fo
 sensor or another car, not for the car's drift (openpilot's paramsd bounds the steer ratio to
 0.5-2x nominal for the same reason).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -17,6 +17,7 @@ A learned file belongs to one vehicle: its geometry and zones must be the model'
 (:func:`restore`); the bounds of a restored run stay those of the file the controller was
 given, so a learned state cannot walk away from it over many drives.
 """
+
 from __future__ import annotations
 
 import math
@@ -44,13 +45,17 @@ def _same_vehicle(params: Params, learned: Params, path: str) -> None:
     a, b = params.vehicle, learned.vehicle
     for key in ("wheelbase_m", "track_front_m"):
         if abs(getattr(a, key) - getattr(b, key)) > 1e-6:
-            raise InputError(f"learned for another vehicle ({key} {getattr(b, key):g}, the "
-                             f"model's {getattr(a, key):g})", path)
+            raise InputError(
+                f"learned for another vehicle ({key} {getattr(b, key):g}, the "
+                f"model's {getattr(a, key):g})",
+                path,
+            )
     za = [(z.name, z.v_min_mps, z.v_max_mps) for z in params.zones]
     zb = [(z.name, z.v_min_mps, z.v_max_mps) for z in learned.zones]
     if za != zb:
-        raise InputError("learned with other zones than the model's "
-                         f"({', '.join(n for n, *_ in zb)})", path)
+        raise InputError(
+            f"learned with other zones than the model's ({', '.join(n for n, *_ in zb)})", path
+        )
 
 
 def _sigma(ci, value: float, prior: float) -> float:
@@ -71,34 +76,44 @@ def restore(adapter: ModelAdapter, learned: Params, path: str) -> list[str]:
     st = learned.steering
     prior = [math.sqrt(c) for c in f.cap]
     assert st is not None
-    f.restore([st.offset_rad, st.scale],
-              [_sigma(st.offset_ci95_rad, st.offset_rad, prior[OFFSET]),
-               _sigma(st.scale_ci95, st.scale, prior[SCALE])])
+    f.restore(
+        [st.offset_rad, st.scale],
+        [
+            _sigma(st.offset_ci95_rad, st.offset_rad, prior[OFFSET]),
+            _sigma(st.scale_ci95, st.scale, prior[SCALE]),
+        ],
+    )
     notes.append(f"steering offset {f.theta[OFFSET]:.4f} rad, scale {f.theta[SCALE]:.4f}")
     zl = adapter.zones
     for zi, (z, zf) in enumerate(zip(learned.zones, zl.filters)):
         prior = [math.sqrt(c) for c in zf.cap]
         if zl.inputs == "pedals":
-            zf.restore([z.offset_mps2, z.scale_mps2, z.brake_scale_mps2],
-                       [_sigma(z.offset_ci95_mps2, z.offset_mps2, prior[0]),
-                        _sigma(z.scale_ci95_mps2, z.scale_mps2, prior[1]),
-                        _sigma(z.brake_scale_ci95_mps2, z.brake_scale_mps2, prior[2])])
+            zf.restore(
+                [z.offset_mps2, z.scale_mps2, z.brake_scale_mps2],
+                [
+                    _sigma(z.offset_ci95_mps2, z.offset_mps2, prior[0]),
+                    _sigma(z.scale_ci95_mps2, z.scale_mps2, prior[1]),
+                    _sigma(z.brake_scale_ci95_mps2, z.brake_scale_mps2, prior[2]),
+                ],
+            )
         else:  # the command response of eq. 8 of the file: gain, then offset
             fz = params.zones[zi]
             g = z.scale_mps2 / fz.scale_mps2
             ci = z.scale_ci95_mps2
-            zf.restore([z.offset_mps2 - g * fz.offset_mps2, g],
-                       [_sigma(z.offset_ci95_mps2, 0.0, prior[0]),
-                        _sigma(None if ci is None else [c / fz.scale_mps2 for c in ci], g,
-                               prior[1])])
+            zf.restore(
+                [z.offset_mps2 - g * fz.offset_mps2, g],
+                [
+                    _sigma(z.offset_ci95_mps2, 0.0, prior[0]),
+                    _sigma(None if ci is None else [c / fz.scale_mps2 for c in ci], g, prior[1]),
+                ],
+            )
         notes.append(f"zone {z.name}: " + ", ".join(f"{x:.3f}" for x in zf.theta))
     timing = _learned_timing(learned)
     if timing:
         for i, v in timing.items():
             adapter.timing_used[i] = v
         adapter.zones.use_timing(adapter.timing_used[1], adapter.timing_used[3])
-        notes.append("dead times and lags " + ", ".join(f"{v:.2f} s" for v in
-                                                        adapter.timing_used))
+        notes.append("dead times and lags " + ", ".join(f"{v:.2f} s" for v in adapter.timing_used))
     adapter.initial = adapter._values_now()
     adapter._force_push = True  # the restored model is handed over at the first step
     return notes
@@ -109,8 +124,10 @@ def _learned_timing(learned: Params) -> dict:
     file holds with an interval (learned ones; a value without one is the file's own)."""
     out = {}
     x = learned.extensions or {}
-    for eid, key, subs in (("actuator_delay", "delay_s", {"steering": 0, "longitudinal": 1}),
-                           ("actuator_lag", "tau_s", {"steering": 2, "longitudinal": 3})):
+    for eid, key, subs in (
+        ("actuator_delay", "delay_s", {"steering": 0, "longitudinal": 1}),
+        ("actuator_lag", "tau_s", {"steering": 2, "longitudinal": 3}),
+    ):
         for sub, i in subs.items():
             ent = x.get(eid, {}).get(sub, {})
             if key in ent and key in ent.get("intervals", {}):
@@ -131,27 +148,49 @@ def learned_params(adapter: ModelAdapter, *, run_s: float = 0.0) -> Params:
     def ci(filt, i, value):
         s = 1.96 * filt.sigma(i)
         return (value - s, value + s)
+
     assert p.steering is not None
-    steering = replace(p.steering, offset_rad=u[0], scale=u[1],
-                       offset_ci95_rad=ci(f, OFFSET, u[0]), scale_ci95=ci(f, SCALE, u[1]),
-                       dead_time_s=_timing_value(adapter, 0, p.steering.dead_time_s),
-                       note=_note(adapter, [0, 1]))
+    steering = replace(
+        p.steering,
+        offset_rad=u[0],
+        scale=u[1],
+        offset_ci95_rad=ci(f, OFFSET, u[0]),
+        scale_ci95=ci(f, SCALE, u[1]),
+        dead_time_s=_timing_value(adapter, 0, p.steering.dead_time_s),
+        note=_note(adapter, [0, 1]),
+    )
     zones = []
     nc = len(adapter._coefs)
     for zi, (z, zf) in enumerate(zip(p.zones, adapter.zones.filters)):
         off, sc, br = u[2 + zi], u[2 + nz + zi], u[2 + 2 * nz + zi]
         if adapter.zones.inputs == "pedals":
-            cis = {"offset_ci95_mps2": ci(zf, 0, off), "scale_ci95_mps2": ci(zf, 1, sc),
-                   "brake_scale_ci95_mps2": ci(zf, 2, br)}
+            cis = {
+                "offset_ci95_mps2": ci(zf, 0, off),
+                "scale_ci95_mps2": ci(zf, 1, sc),
+                "brake_scale_ci95_mps2": ci(zf, 2, br),
+            }
         else:  # the gain's interval scales the file's pedal gains
             g_s = 1.96 * zf.sigma(1)
-            cis = {"offset_ci95_mps2": ci(zf, 0, off),
-                   "scale_ci95_mps2": (sc - g_s * z.scale_mps2, sc + g_s * z.scale_mps2),
-                   "brake_scale_ci95_mps2": (br - g_s * z.brake_scale_mps2,
-                                             br + g_s * z.brake_scale_mps2)}
+            cis = {
+                "offset_ci95_mps2": ci(zf, 0, off),
+                "scale_ci95_mps2": (sc - g_s * z.scale_mps2, sc + g_s * z.scale_mps2),
+                "brake_scale_ci95_mps2": (
+                    br - g_s * z.brake_scale_mps2,
+                    br + g_s * z.brake_scale_mps2,
+                ),
+            }
         js = list(range(2 + zi * nc, 2 + (zi + 1) * nc))
-        zones.append(replace(z, offset_mps2=off, scale_mps2=sc, brake_scale_mps2=br,
-                             samples=float(max(zf.updates)), note=_note(adapter, js), **cis))
+        zones.append(
+            replace(
+                z,
+                offset_mps2=off,
+                scale_mps2=sc,
+                brake_scale_mps2=br,
+                samples=float(max(zf.updates)),
+                note=_note(adapter, js),
+                **cis,
+            )
+        )
     ext = {k: {s: dict(v) for s, v in subs.items()} for k, subs in (p.extensions or {}).items()}
     for ch, i_d, i_l in (("steering", 0, 2), ("longitudinal", 1, 3)):
         est = adapter.timing_est[ch]
@@ -159,15 +198,27 @@ def learned_params(adapter: ModelAdapter, *, run_s: float = 0.0) -> Params:
             continue
         ext.setdefault("actuator_delay", {})[ch] = {
             "delay_s": adapter.timing_used[i_d],
-            "intervals": {"delay_s": list(est["delay_ci95_s"])}}
+            "intervals": {"delay_s": list(est["delay_ci95_s"])},
+        }
         ext.setdefault("actuator_lag", {})[ch] = {
-            "tau_s": adapter.timing_used[i_l], "intervals": {"tau_s": list(est["lag_ci95_s"])}}
-    prov = {"source": "hmpc online model estimator (controller/adapt)",
-            "started_from": str(p.path), "run_s": round(float(run_s), 3)}
-    return replace(p, steering=steering, zones=zones,
-                   longitudinal_dead_time_s=_timing_value(adapter, 1,
-                                                          p.longitudinal_dead_time_s),
-                   extensions=ext, provenance=prov, not_identified={}, path=None)
+            "tau_s": adapter.timing_used[i_l],
+            "intervals": {"tau_s": list(est["lag_ci95_s"])},
+        }
+    prov = {
+        "source": "hmpc online model estimator (controller/adapt)",
+        "started_from": str(p.path),
+        "run_s": round(float(run_s), 3),
+    }
+    return replace(
+        p,
+        steering=steering,
+        zones=zones,
+        longitudinal_dead_time_s=_timing_value(adapter, 1, p.longitudinal_dead_time_s),
+        extensions=ext,
+        provenance=prov,
+        not_identified={},
+        path=None,
+    )
 
 
 def _timing_value(adapter: ModelAdapter, i: int, file_value):
@@ -209,6 +260,7 @@ def save_learned(params: Params, path: str | Path) -> str:
                 os.unlink(tmp)
             raise
     except OSError as exc:
-        raise InputError(f"cannot write the learned state ({exc.strerror or exc})",
-                         str(path)) from None
+        raise InputError(
+            f"cannot write the learned state ({exc.strerror or exc})", str(path)
+        ) from None
     return str(path)

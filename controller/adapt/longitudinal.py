@@ -19,6 +19,7 @@ gain only while that pedal is pressed (``long_pressed``; the command gain while 
 exceeds ``long_cmd_min_mps2``): a coefficient whose input the data does not exercise holds. A
 zone the car is not in holds all its values.
 """
+
 from __future__ import annotations
 
 from hmpc.models.params import Params
@@ -44,8 +45,14 @@ class ZoneLearner:
         accel_noise_mps2: the accelerometer's white noise (1-sigma) [m/s^2].
     """
 
-    def __init__(self, params: Params, config: AdaptConfig, period_s: float, inputs: str,
-                 accel_noise_mps2: float):
+    def __init__(
+        self,
+        params: Params,
+        config: AdaptConfig,
+        period_s: float,
+        inputs: str,
+        accel_noise_mps2: float,
+    ):
         if inputs not in INPUTS:
             raise ValueError(f"inputs must be one of {INPUTS}, got {inputs!r}")
         c = config
@@ -73,18 +80,36 @@ class ZoneLearner:
         bo, bg = c.long_offset_bound_mps2, c.long_gain_bound_rel
         if self.inputs == "pedals":
             th = [z.offset_mps2, z.scale_mps2, z.brake_scale_mps2]
-            return ParamFilter(th, [so, sg * th[1], sg * th[2]], [wo, wg * th[1], wg * th[2]],
-                               [th[0] - bo, th[1] * (1 - bg), th[2] * (1 - bg)],
-                               [th[0] + bo, th[1] * (1 + bg), th[2] * (1 + bg)],
-                               gate_chi2=c.gate_chi2, widen_after=c.reject_widen_after)
-        return ParamFilter([0.0, 1.0], [so, sg], [wo, wg], [-bo, 1 - bg], [bo, 1 + bg],
-                           gate_chi2=c.gate_chi2, widen_after=c.reject_widen_after)
+            return ParamFilter(
+                th,
+                [so, sg * th[1], sg * th[2]],
+                [wo, wg * th[1], wg * th[2]],
+                [th[0] - bo, th[1] * (1 - bg), th[2] * (1 - bg)],
+                [th[0] + bo, th[1] * (1 + bg), th[2] * (1 + bg)],
+                gate_chi2=c.gate_chi2,
+                widen_after=c.reject_widen_after,
+            )
+        return ParamFilter(
+            [0.0, 1.0],
+            [so, sg],
+            [wo, wg],
+            [-bo, 1 - bg],
+            [bo, 1 + bg],
+            gate_chi2=c.gate_chi2,
+            widen_after=c.reject_widen_after,
+        )
 
     def use_timing(self, delay_s: float, lag_s: float) -> None:
         """The dead time and lag [s] the commands act through (the ones in use)."""
         m, f, a1, b1, a2, b2 = lag_coefficients([delay_s], [lag_s], self.period_s)
-        self._timing = (int(m[0]), float(f[0]), float(a1[0]), float(b1[0]), float(a2[0]),
-                        float(b2[0]))
+        self._timing = (
+            int(m[0]),
+            float(f[0]),
+            float(a1[0]),
+            float(b1[0]),
+            float(a2[0]),
+            float(b2[0]),
+        )
 
     def commanded(self, inputs) -> None:
         """The commands issued now: (accel pedal, brake pedal) or (acceleration command,)."""
@@ -99,8 +124,9 @@ class ZoneLearner:
         for i, hist in enumerate(self._hist):
             if hist.count == 0:
                 continue
-            self._mean[i], self._e[i] = lagged_mean(self._e[i], hist.value(m + 1), hist.value(m),
-                                                    f, a1, b1, a2, b2)
+            self._mean[i], self._e[i] = lagged_mean(
+                self._e[i], hist.value(m + 1), hist.value(m), f, a1, b1, a2, b2
+            )
 
     def zone_of(self, v_lo_mps: float, v_hi_mps: float) -> int:
         """The zone a period with speeds in [v_lo, v_hi] [m/s] may teach, or -1: too slow,
@@ -110,8 +136,9 @@ class ZoneLearner:
             return -1
         z = zone_of_speed(v_lo_mps, self._v_max, clamp=True)
         margin = c.long_boundary_margin_mps
-        if (z > 0 and v_lo_mps - self._v_min[z] < margin) or \
-                (z < len(self._v_max) - 1 and self._v_max[z] - v_hi_mps < margin):
+        if (z > 0 and v_lo_mps - self._v_min[z] < margin) or (
+            z < len(self._v_max) - 1 and self._v_max[z] - v_hi_mps < margin
+        ):
             return -1
         return z
 
@@ -133,7 +160,7 @@ class ZoneLearner:
         else:
             h[1] = u[0]
             free[1] = abs(u[0]) > c.long_cmd_min_mps2
-        r = self._acc_var / max(n_acc, 1) + c.long_noise_floor_mps2 ** 2
+        r = self._acc_var / max(n_acc, 1) + c.long_noise_floor_mps2**2
         ok = self.filters[zone].update(h, accel_mps2, r, free)
         self.samples["used" if ok else "gated"] += 1
         return ok

@@ -28,6 +28,7 @@ falls back to its file for it.
 Everything is on Python floats in lists allocated once: a 2- or 3-parameter filter costs a few
 microseconds per update, without numpy's per-call overhead.
 """
+
 from __future__ import annotations
 
 import math
@@ -45,8 +46,7 @@ class ParamFilter:
         widen_after: consecutive gated-out updates before the filter widens to its prior.
     """
 
-    def __init__(self, theta0, sigma0, walk_per_rts, lo, hi, *, gate_chi2: float,
-                 widen_after: int):
+    def __init__(self, theta0, sigma0, walk_per_rts, lo, hi, *, gate_chi2: float, widen_after: int):
         n = len(theta0)
         self.n = n
         self.theta = [float(x) for x in theta0]
@@ -58,15 +58,15 @@ class ParamFilter:
         self.gate = float(gate_chi2)
         self.widen_after = int(widen_after)
         self.at_bound = [False] * n
-        self.updates = [0] * n       # accepted updates that moved each parameter
-        self.rejected = 0            # gated-out updates
-        self.widened = 0             # times the filter widened to its prior
-        self.rejects_run = 0         # consecutive gated-out updates
-        self.restored = False        # started from a saved state (learned before)
-        self._gate_open = False      # after widening, the next sample passes the gate
-        self._ph = [0.0] * n         # P h
+        self.updates = [0] * n  # accepted updates that moved each parameter
+        self.rejected = 0  # gated-out updates
+        self.widened = 0  # times the filter widened to its prior
+        self.rejects_run = 0  # consecutive gated-out updates
+        self.restored = False  # started from a saved state (learned before)
+        self._gate_open = False  # after widening, the next sample passes the gate
+        self._ph = [0.0] * n  # P h
         self._C = [[0.0] * n for _ in range(n)]  # a conditional covariance
-        self._k = [0.0] * n          # the gain
+        self._k = [0.0] * n  # the gain
 
     def restore(self, theta, sigma) -> None:
         """Start from ``theta`` with 1-sigma ``sigma`` (a saved state), within the bounds."""
@@ -179,8 +179,10 @@ class ParamFilter:
         ia, ib, iab = P[b][b] / det, P[a][a] / det, -P[a][b] / det
         for i in range(n):
             for j in range(n):
-                C[i][j] = P[i][j] - (P[i][a] * (ia * P[a][j] + iab * P[b][j])
-                                     + P[i][b] * (iab * P[a][j] + ib * P[b][j]))
+                C[i][j] = P[i][j] - (
+                    P[i][a] * (ia * P[a][j] + iab * P[b][j])
+                    + P[i][b] * (iab * P[a][j] + ib * P[b][j])
+                )
         return C
 
     def _widen(self) -> None:

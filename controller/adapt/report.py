@@ -4,15 +4,22 @@ start, end, 95 % interval, convergence time, validity and use), the counts of
 history the figures draw (:class:`History`). Reads a ``ModelAdapter``; computes nothing it
 did not record.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-from hmpc.controller.adapt.config import (KEY_LONG_DELAY, KEY_LONG_LAG, KEY_STEER_DELAY,
-                                          KEY_STEER_LAG, KEY_STEER_OFFSET, KEY_STEER_SCALE,
-                                          zone_key)
+from hmpc.controller.adapt.config import (
+    KEY_LONG_DELAY,
+    KEY_LONG_LAG,
+    KEY_STEER_DELAY,
+    KEY_STEER_LAG,
+    KEY_STEER_OFFSET,
+    KEY_STEER_SCALE,
+    zone_key,
+)
 
 
 def adaptation_report(ad, t0_s: float | None = None) -> dict:
@@ -30,8 +37,9 @@ def adaptation_report(ad, t0_s: float | None = None) -> dict:
     used = ad._used_values()
     nz = len(ad.zones.names)
     used_of = dict(zip((KEY_STEER_OFFSET, KEY_STEER_SCALE), used[:2]))
-    used_of.update(zip((KEY_STEER_DELAY, KEY_LONG_DELAY, KEY_STEER_LAG, KEY_LONG_LAG),
-                       used[2 + 3 * nz:]))
+    used_of.update(
+        zip((KEY_STEER_DELAY, KEY_LONG_DELAY, KEY_STEER_LAG, KEY_LONG_LAG), used[2 + 3 * nz :])
+    )
     if ad.zones.inputs == "pedals":
         for zi, name in enumerate(ad.zones.names):
             for k, coef in enumerate(ad._coefs):
@@ -40,10 +48,13 @@ def adaptation_report(ad, t0_s: float | None = None) -> dict:
     out = {}
     for j, key in enumerate(ad.keys):
         final, s = now[key]
-        ent = {"initial": float(ad.initial[key][0]), "final": float(final),
-               "ci95": None,
-               "converged_t_s": _converged(ad, key, t, vals[:, j], final, s, t0_s),
-               "used": used_of.get(key)}
+        ent = {
+            "initial": float(ad.initial[key][0]),
+            "final": float(final),
+            "ci95": None,
+            "converged_t_s": _converged(ad, key, t, vals[:, j], final, s, t0_s),
+            "used": used_of.get(key),
+        }
         if j < len(ad._plist):
             ent["ci95"] = [float(final - 1.96 * s), float(final + 1.96 * s)]
             ent["valid"] = bool(ad.valid[j])
@@ -63,6 +74,7 @@ def adaptation_report(ad, t0_s: float | None = None) -> dict:
                 ent["r2"] = est["r2"]
         out[key] = ent
     return out
+
 
 def _converged(ad, key, t, v, final, sigma, t0_s) -> float | None:
     """Seconds from ``t0_s`` after which the estimate stayed within its final interval
@@ -86,19 +98,22 @@ def _converged(ad, key, t, v, final, sigma, t0_s) -> float | None:
         return None
     return float(t[out[-1] + 1] - t0_s)
 
+
 def adaptation_counts(ad) -> dict:
     """Counts of adapter ``ad`` for ``details.adaptation``: samples used and gated, spikes
     dropped, wheel faults, widenings, the dead-time fits, the fall-back events."""
     fs = [ad.steering.filter] + ad.zones.filters
-    return {"steering_samples": dict(ad.steering.samples),
-            "zone_samples": dict(ad.zones.samples),
-            "spikes_dropped": dict(ad.signals.spikes),
-            "wheel_speed_faults": int(ad.signals.wheel_faults),
-            "widened": int(sum(f.widened for f in fs)),
-            "rejected": int(sum(f.rejected for f in fs)),
-            "inputs": ad.inputs,
-            "timing": {k: v for k, v in ad.timing_est.items()},
-            "events": [{"t_s": round(t, 3), "what": w} for t, w in ad.events]}
+    return {
+        "steering_samples": dict(ad.steering.samples),
+        "zone_samples": dict(ad.zones.samples),
+        "spikes_dropped": dict(ad.signals.spikes),
+        "wheel_speed_faults": int(ad.signals.wheel_faults),
+        "widened": int(sum(f.widened for f in fs)),
+        "rejected": int(sum(f.rejected for f in fs)),
+        "inputs": ad.inputs,
+        "timing": {k: v for k, v in ad.timing_est.items()},
+        "events": [{"t_s": round(t, 3), "what": w} for t, w in ad.events],
+    }
 
 
 class History:
@@ -126,4 +141,4 @@ class History:
         self.t_last = t_s
 
     def arrays(self):
-        return self.t[:self.n], self.v[:self.n], self.s[:self.n]
+        return self.t[: self.n], self.v[: self.n], self.s[: self.n]

@@ -16,6 +16,7 @@ cleared once per control step (:meth:`PeriodSignals.take`). The checks:
   and the periods of the next ``suspect_hold_s`` teach nothing (``suspect``);
 - non-finite values are absent. A GNSS outage needs no check: nothing here uses GNSS.
 """
+
 from __future__ import annotations
 
 import math
@@ -101,8 +102,9 @@ class PeriodSignals:
         if accel_x_mps2 is not None:
             self.add_accel(t_s, float(accel_x_mps2))
 
-    def add_can(self, t_s: float, wheel_speeds_mps=None, steering_wheel_angle_rad=None,
-                yaw_rate_radps=None) -> None:
+    def add_can(
+        self, t_s: float, wheel_speeds_mps=None, steering_wheel_angle_rad=None, yaw_rate_radps=None
+    ) -> None:
         """A CAN sample: the four wheel speeds (fl, fr, rl, rr) [m/s], the steering-wheel angle
         [rad], a yaw rate [rad/s] (None or non-finite: absent)."""
         if steering_wheel_angle_rad is not None:
@@ -129,8 +131,11 @@ class PeriodSignals:
         turn = self._track * abs(yaw)
         tol = self._wheel_tol
         front, rear = 0.5 * (fl + fr), 0.5 * (rl + rr)
-        if (abs(fl - fr) > turn + tol or abs(rl - rr) > turn + tol
-                or abs(front - rear) > 0.1 * front + tol):
+        if (
+            abs(fl - fr) > turn + tol
+            or abs(rl - rr) > turn + tol
+            or abs(front - rear) > 0.1 * front + tol
+        ):
             if t_s >= self._suspect_until:
                 self.wheel_faults += 1
             self._suspect_until = t_s + self._hold

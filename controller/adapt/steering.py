@@ -19,6 +19,7 @@ What a sample may teach (identification's reasoning, ``models.identify.steering`
 A sample's noise: the gyro's white noise over the period's samples, through ``b / v``, and a
 floor (``steer_noise_floor_rad``).
 """
+
 from __future__ import annotations
 
 import math
@@ -50,12 +51,17 @@ class SteeringLearner:
         self.file = (off0, sc0)
         self.b = float(params.vehicle.wheelbase_m)
         self.filter = ParamFilter(
-            [off0, sc0], [c.steer_offset_prior_rad, c.steer_scale_prior_rel * sc0],
-            [c.steer_offset_walk_rad_rth / _S_PER_RTH,
-             c.steer_scale_walk_rel_rth * sc0 / _S_PER_RTH],
+            [off0, sc0],
+            [c.steer_offset_prior_rad, c.steer_scale_prior_rel * sc0],
+            [
+                c.steer_offset_walk_rad_rth / _S_PER_RTH,
+                c.steer_scale_walk_rel_rth * sc0 / _S_PER_RTH,
+            ],
             [off0 - c.steer_offset_bound_rad, sc0 * (1.0 - c.steer_scale_bound_rel)],
             [off0 + c.steer_offset_bound_rad, sc0 * (1.0 + c.steer_scale_bound_rel)],
-            gate_chi2=c.gate_chi2, widen_after=c.reject_widen_after)
+            gate_chi2=c.gate_chi2,
+            widen_after=c.reject_widen_after,
+        )
         self._yaw_var = float(yaw_rate_noise_radps) ** 2
         self._h = [1.0, 0.0]
         self._free = [True, False]
@@ -66,13 +72,23 @@ class SteeringLearner:
         s = yaw_rate_radps * self.b / v_mps
         return math.asin(min(max(s, -0.99), 0.99))
 
-    def gate(self, v_mps: float, yaw_rate_radps: float, sw_rate_radps: float,
-             accel_mps2: float, suspect: bool) -> bool:
+    def gate(
+        self,
+        v_mps: float,
+        yaw_rate_radps: float,
+        sw_rate_radps: float,
+        accel_mps2: float,
+        suspect: bool,
+    ) -> bool:
         """Whether the period may teach the map at all (module docstring)."""
         c = self.cfg
-        return (v_mps >= c.steer_v_min_mps and abs(sw_rate_radps) <= c.steer_rate_max_radps
-                and abs(v_mps * yaw_rate_radps) <= c.steer_lat_accel_max_mps2
-                and abs(accel_mps2) <= c.steer_long_accel_max_mps2 and not suspect)
+        return (
+            v_mps >= c.steer_v_min_mps
+            and abs(sw_rate_radps) <= c.steer_rate_max_radps
+            and abs(v_mps * yaw_rate_radps) <= c.steer_lat_accel_max_mps2
+            and abs(accel_mps2) <= c.steer_long_accel_max_mps2
+            and not suspect
+        )
 
     def learn(self, v_mps: float, yaw_rate_radps: float, n_yaw: int, sw_rad: float) -> bool:
         """One gated sample (call :meth:`gate` first): the period's speed [m/s], yaw rate less
@@ -85,8 +101,8 @@ class SteeringLearner:
         turning = abs(sw_rad - sw_straight) >= c.steer_scale_sw_min_rad
         self._free[SCALE] = turning and v_mps <= c.steer_scale_v_max_mps
         self._h[SCALE] = sw_rad
-        g = self.b / (v_mps * max(math.cos(delta), 0.1))   # d delta / d r
-        r = g * g * self._yaw_var / max(n_yaw, 1) + c.steer_noise_floor_rad ** 2
+        g = self.b / (v_mps * max(math.cos(delta), 0.1))  # d delta / d r
+        r = g * g * self._yaw_var / max(n_yaw, 1) + c.steer_noise_floor_rad**2
         ok = self.filter.update(self._h, delta, r, self._free)
         if ok:
             self.samples["used"] += 1

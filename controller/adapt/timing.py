@@ -21,6 +21,7 @@ it is valid once ``timing_min_excited_s`` of excited data (a command that change
 within ``timing_excited_after_s``) went into the sums and the fit explains the response (R^2
 of at least ``MIN_R2``).
 """
+
 from __future__ import annotations
 
 import math
@@ -45,7 +46,7 @@ class CommandHistory:
     def __init__(self, capacity: int, initial: float = 0.0):
         self.cap = int(capacity)
         self.ring = np.full(self.cap, float(initial))
-        self.k = 0          # index of the next write
+        self.k = 0  # index of the next write
         self.count = 0
 
     def push(self, value: float) -> None:
@@ -76,8 +77,9 @@ def lag_coefficients(delay_s, tau_s, period_s: float):
     return m.astype(np.int64), f, out[0], out[1], out[2], out[3]
 
 
-def lagged_mean(e: float, u1: float, u2: float, f: float, a1: float, b1: float, a2: float,
-                b2: float) -> tuple[float, float]:
+def lagged_mean(
+    e: float, u1: float, u2: float, f: float, a1: float, b1: float, a2: float, b2: float
+) -> tuple[float, float]:
     """One period of a delayed, lagged command (scalars): from lag output ``e``, input ``u1``
     for the first ``f`` of the period then ``u2``; returns (mean output, output at the end)."""
     m1 = u1 + (e - u1) * b1
@@ -138,8 +140,8 @@ class ResponseFit:
         self._u1, self._u2, self._d, self._w, self._t = (np.zeros(shape) for _ in range(5))
         self.sw, self.sy, self.syy = np.zeros(nc), np.zeros(nc), np.zeros(nc)
         self._wy = np.zeros(nc)
-        self.weight = np.zeros(nc)        # this period's weight per channel (0: unusable)
-        self.y = np.zeros(nc)             # this period's measured response per channel
+        self.weight = np.zeros(nc)  # this period's weight per channel (0: unusable)
+        self.y = np.zeros(nc)  # this period's measured response per channel
         self.excited_s = [0.0] * nc
         self._last_change_t = [-math.inf] * nc
         self._last_cmd = [math.nan] * nc
@@ -193,8 +195,7 @@ class ResponseFit:
         for ch in range(self.channels):
             if w[ch] > 0:
                 excited = t_s - self._last_change_t[ch] <= self._excited_for
-                self.excited_s[ch] = lam * self.excited_s[ch] + (self.period_s if excited
-                                                                 else 0.0)
+                self.excited_s[ch] = lam * self.excited_s[ch] + (self.period_s if excited else 0.0)
         np.multiply(self.sw, lam, out=self.sw)
         np.add(self.sw, w, out=self.sw)
         np.multiply(w, y, out=self._wy)
@@ -231,7 +232,12 @@ class ResponseFit:
         d_in, l_in = self.delay_s[ok], self.lag_s[ok]
         r2 = 1.0 - best / syy
         valid = self.excited_s[ch] >= self._min_excited and r2 >= MIN_R2
-        return {"delay_s": float(self.delay_s[i]), "lag_s": float(self.lag_s[i]),
-                "delay_ci95_s": [float(d_in.min()), float(d_in.max())],
-                "lag_ci95_s": [float(l_in.min()), float(l_in.max())],
-                "r2": float(r2), "excited_s": float(self.excited_s[ch]), "valid": bool(valid)}
+        return {
+            "delay_s": float(self.delay_s[i]),
+            "lag_s": float(self.lag_s[i]),
+            "delay_ci95_s": [float(d_in.min()), float(d_in.max())],
+            "lag_ci95_s": [float(l_in.min()), float(l_in.max())],
+            "r2": float(r2),
+            "excited_s": float(self.excited_s[ch]),
+            "valid": bool(valid),
+        }

@@ -7,6 +7,7 @@ the front-wheel point of eq. 1) and three slowly varying sensor/model errors:
 ``wheel_speed_scale`` (see controller/estimator/ekf.py). ``SENSORS``: the measurement
 streams whose accepted and rejected updates :attr:`Estimator.stats` counts.
 """
+
 from __future__ import annotations
 
 import math
@@ -14,8 +15,15 @@ from dataclasses import dataclass
 
 NXE = 7  #: estimator state size
 IX, IY, IPSI, IV, IDOFF, IBR, IKWS = range(NXE)
-STATE_NAMES = ("x_m", "y_m", "psi_rad", "v_mps", "delta_offset_rad", "gyro_bias_radps",
-               "wheel_speed_scale")
+STATE_NAMES = (
+    "x_m",
+    "y_m",
+    "psi_rad",
+    "v_mps",
+    "delta_offset_rad",
+    "gyro_bias_radps",
+    "wheel_speed_scale",
+)
 SENSORS = ("can_speed", "wheel_yaw_rate", "can_yaw_rate", "imu_yaw_rate", "gnss")
 
 
@@ -90,8 +98,9 @@ class EstimatorConfig:
 
     def __post_init__(self):
         if not 0.5 < self.gate_probability < 1.0:
-            raise ValueError("gate_probability must be within (0.5, 1), got "
-                             f"{self.gate_probability}")
+            raise ValueError(
+                f"gate_probability must be within (0.5, 1), got {self.gate_probability}"
+            )
         if self.history_events < 16:
             raise ValueError("history_events must be at least 16")
         if not self.max_step_s > 0:
@@ -104,12 +113,14 @@ class EstimatorConfig:
         quant = 0.01 / 3.6 / math.sqrt(12.0)  # WHEEL_SPEEDS 0.01 km/h step
         wheel = math.hypot(k * sensors.wheel_jitter_mps, quant)
         track = 1.6  # nominal; only sets a noise level
-        kw = dict(can_speed_mps=math.hypot(k * sensors.speed_noise_mps, wheel / 2.0),
-                  wheel_yaw_rate_radps=math.sqrt(2.0) * wheel / track,
-                  can_yaw_rate_radps=k * sensors.can_yaw_rate_noise_radps,
-                  imu_yaw_rate_radps=k * sensors.gyro_noise_radps,
-                  gnss_position_m=max(k * sensors.position_noise_m, 1e-4),
-                  gnss_heading_rad=max(k * sensors.heading_noise_rad, 1e-5),
-                  gnss_speed_mps=max(k * sensors.gnss_speed_noise_mps, 1e-3))
+        kw = dict(
+            can_speed_mps=math.hypot(k * sensors.speed_noise_mps, wheel / 2.0),
+            wheel_yaw_rate_radps=math.sqrt(2.0) * wheel / track,
+            can_yaw_rate_radps=k * sensors.can_yaw_rate_noise_radps,
+            imu_yaw_rate_radps=k * sensors.gyro_noise_radps,
+            gnss_position_m=max(k * sensors.position_noise_m, 1e-4),
+            gnss_heading_rad=max(k * sensors.heading_noise_rad, 1e-5),
+            gnss_speed_mps=max(k * sensors.gnss_speed_noise_mps, 1e-3),
+        )
         kw.update(overrides)
         return cls(**kw)

@@ -52,6 +52,7 @@ few ulps; each GNSS update symmetrises it exactly); a GNSS update solves ``S^-1 
 by Cholesky (LAPACK ``dposv``); what it still allocates is its few small products.
 ``tools/bench_mpc.py`` prints the estimator's time per control period.
 """
+
 from __future__ import annotations
 
 import math
@@ -66,8 +67,18 @@ from hmpc.models.params import Params
 from hmpc.models.plant import HybridPlant
 from hmpc.models.zones import zone_with_hysteresis
 
-from hmpc.controller.estimator.config import IBR, IDOFF, IKWS, IPSI, IV, IX, IY, NXE, SENSORS, \
-    EstimatorConfig
+from hmpc.controller.estimator.config import (
+    IBR,
+    IDOFF,
+    IKWS,
+    IPSI,
+    IV,
+    IX,
+    IY,
+    NXE,
+    SENSORS,
+    EstimatorConfig,
+)
 
 
 def float_view(a: np.ndarray) -> memoryview[float]:
@@ -89,8 +100,13 @@ def _zone_bands(v_min_mps, v_max_mps, hysteresis_mps: float) -> list[tuple[float
     estimator calls the rule itself (``tests/estimator/test_estimator_speed.py`` checks they
     agree)."""
     n = len(v_max_mps)
-    return [(-math.inf if z == 0 else v_min_mps[z] - hysteresis_mps,
-             v_max_mps[z] + hysteresis_mps if z < n - 1 else math.inf) for z in range(n)]
+    return [
+        (
+            -math.inf if z == 0 else v_min_mps[z] - hysteresis_mps,
+            v_max_mps[z] + hysteresis_mps if z < n - 1 else math.inf,
+        )
+        for z in range(n)
+    ]
 
 
 class Ekf:
@@ -111,8 +127,9 @@ class Ekf:
         self.plant = plant = HybridPlant(params)
         veh = params.vehicle
         self._b = float(veh.wheelbase_m)
-        self._track_r = float(veh.track_rear_m if veh.track_rear_m is not None
-                              else veh.track_front_m)
+        self._track_r = float(
+            veh.track_rear_m if veh.track_rear_m is not None else veh.track_front_m
+        )
         assert params.steering is not None  # is_model
         self._off = float(params.steering.offset_rad)
         self._scale = float(params.steering.scale)
@@ -143,17 +160,38 @@ class Ekf:
         self._tmp = np.zeros((NXE, NXE))
         self._u4 = np.zeros(3)
         self._prediction_buffers = (self._F, self._FT, self._Fm, self._P, self._tmp, self._Pflat)
-        self._q = np.array([cfg.position_walk_m_rts, cfg.position_walk_m_rts,
-                            cfg.heading_walk_rad_rts, cfg.speed_walk_mps_rts,
-                            cfg.delta_offset_walk_rad_rts, cfg.gyro_bias_walk_radps_rts,
-                            cfg.wheel_scale_walk_rts]) ** 2
-        self._q_imu_v = cfg.speed_walk_imu_mps_rts ** 2
+        self._q = (
+            np.array(
+                [
+                    cfg.position_walk_m_rts,
+                    cfg.position_walk_m_rts,
+                    cfg.heading_walk_rad_rts,
+                    cfg.speed_walk_mps_rts,
+                    cfg.delta_offset_walk_rad_rts,
+                    cfg.gyro_bias_walk_radps_rts,
+                    cfg.wheel_scale_walk_rts,
+                ]
+            )
+            ** 2
+        )
+        self._q_imu_v = cfg.speed_walk_imu_mps_rts**2
         self._q_imu = self._q.copy()  # the same with the IMU driving the speed
         self._q_imu[IV] = self._q_imu_v
         self._diag = self._P.reshape(-1)[:: NXE + 1]  # a view on P's diagonal
-        self._init_var = np.array([cfg.init_position_m, cfg.init_position_m, cfg.init_heading_rad,
-                                   cfg.init_speed_mps, cfg.init_delta_offset_rad,
-                                   cfg.init_gyro_bias_radps, cfg.init_wheel_scale]) ** 2
+        self._init_var = (
+            np.array(
+                [
+                    cfg.init_position_m,
+                    cfg.init_position_m,
+                    cfg.init_heading_rad,
+                    cfg.init_speed_mps,
+                    cfg.init_delta_offset_rad,
+                    cfg.init_gyro_bias_radps,
+                    cfg.init_wheel_scale,
+                ]
+            )
+            ** 2
+        )
         # update buffers per dimension m = 1..4 (GNSS)
         self._H = {m: np.zeros((m, NXE)) for m in range(1, 5)}
         self._PHt = {m: np.zeros((NXE, m)) for m in range(1, 5)}
@@ -168,16 +206,18 @@ class Ekf:
         self._Rm = {m: float_view(self._R[m]) for m in range(1, 5)}
         # one-value updates: a row H per measurement (its zeros never change; its other
         # elements written through a memoryview) and P H'
-        self._h_speed = np.zeros(NXE)                  # IV, IKWS, IDOFF
-        self._h_yaw = np.zeros(NXE)                    # IV, IDOFF; IBR = 1
+        self._h_speed = np.zeros(NXE)  # IV, IKWS, IDOFF
+        self._h_yaw = np.zeros(NXE)  # IV, IDOFF; IBR = 1
         self._h_yaw[IBR] = 1.0
-        self._h_wyaw = np.zeros(NXE)                   # IV, IDOFF, IKWS
-        self._hm_speed, self._hm_yaw, self._hm_wyaw = (float_view(h) for h in (
-            self._h_speed, self._h_yaw, self._h_wyaw))
+        self._h_wyaw = np.zeros(NXE)  # IV, IDOFF, IKWS
+        self._hm_speed, self._hm_yaw, self._hm_wyaw = (
+            float_view(h) for h in (self._h_speed, self._h_yaw, self._h_wyaw)
+        )
         self._ph1 = np.zeros(NXE)
-        self._r_speed = cfg.can_speed_mps ** 2
-        self.stats: dict[str, dict[str, float]] = {s: {"accepted": 0, "rejected": 0}
-                                                  for s in SENSORS}
+        self._r_speed = cfg.can_speed_mps**2
+        self.stats: dict[str, dict[str, float]] = {
+            s: {"accepted": 0, "rejected": 0} for s in SENSORS
+        }
         self.stats["gnss"].update(too_old=0, replays=0, reinit=0, latency_max_s=0.0)
         self._counting = True
         self._clear_held()
@@ -270,12 +310,12 @@ class Ekf:
         # speed row has no state in it
         c, s = math.cos(psi + delta), math.sin(psi + delta)
         F, FT, Fm, P, tmp, Pflat = self._prediction_buffers
-        Fm[2] = Fm[4] = -v * s * dt           # x row: d/dpsi, d/ddelta_offset
-        Fm[3] = c * dt                        # x row: d/dv
-        Fm[9] = Fm[11] = v * c * dt           # y row: d/dpsi, d/ddelta_offset
-        Fm[10] = s * dt                       # y row: d/dv
-        Fm[17] = sd / b * dt                  # psi row: d/dv
-        Fm[18] = v * cd / b * dt              # psi row: d/ddelta_offset
+        Fm[2] = Fm[4] = -v * s * dt  # x row: d/dpsi, d/ddelta_offset
+        Fm[3] = c * dt  # x row: d/dv
+        Fm[9] = Fm[11] = v * c * dt  # y row: d/dpsi, d/ddelta_offset
+        Fm[10] = s * dt  # y row: d/dv
+        Fm[17] = sd / b * dt  # psi row: d/dv
+        Fm[18] = v * cd / b * dt  # psi row: d/ddelta_offset
         F.dot(P, out=tmp)
         tmp.dot(FT, out=P)
         # P's diagonal += q dt, in place (every NXE + 1-th element of the flat P)
@@ -412,18 +452,18 @@ class Ekf:
             H[NXE + IPSI] = lx * c - ly * s
             y[0] = gx - (xm[IX] + lx * c - ly * s)
             y[1] = gy - (xm[IY] + lx * s + ly * c)
-            R[0] = R[1] = cfg.gnss_position_m ** 2
+            R[0] = R[1] = cfg.gnss_position_m**2
             i = 2
         if gh == gh:
             H[NXE * i + IPSI] = 1.0
             y[i] = gh - xm[IPSI]
-            R[i] = cfg.gnss_heading_rad ** 2
+            R[i] = cfg.gnss_heading_rad**2
             angle_row = i
             i += 1
         if gv == gv:
             H[NXE * i + IV] = 1.0
             y[i] = gv - xm[IV]
-            R[i] = cfg.gnss_speed_mps ** 2
+            R[i] = cfg.gnss_speed_mps**2
         ok = self._update(m, "gnss", angle_row)
         if ok:
             self._gnss_rejects = 0

@@ -32,6 +32,7 @@ is rejected and counted (``too_old``).
 Allocation: the log's buffers are allocated once in ``__init__``; what is still allocated per
 event is the log's tuples (the event, the held inputs after it).
 """
+
 from __future__ import annotations
 
 import bisect
@@ -43,10 +44,15 @@ import numpy as np
 from hmpc.models.params import Params
 from hmpc.models.plant import IAP, IBP, ISW
 
-from hmpc.controller.estimator.config import IBR, IDOFF, IKWS, IV, NXE, STATE_NAMES, \
-    EstimatorConfig
-from hmpc.controller.estimator.ekf import (EVENT_CAN, EVENT_GNSS, EVENT_IMU, EVENT_TICK, Ekf,
-                                          float_view)
+from hmpc.controller.estimator.config import IBR, IDOFF, IKWS, IV, NXE, STATE_NAMES, EstimatorConfig
+from hmpc.controller.estimator.ekf import (
+    EVENT_CAN,
+    EVENT_GNSS,
+    EVENT_IMU,
+    EVENT_TICK,
+    Ekf,
+    float_view,
+)
 
 
 def _value(v) -> float:
@@ -185,8 +191,9 @@ class Estimator(Ekf):
             u0, u1, u2 = self._u
         else:
             u0, u1, u2 = float(u[ISW]), float(u[IAP]), float(u[IBP])
-        if not (math.isfinite(t_s) and math.isfinite(u0) and math.isfinite(u1)
-                and math.isfinite(u2)):
+        if not (
+            math.isfinite(t_s) and math.isfinite(u0) and math.isfinite(u1) and math.isfinite(u2)
+        ):
             raise ValueError(f"predict needs a finite time and input, got t_s={t_s!r}, u={u!r}")
         if not self.initialized:
             self._u[:] = (u0, u1, u2)
@@ -196,8 +203,14 @@ class Estimator(Ekf):
         self._apply(EVENT_TICK, t, u0, u1, u2, math.nan)
         self._log(EVENT_TICK, t, u0, u1, u2, math.nan)
 
-    def update_can(self, t_s: float, wheel_speeds_mps=None, steering_wheel_angle_rad=None,
-                   yaw_rate_radps=None, speed_mps=None) -> None:
+    def update_can(
+        self,
+        t_s: float,
+        wheel_speeds_mps=None,
+        steering_wheel_angle_rad=None,
+        yaw_rate_radps=None,
+        speed_mps=None,
+    ) -> None:
         """A CAN message (or several of one instant): any of the four wheel speeds (fl, fr, rl,
         rr) [m/s], or their mean ``speed_mps``; the steering-wheel angle [rad]; the yaw rate
         [rad/s] (KINEMATICS). Stamped earlier than :attr:`time_s`: applied now. None or a
@@ -235,8 +248,15 @@ class Estimator(Ekf):
         self._apply(EVENT_IMU, t, yaw, ax, math.nan, math.nan)
         self._log(EVENT_IMU, t, yaw, ax, math.nan, math.nan)
 
-    def update_gnss(self, t_meas_s: float, t_now_s: float | None = None, x_m=None, y_m=None,
-                    heading_rad=None, speed_mps=None) -> bool:
+    def update_gnss(
+        self,
+        t_meas_s: float,
+        t_now_s: float | None = None,
+        x_m=None,
+        y_m=None,
+        heading_rad=None,
+        speed_mps=None,
+    ) -> bool:
         """A GNSS/INS fix measured at ``t_meas_s`` arriving at ``t_now_s`` (default: the
         measurement time, no latency). Any of position (both ``x_m`` and ``y_m``), heading,
         speed. A fix older than the filter's time is applied at ``t_meas_s`` by rewinding
@@ -260,8 +280,11 @@ class Estimator(Ekf):
         g["latency_max_s"] = max(g["latency_max_s"], t_now - t_meas)
         if not self.initialized:
             if x == x and h == h:
-                v0 = v if v == v else (self._last_speed if self._last_speed == self._last_speed
-                                       else 0.0)
+                v0 = (
+                    v
+                    if v == v
+                    else (self._last_speed if self._last_speed == self._last_speed else 0.0)
+                )
                 self.reset(t_meas, (x, y, h, v0))  # keeps the held inputs
                 self._count("gnss", True)
                 return True
@@ -281,14 +304,24 @@ class Estimator(Ekf):
         ``t_meas_s``, ``t_arrival_s`` and ``values``)."""
         v = m.values
         if m.kind == "can":
-            self.update_can(m.t_meas_s, v.get("wheel_speeds_mps"),
-                            v.get("steering_wheel_angle_rad"), v.get("yaw_rate_radps"),
-                            v.get("speed_mps"))
+            self.update_can(
+                m.t_meas_s,
+                v.get("wheel_speeds_mps"),
+                v.get("steering_wheel_angle_rad"),
+                v.get("yaw_rate_radps"),
+                v.get("speed_mps"),
+            )
         elif m.kind == "imu":
             self.update_imu(m.t_meas_s, v.get("yaw_rate_radps"), v.get("accel_x_mps2"))
         elif m.kind == "gnss":
-            self.update_gnss(m.t_meas_s, m.t_arrival_s if t_now_s is None else t_now_s,
-                             v.get("x_m"), v.get("y_m"), v.get("heading_rad"), v.get("speed_mps"))
+            self.update_gnss(
+                m.t_meas_s,
+                m.t_arrival_s if t_now_s is None else t_now_s,
+                v.get("x_m"),
+                v.get("y_m"),
+                v.get("heading_rad"),
+                v.get("speed_mps"),
+            )
         else:
             raise ValueError(f"unknown measurement kind {m.kind!r}")
 
@@ -301,19 +334,29 @@ class Estimator(Ekf):
         """Record the filter after event ``i``: state and covariance into the preallocated
         arrays (flat memoryview copies), the held inputs as one tuple."""
         k = i * NXE
-        self._ev_xm[k:k + NXE] = self._xm
+        self._ev_xm[k : k + NXE] = self._xm
         k *= NXE
-        self._ev_Pm[k:k + NXE * NXE] = self._Pm
+        self._ev_Pm[k : k + NXE * NXE] = self._Pm
         u = self._u
-        self._ev_aux[i] = (self._t, u[0], u[1], u[2], self._sw_meas, self._t_sw, self._a_imu,
-                           self._t_aimu, self._zone)
+        self._ev_aux[i] = (
+            self._t,
+            u[0],
+            u[1],
+            u[2],
+            self._sw_meas,
+            self._t_sw,
+            self._a_imu,
+            self._t_aimu,
+            self._zone,
+        )
 
     def _restore(self, i: int) -> None:
         """Rewind the filter to just after event ``i``."""
         self._x[:] = self._ev_x[i]
         self._P[:] = self._ev_P[i]
-        (self._t, u0, u1, u2, self._sw_meas, self._t_sw, self._a_imu, self._t_aimu,
-         self._zone) = self._ev_aux[i]
+        (self._t, u0, u1, u2, self._sw_meas, self._t_sw, self._a_imu, self._t_aimu, self._zone) = (
+            self._ev_aux[i]
+        )
         self._u[0], self._u[1], self._u[2] = u0, u1, u2
 
     def _make_room(self) -> None:
@@ -354,8 +397,8 @@ class Estimator(Ekf):
                 return None
         # shift the events i..n-1 up by one (their snapshots are all rewritten below)
         ev = self._ev
-        ev[i + 1:n + 1] = ev[i:n]
-        self._ev_t[i + 1:n + 1] = self._ev_t[i:n]
+        ev[i + 1 : n + 1] = ev[i:n]
+        self._ev_t[i + 1 : n + 1] = self._ev_t[i:n]
         ev[i] = (EVENT_GNSS, t_meas, gx, gy, gh, gv)
         self._ev_t[i] = t_meas
         self._ev_n = n + 1

@@ -2,6 +2,7 @@
 recording's raw channels (e.g. the real comma2k19 minute) to :class:`Estimator`, each at its
 own times; ``tools/estimate_plot.py`` plots the result.
 """
+
 from __future__ import annotations
 
 import math
@@ -38,8 +39,14 @@ def _source_of(rec, channel: str) -> str:
     return src.split(":", 1)[0] if src else ""
 
 
-def estimate_recording(rec, params: Params, config: EstimatorConfig | None = None, *,
-                       tick_s: float = 0.02, gnss_latency_s: float = 0.0) -> EstimateRun:
+def estimate_recording(
+    rec,
+    params: Params,
+    config: EstimatorConfig | None = None,
+    *,
+    tick_s: float = 0.02,
+    gnss_latency_s: float = 0.0,
+) -> EstimateRun:
     """Run the estimator over a canonical recording's raw channels, each at its own times.
 
     Streams (``rec.raw``, falling back to the grid when a channel has no raw samples): the four
@@ -71,7 +78,8 @@ def estimate_recording(rec, params: Params, config: EstimatorConfig | None = Non
     yaw, ax = stream("yaw_rate"), stream("accel_x")
     gx, gy, gh, gv = stream("x"), stream("y"), stream("heading"), stream("gps_speed")
     wheels_ok = all(w is not None for w in wheels) and all(
-        np.array_equal(w[0], wheels[0][0]) for w in wheels)
+        np.array_equal(w[0], wheels[0][0]) for w in wheels
+    )
     if wheels_ok:
         events += [(t, 0, i, "wheels") for i, t in enumerate(wheels[0][0])]
     if sw is not None:
@@ -79,8 +87,12 @@ def estimate_recording(rec, params: Params, config: EstimatorConfig | None = Non
     yaw_on_can = _source_of(rec, "yaw_rate") == "can"
     if yaw is not None:
         events += [(t, 1, i, "yaw") for i, t in enumerate(yaw[0])]
-    imu_ax = ax is not None and yaw is not None and np.array_equal(ax[0], yaw[0]) \
+    imu_ax = (
+        ax is not None
+        and yaw is not None
+        and np.array_equal(ax[0], yaw[0])
         and _source_of(rec, "accel_x") != "can"
+    )
     events += [(t + gnss_latency_s, 2, i, "gnss") for i, t in enumerate(gx[0])]
     events.sort()
     grid = rec.time
@@ -101,6 +113,7 @@ def estimate_recording(rec, params: Params, config: EstimatorConfig | None = Non
 
     def fin(v):
         return None if v is None or not math.isfinite(v) else float(v)
+
     k = 0
     for j, tk in enumerate(ticks):
         while k < len(events) and events[k][0] <= tk:
@@ -129,12 +142,21 @@ def estimate_recording(rec, params: Params, config: EstimatorConfig | None = Non
                 x, y = fin(gx[1][i]), fin(gy_v[i])
                 if x is None or y is None:
                     x = y = None
-                est.update_gnss(t_meas, t, x, y, fin(None if gh_on is None else gh_on[i]),
-                                fin(None if gv_on is None else gv_on[i]))
+                est.update_gnss(
+                    t_meas,
+                    t,
+                    x,
+                    y,
+                    fin(None if gh_on is None else gh_on[i]),
+                    fin(None if gv_on is None else gv_on[i]),
+                )
                 counts["gnss"] += 1
         g = min(max(int(np.searchsorted(grid, tk, side="right")) - 1, 0), len(grid) - 1)
-        u = (swg[g] if math.isfinite(swg[g]) else 0.0, ap[g] if math.isfinite(ap[g]) else 0.0,
-             bp[g] if math.isfinite(bp[g]) else 0.0)
+        u = (
+            swg[g] if math.isfinite(swg[g]) else 0.0,
+            ap[g] if math.isfinite(ap[g]) else 0.0,
+            bp[g] if math.isfinite(bp[g]) else 0.0,
+        )
         est.predict(tk, u)
         if est.initialized:
             out_x[j] = est._x

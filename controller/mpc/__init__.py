@@ -7,6 +7,7 @@ which ties them together; the NMPC, controller/nmpc.py, subclasses it).
 May import ``hmpc.models`` (not ``hmpc.models.sim``) and the shared controller modules
 (base, horizon, limits, modes); never ``hmpc.tools``.
 """
+
 from hmpc.controller.mpc.config import MpcConfig
 from hmpc.controller.mpc.controller import MpcController
 from hmpc.controller.mpc.zone_rules import preferred_zone

@@ -5,6 +5,7 @@ Weights are per second of horizon (tracking) or per change (effort), so the bala
 move when ``dt_s`` changes. ``__post_init__`` checks the report's ordering (section VI:
 velocity effort above steering effort, also for the smoothness terms).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -15,8 +16,8 @@ class MpcConfig:
     """MPC tuning. Weights are per second of horizon (tracking) or per change (effort), so
     the balance does not move when ``dt_s`` changes."""
 
-    horizon_s: float = 10.0        # horizon length: 10-15 s
-    dt_s: float = 0.2              # QP stage length: 0.1 or 0.2 s
+    horizon_s: float = 10.0  # horizon length: 10-15 s
+    dt_s: float = 0.2  # QP stage length: 0.1 or 0.2 s
     # tracking
     # per m^2 of lateral error, per s. The lateral loop's bandwidth: the estimate's position
     # error (about 1 cm RMS at the default sensors, correlated over seconds) is followed
@@ -26,8 +27,8 @@ class MpcConfig:
     # +-1 deg at 8 m/s to follow mm of estimate error). 2 keeps the tracking at a few cm
     # (tests/test_smooth_control.py, docs/results.md)
     w_lateral: float = 2.0
-    w_heading: float = 4.0         # per rad^2 of heading error, per s
-    w_speed: float = 10.0          # per (m/s)^2 of speed error, per s
+    w_heading: float = 4.0  # per rad^2 of heading error, per s
+    w_speed: float = 10.0  # per (m/s)^2 of speed error, per s
     # effort on the change of an input per stage, normalised to its range (steering-wheel
     # angle / its max, pedals as fractions). Report VI: velocity effort above steering.
     w_speed_effort: float = 4.0
@@ -66,22 +67,22 @@ class MpcConfig:
     # weight ending in a step bends every steering plan just past it, and the bend reaches
     # the wheel as a reversal a few steps later
     replan_window_s: float = 1.0
-    w_pedal_level: float = 0.02    # per pedal^2 per s: prefer the lighter pedal
-    w_steer_level: float = 0.02    # per (sw - feedforward)^2 / max^2 per s
+    w_pedal_level: float = 0.02  # per pedal^2 per s: prefer the lighter pedal
+    w_steer_level: float = 0.02  # per (sw - feedforward)^2 / max^2 per s
     # terminal LQR input weights (per rad^2 of steering wheel, per (m/s^2)^2)
     r_terminal_steer: float = 0.05
     r_terminal_accel: float = 2.0
     # soft constraints: linear (exact) penalty per unit of violation per s
-    w_limit_violation: float = 100.0   # accel [m/s^2], jerk [m/s^2 per stage]
-    w_standstill: float = 500.0        # speed below 0 [m/s]
-    w_floor: float = 10.0              # speed below the minimum-speed floor [m/s]
-    w_transition: float = 10.0         # speed outside the current zone's band [m/s]; 0 = off
+    w_limit_violation: float = 100.0  # accel [m/s^2], jerk [m/s^2 per stage]
+    w_standstill: float = 500.0  # speed below 0 [m/s]
+    w_floor: float = 10.0  # speed below the minimum-speed floor [m/s]
+    w_transition: float = 10.0  # speed outside the current zone's band [m/s]; 0 = off
     w_slack_quadratic: float = 1.0
     w_speed_max: float = 100.0
     # zone-transition rule (report VI)
-    transition_accel_tol_mps2: float = 0.2   # "no acceleration change": spread <= tol
-    transition_window_s: float = 1.0         # checked this long either side of the crossing
-    transition_dwell_s: float = 2.0          # the reference must stay in the new zone this long
+    transition_accel_tol_mps2: float = 0.2  # "no acceleration change": spread <= tol
+    transition_window_s: float = 1.0  # checked this long either side of the crossing
+    transition_dwell_s: float = 2.0  # the reference must stay in the new zone this long
     # the band kept is the zone's hysteresis band narrowed by this margin [m/s], so that
     # tracking error and the controller's 10 Hz view of the speed do not let the plant cross
     transition_band_margin_mps: float = 0.15
@@ -112,7 +113,7 @@ class MpcConfig:
     # hold): 5
     capped_prim_tol: float = 0.5
     capped_dual_tol: float = 5.0
-    eps_abs: float = 1e-3          # 1 mm, 1 mm/s: far below what the plant can act on
+    eps_abs: float = 1e-3  # 1 mm, 1 mm/s: far below what the plant can act on
     eps_rel: float = 1e-3
     # OSQP: test convergence every this many iterations. Warm-started (shifted primal and
     # dual) the QP converges in a few tens of iterations: a sparser test runs far past that
@@ -131,39 +132,65 @@ class MpcConfig:
     # but with a less converged steering plan (the MPC/NMPC agreement test,
     # tests/controller/test_nmpc.py)
     admm_alpha: float = 1.2
-    time_limit_s: float = 0.0      # 0: none (OSQP time_limit)
+    time_limit_s: float = 0.0  # 0: none (OSQP time_limit)
     cold_start_iterations: int = 3  # SQP iterations when no previous plan exists
     accept_inaccurate: bool = True  # OSQP "solved inaccurate" is used (status says so)
     warm_start_shifted: bool = True  # warm-start x with the shifted plan (else OSQP's last x, y)
 
     def __post_init__(self):
         n = self.horizon_s / self.dt_s
-        if not (self.dt_s > 0 and self.horizon_s > 0 and abs(n - round(n)) < 1e-6
-                and round(n) >= 2):
+        if not (
+            self.dt_s > 0 and self.horizon_s > 0 and abs(n - round(n)) < 1e-6 and round(n) >= 2
+        ):
             raise ValueError("MpcConfig: horizon_s must be a whole number (>= 2) of dt_s steps")
         if not self.w_speed_effort > self.w_steer_effort:
-            raise ValueError("MpcConfig: the report (section VI) weights velocity effort above "
-                             "steering effort: need w_speed_effort > w_steer_effort")
-        for name in ("w_lateral", "w_heading", "w_speed", "w_steer_effort", "w_slack_quadratic",
-                     "r_terminal_steer", "r_terminal_accel", "w_limit_violation", "w_standstill"):
+            raise ValueError(
+                "MpcConfig: the report (section VI) weights velocity effort above "
+                "steering effort: need w_speed_effort > w_steer_effort"
+            )
+        for name in (
+            "w_lateral",
+            "w_heading",
+            "w_speed",
+            "w_steer_effort",
+            "w_slack_quadratic",
+            "r_terminal_steer",
+            "r_terminal_accel",
+            "w_limit_violation",
+            "w_standstill",
+        ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"MpcConfig.{name} must be positive")
         if self.w_steer_rate_change > 0 and not self.w_pedal_rate_change > self.w_steer_rate_change:
-            raise ValueError("MpcConfig: the report (section VI) weights velocity effort above "
-                             "steering effort: need w_pedal_rate_change > w_steer_rate_change")
+            raise ValueError(
+                "MpcConfig: the report (section VI) weights velocity effort above "
+                "steering effort: need w_pedal_rate_change > w_steer_rate_change"
+            )
         if self.w_steer_replan > 0 and not self.w_pedal_replan > self.w_steer_replan:
-            raise ValueError("MpcConfig: the report (section VI) weights velocity effort above "
-                             "steering effort: need w_pedal_replan > w_steer_replan")
+            raise ValueError(
+                "MpcConfig: the report (section VI) weights velocity effort above "
+                "steering effort: need w_pedal_replan > w_steer_replan"
+            )
         if not self.hold_brake_rate_ps > 0:
             raise ValueError("MpcConfig.hold_brake_rate_ps must be positive")
-        for name in ("w_floor", "w_transition", "w_pedal_level", "w_steer_level",
-                     "w_steer_rate_change", "w_pedal_rate_change", "w_steer_sharpness",
-                     "w_steer_replan", "w_pedal_replan", "replan_window_s"):
+        for name in (
+            "w_floor",
+            "w_transition",
+            "w_pedal_level",
+            "w_steer_level",
+            "w_steer_rate_change",
+            "w_pedal_rate_change",
+            "w_steer_sharpness",
+            "w_steer_replan",
+            "w_pedal_replan",
+            "replan_window_s",
+        ):
             if getattr(self, name) < 0:
                 raise ValueError(f"MpcConfig.{name} must be >= 0")
         if self.check_termination < 1 or self.adaptive_rho_interval < 0:
-            raise ValueError("MpcConfig: check_termination must be >= 1 and "
-                             "adaptive_rho_interval >= 0")
+            raise ValueError(
+                "MpcConfig: check_termination must be >= 1 and adaptive_rho_interval >= 0"
+            )
         if not self.adaptive_rho_tolerance >= 1:
             raise ValueError("MpcConfig.adaptive_rho_tolerance must be >= 1")
         if not 0 < self.admm_alpha < 2:
@@ -176,4 +203,3 @@ class MpcConfig:
     @property
     def n_stages(self) -> int:
         return int(round(self.horizon_s / self.dt_s))
-

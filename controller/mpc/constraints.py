@@ -13,6 +13,7 @@ row bounds written each step.
 
 The bounds that do not change are built once (:class:`QpConstraints`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -27,8 +28,9 @@ from hmpc.controller.mpc.qp import APAT_FLAT, BPAT_FLAT, NU, NX, QpLayout
 _THROTTLE = int(PedalMode.THROTTLE)
 
 
-def linearise(plant: HybridPlant, Xb: np.ndarray, Ub: np.ndarray, zones: np.ndarray,
-              dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def linearise(
+    plant: HybridPlant, Xb: np.ndarray, Ub: np.ndarray, zones: np.ndarray, dt: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Discrete model about the nominal, per stage: x_{k+1} = Ad x_k + Bd u_k + c_k
     (2nd-order discretisation of the plant's Jacobians; c_k from the explicit midpoint
     step of the nonlinear model, the rule the NMPC integrates with). ``Xb``: the nominal
@@ -103,18 +105,19 @@ class QpConstraints:
         """A values (CSC order): the dynamics blocks written into the fixed pattern."""
         L = self.layout
         Av = L.A_vals
-        Av[L.a_dynA:L.a_dynB] = -Ad.reshape(-1, NX * NX)[:, APAT_FLAT].ravel()
-        Av[L.a_dynB:L.a_dyn_end] = -Bd.reshape(-1, NX * NU)[:, BPAT_FLAT].ravel()
+        Av[L.a_dynA : L.a_dynB] = -Ad.reshape(-1, NX * NX)[:, APAT_FLAT].ravel()
+        Av[L.a_dynB : L.a_dyn_end] = -Bd.reshape(-1, NX * NU)[:, BPAT_FLAT].ravel()
         return Av[L.A_perm]
 
-    def row_bounds(self, stage: StageData, ck: np.ndarray, fixed: InFlight,
-                   last_cmd: Command | None) -> tuple[np.ndarray, np.ndarray]:
+    def row_bounds(
+        self, stage: StageData, ck: np.ndarray, fixed: InFlight, last_cmd: Command | None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Row bounds: initial state, dynamics offsets ``ck``, inputs and steering rate
         (:meth:`input_bounds`), jerk from the acceleration before stage 0, the speed band."""
         L = self.layout
         lo, hi = self._l0.copy(), self._u0.copy()
         lo[:NX] = hi[:NX] = stage.x0
-        lo[NX:L.nx_all] = hi[NX:L.nx_all] = ck.ravel()
+        lo[NX : L.nx_all] = hi[NX : L.nx_all] = ck.ravel()
         ulo, uhi, srlo, srhi = self.input_bounds(stage.modes, stage.zones, fixed, last_cmd)
         lo[L.r_u] = ulo.ravel()
         hi[L.r_u] = uhi.ravel()
@@ -127,8 +130,9 @@ class QpConstraints:
         hi[L.r_vh] = stage.band.v_hi_mps
         return lo, hi
 
-    def input_bounds(self, modes: np.ndarray, zones: np.ndarray | None, fixed: InFlight,
-                     last_cmd: Command | None):
+    def input_bounds(
+        self, modes: np.ndarray, zones: np.ndarray | None, fixed: InFlight, last_cmd: Command | None
+    ):
         """Input bounds (N, 3) and steering-rate row bounds (N,): pedal modes, the inputs in
         flight (``fixed``) fixed, rate relative to the last command (``last_cmd``; None: the
         first stage's rate is free). With ``zones`` (zone per stage), the acceleration
@@ -145,8 +149,9 @@ class QpConstraints:
         uhi[:, 1:] = tab[:, 1::2]
         return self._rate_and_fixed(ulo, uhi, fixed, last_cmd)
 
-    def _rate_and_fixed(self, ulo: np.ndarray, uhi: np.ndarray, fixed: InFlight,
-                        last_cmd: Command | None):
+    def _rate_and_fixed(
+        self, ulo: np.ndarray, uhi: np.ndarray, fixed: InFlight, last_cmd: Command | None
+    ):
         """Steering-rate row bounds; in-flight inputs fixed in ``ulo``/``uhi``."""
         srhi = self._sr_free.copy()
         srlo = -srhi

@@ -36,6 +36,7 @@ The step RETURNS a command; it never sends it. Every command goes through
 ``controller.limits.apply_limits`` before it is returned. The model's physics (eq. 1, 7, 8,
 the zone rule) is models/plant.py's; this package only discretises it.
 """
+
 from __future__ import annotations
 
 import math
@@ -49,11 +50,16 @@ from hmpc.models.plant import HybridPlant
 from hmpc.models.reference import Reference
 
 from hmpc.controller.base import ControlResult, Status, internal_error
-from hmpc.controller.horizon import Plan, SolveOutcome, StageData, path_reference, \
-    speed_reference
+from hmpc.controller.horizon import Plan, SolveOutcome, StageData, path_reference, speed_reference
 from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
-from hmpc.controller.modes import PEDAL_RELEASED, ModeConfig, PedalMode, PedalModeLogic, \
-    StandstillLogic, desired_accel
+from hmpc.controller.modes import (
+    PEDAL_RELEASED,
+    ModeConfig,
+    PedalMode,
+    PedalModeLogic,
+    StandstillLogic,
+    desired_accel,
+)
 from hmpc.controller.mpc.config import MpcConfig
 from hmpc.controller.mpc.constraints import QpConstraints, linearise
 from hmpc.controller.mpc.cost import QpCost
@@ -129,8 +135,13 @@ class MpcController:
     #: the last good solution (None after :meth:`reset`)
     _plan: Plan | None
 
-    def __init__(self, params: Params, config: MpcConfig | None = None,
-                 limits: ActuatorLimits | None = None, mode_config: ModeConfig | None = None):
+    def __init__(
+        self,
+        params: Params,
+        config: MpcConfig | None = None,
+        limits: ActuatorLimits | None = None,
+        mode_config: ModeConfig | None = None,
+    ):
         if not params.is_model:
             raise ValueError("MpcController needs a complete model (steering and zones)")
         self.params = params
@@ -143,8 +154,7 @@ class MpcController:
         self.N = self.config.n_stages
         self.dt = self.config.dt_s
         self.layout = QpLayout(self.N, self.dt)
-        self.zone_rules = ZoneRules(params, self.config, self.mode_config, self.limits,
-                                    self.plant)
+        self.zone_rules = ZoneRules(params, self.config, self.mode_config, self.limits, self.plant)
         self.delay = DelayCompensation(params, self.plant, self.dt, self.N)
         self.cost = QpCost(self.config, self.limits, self.layout)
         self.constraints = QpConstraints(self.layout, self.limits, self.plant)
@@ -187,18 +197,21 @@ class MpcController:
         pl.z_brake[:] = model.zone_brake_mps2
         pl._eq8[:] = zip(pl.z_offset.tolist(), pl.z_scale.tolist(), pl.z_brake.tolist())
         self.constraints.use_zone_models(pl)
-        self.delay.use_timing(model.steer_delay_s, model.long_delay_s, model.steer_lag_s,
-                              model.long_lag_s)
+        self.delay.use_timing(
+            model.steer_delay_s, model.long_delay_s, model.steer_lag_s, model.long_lag_s
+        )
         if not getattr(self, "_own_model", False):  # the caller's file is never written to
             p = self.params
             assert p.steering is not None
-            self.params = replace(p, steering=replace(p.steering),
-                                  zones=[replace(z) for z in p.zones])
+            self.params = replace(
+                p, steering=replace(p.steering), zones=[replace(z) for z in p.zones]
+            )
             self._own_model = True
         assert self.params.steering is not None
         self.params.steering.offset_rad, self.params.steering.scale = pl.offset_rad, pl.scale
-        for z, o, s, b in zip(self.params.zones, model.zone_offset_mps2, model.zone_scale_mps2,
-                              model.zone_brake_mps2):
+        for z, o, s, b in zip(
+            self.params.zones, model.zone_offset_mps2, model.zone_scale_mps2, model.zone_brake_mps2
+        ):
             z.offset_mps2, z.scale_mps2, z.brake_scale_mps2 = o, s, b
 
     # ----------------------------------------------------------------- state
@@ -212,13 +225,20 @@ class MpcController:
         self._pedal.reset()
         self._standstill.reset()
         self.delay.reset()  # the commands issued, the inputs in flight
-        self.qp.forget()    # the warm start
+        self.qp.forget()  # the warm start
         # stages elapsed since that solution's first stage (None: no plan to shift)
         self._shift_stages: float | None = None
 
     # ------------------------------------------------------------------ step
-    def step(self, state, reference: Reference, t_s: float, *, stop: bool = False,
-             obstacle_distance_m: float | None = None) -> ControlResult:
+    def step(
+        self,
+        state,
+        reference: Reference,
+        t_s: float,
+        *,
+        stop: bool = False,
+        obstacle_distance_m: float | None = None,
+    ) -> ControlResult:
         """One control step at time ``t_s`` from the measured ``state`` [x, y, psi, v].
 
         Args:
@@ -244,9 +264,15 @@ class MpcController:
         return res
 
     # -------------------------------------------------------------- internals
-    def _finish(self, cmd: Command, t_s: float, zone: int, *,
-                controlled_stop: bool = False, plan_inputs: np.ndarray | None = None
-                ) -> Command:
+    def _finish(
+        self,
+        cmd: Command,
+        t_s: float,
+        zone: int,
+        *,
+        controlled_stop: bool = False,
+        plan_inputs: np.ndarray | None = None,
+    ) -> Command:
         """The command through ``apply_limits``, recorded; with ``plan_inputs`` (the QP's
         inputs, the lags' outputs) and an actuator lag, first its inverse
         (:meth:`DelayCompensation.command`)."""
@@ -254,8 +280,9 @@ class MpcController:
         if plan_inputs is not None and self.delay.lag_act is not None:
             cmd = self.delay.command(cmd, plan_inputs, zone, self.plant)
         z = self.params.zones[zone]
-        out = apply_limits(cmd, self._last_cmd, self.limits, dt, zone=z,
-                           controlled_stop=controlled_stop)
+        out = apply_limits(
+            cmd, self._last_cmd, self.limits, dt, zone=z, controlled_stop=controlled_stop
+        )
         self._last_cmd = out
         self._last_t = t_s
         self.delay.history.append((t_s, out))
@@ -272,10 +299,17 @@ class MpcController:
                 U = plan.inputs
                 sw, ap, bp = U[k + k_s, 0], U[k + k_l, 1], U[k + k_l, 2]
                 cmd = self._finish(Command(float(sw), float(ap), float(bp)), t_s, zone)
-                return ControlResult(cmd, Status.SHIFTED_PLAN, reason, plan=plan.states,
-                                     plan_inputs=U, zone_plan=plan.zones,
-                                     mode_plan=plan.modes, zone=zone,
-                                     pedal_mode=int(plan.modes[k]))
+                return ControlResult(
+                    cmd,
+                    Status.SHIFTED_PLAN,
+                    reason,
+                    plan=plan.states,
+                    plan_inputs=U,
+                    zone_plan=plan.zones,
+                    mode_plan=plan.modes,
+                    zone=zone,
+                    pedal_mode=int(plan.modes[k]),
+                )
             self._plan = None
         return self._controlled_stop(t_s, reason, zone)
 
@@ -301,18 +335,23 @@ class MpcController:
         z = self.params.zones[zone]
         prev = self._last_cmd
         dt = self.dt if self._last_t is None else max(t_s - self._last_t, 1e-3)
-        target = min(1.0, max(z.offset_mps2 + self.config.stop_brake_decel_mps2, 0.0)
-                     / max(z.brake_scale_mps2, 1e-6))
+        target = min(
+            1.0,
+            max(z.offset_mps2 + self.config.stop_brake_decel_mps2, 0.0)
+            / max(z.brake_scale_mps2, 1e-6),
+        )
         ramp = self.limits.jerk_max_mps3 / max(z.brake_scale_mps2, 1e-6) * dt
         bp0 = prev.brake_pedal if prev is not None else 0.0
         bp = min(target, bp0 + ramp) if bp0 < target else bp0
         sw = prev.steering_wheel_angle_rad if prev is not None else 0.0
         cmd = self._finish(Command(sw, 0.0, bp), t_s, zone, controlled_stop=True)
-        return ControlResult(cmd, Status.CONTROLLED_STOP, reason, zone=zone,
-                             pedal_mode=int(PedalMode.BRAKE))
+        return ControlResult(
+            cmd, Status.CONTROLLED_STOP, reason, zone=zone, pedal_mode=int(PedalMode.BRAKE)
+        )
 
-    def _step(self, x_meas: np.ndarray, ref: Reference, t: float, stop: bool,
-              obstacle_m: float | None) -> ControlResult:
+    def _step(
+        self, x_meas: np.ndarray, ref: Reference, t: float, stop: bool, obstacle_m: float | None
+    ) -> ControlResult:
         """One step in named stages: delay compensation, standstill hold, path progress,
         nominal trajectory, then the SQP iterations (one when warm) of
         :meth:`_stage_data` + :meth:`_solve`."""
@@ -339,9 +378,23 @@ class MpcController:
         first = None
         for it in range(iters):
             stage, first = self._stage_data(
-                x0, Xb, Ub, a_prev, ref, tk, s0, zone0, v_mode, t, cold=cold,
-                seed_guess=cold and it == 0, first=first, stop=stop, obstacle_m=obstacle_m,
-                override=override)
+                x0,
+                Xb,
+                Ub,
+                a_prev,
+                ref,
+                tk,
+                s0,
+                zone0,
+                v_mode,
+                t,
+                cold=cold,
+                seed_guess=cold and it == 0,
+                first=first,
+                stop=stop,
+                obstacle_m=obstacle_m,
+                override=override,
+            )
             out = self._solve(stage)
             total_solve += out.solve_time_s
             total_update += out.update_time_s
@@ -350,8 +403,8 @@ class MpcController:
             if out.solution is None:
                 break
             sol = out.solution
-            Xb = sol[:L.nx_all].reshape(N + 1, NX).copy()
-            Ub = sol[L.nx_all:L.nx_all + L.nu_all].reshape(N, NU).copy()
+            Xb = sol[: L.nx_all].reshape(N + 1, NX).copy()
+            Ub = sol[L.nx_all : L.nx_all + L.nu_all].reshape(N, NU).copy()
 
         if out.solution is None:
             res = self._fallback(t, out.reason)
@@ -368,16 +421,36 @@ class MpcController:
         cmd = self._finish(Command(float(Ub[k_s, 0]), ap, bp), t, zone0, plan_inputs=Ub)
         self._plan = Plan(float(tk[0]), Xb, Ub, zones, modes)
         status = Status.SOLVED_INACCURATE if out.inaccurate else Status.SOLVED
-        return ControlResult(cmd, status, solve_time_s=total_solve, plan=Xb,
-                             plan_inputs=Ub, zone_plan=zones, mode_plan=modes, zone=zone0,
-                             pedal_mode=mode_l, iterations=total_it,
-                             info={"v_ref_mps": stage.v_ref_mps, "s0_m": s0,
-                                   "update_time_s": total_update, "capped": out.capped,
-                                   "solve_cpu_s": total_cpu})
+        return ControlResult(
+            cmd,
+            status,
+            solve_time_s=total_solve,
+            plan=Xb,
+            plan_inputs=Ub,
+            zone_plan=zones,
+            mode_plan=modes,
+            zone=zone0,
+            pedal_mode=mode_l,
+            iterations=total_it,
+            info={
+                "v_ref_mps": stage.v_ref_mps,
+                "s0_m": s0,
+                "update_time_s": total_update,
+                "capped": out.capped,
+                "solve_cpu_s": total_cpu,
+            },
+        )
 
-    def _standstill_hold(self, x_meas: np.ndarray, ref: Reference, t: float, d: float,
-                         stop: bool, obstacle_m: float | None,
-                         zone0: int) -> ControlResult | None:
+    def _standstill_hold(
+        self,
+        x_meas: np.ndarray,
+        ref: Reference,
+        t: float,
+        d: float,
+        stop: bool,
+        obstacle_m: float | None,
+        zone0: int,
+    ) -> ControlResult | None:
         """Standstill HOLD (mode logic; no QP needed while the car is held): the result of
         this step if the car is held, else None."""
         cfg = self.config
@@ -399,8 +472,7 @@ class MpcController:
         sw = prev.steering_wheel_angle_rad if prev is not None else 0.0
         cmd = self._finish(Command(sw, 0.0, hold_bp), t, zone0)
         if self._s_prog is not None:
-            self._s_prog = ref.project(float(x_meas[0]), float(x_meas[1]), self._s_prog,
-                                       5.0)[0]
+            self._s_prog = ref.project(float(x_meas[0]), float(x_meas[1]), self._s_prog, 5.0)[0]
         return ControlResult(cmd, Status.HOLD, zone=zone0, pedal_mode=int(PedalMode.HOLD))
 
     def _progress(self, x0: np.ndarray, ref: Reference, t: float) -> float:
@@ -416,8 +488,9 @@ class MpcController:
         self._s_prog = s0
         return s0
 
-    def _nominal(self, x0: np.ndarray, ref: Reference, tk: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, float]:
+    def _nominal(
+        self, x0: np.ndarray, ref: Reference, tk: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, float]:
         """Nominal trajectory (states, inputs) and the acceleration before stage 0: the
         previous plan shifted in time to the stage times ``tk``, or without one a cold
         guess (a speed ramp towards the reference; ``horizon.path_reference`` puts it on
@@ -442,9 +515,26 @@ class MpcController:
         Xb[:, 3] = vb
         return Xb, np.zeros((N, NU)), 0.0
 
-    def _stage_data(self, x0, Xb, Ub, a_prev, ref, tk, s0, zone0, v_mode, t, *, cold,
-                    seed_guess, first, stop, obstacle_m, override
-                    ) -> tuple[StageData, PedalMode]:
+    def _stage_data(
+        self,
+        x0,
+        Xb,
+        Ub,
+        a_prev,
+        ref,
+        tk,
+        s0,
+        zone0,
+        v_mode,
+        t,
+        *,
+        cold,
+        seed_guess,
+        first,
+        stop,
+        obstacle_m,
+        override,
+    ) -> tuple[StageData, PedalMode]:
         """What one SQP iteration solves, about the nominal (Xb, Ub): the path at the
         nominal positions, the speed reference, the zone and pedal-mode schedules and the
         speed band. ``first`` is the pedal mode of the first free stage, decided on the
@@ -456,18 +546,35 @@ class MpcController:
         np.cumsum(0.5 * (vb[1:] + vb[:-1]) * dt, out=s_k[1:])
         s_k += s0
         cfg = self.config
-        path = path_reference(ref, s_k, Xb, Ub, x0, seed_guess, self.plant,
-                              self.limits.steering_wheel_angle_max_rad)
-        v_r = speed_reference(ref, tk, float(x0[3]), stop, obstacle_m, s_k - s0,
-                              cfg.stop_decel_mps2, cfg.obstacle_margin_m)
+        path = path_reference(
+            ref, s_k, Xb, Ub, x0, seed_guess, self.plant, self.limits.steering_wheel_angle_max_rad
+        )
+        v_r = speed_reference(
+            ref,
+            tk,
+            float(x0[3]),
+            stop,
+            obstacle_m,
+            s_k - s0,
+            cfg.stop_decel_mps2,
+            cfg.obstacle_margin_m,
+        )
         zones = self.zone_rules.schedule(zone0, vb)
         modes, first = self._pedal_modes(v_r, vb, v_mode, zones, Ub, t, cold, first)
         band = self.zone_rules.speed_band(zone0, v_r, override)
         return StageData(x0, Xb, Ub, zones, modes, path, v_r, band, a_prev), first
 
-    def _pedal_modes(self, v_r: np.ndarray, vb: np.ndarray, v_mode: float,
-                     zones: np.ndarray, Ub: np.ndarray, t: float, cold: bool,
-                     first: PedalMode | None) -> tuple[np.ndarray, PedalMode]:
+    def _pedal_modes(
+        self,
+        v_r: np.ndarray,
+        vb: np.ndarray,
+        v_mode: float,
+        zones: np.ndarray,
+        Ub: np.ndarray,
+        t: float,
+        cold: bool,
+        first: PedalMode | None,
+    ) -> tuple[np.ndarray, PedalMode]:
         """Pedal mode per stage, one free pedal each (controller/modes.py); the stages
         whose pedals are in flight keep theirs. Returns (modes, mode of the first free
         stage), that mode decided here when ``first`` is None."""
@@ -483,27 +590,33 @@ class MpcController:
             cur = self._pedal.mode
             if not cold and cur in (PedalMode.THROTTLE, PedalMode.BRAKE):
                 k_ex = max(int(round(self.mode_config.exhausted_lookahead_s / dt)), 1)
-                exhausted = bool((Ub[k_l:k_l + k_ex, 1 + int(cur)] <= PEDAL_RELEASED).all())
+                exhausted = bool((Ub[k_l : k_l + k_ex, 1 + int(cur)] <= PEDAL_RELEASED).all())
             first = self._pedal.first(float(a_des[k_l]), float(coast[k_l]), t, exhausted)
         modes = np.empty(N, dtype=np.int8)
-        modes[k_l:] = self._pedal.schedule(first, a_des[k_l:], coast[k_l:], dt,
-                                           self._pedal.since_switch_s(t),
-                                           None if cold else Ub[k_l:, 1:])
+        modes[k_l:] = self._pedal.schedule(
+            first,
+            a_des[k_l:],
+            coast[k_l:],
+            dt,
+            self._pedal.since_switch_s(t),
+            None if cold else Ub[k_l:, 1:],
+        )
         if k_l:  # pedals in flight: their own modes
-            modes[:k_l] = np.where(fixed.pedals[:, 0] > 0, PedalMode.THROTTLE,
-                                   PedalMode.BRAKE)
+            modes[:k_l] = np.where(fixed.pedals[:, 0] > 0, PedalMode.THROTTLE, PedalMode.BRAKE)
         return modes, first
 
     def _solve(self, stage: StageData) -> SolveOutcome:
         """One QP about the nominal of ``stage``: linearise and discretise, write the new
         values into the fixed pattern, solve (warm-started)."""
         Ad, Bd, ck = linearise(self.plant, stage.states, stage.inputs, stage.zones, self.dt)
-        Pdata, q = self.cost.values(stage, self.plant, self._shift_stages is not None,
-                                    self._prior_inputs())
+        Pdata, q = self.cost.values(
+            stage, self.plant, self._shift_stages is not None, self._prior_inputs()
+        )
         Adata = self.constraints.dynamics_values(Ad, Bd)
         lo, hi = self.constraints.row_bounds(stage, ck, self.delay.fixed, self._last_cmd)
-        return self.qp.solve(Pdata, q, Adata, lo, hi, stage.states, stage.inputs,
-                             self._shift_stages)
+        return self.qp.solve(
+            Pdata, q, Adata, lo, hi, stage.states, stage.inputs, self._shift_stages
+        )
 
     def _prior_inputs(self) -> np.ndarray | None:
         """(2, NU): the two inputs before stage 0 as the rate terms see them, one stage
@@ -518,7 +631,7 @@ class MpcController:
         out = np.array((u1, u1))
         plan = self._plan
         if plan is not None and self._last_t is not None:
-            tp = plan.t0_s + self._t_stages[:self.N]
+            tp = plan.t0_s + self._t_stages[: self.N]
             k = min(max(int(np.searchsorted(tp, self._last_t + self.dt)), 1), self.N - 1)
             out[0] = out[1] - (plan.inputs[k] - plan.inputs[k - 1])
         return out

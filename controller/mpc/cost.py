@@ -18,6 +18,7 @@ changes from step to step (it follows the nominal speed), the rest is written fr
 templates built once. The NMPC (controller/nmpc.py) writes the same terms as a CasADi
 expression from this object's weights.
 """
+
 from __future__ import annotations
 
 import math
@@ -36,8 +37,9 @@ UT4_COLS = np.array([b for _, b in UT4])
 STRICT_LOWER4 = np.tril(np.ones((4, 4)), -1)
 
 
-def difference_bands(w_rate: np.ndarray, w_rate_change: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def difference_bands(
+    w_rate: np.ndarray, w_rate_change: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bands of the Hessian (1/2 u'Hu convention) over [u_-2, u_-1, u_0 .. u_{n-1}] of
     sum_k w_rate[k]/2 (u_k - u_{k-1})^2 + w_rate_change[k]/2 (u_k - 2 u_{k-1} + u_{k-2})^2,
     k = 0 .. n-1 (u_-1, u_-2: the inputs before the horizon). Returns (diag (n+2,),
@@ -46,11 +48,11 @@ def difference_bands(w_rate: np.ndarray, w_rate_change: np.ndarray
     w2 = np.asarray(w_rate_change, dtype=float)
     n = len(w1)
     buf = np.zeros(3 * n + 3)  # one allocation (run every MPC step for the steering)
-    diag, off1, off2 = buf[:n + 2], buf[n + 2:2 * n + 3], buf[2 * n + 3:]
-    diag[2:] += w1           # first differences: +1 at k+2, -1 at k+1
+    diag, off1, off2 = buf[: n + 2], buf[n + 2 : 2 * n + 3], buf[2 * n + 3 :]
+    diag[2:] += w1  # first differences: +1 at k+2, -1 at k+1
     diag[1:-1] += w1
     off1[1:] -= w1
-    diag[:-2] += w2          # second differences: (1, -2, 1) at k, k+1, k+2
+    diag[:-2] += w2  # second differences: (1, -2, 1) at k, k+1, k+2
     diag[1:-1] += 4.0 * w2
     diag[2:] += w2
     w2x2 = 2.0 * w2
@@ -84,6 +86,7 @@ def _one_blas_thread():
     global _BLAS_THREADS
     if _BLAS_THREADS is None:
         from threadpoolctl import ThreadpoolController
+
         _BLAS_THREADS = ThreadpoolController()
     return _BLAS_THREADS.limit(limits=1, user_api="blas")
 
@@ -101,13 +104,13 @@ class QpCost:
     def __init__(self, config: MpcConfig, limits: ActuatorLimits, layout: QpLayout):
         N, dt, c = layout.N, layout.dt, config
         self.config, self.layout, self.N, self.dt = config, layout, N, dt
-        sw_n = 1.0 / limits.steering_wheel_angle_max_rad ** 2
-        self.w_sr = c.w_steer_effort * sw_n / dt       # per rad^2 of change per stage
-        self.w_pr = c.w_speed_effort / dt               # per pedal^2 of change per stage
+        sw_n = 1.0 / limits.steering_wheel_angle_max_rad**2
+        self.w_sr = c.w_steer_effort * sw_n / dt  # per rad^2 of change per stage
+        self.w_pr = c.w_speed_effort / dt  # per pedal^2 of change per stage
         self.w_sl = c.w_steer_level * sw_n * dt
         self.w_pl = c.w_pedal_level * dt
-        self.w_src = c.w_steer_rate_change * sw_n / dt ** 3  # per rad^2 of 2nd difference
-        self.w_prc = c.w_pedal_rate_change / dt ** 3          # per pedal^2 of 2nd difference
+        self.w_src = c.w_steer_rate_change * sw_n / dt**3  # per rad^2 of 2nd difference
+        self.w_prc = c.w_pedal_rate_change / dt**3  # per pedal^2 of 2nd difference
         # per unit of 1 / v^2 [(m/s)^2]: the sharpness term, per stage at the nominal speed
         self.w_sharp = c.w_steer_sharpness * sw_n / dt
         self.pedal_bands = difference_bands(np.full(N, self.w_pr), np.full(N, self.w_prc))
@@ -122,7 +125,7 @@ class QpCost:
         self._Px_vals = np.zeros(layout.P.nnz)
         self._lqr_cache: dict = {}
         # what every step would otherwise rebuild: the constant parts of P's values
-        self._w_src_all = np.full(N, self.w_src)            # steer_bands
+        self._w_src_all = np.full(N, self.w_src)  # steer_bands
         self._w_lat, self._w_head = c.w_lateral * dt, c.w_heading * dt
         self._w_spd = c.w_speed * dt
         self._w_jerk_slack = c.w_limit_violation * dt
@@ -143,10 +146,12 @@ class QpCost:
                 uo[:, i] = o1[2:]
                 uo2[:, i] = o2[2:]
             self._P_input_template[replan] = np.concatenate(
-                [ud.ravel(), uo.ravel(), uo2.ravel(), P_slack])
+                [ud.ravel(), uo.ravel(), uo2.ravel(), P_slack]
+            )
 
-    def values(self, stage: StageData, plant: HybridPlant, replan: bool,
-               prior: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    def values(
+        self, stage: StageData, plant: HybridPlant, replan: bool, prior: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """P values (CSC order) and q: tracking (state blocks from the path geometry),
         terminal cost from dlqr (about ``plant``), input effort, slack penalties. ``replan``:
         a previous plan, shifted to now, is in ``stage.inputs`` (the replan term applies);
@@ -163,22 +168,23 @@ class QpCost:
         nxv, nyv = -np.sin(th[1:]), np.cos(th[1:])
         wl = self._w_lat
         Px = self._Px_vals
-        qb = Px[:L.p_seg[1]].reshape(N, len(UT4))  # view: state blocks, UT4 order
+        qb = Px[: L.p_seg[1]].reshape(N, len(UT4))  # view: state blocks, UT4 order
         qb[:] = self._q_template
         q00, q01, q11 = wl * nxv * nxv, wl * nxv * nyv, wl * nyv * nyv
         qb[:, UT4.index((0, 0))], qb[:, UT4.index((0, 1))] = q00, q01
         qb[:, UT4.index((1, 1))] = q11
         T = np.array([[nxv[-1], nyv[-1], 0.0, 0.0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
-        P3 = self.lqr_terminal(float(stage.states[-1, 3]),
-                               float(path.road_wheel_angle_rad[-1]), plant)
+        P3 = self.lqr_terminal(
+            float(stage.states[-1, 3]), float(path.road_wheel_angle_rad[-1]), plant
+        )
         PT = T.T @ P3 @ T
         qb[-1] += PT[UT4_ROWS, UT4_COLS]  # blocks are stored as their upper triangle
         bands_s = self.steer_bands(stage.states[:N, 3])
-        self.input_values(bands_s, replan, out=Px[L.p_seg[1]:])
+        self.input_values(bands_s, replan, out=Px[L.p_seg[1] :])
         Pdata = Px[L.P_perm]  # slack quadratic weights stay constant; P in CSC order
 
         q = np.empty(L.n)
-        qx = q[NX:L.nx_all].reshape(N, NX)
+        qx = q[NX : L.nx_all].reshape(N, NX)
         x_r, y_r = path.x_m[1:], path.y_m[1:]
         # -Q_k r_k: the blocks' nonzero terms written out (the zeros an einsum over the
         # full blocks adds change no bit); the last stage's full block through the einsum
@@ -192,7 +198,7 @@ class QpCost:
         rN = np.array([[x_r[-1], y_r[-1], path.psi_rad[-1], stage.v_ref_mps[-1]]])
         qx[-1] = -np.einsum("kij,kj->ki", QN, rN)[0]
         q[:NX] = 0.0
-        qu = q[L.nx_all:L.nx_all + L.nu_all].reshape(N, NU)
+        qu = q[L.nx_all : L.nx_all + L.nu_all].reshape(N, NU)
         qu[:, 0] = -self.w_sl * path.steering_ff_rad[:N]
         qu[:, 1:] = 0.0
         if replan:
@@ -201,7 +207,7 @@ class QpCost:
             for i, (_dg, o1, o2) in enumerate((bands_s, self.pedal_bands, self.pedal_bands)):
                 qu[0, i] += o2[0] * prior[0, i] + o1[1] * prior[1, i]
                 qu[1, i] += o2[1] * prior[1, i]
-        qs = q[L.nx_all + L.nu_all:].reshape(N, NS)
+        qs = q[L.nx_all + L.nu_all :].reshape(N, NS)
         qs[:, 0] = self._w_jerk_slack
         qs[:, 1] = stage.band.w_lo
         qs[:, 2] = stage.band.w_hi
@@ -210,8 +216,9 @@ class QpCost:
     def steer_bands(self, v_nominal_mps: np.ndarray):
         """Steering's rate and rate-change bands (:func:`difference_bands`): the rate weight
         is the effort plus the sharpness term at each stage's nominal speed."""
-        v = np.maximum(np.asarray(v_nominal_mps, dtype=float),
-                       self.config.steer_sharpness_speed_floor_mps)
+        v = np.maximum(
+            np.asarray(v_nominal_mps, dtype=float), self.config.steer_sharpness_speed_floor_mps
+        )
         return difference_bands(self.w_sr + self.w_sharp / (v * v), self._w_src_all)
 
     def input_values(self, bands_s, replan: bool, out: np.ndarray | None = None) -> np.ndarray:
@@ -228,9 +235,9 @@ class QpCost:
         ud = dg[2:] + self.w_sl
         if replan:
             ud += self.w_replan[:, 0]
-        out[0:NU * N:NU] = ud
-        out[NU * N:NU * (2 * N - 1):NU] = o1[2:]
-        out[NU * (2 * N - 1):NU * (3 * N - 3):NU] = o2[2:]
+        out[0 : NU * N : NU] = ud
+        out[NU * N : NU * (2 * N - 1) : NU] = o1[2:]
+        out[NU * (2 * N - 1) : NU * (3 * N - 3) : NU] = o2[2:]
         return out
 
     def lqr_terminal(self, v_mps: float, delta_rad: float, plant: HybridPlant) -> np.ndarray:
@@ -246,6 +253,7 @@ class QpCost:
         P3 = self._lqr_cache.get(key)
         if P3 is None:
             import control  # python-control: dlqr
+
             c, dt, pl = self.config, self.dt, plant
             j = bicycle_jacobian(-dq, vq, dq, pl.wheelbase_m, pl.scale, ops=math)
             Ac = np.array([[0.0, j.dy_dpsi, j.dy_dv], [0.0, 0.0, j.dpsi_dv], [0.0, 0.0, 0.0]])

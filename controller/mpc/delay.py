@@ -10,6 +10,7 @@ fixed to its in-flight commands (:class:`~hmpc.controller.horizon.InFlight`). Wi
 commands (exactly, :func:`_lag_through`), the QP plans the lags' outputs and the command is
 the lag's inverse (``lag_method``).
 """
+
 from __future__ import annotations
 
 import bisect
@@ -31,8 +32,9 @@ PREDICTION_STEP_S = 0.05
 HISTORY_COMMANDS = 256
 
 
-def _lag_through(e: float, t0_s: float, t1_s: float, times_s: list, values: list,
-                 tau_s: float) -> float:
+def _lag_through(
+    e: float, t0_s: float, t1_s: float, times_s: list, values: list, tau_s: float
+) -> float:
     """A first-order lag's output at ``t1_s`` from ``e`` at ``t0_s`` [s], its input
     piecewise constant: ``values[i]`` from ``times_s[i]`` on (before the first: ``values[0]``);
     exact (models.plant.first_order_lag per piece)."""
@@ -93,8 +95,14 @@ class DelayCompensation:
         self.history: deque = deque(maxlen=HISTORY_COMMANDS)  # (t_issue_s, Command)
         self.fixed = InFlight()  # inputs in flight at the start of the horizon
 
-    def predict(self, x: np.ndarray, t_s: float, zone: int | None, last_cmd: Command | None,
-                plant: HybridPlant) -> tuple[np.ndarray, float]:
+    def predict(
+        self,
+        x: np.ndarray,
+        t_s: float,
+        zone: int | None,
+        last_cmd: Command | None,
+        plant: HybridPlant,
+    ) -> tuple[np.ndarray, float]:
         """Predict the measured state ``x`` at ``t_s`` through the inputs in flight, on
         ``plant`` from ``zone`` (the zone of the last step); ``last_cmd``: the last command
         issued (None: none yet).
@@ -121,14 +129,18 @@ class DelayCompensation:
                 else:
                     break
             return cmd if cmd is not None else (hist[0][1] if hist else last)
+
         dt = self.dt
         k_s = int(round((ds - d0) / dt))
         k_l = int(round((dl - d0) / dt))
         t0 = t_s + d0
-        steer = np.array([issued_at(t0 + k * dt - ds).steering_wheel_angle_rad
-                          for k in range(k_s)])
-        ped = np.array([[issued_at(t0 + k * dt - dl).accel_pedal,
-                         issued_at(t0 + k * dt - dl).brake_pedal] for k in range(k_l)])
+        steer = np.array([issued_at(t0 + k * dt - ds).steering_wheel_angle_rad for k in range(k_s)])
+        ped = np.array(
+            [
+                [issued_at(t0 + k * dt - dl).accel_pedal, issued_at(t0 + k * dt - dl).brake_pedal]
+                for k in range(k_l)
+            ]
+        )
         self.fixed = InFlight(k_s, steer, k_l, ped.reshape(k_l, 2))
         if d0 <= 0:
             return x, 0.0
@@ -143,8 +155,13 @@ class DelayCompensation:
             s, zone = r.state, r.zone
         return s, d0
 
-    def use_timing(self, dead_time_steer_s: float, dead_time_long_s: float, lag_steer_s: float,
-                   lag_long_s: float) -> None:
+    def use_timing(
+        self,
+        dead_time_steer_s: float,
+        dead_time_long_s: float,
+        lag_steer_s: float,
+        lag_long_s: float,
+    ) -> None:
         """New dead times and lags [s] (new model values), with ``lag_method`` applied as at
         the start (a "delay" method adds the lags to the dead times)."""
         self.lag_s = (float(lag_steer_s), float(lag_long_s))
@@ -166,8 +183,7 @@ class DelayCompensation:
             self.dead_time_steer_s += self.lag_s[0]
             self.dead_time_long_s += self.lag_s[1]
 
-    def _lag_outputs(self, t_s: float, t_query: np.ndarray, last_cmd: Command | None
-                     ) -> np.ndarray:
+    def _lag_outputs(self, t_s: float, t_query: np.ndarray, last_cmd: Command | None) -> np.ndarray:
         """The lags' outputs (sw [rad], accel, brake pedal) at the ascending times
         ``t_query`` >= ``t_s`` [s], (n, 3): the issued commands through the dead times and
         the first-order lags (models.plant.first_order_lag), from the state kept at the
@@ -175,19 +191,24 @@ class DelayCompensation:
         hist = list(self.history)
         if not hist:
             c = last_cmd or Command(0.0, 0.0, 0.0)
-            return np.tile([c.steering_wheel_angle_rad, c.accel_pedal, c.brake_pedal],
-                           (len(t_query), 1))
+            return np.tile(
+                [c.steering_wheel_angle_rad, c.accel_pedal, c.brake_pedal], (len(t_query), 1)
+            )
         taus = (self.lag_s[0], self.lag_s[1], self.lag_s[1])
         dts = (self.dead_time_steer_s, self.dead_time_long_s, self.dead_time_long_s)
-        vals = [[c.steering_wheel_angle_rad for _, c in hist], [c.accel_pedal for _, c in hist],
-                [c.brake_pedal for _, c in hist]]
+        vals = [
+            [c.steering_wheel_angle_rad for _, c in hist],
+            [c.accel_pedal for _, c in hist],
+            [c.brake_pedal for _, c in hist],
+        ]
         times = [[ti + d for ti, _ in hist] for d in dts]
         st = self._lag
         if st is None or st.history is not self.history:  # a new run: at rest on the first
             st = self._lag = _LagState(hist[0][0], [v[0] for v in vals], self.history)
         if t_s > st.t_s:
-            st.e = [_lag_through(st.e[c], st.t_s, t_s, times[c], vals[c], taus[c])
-                    for c in range(3)]
+            st.e = [
+                _lag_through(st.e[c], st.t_s, t_s, times[c], vals[c], taus[c]) for c in range(3)
+            ]
             st.t_s = t_s
         out = np.empty((len(t_query), 3))
         e, t = list(st.e), t_s
@@ -197,9 +218,14 @@ class DelayCompensation:
             out[k] = e
         return out
 
-    def _predict_through_lag(self, x: np.ndarray, t_s: float, zone: int | None,
-                             last_cmd: Command | None, plant: HybridPlant
-                             ) -> tuple[np.ndarray, float]:
+    def _predict_through_lag(
+        self,
+        x: np.ndarray,
+        t_s: float,
+        zone: int | None,
+        last_cmd: Command | None,
+        plant: HybridPlant,
+    ) -> tuple[np.ndarray, float]:
         """:meth:`predict` with the lags' outputs as the plant's inputs: the state at
         t + d0, the in-flight stages fixed to the lags' outputs at their middles, and
         ``lag_act``, the outputs where this step's command starts to act (t + d of its
@@ -216,7 +242,7 @@ class DelayCompensation:
         order = np.argsort(tq, kind="stable")
         e = np.empty((len(tq), 3))
         e[order] = self._lag_outputs(t_s, tq[order], last_cmd)
-        e_sub, e_fix, e_act = e[:n_sub], e[n_sub:n_sub + len(t_fix)], e[n_sub + len(t_fix):]
+        e_sub, e_fix, e_act = e[:n_sub], e[n_sub : n_sub + len(t_fix)], e[n_sub + len(t_fix) :]
         self.fixed = InFlight(k_s, e_fix[:k_s, 0].copy(), k_l, e_fix[:k_l, 1:].copy())
         self.lag_act = np.array([e_act[0, 0], e_act[1, 1], e_act[1, 2]])
         s = x.copy()
@@ -240,8 +266,12 @@ class DelayCompensation:
         if tl > 0 and k_l + 1 < N:
             assert e is not None  # set by _predict_through_lag, which a lag makes predict run
             sc, br = max(float(pl.z_scale[zone]), 1e-6), max(float(pl.z_brake[zone]), 1e-6)
-            g = self._inverse_lag(sc * ap - br * bp, sc * float(U[k_l + 1, 1])
-                                  - br * float(U[k_l + 1, 2]), sc * e[1] - br * e[2], tl)
+            g = self._inverse_lag(
+                sc * ap - br * bp,
+                sc * float(U[k_l + 1, 1]) - br * float(U[k_l + 1, 2]),
+                sc * e[1] - br * e[2],
+                tl,
+            )
             ap, bp = (min(g / sc, 1.0), 0.0) if g >= 0 else (0.0, min(-g / br, 1.0))
         return Command(float(sw), float(ap), float(bp))
 

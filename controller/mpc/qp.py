@@ -13,6 +13,7 @@ iterations: its iterate is used when close enough (``capped_prim_tol``, ``capped
 else the step fails (the controller shifts its last plan) and the next solve continues from
 that iterate.
 """
+
 from __future__ import annotations
 
 import time
@@ -28,7 +29,7 @@ NX, NU, NS = 4, 3, 3  # state, input, slack (per stage)
 #: OSQP 1.x's status values (its C enum ``osqp_status_type``; 0.6 numbered them otherwise)
 _SOLVED, _SOLVED_INACCURATE, _MAX_ITER = 1, 2, 7
 _OSQP_INFTY = 1e30  # OSQP's infinity (its OSQP_INFTY): bounds beyond it are clipped to it
-UT4 = [(a, b) for a in range(4) for b in range(a, 4)]   # upper triangle of a 4x4 block
+UT4 = [(a, b) for a in range(4) for b in range(a, 4)]  # upper triangle of a 4x4 block
 APAT = [(0, 0), (1, 1), (2, 2), (3, 3), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]  # A_d pattern
 BPAT = [(i, j) for i in range(4) for j in range(3)]
 APAT_FLAT = np.array([NX * i + j for i, j in APAT])  # APAT in a flattened 4x4 block
@@ -49,8 +50,8 @@ class QpLayout:
         self.nx_all = NX * (N + 1)
         self.nu_all = NU * N
         self.n = self.nx_all + self.nu_all + NS * N
-        ix = lambda k, i: NX * k + i                        # noqa: E731
-        iu = lambda k, i: self.nx_all + NU * k + i          # noqa: E731
+        ix = lambda k, i: NX * k + i  # noqa: E731
+        iu = lambda k, i: self.nx_all + NU * k + i  # noqa: E731
         isl = lambda k, i: self.nx_all + self.nu_all + NS * k + i  # noqa: E731
         self.ix, self.iu, self.isl = ix, iu, isl
 
@@ -87,6 +88,7 @@ class QpLayout:
             ar.append(r)
             ac.append(c)
             av.append(v)
+
         # dynamics: x_0 = x_init; x_{k+1} - Ad x_k - Bd u_k = c_k
         for i in range(NX):
             put(i, ix(0, i), 1.0)
@@ -154,16 +156,22 @@ class QpLayout:
         row += NS * N
         self.m = row
         # row blocks of one row group per stage: (rows, rows per stage), for shifting duals
-        self.row_blocks = [(self.r_dyn, NX), (self.r_u, NU), (self.r_sr, 1)] + [
-            (getattr(self, r), 1) for r in ("r_jl", "r_jh", "r_vl", "r_vh")
-        ] + [(self.r_s, NS)]
+        self.row_blocks = (
+            [(self.r_dyn, NX), (self.r_u, NU), (self.r_sr, 1)]
+            + [(getattr(self, r), 1) for r in ("r_jl", "r_jh", "r_vl", "r_vh")]
+            + [(self.r_s, NS)]
+        )
         self.A_vals = np.array(av)
         self.A, self.A_perm = _pattern(ar, ac, self.m, self.n)
         self.slack_shift = _Shift([(slice(0, NS * N), NS)])  # warm start: slacks
-        self.dual_shift = _Shift(self.row_blocks)             # and the dual
-        self.primal_shift = _Shift([(slice(0, self.nx_all), NX),  # an unfinished iterate
-                                    (slice(self.nx_all, self.nx_all + self.nu_all), NU),
-                                    (slice(self.nx_all + self.nu_all, self.n), NS)])
+        self.dual_shift = _Shift(self.row_blocks)  # and the dual
+        self.primal_shift = _Shift(
+            [
+                (slice(0, self.nx_all), NX),  # an unfinished iterate
+                (slice(self.nx_all, self.nx_all + self.nu_all), NU),
+                (slice(self.nx_all + self.nu_all, self.n), NS),
+            ]
+        )
 
 
 def _pattern(rows, cols, m, n):
@@ -210,8 +218,12 @@ class _Shift:
             k0 = np.floor(pos)
             f = pos - k0
             k1 = np.minimum(k0 + 1, self.last)
-            got = (self.base + (k0 * self.width).astype(np.int64), 1 - f,
-                   self.base + (k1 * self.width).astype(np.int64), f)
+            got = (
+                self.base + (k0 * self.width).astype(np.int64),
+                1 - f,
+                self.base + (k1 * self.width).astype(np.int64),
+                f,
+            )
             if len(self._cache) >= 16:
                 self._cache.clear()
             self._cache[sh] = got
@@ -248,9 +260,17 @@ class QpSolver:
         #: start's plan's stage 0
         self.iterate: tuple | None = None
 
-    def solve(self, Pdata: np.ndarray, q: np.ndarray, Adata: np.ndarray, lo: np.ndarray,
-              hi: np.ndarray, Xb: np.ndarray, Ub: np.ndarray,
-              shift_stages: float | None) -> SolveOutcome:
+    def solve(
+        self,
+        Pdata: np.ndarray,
+        q: np.ndarray,
+        Adata: np.ndarray,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        Xb: np.ndarray,
+        Ub: np.ndarray,
+        shift_stages: float | None,
+    ) -> SolveOutcome:
         """Set up OSQP once (pattern), else update the values in place; warm start; solve.
         ``Xb``, ``Ub``: the nominal (the primal warm start's states and inputs);
         ``shift_stages``: stages elapsed since the warm start's first stage (None: none to
@@ -258,18 +278,26 @@ class QpSolver:
         cfg, L = self.config, self.layout
         if self.solver is None:
             import osqp
+
             Pm = L.P.copy()
             Pm.data = Pdata
             Am = L.A.copy()
             Am.data = Adata
             self.solver = osqp.OSQP()
-            settings = dict(verbose=False, warm_starting=True, polishing=False,
-                            eps_abs=cfg.eps_abs, eps_rel=cfg.eps_rel, max_iter=cfg.max_iter,
-                            adaptive_rho=cfg.adaptive_rho, rho=cfg.rho,
-                            check_termination=cfg.check_termination,
-                            adaptive_rho_interval=cfg.adaptive_rho_interval,
-                            adaptive_rho_tolerance=cfg.adaptive_rho_tolerance,
-                            alpha=cfg.admm_alpha)
+            settings = dict(
+                verbose=False,
+                warm_starting=True,
+                polishing=False,
+                eps_abs=cfg.eps_abs,
+                eps_rel=cfg.eps_rel,
+                max_iter=cfg.max_iter,
+                adaptive_rho=cfg.adaptive_rho,
+                rho=cfg.rho,
+                check_termination=cfg.check_termination,
+                adaptive_rho_interval=cfg.adaptive_rho_interval,
+                adaptive_rho_tolerance=cfg.adaptive_rho_tolerance,
+                alpha=cfg.admm_alpha,
+            )
             if cfg.time_limit_s > 0:
                 settings["time_limit"] = cfg.time_limit_s
             self.solver.setup(Pm, q, Am, lo, hi, **settings)
@@ -277,8 +305,14 @@ class QpSolver:
             # OSQP 1.x's extension object: its update and solve called directly save the
             # Python wrapper's per-call bookkeeping (about 0.1 ms a step); None: the wrapper
             raw = getattr(self.solver, "_solver", None)
-            self._raw = raw if all(hasattr(raw, a) for a in (
-                "update_data_vec", "update_data_mat", "solve", "info", "solution")) else None
+            self._raw = (
+                raw
+                if all(
+                    hasattr(raw, a)
+                    for a in ("update_data_vec", "update_data_mat", "solve", "info", "solution")
+                )
+                else None
+            )
         else:
             t_up = time.perf_counter()
             raw = self._raw
@@ -311,9 +345,15 @@ class QpSolver:
             info, x, y = res.info, res.x, res.y
         solve_s, solve_cpu_s = time.perf_counter() - t0, time.thread_time() - c0
         sv = int(info.status_val)
-        out = SolveOutcome(None, str(info.status), "osqp", solve_time_s=solve_s,
-                           update_time_s=self._update_s, iterations=int(info.iter),
-                           solve_cpu_s=solve_cpu_s)
+        out = SolveOutcome(
+            None,
+            str(info.status),
+            "osqp",
+            solve_time_s=solve_s,
+            update_time_s=self._update_s,
+            iterations=int(info.iter),
+            solve_cpu_s=solve_cpu_s,
+        )
         finite = x is not None and np.isfinite(x).all()
         if sv == _MAX_ITER and finite:
             # the iteration cap: the iterate is used when its residuals are within the
@@ -339,8 +379,9 @@ class QpSolver:
         out.solution = np.array(x)
         return out
 
-    def warm_start_vectors(self, Xb: np.ndarray, Ub: np.ndarray, shift_stages: float | None
-                           ) -> tuple[np.ndarray, np.ndarray | None]:
+    def warm_start_vectors(
+        self, Xb: np.ndarray, Ub: np.ndarray, shift_stages: float | None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """Primal and dual warm start: the previous solution shifted in time by the
         stages elapsed (linear interpolation per stage block, last stage repeated). The
         dual is None when the previous solution has none. Every block moves by the same
@@ -350,18 +391,19 @@ class QpSolver:
         L = self.layout
         if self.iterate is not None and shift_stages is not None:
             x_it, y_it, sh_it = self.iterate
-            return L.primal_shift(x_it, shift_stages - sh_it), L.dual_shift(y_it,
-                                                                           shift_stages - sh_it)
+            return L.primal_shift(x_it, shift_stages - sh_it), L.dual_shift(
+                y_it, shift_stages - sh_it
+            )
         assert self.warm is not None  # called only with a previous solution
         x_prev, y_prev = self.warm
         sh = shift_stages
         z = np.empty(L.n)
-        z[:L.nx_all] = Xb.ravel()
-        z[L.nx_all:L.nx_all + L.nu_all] = Ub.ravel()
+        z[: L.nx_all] = Xb.ravel()
+        z[L.nx_all : L.nx_all + L.nu_all] = Ub.ravel()
         if sh is None:  # cold guess: no previous plan to shift
-            z[L.nx_all + L.nu_all:] = 0.0
+            z[L.nx_all + L.nu_all :] = 0.0
             return z, None
-        z[L.nx_all + L.nu_all:] = L.slack_shift(x_prev[L.nx_all + L.nu_all:], sh)
+        z[L.nx_all + L.nu_all :] = L.slack_shift(x_prev[L.nx_all + L.nu_all :], sh)
         if y_prev is None or len(y_prev) != L.m:
             return z, None
         return z, L.dual_shift(y_prev, sh)

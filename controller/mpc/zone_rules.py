@@ -12,6 +12,7 @@
   no acceleration change around the crossing (controller/modes.py
   ``transition_allowed``). Entering the preferred zone is always allowed.
 """
+
 from __future__ import annotations
 
 import math
@@ -35,6 +36,7 @@ def preferred_zone(params: Params) -> int:
         return min(scored)[1]
     return max(params.zone_for(3.5), 0)
 
+
 class ZoneRules:
     """The zone schedule and the speed band of a horizon (see the module docstring).
 
@@ -46,8 +48,14 @@ class ZoneRules:
         plant: the prediction model (its zones and hysteresis).
     """
 
-    def __init__(self, params: Params, config: MpcConfig, mode_config: ModeConfig,
-                 limits: ActuatorLimits, plant: HybridPlant):
+    def __init__(
+        self,
+        params: Params,
+        config: MpcConfig,
+        mode_config: ModeConfig,
+        limits: ActuatorLimits,
+        plant: HybridPlant,
+    ):
         N, dt, c, pl = config.n_stages, config.dt_s, config, plant
         self.config, self.mode_config, self.plant, self.N, self.dt = c, mode_config, pl, N, dt
         self.pref_zone = preferred_zone(params)
@@ -55,10 +63,14 @@ class ZoneRules:
         #: the minimum-speed floor [m/s] (0: none)
         self.floor_mps = params.zones[self.pref_zone].v_min_mps if floor is None else float(floor)
         # each zone's hysteresis band [m/s] (models.zones.zone_with_hysteresis)
-        self._zone_bands = [(-math.inf if z == 0 else pl.v_min[z] - pl.hysteresis_mps,
-                             pl.v_max[z] + pl.hysteresis_mps if z < pl.n_zones - 1 else math.inf)
-                            for z in range(pl.n_zones)]
-        self._band_v_hi = np.full(N, limits.speed_max_mps)     # speed_band's defaults
+        self._zone_bands = [
+            (
+                -math.inf if z == 0 else pl.v_min[z] - pl.hysteresis_mps,
+                pl.v_max[z] + pl.hysteresis_mps if z < pl.n_zones - 1 else math.inf,
+            )
+            for z in range(pl.n_zones)
+        ]
+        self._band_v_hi = np.full(N, limits.speed_max_mps)  # speed_band's defaults
         self._band_w_hi = np.full(N, c.w_speed_max * dt)
 
     def schedule(self, zone0: int, vb: np.ndarray) -> np.ndarray:
@@ -66,12 +78,12 @@ class ZoneRules:
         the nominal stays inside ``zone0``'s hysteresis band: then the schedule is
         ``zone0`` throughout (what the plant's stage-by-stage loop gives, checked at once)."""
         lo, hi = self._zone_bands[zone0]
-        v = vb[1:self.N]
+        v = vb[1 : self.N]
         if ((v >= lo) & (v <= hi)).all():
             return np.full(self.N, zone0, dtype=np.int64)
         out = np.empty(self.N, dtype=np.int64)
         out[0] = zone0
-        out[1:] = self.plant.zone_schedule(vb[1:self.N], zone0)
+        out[1:] = self.plant.zone_schedule(vb[1 : self.N], zone0)
         return out
 
     def speed_band(self, zone0: int, v_r: np.ndarray, override: bool) -> SpeedBand:
@@ -107,9 +119,10 @@ class ZoneRules:
                     a_ref = (v_r[1:] - v_r[:-1]) / dt  # np.diff
                     win = max(int(round(cfg.transition_window_s / dt)), 1)
                     dwell = max(int(round(cfg.transition_dwell_s / dt)), 1)
-                    stays = bool(outside[k:min(k + dwell, N + 1)].all())
-                    allowed = stays and transition_allowed(a_ref, k, win,
-                                                           cfg.transition_accel_tol_mps2)
+                    stays = bool(outside[k : min(k + dwell, N + 1)].all())
+                    allowed = stays and transition_allowed(
+                        a_ref, k, win, cfg.transition_accel_tol_mps2
+                    )
             else:
                 allowed = False  # no transition demanded: leaving the band is penalised
             if not allowed and not override:

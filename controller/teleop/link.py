@@ -76,6 +76,7 @@ Latency (``tools/bench_teleop_link.py``, loopback, 2-core development machine): 
 p99 0.32 ms from the operator's send to the receiver's read; a receiver polled by a 50 Hz loop
 adds the wait for the next period (up to 20 ms, depending on the two loops' phase).
 """
+
 from __future__ import annotations
 
 import enum
@@ -83,25 +84,22 @@ import errno
 import hashlib
 import hmac
 import math
-import os
-import secrets
 import socket
-import stat
 import struct
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from collections.abc import Callable
 
 import numpy as np
 
-from hmpc.models.errors import InputError
+from hmpc.controller.teleop.keys import MIN_KEY_BYTES as MIN_KEY_BYTES
+from hmpc.controller.teleop.keys import KeyFileError as KeyFileError
+from hmpc.controller.teleop.keys import create_key as create_key
+from hmpc.controller.teleop.keys import load_key as load_key
 
 PROTOCOL_VERSION = 1
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 47700
-#: a key shorter than the hash output weakens HMAC-SHA256 (RFC 2104 section 3)
-MIN_KEY_BYTES = 32
 MAC_SIZE = 32
 
 KIND_COMMAND = 1
@@ -112,17 +110,26 @@ FLAG_DEAD_MAN = 0x01
 class Mode(enum.IntEnum):
     """What a command packet asks for."""
 
-    PEDALS = 1        #: values = steering-wheel angle [rad], accel pedal [1], brake pedal [1]
-    REFERENCES = 2    #: values = speed [m/s], curvature [1/m], 0
-    ENGAGE = 3        #: start accepting commands (dead-man held)
-    DISENGAGE = 4     #: the operator ends the run: controlled stop
+    PEDALS = 1  #: values = steering-wheel angle [rad], accel pedal [1], brake pedal [1]
+    REFERENCES = 2  #: values = speed [m/s], curvature [1/m], 0
+    ENGAGE = 3  #: start accepting commands (dead-man held)
+    DISENGAGE = 4  #: the operator ends the run: controlled stop
     HANDOVER_MPC = 5  #: the MPC drives; the operator keeps the dead-man and the link alive
-    TAKE_OVER = 6     #: the operator drives again
+    TAKE_OVER = 6  #: the operator drives again
 
 
 #: rejection reasons, in the order they are checked (also the order in telemetry)
-REASONS = ("oversized", "truncated", "bad_mac", "malformed", "second_operator", "replayed",
-           "old_sequence", "stale", "future")
+REASONS = (
+    "oversized",
+    "truncated",
+    "bad_mac",
+    "malformed",
+    "second_operator",
+    "replayed",
+    "old_sequence",
+    "stale",
+    "future",
+)
 
 _CMD = struct.Struct("!BBBBQqddd")
 COMMAND_SIZE = _CMD.size + MAC_SIZE  # 76
@@ -131,61 +138,9 @@ COMMAND_SIZE = _CMD.size + MAC_SIZE  # 76
 #: pedal mode, stop t [s] (NaN: none), stop detected t [s], stop reason, received, accepted,
 #: delivered, ignored (not engaged), rejected per REASONS, lost (sequence gaps), latency p50
 #: and p99 [ms], max gap between valid packets [ms], clock offset bound [ms]
-_TEL = struct.Struct("!BBBBQq" "ddbb" "8s8s" "dd24s" "IIII" + "I" * len(REASONS) + "I" + "ffff")
+_TEL = struct.Struct("!BBBBQqddbb8s8sdd24sIIII" + "I" * len(REASONS) + "I" + "ffff")
 TELEMETRY_SIZE = _TEL.size + MAC_SIZE
 _BUF_SIZE = 65536  # any UDP datagram fits: an oversized one is seen whole, never cut short
-
-
-class KeyFileError(InputError):
-    """A key file is missing, readable by others, too short or not hex."""
-
-
-# ------------------------------------------------------------------------------ keys
-def load_key(path: str | Path) -> bytes:
-    """Read a pre-shared key: one line of hex, at least ``MIN_KEY_BYTES`` bytes.
-
-    Raises:
-        KeyFileError: the file is missing, not a regular file, readable or writable by group
-            or others (``chmod 600`` it), not one line of hex, or shorter than 32 bytes.
-    """
-    p = str(path)
-    try:
-        st = os.stat(p)
-    except OSError as exc:
-        raise KeyFileError(f"cannot read key file: {exc.strerror}", p) from None
-    if not stat.S_ISREG(st.st_mode):
-        raise KeyFileError("key file is not a regular file", p)
-    if st.st_mode & 0o077:
-        raise KeyFileError(f"key file is accessible by group or others (mode "
-                           f"{stat.S_IMODE(st.st_mode):04o}); run chmod 600 on it", p)
-    with open(p, "rb") as fh:
-        raw = fh.read(4096)
-    text = raw.decode("ascii", errors="replace")
-    lines = text.splitlines()
-    if len(lines) != 1:
-        raise KeyFileError("key file must hold exactly one line of hex", p, line=1)
-    try:
-        key = bytes.fromhex(lines[0].strip())
-    except ValueError:
-        raise KeyFileError("key is not hex", p, line=1) from None
-    if len(key) < MIN_KEY_BYTES:
-        raise KeyFileError(f"key has {len(key)} bytes, needs at least {MIN_KEY_BYTES}", p, line=1)
-    return key
-
-
-def create_key(path: str | Path, n_bytes: int = MIN_KEY_BYTES) -> Path:
-    """Write a new random key (``secrets``) as hex to a new file with mode 0600.
-
-    Refuses to overwrite an existing file (``FileExistsError``).
-    """
-    if n_bytes < MIN_KEY_BYTES:
-        raise ValueError(f"n_bytes must be >= {MIN_KEY_BYTES}")
-    p = Path(path)
-    fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "w", encoding="ascii") as fh:
-        fh.write(secrets.token_hex(n_bytes) + "\n")
-    os.chmod(p, 0o600)  # the umask can only remove bits, but say it explicitly
-    return p
 
 
 def parse_address(text: str, default_port: int = DEFAULT_PORT) -> tuple[str, int]:
@@ -227,22 +182,37 @@ class TeleopCommand:
     t_recv_s: float = math.nan
 
     @classmethod
-    def pedals(cls, steering_wheel_angle_rad: float, accel_pedal: float, brake_pedal: float,
-               dead_man: bool = True) -> TeleopCommand:
-        return cls(Mode.PEDALS, (float(steering_wheel_angle_rad), float(accel_pedal),
-                                 float(brake_pedal)), dead_man)
+    def pedals(
+        cls,
+        steering_wheel_angle_rad: float,
+        accel_pedal: float,
+        brake_pedal: float,
+        dead_man: bool = True,
+    ) -> TeleopCommand:
+        return cls(
+            Mode.PEDALS,
+            (float(steering_wheel_angle_rad), float(accel_pedal), float(brake_pedal)),
+            dead_man,
+        )
 
     @classmethod
-    def references(cls, speed_mps: float, curvature_1pm: float,
-                   dead_man: bool = True) -> TeleopCommand:
+    def references(
+        cls, speed_mps: float, curvature_1pm: float, dead_man: bool = True
+    ) -> TeleopCommand:
         return cls(Mode.REFERENCES, (float(speed_mps), float(curvature_1pm), 0.0), dead_man)
 
 
 def encode_command(key: bytes, cmd: TeleopCommand, seq: int, t_send_s: float) -> bytes:
     """The 76-byte authenticated command packet (pure function)."""
-    body = _CMD.pack(PROTOCOL_VERSION, KIND_COMMAND, int(cmd.mode),
-                     FLAG_DEAD_MAN if cmd.dead_man else 0, int(seq), _us(t_send_s),
-                     *cmd.values)
+    body = _CMD.pack(
+        PROTOCOL_VERSION,
+        KIND_COMMAND,
+        int(cmd.mode),
+        FLAG_DEAD_MAN if cmd.dead_man else 0,
+        int(seq),
+        _us(t_send_s),
+        *cmd.values,
+    )
     return body + _mac(key, body)
 
 
@@ -312,23 +282,49 @@ def _unstr(b: bytes) -> str:
     return b.rstrip(b"\0").decode("ascii", errors="replace")
 
 
-def encode_telemetry(key: bytes, seq: int, t_send_s: float, *, engaged: bool,
-                     mpc_in_control: bool, link_held: bool, vehicle: VehicleStatus,
-                     stop: StopRequest | None, stats: dict) -> bytes:
+def encode_telemetry(
+    key: bytes,
+    seq: int,
+    t_send_s: float,
+    *,
+    engaged: bool,
+    mpc_in_control: bool,
+    link_held: bool,
+    vehicle: VehicleStatus,
+    stop: StopRequest | None,
+    stats: dict,
+) -> bytes:
     """An authenticated telemetry packet (pure function); ``stats`` as ``LinkReceiver.stats``."""
     flags = (1 if engaged else 0) | (2 if mpc_in_control else 0) | (4 if link_held else 0)
     zone = vehicle.zone if -128 <= vehicle.zone <= 127 else -1
     lat = stats["latency_ms"]
     body = _TEL.pack(
-        PROTOCOL_VERSION, KIND_TELEMETRY, flags, 0, int(seq), _us(t_send_s),
-        float(vehicle.speed_mps), float(vehicle.steering_wheel_angle_rad), zone, 0,
-        _s(vehicle.zone_name, 8), _s(vehicle.pedal_mode, 8),
-        stop.t_s if stop else math.nan, stop.detected_t_s if stop else math.nan,
+        PROTOCOL_VERSION,
+        KIND_TELEMETRY,
+        flags,
+        0,
+        int(seq),
+        _us(t_send_s),
+        float(vehicle.speed_mps),
+        float(vehicle.steering_wheel_angle_rad),
+        zone,
+        0,
+        _s(vehicle.zone_name, 8),
+        _s(vehicle.pedal_mode, 8),
+        stop.t_s if stop else math.nan,
+        stop.detected_t_s if stop else math.nan,
         _s(stop.reason if stop else "", 24),
-        stats["received"], stats["accepted"], stats["delivered"], stats["ignored_not_engaged"],
-        *(stats["rejected"][r] for r in REASONS), stats["lost"],
-        _nan(lat["p50"]), _nan(lat["p99"]), _nan(stats["max_gap_ms"]),
-        _nan(stats["clock_offset_ms"]))
+        stats["received"],
+        stats["accepted"],
+        stats["delivered"],
+        stats["ignored_not_engaged"],
+        *(stats["rejected"][r] for r in REASONS),
+        stats["lost"],
+        _nan(lat["p50"]),
+        _nan(lat["p99"]),
+        _nan(stats["max_gap_ms"]),
+        _nan(stats["clock_offset_ms"]),
+    )
     return body + _mac(key, body)
 
 
@@ -350,19 +346,50 @@ def decode_telemetry(key: bytes, data: bytes) -> Telemetry | None:
     f = _TEL.unpack(body)
     if f[0] != PROTOCOL_VERSION or f[1] != KIND_TELEMETRY:
         return None
-    (_, _, flags, _, seq, t_us, v, sw, zone, _, zname, pmode, stop_t, stop_det, reason,
-     received, accepted, delivered, ignored) = f[:19]
+    (
+        _,
+        _,
+        flags,
+        _,
+        seq,
+        t_us,
+        v,
+        sw,
+        zone,
+        _,
+        zname,
+        pmode,
+        stop_t,
+        stop_det,
+        reason,
+        received,
+        accepted,
+        delivered,
+        ignored,
+    ) = f[:19]
     n = len(REASONS)
-    rej = dict(zip(REASONS, f[19:19 + n]))
-    lost, p50, p99, gap, off = f[19 + n:]
+    rej = dict(zip(REASONS, f[19 : 19 + n]))
+    lost, p50, p99, gap, off = f[19 + n :]
     reason_s = _unstr(reason)
     return Telemetry(
-        seq=seq, t_send_s=t_us * 1e-6, engaged=bool(flags & 1), mpc_in_control=bool(flags & 2),
+        seq=seq,
+        t_send_s=t_us * 1e-6,
+        engaged=bool(flags & 1),
+        mpc_in_control=bool(flags & 2),
         link_held=bool(flags & 4),
         vehicle=VehicleStatus(v, sw, zone, _unstr(zname), _unstr(pmode)),
         stop=StopRequest(reason_s, stop_t, stop_det) if reason_s else None,
-        received=received, accepted=accepted, delivered=delivered, ignored=ignored, rejected=rej,
-        lost=lost, latency_p50_ms=p50, latency_p99_ms=p99, max_gap_ms=gap, clock_offset_ms=off)
+        received=received,
+        accepted=accepted,
+        delivered=delivered,
+        ignored=ignored,
+        rejected=rej,
+        lost=lost,
+        latency_p50_ms=p50,
+        latency_p99_ms=p99,
+        max_gap_ms=gap,
+        clock_offset_ms=off,
+    )
 
 
 # -------------------------------------------------------------------------- receiver
@@ -427,8 +454,13 @@ class LinkReceiver:
         clock: the receiver's clock [s] (default ``time.time``; tests inject simulated time).
     """
 
-    def __init__(self, key: bytes, bind: tuple[str, int] = (DEFAULT_HOST, DEFAULT_PORT),
-                 config: LinkConfig | None = None, clock: Callable[[], float] = time.time):
+    def __init__(
+        self,
+        key: bytes,
+        bind: tuple[str, int] = (DEFAULT_HOST, DEFAULT_PORT),
+        config: LinkConfig | None = None,
+        clock: Callable[[], float] = time.time,
+    ):
         if len(key) < MIN_KEY_BYTES:
             raise ValueError(f"key must have at least {MIN_KEY_BYTES} bytes")
         self._key = bytes(key)
@@ -532,13 +564,17 @@ class LinkReceiver:
             return "oversized"
         if n < COMMAND_SIZE:
             return "truncated"
-        body = self._view[:_CMD.size]
-        if not hmac.compare_digest(_mac(self._key, body), self._view[_CMD.size:COMMAND_SIZE]):
+        body = self._view[: _CMD.size]
+        if not hmac.compare_digest(_mac(self._key, body), self._view[_CMD.size : COMMAND_SIZE]):
             return "bad_mac"
         ver, kind, mode, flags, seq, t_us, v0, v1, v2 = _CMD.unpack_from(self._buf)
-        if (ver != PROTOCOL_VERSION or kind != KIND_COMMAND or flags & ~FLAG_DEAD_MAN
-                or mode not in _MODES or not (math.isfinite(v0) and math.isfinite(v1)
-                                              and math.isfinite(v2))):
+        if (
+            ver != PROTOCOL_VERSION
+            or kind != KIND_COMMAND
+            or flags & ~FLAG_DEAD_MAN
+            or mode not in _MODES
+            or not (math.isfinite(v0) and math.isfinite(v1) and math.isfinite(v2))
+        ):
             return "malformed"
         if self.holder is not None and addr != self.holder:
             return "second_operator"
@@ -551,8 +587,9 @@ class LinkReceiver:
             return "stale"
         if age < -self.config.future_tolerance_s:
             return "future"
-        return TeleopCommand(Mode(mode), (v0, v1, v2), bool(flags & FLAG_DEAD_MAN), seq,
-                             t_us * 1e-6, now)
+        return TeleopCommand(
+            Mode(mode), (v0, v1, v2), bool(flags & FLAG_DEAD_MAN), seq, t_us * 1e-6, now
+        )
 
     def _accept(self, cmd: TeleopCommand, addr, now: float, out: PollResult) -> None:
         self.accepted += 1
@@ -614,19 +651,27 @@ class LinkReceiver:
         n = min(self._n_lat, len(self._lat))
         if n:
             p50, p99 = np.percentile(self._lat[:n], [50, 99]) * 1e3
-            lat: dict[str, float | None] = {"p50": round(float(p50), 4),
-                                            "p99": round(float(p99), 4)}
+            lat: dict[str, float | None] = {
+                "p50": round(float(p50), 4),
+                "p99": round(float(p99), 4),
+            }
         else:
             lat = {"p50": None, "p99": None}  # no packet: no latency
         return {
-            "received": self.received, "accepted": self.accepted, "delivered": self.delivered,
+            "received": self.received,
+            "accepted": self.accepted,
+            "delivered": self.delivered,
             "ignored_not_engaged": self.ignored_not_engaged,
-            "rejected": dict(self.rejected), "rejected_total": sum(self.rejected.values()),
-            "lost": self.lost, "latency_ms": lat,
+            "rejected": dict(self.rejected),
+            "rejected_total": sum(self.rejected.values()),
+            "lost": self.lost,
+            "latency_ms": lat,
             "max_gap_ms": round(self._max_gap_s * 1e3, 3) if self.accepted > 1 else None,
-            "clock_offset_ms": (round(self._min_offset_s * 1e3, 4)
-                                if math.isfinite(self._min_offset_s) else None),
-            "polls": self.polls, "polls_budget_exhausted": self.polls_budget_exhausted,
+            "clock_offset_ms": (
+                round(self._min_offset_s * 1e3, 4) if math.isfinite(self._min_offset_s) else None
+            ),
+            "polls": self.polls,
+            "polls_budget_exhausted": self.polls_budget_exhausted,
             "stop": self.stop.to_dict() if self.stop else None,
         }
 
@@ -636,9 +681,17 @@ class LinkReceiver:
             return False
         now = self.clock() if now_s is None else float(now_s)
         self._tel_seq += 1
-        pkt = encode_telemetry(self._key, self._tel_seq, now, engaged=self.engaged,
-                               mpc_in_control=self.mpc_in_control, link_held=True,
-                               vehicle=vehicle, stop=self.stop, stats=self.stats())
+        pkt = encode_telemetry(
+            self._key,
+            self._tel_seq,
+            now,
+            engaged=self.engaged,
+            mpc_in_control=self.mpc_in_control,
+            link_held=True,
+            vehicle=vehicle,
+            stop=self.stop,
+            stats=self.stats(),
+        )
         try:
             self.sock.sendto(pkt, self.holder)
         except (BlockingIOError, OSError):
@@ -659,8 +712,13 @@ class OperatorLink:
         seq_start: first sequence number (default: wall clock in microseconds).
     """
 
-    def __init__(self, key: bytes, connect: tuple[str, int] = (DEFAULT_HOST, DEFAULT_PORT),
-                 clock: Callable[[], float] = time.time, seq_start: int | None = None):
+    def __init__(
+        self,
+        key: bytes,
+        connect: tuple[str, int] = (DEFAULT_HOST, DEFAULT_PORT),
+        clock: Callable[[], float] = time.time,
+        seq_start: int | None = None,
+    ):
         if len(key) < MIN_KEY_BYTES:
             raise ValueError(f"key must have at least {MIN_KEY_BYTES} bytes")
         self._key = bytes(key)

@@ -30,6 +30,7 @@ error. Each row holds until the next row's time (zero-order hold); the last row 
 ``LAST_ROW_HOLD_S`` and then the script ends. Values pass through the vehicle's limits there
 (the same ``apply_limits`` as the MPC's commands); the script is not clamped here.
 """
+
 from __future__ import annotations
 
 import csv
@@ -57,14 +58,29 @@ END_PACKETS = 5
 #: a built-in experiment starts with this much ``engage`` [s] (five packets)
 ENGAGE_LEAD_S = 0.1
 
-MODE_NAMES = {"pedals": Mode.PEDALS, "references": Mode.REFERENCES, "engage": Mode.ENGAGE,
-              "disengage": Mode.DISENGAGE, "handover_mpc": Mode.HANDOVER_MPC,
-              "take_over": Mode.TAKE_OVER}
+MODE_NAMES = {
+    "pedals": Mode.PEDALS,
+    "references": Mode.REFERENCES,
+    "engage": Mode.ENGAGE,
+    "disengage": Mode.DISENGAGE,
+    "handover_mpc": Mode.HANDOVER_MPC,
+    "take_over": Mode.TAKE_OVER,
+}
 _NAME_OF = {m: n for n, m in MODE_NAMES.items()}
-_VALUE_COLS = {Mode.PEDALS: ("steering_wheel_angle_rad", "accel_pedal", "brake_pedal"),
-               Mode.REFERENCES: ("speed_mps", "curvature_1pm")}
-COLUMNS = ("t_s", "mode", "dead_man", "steering_wheel_angle_rad", "accel_pedal", "brake_pedal",
-           "speed_mps", "curvature_1pm")
+_VALUE_COLS = {
+    Mode.PEDALS: ("steering_wheel_angle_rad", "accel_pedal", "brake_pedal"),
+    Mode.REFERENCES: ("speed_mps", "curvature_1pm"),
+}
+COLUMNS = (
+    "t_s",
+    "mode",
+    "dead_man",
+    "steering_wheel_angle_rad",
+    "accel_pedal",
+    "brake_pedal",
+    "speed_mps",
+    "curvature_1pm",
+)
 REQUIRED = ("t_s", "mode", "dead_man")
 
 
@@ -119,16 +135,20 @@ def load_script(path: str | Path) -> Script:
     except OSError as exc:
         raise InputError(f"cannot read script: {exc.strerror}", p) from None
     with fh:
-        lines = [(i, ln) for i, ln in enumerate(fh, start=1)
-                 if ln.strip() and not ln.lstrip().startswith("#")]
+        lines = [
+            (i, ln)
+            for i, ln in enumerate(fh, start=1)
+            if ln.strip() and not ln.lstrip().startswith("#")
+        ]
     if not lines:
         raise InputError("script is empty (needs a header and rows)", p)
     header_line, header = lines[0]
     cols = [c.strip() for c in next(csv.reader([header]))]
     for c in cols:
         if c not in COLUMNS:
-            raise InputError(f"unknown column '{c}' (known: {', '.join(COLUMNS)})", p,
-                             line=header_line)
+            raise InputError(
+                f"unknown column '{c}' (known: {', '.join(COLUMNS)})", p, line=header_line
+            )
     for c in REQUIRED:
         if c not in cols:
             raise InputError(f"missing column '{c}'", p, line=header_line)
@@ -144,8 +164,9 @@ def load_script(path: str | Path) -> Script:
         t = _num(row["t_s"], p, lineno, "t_s")
         mode = MODE_NAMES.get(row["mode"])
         if mode is None:
-            raise InputError(f"unknown mode '{row['mode']}' (known: {', '.join(MODE_NAMES)})",
-                             p, line=lineno)
+            raise InputError(
+                f"unknown mode '{row['mode']}' (known: {', '.join(MODE_NAMES)})", p, line=lineno
+            )
         if row["dead_man"] not in ("0", "1"):
             raise InputError(f"dead_man must be 0 or 1, got '{row['dead_man']}'", p, line=lineno)
         vals = []
@@ -155,8 +176,9 @@ def load_script(path: str | Path) -> Script:
             vals.append(_num(row[c], p, lineno, c))
         vals = (vals + [0.0, 0.0, 0.0])[:3]
         if times and t <= times[-1]:
-            raise InputError(f"t_s {t:g} does not increase (previous {times[-1]:g})", p,
-                             line=lineno)
+            raise InputError(
+                f"t_s {t:g} does not increase (previous {times[-1]:g})", p, line=lineno
+            )
         if not times and t != 0.0:
             raise InputError(f"the first row must be at t_s 0, got {t:g}", p, line=lineno)
         times.append(t)
@@ -184,15 +206,26 @@ def write_script(script: Script, path: str | Path) -> None:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(COLUMNS)
         for t, c in zip(script.times_s, script.commands):
-            row = {"t_s": repr(float(t)), "mode": _NAME_OF[c.mode],
-                   "dead_man": "1" if c.dead_man else "0"}
+            row = {
+                "t_s": repr(float(t)),
+                "mode": _NAME_OF[c.mode],
+                "dead_man": "1" if c.dead_man else "0",
+            }
             for col, v in zip(_VALUE_COLS.get(c.mode, ()), c.values):
                 row[col] = repr(float(v))
             w.writerow([row.get(col, "") for col in COLUMNS])
 
 
-def inputs_script(time_s, steering_wheel_angle_rad, accel_pedal, brake_pedal, *, name: str,
-                  meta: dict | None = None, rate_hz: float = RATE_HZ) -> Script:
+def inputs_script(
+    time_s,
+    steering_wheel_angle_rad,
+    accel_pedal,
+    brake_pedal,
+    *,
+    name: str,
+    meta: dict | None = None,
+    rate_hz: float = RATE_HZ,
+) -> Script:
     """A pedals-and-steering script from sampled driver inputs, after ``ENGAGE_LEAD_S`` of
     ``engage`` and ending with ``disengage``.
 
@@ -207,13 +240,19 @@ def inputs_script(time_s, steering_wheel_angle_rad, accel_pedal, brake_pedal, *,
     """
     t = np.asarray(time_s, dtype=float)
     cmds = [TeleopCommand(Mode.ENGAGE)]
-    cmds += [TeleopCommand.pedals(a, b, c)
-             for a, b, c in zip(steering_wheel_angle_rad, accel_pedal, brake_pedal)]
+    cmds += [
+        TeleopCommand.pedals(a, b, c)
+        for a, b, c in zip(steering_wheel_angle_rad, accel_pedal, brake_pedal)
+    ]
     cmds.append(TeleopCommand(Mode.DISENGAGE))
     dt = 1.0 / rate_hz
     times = np.concatenate([[0.0], ENGAGE_LEAD_S + (t - t[0]), [ENGAGE_LEAD_S + t[-1] - t[0] + dt]])
-    return Script(times, cmds, name=name,
-                  meta={**(meta or {}), "duration_s": float(times[-1] + LAST_ROW_HOLD_S)})
+    return Script(
+        times,
+        cmds,
+        name=name,
+        meta={**(meta or {}), "duration_s": float(times[-1] + LAST_ROW_HOLD_S)},
+    )
 
 
 # ----------------------------------------------------------------------------- keyboard
@@ -244,10 +283,24 @@ class KeyboardOperator:
     MPC, t take over, q quit (disengage).
     """
 
-    KEYS = {"up": "up", "w": "up", "down": "down", "s": "down", "left": "left", "a": "left",
-            "right": "right", "d": "right", "c": "centre", "x": "release", "e": "engage",
-            " ": "dead_man_release", "esc": "dead_man_release", "m": "handover_mpc",
-            "t": "take_over", "q": "quit"}
+    KEYS = {
+        "up": "up",
+        "w": "up",
+        "down": "down",
+        "s": "down",
+        "left": "left",
+        "a": "left",
+        "right": "right",
+        "d": "right",
+        "c": "centre",
+        "x": "release",
+        "e": "engage",
+        " ": "dead_man_release",
+        "esc": "dead_man_release",
+        "m": "handover_mpc",
+        "t": "take_over",
+        "q": "quit",
+    }
 
     def __init__(self, config: KeyboardConfig | None = None):
         self.config = config or KeyboardConfig()
@@ -291,8 +344,9 @@ class KeyboardOperator:
             self.dead_man = False
             self.accel = self.brake = 0.0
         elif action in ("handover_mpc", "take_over"):
-            self._pending = [TeleopCommand(MODE_NAMES[action], dead_man=self.dead_man)] \
-                * c.mode_repeats
+            self._pending = [
+                TeleopCommand(MODE_NAMES[action], dead_man=self.dead_man)
+            ] * c.mode_repeats
         elif action == "quit":
             self.quit = True
         self.sw_rad = round(self.sw_rad, 9)
@@ -330,12 +384,12 @@ def find_gamepad(pattern: str = "/dev/input/js*") -> str:
 class GamepadConfig:
     """Mapping of an Xbox-layout pad under the Linux ``xpad`` driver (axis and button numbers)."""
 
-    steer_axis: int = 0        # left stick x: full left = +steer_max_rad
-    throttle_axis: int = 5     # right trigger, -32767 released .. 32767 pulled
-    brake_axis: int = 2        # left trigger
-    dead_man_button: int = 5   # right bumper: held = dead-man held (a real dead-man switch)
-    engage_button: int = 7     # start
-    handover_button: int = 3   # Y
+    steer_axis: int = 0  # left stick x: full left = +steer_max_rad
+    throttle_axis: int = 5  # right trigger, -32767 released .. 32767 pulled
+    brake_axis: int = 2  # left trigger
+    dead_man_button: int = 5  # right bumper: held = dead-man held (a real dead-man switch)
+    engage_button: int = 7  # start
+    handover_button: int = 3  # Y
     take_over_button: int = 2  # X
     # steering-wheel angle at full stick [rad]: a quarter of the report's +-2.5*pi, so the
     # stick's resolution stays useful; the vehicle side clamps to its own limits
@@ -387,7 +441,7 @@ class GamepadOperator:
             if not data:
                 return
             for i in range(0, len(data) - _JS_EVENT.size + 1, _JS_EVENT.size):
-                self.handle_event(data[i:i + _JS_EVENT.size])
+                self.handle_event(data[i : i + _JS_EVENT.size])
 
     def command_at(self, t_s: float) -> TeleopCommand | None:
         if self._pending and self.dead_man:
@@ -409,22 +463,35 @@ class RunSummary:
 
     def to_dict(self) -> dict:
         tel = self.last_telemetry
-        out = {"end": self.end, "duration_s": round(self.duration_s, 3), "sent": self.sent,
-               "telemetry_received": self.telemetry_received,
-               "telemetry_rejected": self.telemetry_rejected, "vehicle": None, "link": None,
-               "stop": None}
+        out = {
+            "end": self.end,
+            "duration_s": round(self.duration_s, 3),
+            "sent": self.sent,
+            "telemetry_received": self.telemetry_received,
+            "telemetry_rejected": self.telemetry_rejected,
+            "vehicle": None,
+            "link": None,
+            "stop": None,
+        }
         if tel is not None:
             v = tel.vehicle
-            out["vehicle"] = {"speed_mps": _f(v.speed_mps),
-                              "steering_wheel_angle_rad": _f(v.steering_wheel_angle_rad),
-                              "zone": v.zone_name or None, "pedal_mode": v.pedal_mode or None,
-                              "engaged": tel.engaged, "mpc_in_control": tel.mpc_in_control}
-            out["link"] = {"received": tel.received, "accepted": tel.accepted,
-                           "delivered": tel.delivered, "rejected": tel.rejected,
-                           "lost": tel.lost,
-                           "latency_ms": {"p50": _f(tel.latency_p50_ms),
-                                          "p99": _f(tel.latency_p99_ms)},
-                           "max_gap_ms": _f(tel.max_gap_ms)}
+            out["vehicle"] = {
+                "speed_mps": _f(v.speed_mps),
+                "steering_wheel_angle_rad": _f(v.steering_wheel_angle_rad),
+                "zone": v.zone_name or None,
+                "pedal_mode": v.pedal_mode or None,
+                "engaged": tel.engaged,
+                "mpc_in_control": tel.mpc_in_control,
+            }
+            out["link"] = {
+                "received": tel.received,
+                "accepted": tel.accepted,
+                "delivered": tel.delivered,
+                "rejected": tel.rejected,
+                "lost": tel.lost,
+                "latency_ms": {"p50": _f(tel.latency_p50_ms), "p99": _f(tel.latency_p99_ms)},
+                "max_gap_ms": _f(tel.max_gap_ms),
+            }
             out["stop"] = None if tel.stop is None else tel.stop.to_dict()
         return out
 
@@ -433,12 +500,17 @@ def _f(x: float):
     return None if x is None or not math.isfinite(x) else round(float(x), 6)
 
 
-def run_operator(source: Source, link: OperatorLink, *, rate_hz: float = RATE_HZ,
-                 duration_s: float | None = None,
-                 clock: Callable[[], float] = time.monotonic,
-                 sleep: Callable[[float], None] = time.sleep,
-                 on_tick: Callable[[float, TeleopCommand, Telemetry | None], None] | None = None,
-                 before_tick: Callable[[], None] | None = None) -> RunSummary:
+def run_operator(
+    source: Source,
+    link: OperatorLink,
+    *,
+    rate_hz: float = RATE_HZ,
+    duration_s: float | None = None,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+    on_tick: Callable[[float, TeleopCommand, Telemetry | None], None] | None = None,
+    before_tick: Callable[[], None] | None = None,
+) -> RunSummary:
     """Send ``source``'s command every period until it ends, ``duration_s`` passes or the
     user interrupts; then send the end packets. Pacing uses ``clock``/``sleep`` (absolute
     deadlines, no drift; a late period is not made up). ``before_tick`` reads inputs (keys);
@@ -483,5 +555,6 @@ def run_operator(source: Source, link: OperatorLink, *, rate_hz: float = RATE_HZ
             link.send(stop)
             sleep(period)
         link.poll_telemetry()
-    return RunSummary(end, t, link.sent, link.telemetry_received, link.telemetry_rejected,
-                      link.telemetry)
+    return RunSummary(
+        end, t, link.sent, link.telemetry_received, link.telemetry_rejected, link.telemetry
+    )

@@ -8,6 +8,7 @@ the datagrams sent, how many were rejected (by reason) and how many were deliver
 host. ``tests/teleop/test_teleop_link.py`` asserts on these rows; ``tools/bench_teleop_link.py``
 prints them as a table.
 """
+
 from __future__ import annotations
 
 import random
@@ -16,10 +17,21 @@ import socket
 import struct
 
 from hmpc.controller.simclock import SimClock
-from hmpc.controller.teleop.link import (COMMAND_SIZE, FLAG_DEAD_MAN, KIND_COMMAND,
-                                         PROTOCOL_VERSION, LinkConfig, LinkReceiver, Mode,
-                                         OperatorLink, StopRequest, TeleopCommand, _CMD, _mac,
-                                         _us)
+from hmpc.controller.teleop.link import (
+    COMMAND_SIZE,
+    FLAG_DEAD_MAN,
+    KIND_COMMAND,
+    PROTOCOL_VERSION,
+    LinkConfig,
+    LinkReceiver,
+    Mode,
+    OperatorLink,
+    StopRequest,
+    TeleopCommand,
+    _CMD,
+    _mac,
+    _us,
+)
 
 
 class LoopbackPair:
@@ -75,8 +87,16 @@ class LoopbackPair:
         self.rx.close()
 
 
-def _signed(key: bytes, ver=PROTOCOL_VERSION, kind=KIND_COMMAND, mode=int(Mode.PEDALS),
-            flags=FLAG_DEAD_MAN, seq=0, t_s=0.0, values=(0.0, 0.0, 0.0)) -> bytes:
+def _signed(
+    key: bytes,
+    ver=PROTOCOL_VERSION,
+    kind=KIND_COMMAND,
+    mode=int(Mode.PEDALS),
+    flags=FLAG_DEAD_MAN,
+    seq=0,
+    t_s=0.0,
+    values=(0.0, 0.0, 0.0),
+) -> bytes:
     body = _CMD.pack(ver, kind, mode, flags, seq, _us(t_s), *values)
     return body + _mac(key, body)
 
@@ -86,9 +106,14 @@ def _row(pair: LoopbackPair, case: str, datagrams: list[bytes], sock=None) -> di
     rej0, dlv0, rc0 = dict(rx.rejected), rx.delivered, rx.received
     pair.send_raw(datagrams, sock)
     reasons = {r: rx.rejected[r] - rej0[r] for r in rx.rejected if rx.rejected[r] - rej0[r]}
-    return {"case": case, "sent": len(datagrams), "received": rx.received - rc0,
-            "rejected": sum(reasons.values()), "delivered": rx.delivered - dlv0,
-            "reasons": reasons}
+    return {
+        "case": case,
+        "sent": len(datagrams),
+        "received": rx.received - rc0,
+        "rejected": sum(reasons.values()),
+        "delivered": rx.delivered - dlv0,
+        "reasons": reasons,
+    }
 
 
 def random_datagrams(seed: int, n: int, key_free_prefix: bytes) -> list[bytes]:
@@ -164,10 +189,16 @@ def run_security_cases(key: bytes, seed: int = 0, n_random: int = 10_000) -> lis
         swapped += [seqd[i + 1], seqd[i]]
     d0, r0 = p.rx.delivered, sum(p.rx.rejected.values())
     p.send_raw(swapped)
-    rows.append({"case": "reordered packets (10 late of 20)", "sent": 10,
-                 "received": 10, "rejected": sum(p.rx.rejected.values()) - r0,
-                 "delivered": p.rx.delivered - d0 - 10, "reasons": {
-                     "old_sequence": sum(p.rx.rejected.values()) - r0}})
+    rows.append(
+        {
+            "case": "reordered packets (10 late of 20)",
+            "sent": 10,
+            "received": 10,
+            "rejected": sum(p.rx.rejected.values()) - r0,
+            "delivered": p.rx.delivered - d0 - 10,
+            "reasons": {"old_sequence": sum(p.rx.rejected.values()) - r0},
+        }
+    )
     p.close()
 
     # stale and future timestamps (fresh sequence numbers)
@@ -185,15 +216,23 @@ def run_security_cases(key: bytes, seed: int = 0, n_random: int = 10_000) -> lis
     rows.append(_row(p, "truncated (each length 0-75)", [good[:n] for n in range(COMMAND_SIZE)]))
     # oversized: valid packet plus trailing bytes, up to the largest UDP datagram
     sizes = [COMMAND_SIZE + 1, COMMAND_SIZE + 32, 512, 1500, 9000, 65507]
-    rows.append(_row(p, "oversized (77 B - 64 KiB)",
-                     [good + bytes(n - COMMAND_SIZE) for n in sizes]))
+    rows.append(
+        _row(p, "oversized (77 B - 64 KiB)", [good + bytes(n - COMMAND_SIZE) for n in sizes])
+    )
     p.close()
 
     # authenticated but malformed (a buggy operator holding the key)
     p = fresh()
     nan = float("nan")
-    dg = [pkt(p, ver=2), pkt(p, kind=2), pkt(p, mode=0), pkt(p, mode=7), pkt(p, flags=0x81),
-          pkt(p, values=(nan, 0.0, 0.0)), pkt(p, values=(0.0, float("inf"), 0.0))]
+    dg = [
+        pkt(p, ver=2),
+        pkt(p, kind=2),
+        pkt(p, mode=0),
+        pkt(p, mode=7),
+        pkt(p, flags=0x81),
+        pkt(p, values=(nan, 0.0, 0.0)),
+        pkt(p, values=(0.0, float("inf"), 0.0)),
+    ]
     rows.append(_row(p, "malformed, authenticated", dg))
     p.close()
 
@@ -213,4 +252,3 @@ def run_security_cases(key: bytes, seed: int = 0, n_random: int = 10_000) -> lis
     rows.append(_row(p, f"random datagrams (seed {seed})", dg))
     p.close()
     return rows
-

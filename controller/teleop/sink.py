@@ -9,6 +9,7 @@ in reference mode or with the MPC in control (it has no MPC) it makes a controll
 throttle released at once, brake pressed at its rate limit up to the controlled-stop
 deceleration, steering held.
 """
+
 from __future__ import annotations
 
 import select
@@ -19,8 +20,7 @@ from collections.abc import Callable
 import numpy as np
 
 from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
-from hmpc.controller.teleop.link import (LinkReceiver, Mode, PollResult, StopRequest,
-                                         VehicleStatus)
+from hmpc.controller.teleop.link import LinkReceiver, Mode, PollResult, StopRequest, VehicleStatus
 from hmpc.models.params import Params
 from hmpc.models.plant import HybridPlant
 
@@ -36,8 +36,19 @@ class SinkLog:
     """What the stand-in applied, one row per period (arrays built by ``arrays``)."""
 
     rows: list[tuple] = field(default_factory=list)
-    columns: tuple = ("t_s", "x_m", "y_m", "psi_rad", "v_mps", "zone", "steering_wheel_angle_rad",
-                      "accel_pedal", "brake_pedal", "operator_accel_pedal", "stopping")
+    columns: tuple = (
+        "t_s",
+        "x_m",
+        "y_m",
+        "psi_rad",
+        "v_mps",
+        "zone",
+        "steering_wheel_angle_rad",
+        "accel_pedal",
+        "brake_pedal",
+        "operator_accel_pedal",
+        "stopping",
+    )
 
     def arrays(self) -> dict[str, np.ndarray]:
         a = np.array(self.rows, dtype=float).reshape(-1, len(self.columns))
@@ -73,19 +84,27 @@ class PlantSink:
                 self.target = Command(*cmd.values)
         if poll.stop is not None:
             self.stop, self.standstill_t_s = poll.stop, None
-        stopping = (receiver.stop is not None or not receiver.engaged
-                    or receiver.mpc_in_control)
+        stopping = receiver.stop is not None or not receiver.engaged or receiver.mpc_in_control
         if stopping:
             held = self.prev.steering_wheel_angle_rad if self.prev else 0.0
             want = Command(held, 0.0, STOP_BRAKE)
         else:
             want = self.target
         z = self.plant.select_zone(float(self.state[3]), self.zone)
-        u = apply_limits(want, self.prev, self.limits, self.dt_s, self.params.zones[z],
-                         controlled_stop=stopping)
+        u = apply_limits(
+            want, self.prev, self.limits, self.dt_s, self.params.zones[z], controlled_stop=stopping
+        )
         res = self.plant.step(self.state, u.as_tuple(), self.dt_s, self.zone)
-        self.log.rows.append((self.t_s, *self.state, res.zone, *u.as_tuple(),
-                              self.target.accel_pedal, float(stopping)))
+        self.log.rows.append(
+            (
+                self.t_s,
+                *self.state,
+                res.zone,
+                *u.as_tuple(),
+                self.target.accel_pedal,
+                float(stopping),
+            )
+        )
         self.state, self.zone, self.prev = res.state, res.zone, u
         self.t_s += self.dt_s
         if stopping and self.standstill_t_s is None and self.state[3] <= STANDSTILL_MPS:
@@ -102,13 +121,20 @@ class PlantSink:
         else:
             pedal = "coast"
         z = -1 if self.zone is None else int(self.zone)
-        return VehicleStatus(v, p.steering_wheel_angle_rad, z,
-                             self.params.zones[z].name if z >= 0 else "", pedal)
+        return VehicleStatus(
+            v, p.steering_wheel_angle_rad, z, self.params.zones[z].name if z >= 0 else "", pedal
+        )
 
 
-def serve(receiver: LinkReceiver, sink: PlantSink, *, until: Callable[[], bool],
-          telemetry_every: int = 5, clock: Callable[[], float] = time.monotonic,
-          sleep: Callable[[float], None] = time.sleep) -> int:
+def serve(
+    receiver: LinkReceiver,
+    sink: PlantSink,
+    *,
+    until: Callable[[], bool],
+    telemetry_every: int = 5,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> int:
     """Run the stand-in in real time: poll, step, telemetry every ``telemetry_every`` periods
     (10 Hz at 50 Hz), until ``until()``; returns the number of periods run."""
     period = sink.dt_s
@@ -129,8 +155,13 @@ def serve(receiver: LinkReceiver, sink: PlantSink, *, until: Callable[[], bool],
     return k
 
 
-def lockstep_vehicle(receiver: LinkReceiver, sink: PlantSink, sim_clock,
-                     telemetry_every: int = 5, wait_s: float = 2.0) -> Callable[[float], None]:
+def lockstep_vehicle(
+    receiver: LinkReceiver,
+    sink: PlantSink,
+    sim_clock,
+    telemetry_every: int = 5,
+    wait_s: float = 2.0,
+) -> Callable[[float], None]:
     """A ``sleep`` for ``operator.run_operator`` that runs the vehicle side in simulated time.
 
     Each call waits until the operator's packet of the period is readable (real loopback
@@ -150,4 +181,3 @@ def lockstep_vehicle(receiver: LinkReceiver, sink: PlantSink, sim_clock,
         count[0] += 1
 
     return sleep
-

@@ -36,6 +36,7 @@ Clocks. The receiver runs on the wall clock (``time.time``), which the freshness
 the offset between the two from the same instant, so link events are reported on the loop's
 clock.
 """
+
 from __future__ import annotations
 
 import math
@@ -93,11 +94,13 @@ def handover_config(config):
     """An MPC/NMPC configuration for handovers: ``config`` with
     ``HANDOVER_COLD_START_ITERATIONS`` (a dataclass with ``cold_start_iterations``)."""
     from dataclasses import replace
+
     return replace(config, cold_start_iterations=HANDOVER_COLD_START_ITERATIONS)
 
 
-def arc_reference(state, speed_mps: float, curvature_1pm: float, t0_s: float,
-                  duration_s: float = ARC_S) -> Reference:
+def arc_reference(
+    state, speed_mps: float, curvature_1pm: float, t0_s: float, duration_s: float = ARC_S
+) -> Reference:
     """An arc of constant curvature [1/m] at constant speed [m/s] from the pose in ``state``
     [x_m, y_m, psi_rad, v_mps], with its clock starting at ``t0_s`` [s]."""
     t = np.arange(0.0, duration_s + _ARC_DT_S / 2, _ARC_DT_S)
@@ -112,8 +115,15 @@ def arc_reference(state, speed_mps: float, curvature_1pm: float, t0_s: float,
     else:
         x = state[0] + s * math.cos(th0)
         y = state[1] + s * math.sin(th0)
-    return Reference(t0_s + t, x, y, th, np.full(len(t), v), name=f"arc v={v:g} k={k:g}",
-                     curvature_1pm=np.full(len(t), k))
+    return Reference(
+        t0_s + t,
+        x,
+        y,
+        th,
+        np.full(len(t), v),
+        name=f"arc v={v:g} k={k:g}",
+        curvature_1pm=np.full(len(t), k),
+    )
 
 
 def anchored_reference(ref: Reference, state, t0_s: float) -> Reference:
@@ -121,15 +131,23 @@ def anchored_reference(ref: Reference, state, t0_s: float) -> Reference:
     fastest part if it never does), moved and turned so that sample lies on the car's pose,
     with its clock starting at ``t0_s`` [s]."""
     v = float(state[3])
-    i = int(np.argmax(ref.speed_mps >= v)) if np.any(ref.speed_mps >= v) \
+    i = (
+        int(np.argmax(ref.speed_mps >= v))
+        if np.any(ref.speed_mps >= v)
         else int(np.argmax(ref.speed_mps))
+    )
     i = min(i, len(ref.time_s) - 2)
     rot = float(state[2]) - float(ref.heading_rad[i])
     c, s = math.cos(rot), math.sin(rot)
     dx, dy = ref.x_m[i:] - ref.x_m[i], ref.y_m[i:] - ref.y_m[i]
-    return Reference(t0_s + ref.time_s[i:] - ref.time_s[i], state[0] + c * dx - s * dy,
-                     state[1] + s * dx + c * dy, ref.heading_rad[i:] + rot, ref.speed_mps[i:],
-                     name=f"{ref.name}@handover")
+    return Reference(
+        t0_s + ref.time_s[i:] - ref.time_s[i],
+        state[0] + c * dx - s * dy,
+        state[1] + s * dx + c * dy,
+        ref.heading_rad[i:] + rot,
+        ref.speed_mps[i:],
+        name=f"{ref.name}@handover",
+    )
 
 
 class TeleopController:
@@ -149,10 +167,18 @@ class TeleopController:
 
     name = "teleop"
 
-    def __init__(self, receiver: LinkReceiver, params: Params, mpc=None, *,
-                 limits: ActuatorLimits | None = None, control_period_s: float = 0.02,
-                 telemetry_every: int = 10, run_s: float | None = None,
-                 wall_clock: Callable[[], float] = time.time):
+    def __init__(
+        self,
+        receiver: LinkReceiver,
+        params: Params,
+        mpc=None,
+        *,
+        limits: ActuatorLimits | None = None,
+        control_period_s: float = 0.02,
+        telemetry_every: int = 10,
+        run_s: float | None = None,
+        wall_clock: Callable[[], float] = time.time,
+    ):
         self.rx = receiver
         self.params = params
         self.mpc = mpc
@@ -178,15 +204,15 @@ class TeleopController:
         self.last: TeleopCommand | None = None
         self.prev: Command | None = None
         self.zone: int | None = None
-        self.in_control = "none"          # "operator" | "mpc" | "none"
+        self.in_control = "none"  # "operator" | "mpc" | "none"
         self._anchor: Reference | None = None
         self._arc_key: tuple | None = None
         self._arc: Reference | None = None
         self.steps = {"operator": 0, "references": 0, "mpc": 0, "hold": 0}
-        self.history: list[str] = []      # who drove each control step (keys of ``steps``)
+        self.history: list[str] = []  # who drove each control step (keys of ``steps``)
         self.handovers = 0
         self.take_overs = 0
-        self._offset_s = 0.0              # wall clock minus loop clock [s]
+        self._offset_s = 0.0  # wall clock minus loop clock [s]
         self._last_acc_t: float | None = None
         self._acc_seen = self.rx.accepted
         self.gaps = 0
@@ -196,19 +222,28 @@ class TeleopController:
         if self.mpc is not None:
             self.mpc.reset()
 
-    def step(self, state, reference, t_s: float, *, stop: bool = False,
-             obstacle_distance_m: float | None = None) -> ControlResult:
+    def step(
+        self,
+        state,
+        reference,
+        t_s: float,
+        *,
+        stop: bool = False,
+        obstacle_distance_m: float | None = None,
+    ) -> ControlResult:
         """The command of this control period (module docstring); never raises."""
         try:
             return self._step(np.asarray(state, dtype=float), reference, float(t_s), stop)
         except Exception as exc:  # a bug: a controlled stop, recorded as an internal error
             from hmpc.controller.base import internal_error
+
             sw = self.prev.steering_wheel_angle_rad if self.prev else 0.0
-            return internal_error(ControlResult(Command(sw, 0.0, HOLD_BRAKE),
-                                                Status.CONTROLLED_STOP), exc)
+            return internal_error(
+                ControlResult(Command(sw, 0.0, HOLD_BRAKE), Status.CONTROLLED_STOP), exc
+            )
 
     def _step(self, x: np.ndarray, reference, t_s: float, stop: bool) -> ControlResult:
-        if self._polls_total == 0:   # the drive loop's warm-up call before the run
+        if self._polls_total == 0:  # the drive loop's warm-up call before the run
             if self.mpc is not None:
                 return self._warm_up(x, reference, t_s)
             return ControlResult(Command(0.0, 0.0, HOLD_BRAKE), Status.HOLD)
@@ -238,8 +273,9 @@ class TeleopController:
             self._count("hold")
         u = apply_limits(want, self.prev, self.limits, self.dt_s, self.params.zones[z])
         mode = PedalMode.THROTTLE if u.accel_pedal > 0 else PedalMode.BRAKE
-        return self._remember(ControlResult(u, status, zone=z, pedal_mode=int(mode),
-                                            info={"source": "operator"}))
+        return self._remember(
+            ControlResult(u, status, zone=z, pedal_mode=int(mode), info={"source": "operator"})
+        )
 
     def _warm_up(self, x: np.ndarray, reference, t_s: float) -> ControlResult:
         """Before the run: the controller builds its solver and meets every handover it can
@@ -262,8 +298,11 @@ class TeleopController:
     def _mpc_step(self, x: np.ndarray, reference, t_s: float, stop: bool) -> ControlResult:
         if self.mpc is None:
             sw = self.prev.steering_wheel_angle_rad if self.prev else 0.0
-            return ControlResult(Command(sw, 0.0, HOLD_BRAKE), Status.CONTROLLED_STOP,
-                                 reason="handed over, but no controller to hand over to")
+            return ControlResult(
+                Command(sw, 0.0, HOLD_BRAKE),
+                Status.CONTROLLED_STOP,
+                reason="handed over, but no controller to hand over to",
+            )
         if self.in_control != "mpc" or self._anchor is None:
             self.handovers += 1
             self.in_control = "mpc"
@@ -283,8 +322,14 @@ class TeleopController:
         return res
 
     # --------------------------------------------------------- the drive loop's hook
-    def poll(self, t_s: float, *, loop_state: str = "", speed_mps: float = math.nan,
-             steering_wheel_angle_rad: float = math.nan) -> SourceGate:
+    def poll(
+        self,
+        t_s: float,
+        *,
+        loop_state: str = "",
+        speed_mps: float = math.nan,
+        steering_wheel_angle_rad: float = math.nan,
+    ) -> SourceGate:
         """Drain the link once (the drive loop calls this every tick, at loop time ``t_s``
         [s]), send telemetry every ``telemetry_every`` calls, and say whether the operator has
         engaged and whether a stop is asked for."""
@@ -302,13 +347,17 @@ class TeleopController:
         why = ""
         if res.stop is not None:
             why = res.stop.reason
-            self.stop_event = {"reason": why, "event_t_s": round(res.stop.t_s - self._offset_s, 4),
-                               "detected_t_s": round(res.stop.detected_t_s - self._offset_s, 4)}
+            self.stop_event = {
+                "reason": why,
+                "event_t_s": round(res.stop.t_s - self._offset_s, 4),
+                "detected_t_s": round(res.stop.detected_t_s - self._offset_s, 4),
+            }
         if not why and self.run_s is not None and t_s >= self.run_s:
             why = "duration"
         if self._polls % self.telemetry_every == 1 or self.telemetry_every == 1:
-            self.rx.send_telemetry(self._status(loop_state, speed_mps, steering_wheel_angle_rad),
-                                   now)
+            self.rx.send_telemetry(
+                self._status(loop_state, speed_mps, steering_wheel_angle_rad), now
+            )
         return SourceGate(engage=self.rx.engaged, stop=why)
 
     def loop_time(self, wall_s: float) -> float:
@@ -321,7 +370,7 @@ class TeleopController:
             if self._last_acc_t is not None:
                 gap = now - self._last_acc_t
                 self.max_gap_s = max(self.max_gap_s, gap)
-                self.gaps += int(gap > GAP_S + 0.01)   # + one tick: the poll's own resolution
+                self.gaps += int(gap > GAP_S + 0.01)  # + one tick: the poll's own resolution
             self._last_acc_t = now
             self._acc_seen = self.rx.accepted
 
@@ -343,8 +392,12 @@ class TeleopController:
         """The run JSON's ``link`` object: the receiver's statistics, the gaps between valid
         packets, who drove how many control steps, and the link's stop event (loop clock)."""
         s = self.rx.stats()
-        s["gaps"] = {"over_ms": round((GAP_S + 0.01) * 1e3, 1), "count": self.gaps,
-                     "max_ms": round(self.max_gap_s * 1e3, 3), "lost_packets": s["lost"]}
+        s["gaps"] = {
+            "over_ms": round((GAP_S + 0.01) * 1e3, 1),
+            "count": self.gaps,
+            "max_ms": round(self.max_gap_s * 1e3, 3),
+            "lost_packets": s["lost"],
+        }
         s["steps"] = dict(self.steps)
         s["handovers"] = self.handovers
         s["take_overs"] = self.take_overs

@@ -26,6 +26,7 @@ gain, the resolution :data:`RESOLUTION_MPS2`, BIC) and only when its parameter's
 excludes the baseline's value (psi = 0, tau = 0): the two sensors disagree beyond it; a lag
 also needs :data:`MIN_TAU_SAMPLES`.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -33,8 +34,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, profile_interval, rmse,
-                                         segment_fold_ids, segments, train_mask)
+from hmpc.models.diagnose.common import (
+    DiagnoseConfig,
+    bic,
+    profile_interval,
+    rmse,
+    segment_fold_ids,
+    segments,
+    train_mask,
+)
 from hmpc.models.diagnose.hypothesis import grid_search
 from hmpc.models.identify.stats import savgol_derivative
 
@@ -56,11 +64,11 @@ class AccelData:
 
     t: np.ndarray
     dt: float
-    a: np.ndarray             #: speed derivative [m/s^2] (smoothed)
-    q: np.ndarray | None      #: lateral acceleration v r [m/s^2] (smoothed); None: no yaw rate
-    m: np.ndarray             #: accel_x [m/s^2] (smoothed like ``a``)
+    a: np.ndarray  #: speed derivative [m/s^2] (smoothed)
+    q: np.ndarray | None  #: lateral acceleration v r [m/s^2] (smoothed); None: no yaw rate
+    m: np.ndarray  #: accel_x [m/s^2] (smoothed like ``a``)
     segs: list
-    ok: np.ndarray            #: samples compared (moving, every channel finite)
+    ok: np.ndarray  #: samples compared (moving, every channel finite)
     speed_source: str
 
     @property
@@ -77,8 +85,9 @@ def prepare(ch: dict, cfg: DiagnoseConfig = DiagnoseConfig()) -> tuple[AccelData
     t = np.asarray(ch["time"], float)
     dt = float(np.median(np.diff(t)))
     if "wheel_speed_rl" in ch and "wheel_speed_rr" in ch:
-        v = 0.5 * (np.asarray(ch["wheel_speed_rl"], float)
-                   + np.asarray(ch["wheel_speed_rr"], float))
+        v = 0.5 * (
+            np.asarray(ch["wheel_speed_rl"], float) + np.asarray(ch["wheel_speed_rr"], float)
+        )
         src = "the rear wheels' mean speed"
     else:
         v = np.asarray(ch["speed"], float)
@@ -98,8 +107,10 @@ def prepare(ch: dict, cfg: DiagnoseConfig = DiagnoseConfig()) -> tuple[AccelData
     for s0, s1 in segs:
         ok[s0:s1] = True
     if ok.sum() < int(cfg.min_pair_s / dt):
-        return None, (f"too little moving data with accel_x ({ok.sum() * dt:.1f} s in runs of "
-                      f"{cfg.min_segment_s:g} s; needs {cfg.min_pair_s:g} s)")
+        return None, (
+            f"too little moving data with accel_x ({ok.sum() * dt:.1f} s in runs of "
+            f"{cfg.min_segment_s:g} s; needs {cfg.min_pair_s:g} s)"
+        )
     return AccelData(t, dt, a, q, m, segs, ok, src), ""
 
 
@@ -109,11 +120,11 @@ class AccelFit:
 
     tau_s: float
     mount: bool
-    coef: np.ndarray          #: (c_a[, c_q], c)
+    coef: np.ndarray  #: (c_a[, c_q], c)
     sse: float
     n: int
     k: int
-    cov: np.ndarray           #: covariance of ``coef`` (white residual; scale by corr length)
+    cov: np.ndarray  #: covariance of ``coef`` (white residual; scale by corr length)
 
     @property
     def yaw_rad(self) -> float:
@@ -161,8 +172,9 @@ def _design(d: AccelData, tau_s: float, mount: bool, zero_phase: bool = False) -
     return np.column_stack(cols)
 
 
-def fit(d: AccelData, tau_s: float, mount: bool, mask: np.ndarray,
-        zero_phase: bool = False) -> AccelFit:
+def fit(
+    d: AccelData, tau_s: float, mount: bool, mask: np.ndarray, zero_phase: bool = False
+) -> AccelFit:
     X = _design(d, tau_s, mount, zero_phase)
     use = mask & d.ok & np.isfinite(X).all(axis=1)
     Xu, y = X[use], d.m[use]
@@ -192,16 +204,25 @@ def _tau_grid(d: AccelData) -> np.ndarray:
     return np.round(np.arange(0.0, TAU_MAX_S + 1e-9, max(2 * d.dt, 0.02)), 6)
 
 
-def fit_best(d: AccelData, name: str | None, mask: np.ndarray, mount: bool = False,
-             grid: np.ndarray | None = None):
+def fit_best(
+    d: AccelData,
+    name: str | None,
+    mask: np.ndarray,
+    mount: bool = False,
+    grid: np.ndarray | None = None,
+):
     """The fit of hypothesis ``name`` on ``mask`` (``mount``: with the mounting rotation, for
     the lag on top of it). Returns (fit, tau grid or None, SSE per sample on it or None)."""
     if name == "accelerometer_lag":
         refine = grid is None
         grid = _tau_grid(d) if grid is None else np.asarray(grid, float)
-        return grid_search(lambda g: fit(d, g, mount, mask), grid,
-                           max(d.dt, 0.01) if refine else None, end_pad=1e-12,
-                           atol=max(d.dt, 0.01) / 10 if refine else 0.0)
+        return grid_search(
+            lambda g: fit(d, g, mount, mask),
+            grid,
+            max(d.dt, 0.01) if refine else None,
+            end_pad=1e-12,
+            atol=max(d.dt, 0.01) / 10 if refine else 0.0,
+        )
     return fit(d, 0.0, mount or name == "sensor_mounting", mask), None, None
 
 
@@ -219,8 +240,9 @@ class AccelScore:
     intervals: dict
 
 
-def evaluate(d: AccelData, name: str | None, cfg: DiagnoseConfig, corr_len: float,
-             mount: bool = False) -> AccelScore:
+def evaluate(
+    d: AccelData, name: str | None, cfg: DiagnoseConfig, corr_len: float, mount: bool = False
+) -> AccelScore:
     """Blocked held-out score and the full-data fit of ``name`` (None: the baseline;
     ``mount``: every fit keeps the mounting rotation)."""
     folds = segment_fold_ids(d.n, d.segs, cfg.n_folds)
@@ -253,8 +275,9 @@ def evaluate(d: AccelData, name: str | None, cfg: DiagnoseConfig, corr_len: floa
     if name is not None:
         params["gain"] = full.gain
         params["offset_mps2"] = float(full.coef[-1])
-    return AccelScore(name, full, rmse(err), err, bic(full.sse, full.n, full.k, corr_len),
-                      params, intervals)
+    return AccelScore(
+        name, full, rmse(err), err, bic(full.sse, full.n, full.k, corr_len), params, intervals
+    )
 
 
 def zero_phase(d: AccelData, mount: bool = False) -> tuple[float, float]:
@@ -272,4 +295,3 @@ def excludes_null(name: str, s: AccelScore) -> bool:
     if name == "accelerometer_lag":
         return bool(lo > 0.0)
     return bool(lo > 0.0 or hi < 0.0)
-

@@ -13,14 +13,21 @@ refits eq. 8 on the training folds, finds the windows from that fit's error (the
 an input reconstructed from the measured motion, on held-out data too) and replays the
 held-out windows with and without it.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from hmpc.models.constants import G_MPS2
 from hmpc.models.diagnose import longitudinal as lon
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, rmse, segment_fold_ids,
-                                         train_mask, windows)
+from hmpc.models.diagnose.common import (
+    DiagnoseConfig,
+    bic,
+    rmse,
+    segment_fold_ids,
+    train_mask,
+    windows,
+)
 
 #: friction coefficient bounding the estimated braking (mu * g): dry asphalt's peak 0.8-1.0;
 #: 0.8 is what a road car's service brake reaches there
@@ -51,8 +58,9 @@ def _runs(mask: np.ndarray, min_len: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(st, en) if b - a >= min_len]
 
 
-def braking_windows(d: lon.LonData, mask: np.ndarray, mu: float = MU
-                    ) -> tuple[lon.LonModel, np.ndarray, list]:
+def braking_windows(
+    d: lon.LonData, mask: np.ndarray, mu: float = MU
+) -> tuple[lon.LonModel, np.ndarray, list]:
     """The coasting model fitted on ``mask`` outside the braking windows, the estimated braking
     [m/s^2] per sample (<= 0) and the windows ``(start, end, level)`` (module doc)."""
     brake = np.zeros(d.n, bool)
@@ -65,8 +73,11 @@ def braking_windows(d: lon.LonData, mask: np.ndarray, mu: float = MU
         # the equation error's spread where no braking can hide (the pedal pressed): the
         # released samples mix coasting and the braking looked for
         quiet = ~d.idle & np.isfinite(r)
-        sd = 1.4826 * float(np.median(np.abs(r[quiet] - np.median(r[quiet])))) \
-            if quiet.sum() > 10 else 0.0
+        sd = (
+            1.4826 * float(np.median(np.abs(r[quiet] - np.median(r[quiet]))))
+            if quiet.sum() > 10
+            else 0.0
+        )
         thr = max(MIN_BRAKE_DECEL_MPS2, 3.0 * sd)
         runs = _runs(d.idle & np.nan_to_num(r < -thr), min_len)
         new = np.zeros(d.n, bool)
@@ -89,8 +100,9 @@ def _spec(extra: np.ndarray, wins: list) -> lon.LonSpec:
     return lon.LonSpec("unobserved_braking", extra_accel=extra, extra_params=len(wins))
 
 
-def evaluate(d: lon.LonData, cfg: DiagnoseConfig, corr_len: float, mu: float = MU
-             ) -> tuple[lon.LonScore | None, list]:
+def evaluate(
+    d: lon.LonData, cfg: DiagnoseConfig, corr_len: float, mu: float = MU
+) -> tuple[lon.LonScore | None, list]:
     """The hypothesis scored like ``longitudinal.evaluate`` (None when no window is found) and
     its windows ``[t_start_s, t_end_s, decel_mps2]``."""
     _, extra, wins = braking_windows(d, d.ok, mu)
@@ -112,10 +124,22 @@ def evaluate(d: lon.LonData, cfg: DiagnoseConfig, corr_len: float, mu: float = M
         vals.append(len(w_f))
     levels = np.array([lv for _, _, lv in wins])
     dur = float(sum(b - a for a, b, _ in wins) * d.dt)
-    params = {"mu": mu, "max_decel_mps2": float(-levels.min()),
-              "mean_decel_mps2": float(-np.mean(levels)), "braking_s": dur,
-              "n_windows": float(len(wins))}
-    score = lon.LonScore("unobserved_braking", full, rmse(err), err,
-                         bic(full.sse, full.n, full.k, corr_len), params, {}, vals)
+    params = {
+        "mu": mu,
+        "max_decel_mps2": float(-levels.min()),
+        "mean_decel_mps2": float(-np.mean(levels)),
+        "braking_s": dur,
+        "n_windows": float(len(wins)),
+    }
+    score = lon.LonScore(
+        "unobserved_braking",
+        full,
+        rmse(err),
+        err,
+        bic(full.sse, full.n, full.k, corr_len),
+        params,
+        {},
+        vals,
+    )
     t = d.t
     return score, [[float(t[a]), float(t[min(b, d.n - 1)]), float(-lv)] for a, b, lv in wins]

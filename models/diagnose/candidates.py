@@ -8,6 +8,7 @@ also be selected by FOS (Korenberg) among the baseline's terms (:func:`fos_selec
 :func:`candidate` is the record ``hmpc diagnose`` keeps of every hypothesis tried (its
 ``_``-keys: the acceptance and the held-out error series, until the findings are ranked).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -35,8 +36,9 @@ class Resolution:
     speed_vs_gnss_mps: float = 0.005
 
 
-def accept(before: float, after: float, bic_b: float, bic_a: float, res: float,
-           cfg: DiagnoseConfig) -> tuple[bool, str]:
+def accept(
+    before: float, after: float, bic_b: float, bic_a: float, res: float, cfg: DiagnoseConfig
+) -> tuple[bool, str]:
     """Whether a hypothesis whose held-out RMSE goes from ``before`` to ``after`` (BIC from
     ``bic_b`` to ``bic_a``) is accepted, with the reason; ``res``: the channel's resolution
     (:class:`Resolution`, the RMSE's unit)."""
@@ -46,15 +48,17 @@ def accept(before: float, after: float, bic_b: float, bic_a: float, res: float,
     if gain < cfg.min_gain:
         return False, f"held-out gain {100 * gain:.1f} % < {100 * cfg.min_gain:.0f} %"
     if before - after < res:
-        return False, (f"held-out improvement {before - after:.4g} below the channel "
-                       f"resolution {res:g}")
+        return False, (
+            f"held-out improvement {before - after:.4g} below the channel resolution {res:g}"
+        )
     if cfg.require_bic and not bic_a < bic_b:
         return False, "BIC does not improve"
     return True, "accepted"
 
 
-def fos_selects(d: lon.LonData, name: str, base: dict | None = None,
-                spec: lon.LonSpec | None = None) -> bool:
+def fos_selects(
+    d: lon.LonData, name: str, base: dict | None = None, spec: lon.LonSpec | None = None
+) -> bool:
     """FOS (forced baseline terms) keeps the extension's term on its blocked hold-out
     (``spec``: the fitted hypothesis, e.g. a grade with its compensation rate)."""
     spec = spec or lon.LonSpec(name, **(base or {}))
@@ -78,29 +82,55 @@ def fos_selects(d: lon.LonData, name: str, base: dict | None = None,
     if len(y) > Xs.shape[1]:
         X_base = Xs[:, :-1]
         resid = y - X_base @ np.linalg.lstsq(X_base, y, rcond=None)[0]
-        frac = float(np.mean(resid ** 2) / max(np.mean(y ** 2), 1e-300))
+        frac = float(np.mean(resid**2) / max(np.mean(y**2), 1e-300))
     else:
         frac = 1.0
     try:
-        res = fos(Xs, y, names, force=names[:-1], block_len=int(10.0 / d.dt),
-                  min_reduction=1e-4 * min(frac, 1.0))
+        res = fos(
+            Xs,
+            y,
+            names,
+            force=names[:-1],
+            block_len=int(10.0 / d.dt),
+            min_reduction=1e-4 * min(frac, 1.0),
+        )
     except ValueError:
         return False
     return name in res.terms
 
 
-def candidate(effect: str, subsystem: str, channel: str, base: HypothesisScore,
-              scored: HypothesisScore, before: float, after: float, ok: bool, why: str,
-              window_s: float) -> dict:
+def candidate(
+    effect: str,
+    subsystem: str,
+    channel: str,
+    base: HypothesisScore,
+    scored: HypothesisScore,
+    before: float,
+    after: float,
+    ok: bool,
+    why: str,
+    window_s: float,
+) -> dict:
     """The record of hypothesis ``effect`` (``scored``) against the model below it (``base``):
     held-out RMSE ``before`` -> ``after`` on ``channel`` (free-run windows of ``window_s``),
     whether it was accepted (``ok``) and why."""
     params, intervals = scored.params, scored.intervals
     e_b, e_a, dbic = base.heldout_err, scored.heldout_err, scored.bic - base.bic
     gain = (before - after) / before if before > 0 and np.isfinite(after) else 0.0
-    return {"effect": effect, "subsystem": subsystem, "channel": channel,
-            "parameters": {k: float(v) for k, v in params.items()},
-            "intervals": {k: [float(a), float(b)] for k, (a, b) in intervals.items()},
-            "heldout_rmse_before": float(before), "heldout_rmse_after": float(after),
-            "gain": float(gain), "delta_bic": float(dbic), "physics": CATALOGUE[effect]["physics"],
-            "why": why, "_ok": ok, "_before": e_b, "_after": e_a, "_window_s": window_s}
+    return {
+        "effect": effect,
+        "subsystem": subsystem,
+        "channel": channel,
+        "parameters": {k: float(v) for k, v in params.items()},
+        "intervals": {k: [float(a), float(b)] for k, (a, b) in intervals.items()},
+        "heldout_rmse_before": float(before),
+        "heldout_rmse_after": float(after),
+        "gain": float(gain),
+        "delta_bic": float(dbic),
+        "physics": CATALOGUE[effect]["physics"],
+        "why": why,
+        "_ok": ok,
+        "_before": e_b,
+        "_after": e_a,
+        "_window_s": window_s,
+    }

@@ -5,6 +5,7 @@ Held-out evaluation is always blocked in time: the valid samples are cut into ``
 contiguous folds; a hypothesis is fitted on the other folds (with a guard band either side of
 the held-out fold) and scored by free-run replay inside the held-out fold only.
 """
+
 from __future__ import annotations
 
 import math
@@ -90,12 +91,12 @@ class DiagnoseConfig:
         known = {f.name for f in fields(cls)}
         bad = [k for k in overrides if k not in known]
         if bad:
-            raise ValueError(f"unknown diagnose threshold '{bad[0]}' (one of "
-                             f"{', '.join(sorted(known))})")
+            raise ValueError(
+                f"unknown diagnose threshold '{bad[0]}' (one of {', '.join(sorted(known))})"
+            )
         f = size_factor(vehicle)
         base = cls()
-        scaled = ({k: getattr(base, k) * math.sqrt(f) for k in SPEED_THRESHOLDS}
-                  if f < 1.0 else {})
+        scaled = {k: getattr(base, k) * math.sqrt(f) for k in SPEED_THRESHOLDS} if f < 1.0 else {}
         return replace(base, **{**scaled, **overrides})
 
 
@@ -129,7 +130,7 @@ def segment_fold_ids(n: int, segs: list[tuple[int, int]], n_folds: int) -> np.nd
         return out
     edges = np.linspace(0, len(idx), n_folds + 1).astype(int)
     for f in range(n_folds):
-        out[idx[edges[f]:edges[f + 1]]] = f
+        out[idx[edges[f] : edges[f + 1]]] = f
     return out
 
 
@@ -153,8 +154,9 @@ def windows(mask: np.ndarray, length: int) -> np.ndarray:
     return np.array(rows, dtype=int).reshape(-1, length)
 
 
-def lstsq_bounded(X: np.ndarray, y: np.ndarray, bounds: dict[int, tuple[float, float]] | None = None
-                  ) -> tuple[np.ndarray, float]:
+def lstsq_bounded(
+    X: np.ndarray, y: np.ndarray, bounds: dict[int, tuple[float, float]] | None = None
+) -> tuple[np.ndarray, float]:
     """Least squares ``y ~ X c`` with box bounds on a few columns (active set, exact for the
     one or two bounded columns an extension adds). Returns (coef, SSE)."""
     XtX, Xty = X.T @ X, X.T @ y
@@ -166,8 +168,11 @@ def lstsq_bounded(X: np.ndarray, y: np.ndarray, bounds: dict[int, tuple[float, f
         c = np.zeros(k)
         for i, val in fixed.items():
             c[i] = val
-        rhs = Xty[free] - XtX[np.ix_(free, list(fixed))] @ np.array(list(fixed.values())) \
-            if fixed else Xty[free]
+        rhs = (
+            Xty[free] - XtX[np.ix_(free, list(fixed))] @ np.array(list(fixed.values()))
+            if fixed
+            else Xty[free]
+        )
         A = XtX[np.ix_(free, free)]
         try:
             c[free] = np.linalg.solve(A + 1e-12 * np.trace(A) / len(free) * np.eye(len(free)), rhs)
@@ -208,8 +213,9 @@ def bic(sse: float, n: int, k: int, corr_len: float) -> float:
     return float(ne * np.log(max(sse, 1e-300) / max(n, 1)) + k * np.log(ne))
 
 
-def profile_interval(grid: np.ndarray, sse: np.ndarray, n: int, corr_len: float
-                     ) -> tuple[float, float]:
+def profile_interval(
+    grid: np.ndarray, sse: np.ndarray, n: int, corr_len: float
+) -> tuple[float, float]:
     """95 % profile-likelihood interval of a scalar from SSE on a grid (effective samples)."""
     grid, sse = np.asarray(grid, float), np.asarray(sse, float)
     ok = np.isfinite(sse)
@@ -227,8 +233,9 @@ def rmse(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e))) if len(e) else float("nan")
 
 
-def merge_windows(t: np.ndarray, flags: np.ndarray, idx: np.ndarray, gap_s: float = 1.0
-                  ) -> list[list[float]]:
+def merge_windows(
+    t: np.ndarray, flags: np.ndarray, idx: np.ndarray, gap_s: float = 1.0
+) -> list[list[float]]:
     """Merge flagged windows (rows of ``idx``) into [[t0, t1], ...] time intervals [s]."""
     out: list[list[float]] = []
     for row in idx[np.asarray(flags, bool)]:

@@ -42,6 +42,7 @@ parameter files are written by ``params_out``. The result's ``to_json()`` is the
 baseline checks. The thresholds are ``DiagnoseConfig.for_vehicle`` (scaled to the vehicle's
 size).
 """
+
 from __future__ import annotations
 
 import time
@@ -59,12 +60,22 @@ from hmpc.models.diagnose.candidates import Resolution, accept, candidate, fos_s
 from hmpc.models.diagnose.common import DiagnoseConfig, corr_length, rmse, size_factor
 from hmpc.models.diagnose.lon_extra import lon_extra_step
 from hmpc.models.diagnose.lon_inputs import absent_inputs
-from hmpc.models.diagnose.locate import (change_point, elevated_windows, improved_windows,
-                                         noise_floor, regime_table, regime_variables,
-                                         top_regimes)
+from hmpc.models.diagnose.locate import (
+    change_point,
+    elevated_windows,
+    improved_windows,
+    noise_floor,
+    regime_table,
+    regime_variables,
+    top_regimes,
+)
 from hmpc.models.diagnose.params_out import baseline_params, extended_params
-from hmpc.models.diagnose.stacking import (actuator_response, drop_alternatives,
-                                           stack_dynamics_on_static, stack_on_dynamics)
+from hmpc.models.diagnose.stacking import (
+    actuator_response,
+    drop_alternatives,
+    stack_dynamics_on_static,
+    stack_on_dynamics,
+)
 from hmpc.models.diagnose.unexplained import unexplained_change
 from hmpc.models.diagnose.verdict import model_verdict
 from hmpc.models.errors import InputError
@@ -99,14 +110,22 @@ class Diagnosis:
     absent_inputs: list = field(default_factory=list)
 
     def to_json(self) -> dict:
-        return _clean({"verdict": self.verdict, "findings": self.findings,
-                       "unexplained": self.unexplained, "not_diagnosed": self.not_diagnosed,
-                       "channels": self.channels, "hypotheses": self.hypotheses,
-                       "baseline_checks": self.evidence,
-                       "longitudinal_input": self.longitudinal_input,
-                       "absent_inputs": self.absent_inputs,
-                       "steering_samples": self.steering_samples,
-                       "notes": self.notes, "timing_s": self.timing_s})
+        return _clean(
+            {
+                "verdict": self.verdict,
+                "findings": self.findings,
+                "unexplained": self.unexplained,
+                "not_diagnosed": self.not_diagnosed,
+                "channels": self.channels,
+                "hypotheses": self.hypotheses,
+                "baseline_checks": self.evidence,
+                "longitudinal_input": self.longitudinal_input,
+                "absent_inputs": self.absent_inputs,
+                "steering_samples": self.steering_samples,
+                "notes": self.notes,
+                "timing_s": self.timing_s,
+            }
+        )
 
 
 def _clean(obj):
@@ -142,14 +161,19 @@ class _Work:
     notes: list = field(default_factory=list)
     evidence: list = field(default_factory=list)
     not_diagnosed: dict = field(default_factory=dict)
-    ran: list = field(default_factory=list)          #: the parts that ran
-    sensor_why: dict = field(default_factory=dict)   #: sensor pair -> why it was not compared
+    ran: list = field(default_factory=list)  #: the parts that ran
+    sensor_why: dict = field(default_factory=dict)  #: sensor pair -> why it was not compared
     steering_samples: dict = field(default_factory=dict)
 
 
-def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
-             cfg: DiagnoseConfig | None = None, res: Resolution = Resolution(),
-             progress=None) -> Diagnosis:
+def diagnose(
+    rec: Recording,
+    vehicle: Vehicle,
+    params: Params | None = None,
+    cfg: DiagnoseConfig | None = None,
+    res: Resolution = Resolution(),
+    progress=None,
+) -> Diagnosis:
     """Diagnose ``rec`` against the report's model (see the module doc).
 
     Each part (``sensors``, ``steering``, ``longitudinal``) runs when the recording supports
@@ -188,8 +212,9 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
         say(f"longitudinal: eq. 8 zones driven by {', '.join(ld.input_names)}")
         w.notes += ld.input_notes
         if ld.absent_inputs:
-            w.notes.append("not in the recording (no model fills them in): "
-                           + ", ".join(ld.absent_inputs))
+            w.notes.append(
+                "not in the recording (no model fills them in): " + ", ".join(ld.absent_inputs)
+            )
         lon_scores, cl = _longitudinal_step(w, ld, cfg, res)
         w.series["speed"]["measured"] = ld.v  # for the verdict's persistence yardstick
         stack_on_dynamics(ld, w.cands, lon_scores, cfg, cl, res)
@@ -199,8 +224,10 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
             w.channels.setdefault("speed", {})["response"] = response
             w.notes.append(response["verdict"])
     if not w.ran:
-        raise InputError("nothing to diagnose: " + "; ".join(
-            f"{k}: {v}" for k, v in w.not_diagnosed.items()), rec.meta.get("path"))
+        raise InputError(
+            "nothing to diagnose: " + "; ".join(f"{k}: {v}" for k, v in w.not_diagnosed.items()),
+            rec.meta.get("path"),
+        )
     for part, why in w.not_diagnosed.items():
         say(f"{part}: not diagnosed: {why}")
 
@@ -215,17 +242,31 @@ def diagnose(rec: Recording, vehicle: Vehicle, params: Params | None = None,
             unexplained.append(u)
     verdict = model_verdict(w.channels, w.series, findings, cfg, size_factor(vehicle))
 
-    params_out = extended_params(rec, vehicle, params, ld, lon_scores, steer_final, findings,
-                                 zones, cfg, w.not_diagnosed)
+    params_out = extended_params(
+        rec, vehicle, params, ld, lon_scores, steer_final, findings, zones, cfg, w.not_diagnosed
+    )
     baseline_out = baseline_params(rec, vehicle, params, zones, cfg, w.not_diagnosed)
-    return Diagnosis(findings, unexplained, _clean(w.channels), w.hyps, w.evidence,
-                     None if ld is None else "+".join(ld.input_names), w.series, params_out,
-                     baseline_out, round(time.perf_counter() - t_start, 3), w.notes,
-                     w.not_diagnosed, _clean(verdict), w.steering_samples,
-                     absent_inputs(w.ch))
+    return Diagnosis(
+        findings,
+        unexplained,
+        _clean(w.channels),
+        w.hyps,
+        w.evidence,
+        None if ld is None else "+".join(ld.input_names),
+        w.series,
+        params_out,
+        baseline_out,
+        round(time.perf_counter() - t_start, 3),
+        w.notes,
+        w.not_diagnosed,
+        _clean(verdict),
+        w.steering_samples,
+        absent_inputs(w.ch),
+    )
 
 
 # ---- which parts the recording supports, and the sensor pairs compared ----------------------
+
 
 def _longitudinal_data(w: _Work, zones, cfg: DiagnoseConfig) -> lon.LonData | None:
     """The longitudinal part's data, or None with its reason in ``w.not_diagnosed`` (no input
@@ -239,7 +280,8 @@ def _longitudinal_data(w: _Work, zones, cfg: DiagnoseConfig) -> lon.LonData | No
     if moving < int(20.0 / ld.dt):
         w.not_diagnosed["longitudinal"] = (
             f"too little moving data for the longitudinal model ({moving * ld.dt:.1f} s; "
-            "needs 20 s)")
+            "needs 20 s)"
+        )
         return None
     w.ran.append("longitudinal")
     return ld
@@ -251,8 +293,10 @@ def _agreement_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, say) -> Non
     channel, series and candidates join the result. The sensors part ran when any pair (these
     or the speed against the GNSS speed) was compared; else it is not diagnosed, each pair's
     reason named."""
-    for label, c in (("accelerometer", agr.accelerometer(w.ch, cfg)),
-                     ("wheel speeds", agr.wheel_yaw(w.ch, vehicle, cfg))):
+    for label, c in (
+        ("accelerometer", agr.accelerometer(w.ch, cfg)),
+        ("wheel speeds", agr.wheel_yaw(w.ch, vehicle, cfg)),
+    ):
         w.hyps += c.untested
         if not c.ran:
             w.sensor_why[label] = c.why
@@ -275,41 +319,68 @@ def _sensor_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolutio
     if sd is None:
         w.notes.append("no gps_speed channel: wheel_radius_error and sensor_time_offset not tested")
         w.sensor_why["speed against GNSS"] = (
-            "no gps_speed channel" if "gps_speed" not in w.ch else
-            "too little straight moving data with gps_speed (needs 20 s)")
+            "no gps_speed channel"
+            if "gps_speed" not in w.ch
+            else "too little straight moving data with gps_speed (needs 20 s)"
+        )
         return
     w.ran.append("sensors")
     say("sensors: CAN speed against GNSS speed")
     cl = corr_length(sen.residual(sd))
     b = sen.evaluate(sd, None, cfg, cl)
     w.channels["speed_vs_gnss"] = {
-        "unit": "m/s", "noise_floor": noise_floor(sd.g - sd.v),
-        "heldout_rmse_baseline": b.heldout_rmse_mps}
+        "unit": "m/s",
+        "noise_floor": noise_floor(sd.g - sd.v),
+        "heldout_rmse_baseline": b.heldout_rmse_mps,
+    }
     w.series["speed_vs_gnss"] = {"before": b.heldout_err}
     for h in sen.HYPOTHESES:
         s = sen.evaluate(sd, h, cfg, cl)
-        ok, why = accept(b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic,
-                          res.speed_vs_gnss_mps, cfg)
-        w.cands.append(candidate(h, "longitudinal", "speed_vs_gnss", b, s, b.heldout_rmse_mps,
-                                 s.heldout_rmse_mps, ok, why, cfg.window_lon_s))
+        ok, why = accept(
+            b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic, res.speed_vs_gnss_mps, cfg
+        )
+        w.cands.append(
+            candidate(
+                h,
+                "longitudinal",
+                "speed_vs_gnss",
+                b,
+                s,
+                b.heldout_rmse_mps,
+                s.heldout_rmse_mps,
+                ok,
+                why,
+                cfg.window_lon_s,
+            )
+        )
     off = next((c for c in w.cands if c["effect"] == "sensor_time_offset" and c["_ok"]), None)
     if off is not None:
         w.ch = sen.ins_shift(w.ch, off["parameters"]["offset_s"])
-        w.notes.append(f"INS channels moved by {off['parameters']['offset_s']:+.3f} s onto the "
-                       "CAN clock before the steering and longitudinal hypotheses")
+        w.notes.append(
+            f"INS channels moved by {off['parameters']['offset_s']:+.3f} s onto the "
+            "CAN clock before the steering and longitudinal hypotheses"
+        )
     rad = next((c for c in w.cands if c["effect"] == "wheel_radius_error" and c["_ok"]), None)
     if rad is not None:
         k = rad["parameters"]["scale"]
-        for name in ("speed", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
-                     "wheel_speed_rr"):
+        for name in (
+            "speed",
+            "wheel_speed_fl",
+            "wheel_speed_fr",
+            "wheel_speed_rl",
+            "wheel_speed_rr",
+        ):
             if name in w.ch:
                 w.ch[name] = np.asarray(w.ch[name], float) / k
-        w.notes.append(f"CAN wheel speeds divided by {k:.4f} (wheel_radius_error) before the "
-                       "steering and longitudinal hypotheses")
+        w.notes.append(
+            f"CAN wheel speeds divided by {k:.4f} (wheel_radius_error) before the "
+            "steering and longitudinal hypotheses"
+        )
 
 
-def _steering_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolution,
-                   say) -> dict | None:
+def _steering_step(
+    w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolution, say
+) -> dict | None:
     """Step 1-3 for steering: eq. 7 in eq. 1 against the yaw rate and heading, its channels'
     residuals and every steering hypothesis. Returns the scores by hypothesis (None: not tested)."""
     sdt, why, w.steering_samples = ste.support(w.ch, vehicle.wheelbase_m, cfg)
@@ -323,38 +394,63 @@ def _steering_step(w: _Work, vehicle: Vehicle, cfg: DiagnoseConfig, res: Resolut
     cl = corr_length(ste.residual(sdt, base_m))
     b = ste.evaluate(sdt, None, cfg, cl)
     rr = ste.residual(sdt, b.model)
-    channels["heading"] = {"unit": "rad", "source": sdt.heading_source,
-                           "noise_floor": noise_floor(sdt.heading),
-                           "heldout_rmse_baseline": b.heldout_rmse_rad}
-    channels["road_wheel_angle"] = {"unit": "rad", "noise_floor": noise_floor(rr),
-                                    "rmse_baseline": rmse(rr)}
+    channels["heading"] = {
+        "unit": "rad",
+        "source": sdt.heading_source,
+        "noise_floor": noise_floor(sdt.heading),
+        "heldout_rmse_baseline": b.heldout_rmse_rad,
+    }
+    channels["road_wheel_angle"] = {
+        "unit": "rad",
+        "noise_floor": noise_floor(rr),
+        "rmse_baseline": rmse(rr),
+    }
     yaw_pred = sdt.v * np.tan(ste.road_wheel_angle(sdt, b.model)) / sdt.b + b.model.bias_radps
     yr = np.where(sdt.ok, sdt.yaw - yaw_pred, np.nan)
-    channels["yaw_rate"] = {"unit": "rad/s", "noise_floor": noise_floor(sdt.yaw),
-                            "rmse_baseline": rmse(yr)}
+    channels["yaw_rate"] = {
+        "unit": "rad/s",
+        "noise_floor": noise_floor(sdt.yaw),
+        "rmse_baseline": rmse(yr),
+    }
     series["heading"] = {"before": b.heldout_err, "measured": sdt.heading}
     series["road_wheel_angle"] = {"before": rr}
     pos = ste.position_errors(w.ch, sdt, b.model, cfg)
     if pos is not None:
-        channels["position"] = {"unit": "m", "window_s": cfg.window_steer_s,
-                                "rmse_baseline": rmse(pos)}
+        channels["position"] = {
+            "unit": "m",
+            "window_s": cfg.window_steer_s,
+            "rmse_baseline": rmse(pos),
+        }
         series["position"] = {"before": pos}
     steer_scores: dict[str | None, Any] = {None: b}
     for h in ste.HYPOTHESES:
         s = ste.evaluate(sdt, h, cfg, cl)
         steer_scores[h] = s
-        ok, why = accept(b.heldout_rmse_rad, s.heldout_rmse_rad, b.bic, s.bic,
-                          res.heading_rad, cfg)
-        w.cands.append(candidate(h, "steering", "heading", b, s, b.heldout_rmse_rad,
-                                 s.heldout_rmse_rad, ok, why, cfg.window_steer_s))
+        ok, why = accept(b.heldout_rmse_rad, s.heldout_rmse_rad, b.bic, s.bic, res.heading_rad, cfg)
+        w.cands.append(
+            candidate(
+                h,
+                "steering",
+                "heading",
+                b,
+                s,
+                b.heldout_rmse_rad,
+                s.heldout_rmse_rad,
+                ok,
+                why,
+                cfg.window_steer_s,
+            )
+        )
     channels["heading"]["understeer_vs_ratio"] = ste.separability(
-        sdt, steer_scores["understeer"], b, vehicle, cl, cfg)
+        sdt, steer_scores["understeer"], b, vehicle, cl, cfg
+    )
     w.notes.append(channels["heading"]["understeer_vs_ratio"]["verdict"])
     return steer_scores
 
 
-def _longitudinal_step(w: _Work, ld: lon.LonData, cfg: DiagnoseConfig,
-                       res: Resolution) -> tuple[dict, float]:
+def _longitudinal_step(
+    w: _Work, ld: lon.LonData, cfg: DiagnoseConfig, res: Resolution
+) -> tuple[dict, float]:
     """Step 1-3 for eq. 8: the baseline, its checks, its channels' residuals and every
     longitudinal hypothesis. Returns the scores by hypothesis and the residual's correlation
     length."""
@@ -365,15 +461,26 @@ def _longitudinal_step(w: _Work, ld: lon.LonData, cfg: DiagnoseConfig,
     w.evidence += lon.baseline_checks(b.model, ld)
     drag_free = lon.unconstrained_ext(ld, "aero_drag")
     if drag_free < 0:
-        w.evidence.append({"term": "aero_drag", "value": drag_free,
-                           "why": f"unbounded v^2 coefficient {drag_free:.2e} 1/m is a negative "
-                                  "drag: the v^2 term absorbs something else (grade, creep, a "
-                                  "delay)"})
-    w.channels["speed"] = {"unit": "m/s", "window_s": cfg.window_lon_s,
-                           "noise_floor": noise_floor(ld.v),
-                           "heldout_rmse_baseline": b.heldout_rmse_mps}
-    w.channels["accel"] = {"unit": "m/s^2", "noise_floor": noise_floor(ra),
-                           "rmse_baseline": rmse(ra)}
+        w.evidence.append(
+            {
+                "term": "aero_drag",
+                "value": drag_free,
+                "why": f"unbounded v^2 coefficient {drag_free:.2e} 1/m is a negative "
+                "drag: the v^2 term absorbs something else (grade, creep, a "
+                "delay)",
+            }
+        )
+    w.channels["speed"] = {
+        "unit": "m/s",
+        "window_s": cfg.window_lon_s,
+        "noise_floor": noise_floor(ld.v),
+        "heldout_rmse_baseline": b.heldout_rmse_mps,
+    }
+    w.channels["accel"] = {
+        "unit": "m/s^2",
+        "noise_floor": noise_floor(ra),
+        "rmse_baseline": rmse(ra),
+    }
     w.series["speed"] = {"before": b.heldout_err}
     w.series["accel"] = {"before": ra}
     lon_scores: dict[str | None, Any] = {None: b}
@@ -382,18 +489,33 @@ def _longitudinal_step(w: _Work, ld: lon.LonData, cfg: DiagnoseConfig,
             w.hyps.append({"effect": h, "tested": False, "why": "no altitude or pitch channel"})
             continue
         if h == "idle_creep" and (ld.commanded or "accel_pedal" not in ld.input_names):
-            w.hyps.append({"effect": h, "tested": False,
-                           "why": "the car follows a command, not the pedal" if ld.commanded
-                           else "no accel_pedal channel: when the throttle is released is "
-                                "not known"})
+            w.hyps.append(
+                {
+                    "effect": h,
+                    "tested": False,
+                    "why": "the car follows a command, not the pedal"
+                    if ld.commanded
+                    else "no accel_pedal channel: when the throttle is released is not known",
+                }
+            )
             continue
         s = lon.evaluate(ld, h, cfg, cl)
         lon_scores[h] = s
         ok, why = accept(b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic, res.speed_mps, cfg)
         if ok and h in lon.LINEAR_EXT and not fos_selects(ld, h, spec=s.model.spec):
             ok, why = False, "FOS does not select the term on its hold-out"
-        c = candidate(h, "longitudinal", "speed", b, s, b.heldout_rmse_mps, s.heldout_rmse_mps,
-                      ok, why, cfg.window_lon_s)
+        c = candidate(
+            h,
+            "longitudinal",
+            "speed",
+            b,
+            s,
+            b.heldout_rmse_mps,
+            s.heldout_rmse_mps,
+            ok,
+            why,
+            cfg.window_lon_s,
+        )
         if h == "road_grade":
             c["parameters"]["grade_source"] = ld.grade_source
         w.cands.append(c)
@@ -401,8 +523,17 @@ def _longitudinal_step(w: _Work, ld: lon.LonData, cfg: DiagnoseConfig,
     return lon_scores, cl
 
 
-_HYP_KEYS = ("effect", "subsystem", "channel", "parameters", "intervals", "heldout_rmse_before",
-             "heldout_rmse_after", "gain", "delta_bic")
+_HYP_KEYS = (
+    "effect",
+    "subsystem",
+    "channel",
+    "parameters",
+    "intervals",
+    "heldout_rmse_before",
+    "heldout_rmse_after",
+    "gain",
+    "delta_bic",
+)
 
 
 def _rank_findings(w: _Work, regimes) -> list:
@@ -426,11 +557,23 @@ def _rank_findings(w: _Work, regimes) -> list:
         if "_ok" in c:
             c.pop("_before"), c.pop("_after"), c.pop("_window_s")
             ok = c.pop("_ok")
-            w.hyps.append({**{k: c[k] for k in _HYP_KEYS}, "finding": ok, "why": c["why"],
-                           **({"stacked": c["stacked"]} if "stacked" in c else {})})
+            w.hyps.append(
+                {
+                    **{k: c[k] for k in _HYP_KEYS},
+                    "finding": ok,
+                    "why": c["why"],
+                    **({"stacked": c["stacked"]} if "stacked" in c else {}),
+                }
+            )
     for f in findings:
-        w.hyps.append({**{k: f[k] for k in _HYP_KEYS}, "finding": True, "why": "accepted",
-                       **({"on_top_of": f["on_top_of"]} if "on_top_of" in f else {})})
+        w.hyps.append(
+            {
+                **{k: f[k] for k in _HYP_KEYS},
+                "finding": True,
+                "why": "accepted",
+                **({"on_top_of": f["on_top_of"]} if "on_top_of" in f else {}),
+            }
+        )
     return findings
 
 
@@ -441,8 +584,14 @@ def _locate_channels(w: _Work, regimes, cfg: DiagnoseConfig) -> None:
     for name, s in w.series.items():
         if name == "t" or name not in w.channels:
             continue
-        L = int((cfg.window_lon_s if name in ("speed", "accel", "speed_vs_gnss")
-                 else cfg.window_steer_s) / (t[1] - t[0]))
+        L = int(
+            (
+                cfg.window_lon_s
+                if name in ("speed", "accel", "speed_vs_gnss")
+                else cfg.window_steer_s
+            )
+            / (t[1] - t[0])
+        )
         floor = w.channels[name].get("noise_floor", float("nan"))
         err = s.get("after", s["before"])
         w.channels[name]["elevated"] = elevated_windows(t, err, L, floor)
@@ -457,8 +606,9 @@ def _fit_windows(cfg: DiagnoseConfig, ch: dict) -> DiagnoseConfig:
     dt = float(np.median(np.diff(t)))
     dur = float(np.isfinite(np.asarray(ch["speed"], float)).sum() * dt)
     w = max(2.0, dur / (4 * cfg.n_folds))
-    return replace(cfg, window_lon_s=min(cfg.window_lon_s, w),
-                   window_steer_s=min(cfg.window_steer_s, w))
+    return replace(
+        cfg, window_lon_s=min(cfg.window_lon_s, w), window_steer_s=min(cfg.window_steer_s, w)
+    )
 
 
 def _final_lon_spec(findings: list, lon_scores: dict) -> lon.LonSpec:

@@ -2,15 +2,24 @@
 in degrees (the JSON keeps SI: rad, rad/s), values with their intervals, and the order in which
 a result is told (the answer first: the verdict and the findings; the evidence below).
 """
+
 from __future__ import annotations
 
 import math
 
 DEG = 180.0 / math.pi
 #: the unit of each diagnosed channel in the JSON (SI; the JSON's ``channels``)
-CHANNEL_UNITS = {"speed": "m/s", "accel": "m/s^2", "heading": "rad", "road_wheel_angle": "rad",
-                 "position": "m", "speed_vs_gnss": "m/s", "yaw_rate": "rad/s",
-                 "accel_vs_speed": "m/s^2", "yaw_rate_vs_wheels": "rad/s"}
+CHANNEL_UNITS = {
+    "speed": "m/s",
+    "accel": "m/s^2",
+    "heading": "rad",
+    "road_wheel_angle": "rad",
+    "position": "m",
+    "speed_vs_gnss": "m/s",
+    "yaw_rate": "rad/s",
+    "accel_vs_speed": "m/s^2",
+    "yaw_rate_vs_wheels": "rad/s",
+}
 
 #: a unit shown to people -> (the unit shown instead, factor)
 _SHOWN = {"rad": ("deg", DEG), "rad/s": ("deg/s", DEG)}
@@ -34,8 +43,13 @@ def parameter(name: str) -> tuple[str, str, float]:
 
 
 #: unit suffixes of catalogue parameter names (``models.params``' convention)
-_SUFFIX_UNITS = (("_mps2", "m/s^2"), ("_mps", "m/s"), ("_per_m", "1/m"), ("_per_s", "1/s"),
-                 ("_s", "s"))
+_SUFFIX_UNITS = (
+    ("_mps2", "m/s^2"),
+    ("_mps", "m/s"),
+    ("_per_m", "1/m"),
+    ("_per_s", "1/s"),
+    ("_s", "s"),
+)
 
 
 def unit_of(name: str) -> str:

@@ -6,6 +6,7 @@ gear's ratio times the final drive over the wheel's circumference); a histogram 
 on moving samples has one peak per gear used. Samples away from every peak (a shift, a slipping
 torque converter, the clutch open) take the gear of the nearest sample in time that has one.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -53,18 +54,22 @@ def _peaks(lr: np.ndarray) -> list[float]:
         near = lr[np.abs(lr - p) < PEAK_HALF_WIDTH]
         if len(near) >= MIN_GEAR_SHARE * len(lr):
             out.append(float(np.median(near)))
-    return sorted(out, reverse=True)   # gear 1 (largest ratio) first
+    return sorted(out, reverse=True)  # gear 1 (largest ratio) first
 
 
 def _fill_nearest(g: np.ndarray) -> np.ndarray:
     known = np.flatnonzero(g >= 0)
     if known.size == 0:
         return g
-    pos = np.clip(np.searchsorted(known, np.arange(len(g))), 1, len(known) - 1) \
-        if len(known) > 1 else np.zeros(len(g), int)
+    pos = (
+        np.clip(np.searchsorted(known, np.arange(len(g))), 1, len(known) - 1)
+        if len(known) > 1
+        else np.zeros(len(g), int)
+    )
     left, right = known[np.maximum(pos - 1, 0)], known[pos]
-    pick = np.where(np.abs(np.arange(len(g)) - left) <= np.abs(right - np.arange(len(g))),
-                    left, right)
+    pick = np.where(
+        np.abs(np.arange(len(g)) - left) <= np.abs(right - np.arange(len(g))), left, right
+    )
     return g[pick]
 
 
@@ -76,8 +81,10 @@ def gear_index(ch: dict, v: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray | No
     if rec is not None:
         used = sorted(set(rec[moving & (rec > 0)].tolist()))
         if len(used) < 2:
-            return None, {"n": 1, "why": f"the recorded gear takes {len(used)} value(s) while "
-                                         "moving"}
+            return None, {
+                "n": 1,
+                "why": f"the recorded gear takes {len(used)} value(s) while moving",
+            }
         g = np.full(len(v), -1, int)
         for i, x in enumerate(used):
             g[rec == x] = i
@@ -93,16 +100,20 @@ def gear_index(ch: dict, v: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray | No
         lr = np.log(rpm[use] / v[use])
         peaks = _peaks(lr)
         if len(peaks) < 2:
-            return None, {"n": len(peaks), "why": "the ratio engine_rpm / speed has "
-                                                  f"{len(peaks)} cluster(s): one gear"}
+            return None, {
+                "n": len(peaks),
+                "why": f"the ratio engine_rpm / speed has {len(peaks)} cluster(s): one gear",
+            }
         g = np.full(len(v), -1, int)
         full = np.full(len(v), np.nan)
         full[use] = lr
         dist = np.abs(full[:, None] - np.array(peaks)[None, :])
         near = np.nanmin(np.where(np.isfinite(dist), dist, np.inf), axis=1) < PEAK_HALF_WIDTH
         g[near] = np.argmin(np.where(np.isfinite(dist[near]), dist[near], np.inf), axis=1)
-        info = {"source": "engine_rpm / speed clustered",
-                "ratios_rpm_per_mps": [float(np.exp(p)) for p in peaks]}
+        info = {
+            "source": "engine_rpm / speed clustered",
+            "ratios_rpm_per_mps": [float(np.exp(p)) for p in peaks],
+        }
         # the engine-braking regressor [1000 1/min] (``longitudinal.inputs``); where the
         # engine speed is missing, the median of the recording's (not zero)
         info["drag_krpm"] = np.where(np.isfinite(rpm), rpm, np.nanmedian(rpm)) / 1000.0

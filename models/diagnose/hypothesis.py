@@ -10,6 +10,7 @@
 - :func:`grid_search`: a hypothesis's nonlinear parameter (a delay, a lag, a gradient) found
   on a grid of the SSE per sample, refined around the best point.
 """
+
 from __future__ import annotations
 
 from typing import Protocol, TypeVar
@@ -30,10 +31,10 @@ class HypothesisScore(Protocol):
     """A hypothesis scored by blocked held-out replay plus its full-data fit."""
 
     name: str | None
-    heldout_err: np.ndarray   #: per-sample held-out error in the channel's unit (NaN elsewhere)
-    bic: float                #: BIC of the full-data fit (effective samples)
-    params: dict              #: catalogue parameter name -> value
-    intervals: dict           #: catalogue parameter name -> [lo, hi] (95 %)
+    heldout_err: np.ndarray  #: per-sample held-out error in the channel's unit (NaN elsewhere)
+    bic: float  #: BIC of the full-data fit (effective samples)
+    params: dict  #: catalogue parameter name -> value
+    intervals: dict  #: catalogue parameter name -> [lo, hi] (95 %)
 
 
 def sse_per_sample(m: FittedModel) -> float:
@@ -45,9 +46,15 @@ def sse_per_sample(m: FittedModel) -> float:
 _Model = TypeVar("_Model", bound=FittedModel)
 
 
-def grid_search(fit_at: Callable[[float], _Model], grid: np.ndarray,
-                fine_step: float | None = None, *, end_pad: float = 0.0, rtol: float = 0.0,
-                atol: float = 0.0) -> tuple[_Model, np.ndarray, np.ndarray]:
+def grid_search(
+    fit_at: Callable[[float], _Model],
+    grid: np.ndarray,
+    fine_step: float | None = None,
+    *,
+    end_pad: float = 0.0,
+    rtol: float = 0.0,
+    atol: float = 0.0,
+) -> tuple[_Model, np.ndarray, np.ndarray]:
     """The fit of ``fit_at`` with the smallest SSE per sample over ``grid``.
 
     With ``fine_step``: refined by a fine grid of that step from one coarse step below the best
@@ -67,7 +74,7 @@ def grid_search(fit_at: Callable[[float], _Model], grid: np.ndarray,
     fine = fine[~np.isclose(fine[:, None], grid[None, :], rtol=rtol, atol=atol).any(axis=1)]
     models += [fit_at(g) for g in fine]
     grid = np.concatenate([grid, fine])
-    sse = np.concatenate([sse, [sse_per_sample(m) for m in models[len(sse):]]])
+    sse = np.concatenate([sse, [sse_per_sample(m) for m in models[len(sse) :]]])
     order = np.argsort(grid)
     grid, sse, models = grid[order], sse[order], [models[i] for i in order]
     best = int(np.nanargmin(sse))

@@ -2,6 +2,7 @@
 residual by regime (speed zone, pedal, brake, steering magnitude, lateral acceleration,
 distance travelled, altitude change).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -41,10 +42,9 @@ def elevated_windows(t, err, length: int, floor: float, factor: float = 3.0) -> 
         return {"windows": [], "share_of_error": 0.0, "threshold": float("nan")}
     thr = factor * max(floor if np.isfinite(floor) else 0.0, float(np.median(w)))
     flags = w > thr
-    sq = w ** 2
+    sq = w**2
     share = float(sq[flags].sum() / sq.sum()) if sq.sum() > 0 else 0.0
-    return {"windows": merge_windows(t, flags, idx), "share_of_error": share,
-            "threshold": thr}
+    return {"windows": merge_windows(t, flags, idx), "share_of_error": share, "threshold": thr}
 
 
 def change_point(t, err, length: int) -> dict | None:
@@ -61,9 +61,12 @@ def change_point(t, err, length: int) -> dict | None:
             best, k_best = d, k
     if k_best is None or np.exp(best) < 2.0:
         return None
-    return {"t_s": round(float(t[idx[k_best, 0]]), 3), "rms_ratio": float(np.exp(best)),
-            "rms_before": float(np.sqrt(np.mean(w[:k_best] ** 2))),
-            "rms_after": float(np.sqrt(np.mean(w[k_best:] ** 2)))}
+    return {
+        "t_s": round(float(t[idx[k_best, 0]]), 3),
+        "rms_ratio": float(np.exp(best)),
+        "rms_before": float(np.sqrt(np.mean(w[:k_best] ** 2))),
+        "rms_after": float(np.sqrt(np.mean(w[k_best:] ** 2))),
+    }
 
 
 def regime_variables(ch: dict, zones) -> dict[str, tuple[np.ndarray, list[str]]]:
@@ -85,35 +88,50 @@ def regime_variables(ch: dict, zones) -> dict[str, tuple[np.ndarray, list[str]]]
         out["brake"] = (np.where(~np.isfinite(bp), -1, (bp > 0.01).astype(int)), ["off", "on"])
     if "accel_cmd" in ch and np.isfinite(ch["accel_cmd"]).any():
         c = np.asarray(ch["accel_cmd"], float)
-        out["accel command"] = (np.where(~np.isfinite(c), -1, np.digitize(c, [-0.5, 0.5])),
-                                ["< -0.5 m/s^2", "-0.5..0.5 m/s^2", "> 0.5 m/s^2"])
+        out["accel command"] = (
+            np.where(~np.isfinite(c), -1, np.digitize(c, [-0.5, 0.5])),
+            ["< -0.5 m/s^2", "-0.5..0.5 m/s^2", "> 0.5 m/s^2"],
+        )
     if "steering_wheel_angle" in ch:
         s = np.abs(np.asarray(ch["steering_wheel_angle"], float))
-        out["steering magnitude"] = (np.where(~np.isfinite(s), -1, np.digitize(s, [0.5, 2.0])),
-                                     ["< 0.5 rad", "0.5-2 rad", "> 2 rad"])
+        out["steering magnitude"] = (
+            np.where(~np.isfinite(s), -1, np.digitize(s, [0.5, 2.0])),
+            ["< 0.5 rad", "0.5-2 rad", "> 2 rad"],
+        )
     if "yaw_rate" in ch:
         ay = np.abs(v * np.asarray(ch["yaw_rate"], float))
-        out["lateral acceleration"] = (np.where(~np.isfinite(ay), -1, np.digitize(ay, [1.0, 3.0])),
-                                       ["< 1 m/s^2", "1-3 m/s^2", "> 3 m/s^2"])
+        out["lateral acceleration"] = (
+            np.where(~np.isfinite(ay), -1, np.digitize(ay, [1.0, 3.0])),
+            ["< 1 m/s^2", "1-3 m/s^2", "> 3 m/s^2"],
+        )
     dt = float(np.median(np.diff(ch["time"])))
     dist = np.cumsum(np.nan_to_num(v) * dt)
     if dist[-1] > 0:
         q = np.quantile(dist, [0.25, 0.5, 0.75])
-        out["distance travelled"] = (np.digitize(dist, q), [
-            f"< {q[0]:.0f} m", f"{q[0]:.0f}-{q[1]:.0f} m", f"{q[1]:.0f}-{q[2]:.0f} m",
-            f"> {q[2]:.0f} m"])
+        out["distance travelled"] = (
+            np.digitize(dist, q),
+            [
+                f"< {q[0]:.0f} m",
+                f"{q[0]:.0f}-{q[1]:.0f} m",
+                f"{q[1]:.0f}-{q[2]:.0f} m",
+                f"> {q[2]:.0f} m",
+            ],
+        )
     if "z" in ch and np.isfinite(ch["z"]).mean() > 0.5:
         from hmpc.models.identify.stats import savgol_derivative
+
         dz = savgol_derivative(np.asarray(ch["z"], float), dt, 3.0)
         grade = dz / np.maximum(np.nan_to_num(v), 1.0)
-        out["altitude change"] = (np.where(~np.isfinite(grade), -1,
-                                           np.digitize(grade, [-0.01, 0.01])),
-                                  ["downhill (< -1 %)", "level", "uphill (> 1 %)"])
+        out["altitude change"] = (
+            np.where(~np.isfinite(grade), -1, np.digitize(grade, [-0.01, 0.01])),
+            ["downhill (< -1 %)", "level", "uphill (> 1 %)"],
+        )
     return out
 
 
-def regime_table(regimes: dict, before: np.ndarray, after: np.ndarray | None = None,
-                 min_samples: int = 100) -> list[dict]:
+def regime_table(
+    regimes: dict, before: np.ndarray, after: np.ndarray | None = None, min_samples: int = 100
+) -> list[dict]:
     """RMS of the residual per regime bin (before and, if given, after)."""
     rows = []
     for name, (b, labels) in regimes.items():
@@ -123,8 +141,12 @@ def regime_table(regimes: dict, before: np.ndarray, after: np.ndarray | None = N
                 sel &= np.isfinite(after)
             if sel.sum() < min_samples:
                 continue
-            row = {"variable": name, "bin": lab, "samples": int(sel.sum()),
-                   "rmse_before": rmse(before[sel])}
+            row = {
+                "variable": name,
+                "bin": lab,
+                "samples": int(sel.sum()),
+                "rmse_before": rmse(before[sel]),
+            }
             if after is not None:
                 row["rmse_after"] = rmse(after[sel])
             rows.append(row)

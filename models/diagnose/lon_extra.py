@@ -9,6 +9,7 @@ it can be and named as untested (with the reason) where it cannot:
 Each is scored against the baseline like the others (``candidates.accept``) and its
 candidate carries what it found (the gears and their gains, the braking windows).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,11 +24,22 @@ def _untested(w, effect: str, why: str) -> None:
     w.hyps.append({"effect": effect, "tested": False, "why": why})
 
 
-def _add(w, ld, effect: str, b: lon.LonScore, s: lon.LonScore, cfg: DiagnoseConfig,
-         res: Resolution) -> dict:
+def _add(
+    w, ld, effect: str, b: lon.LonScore, s: lon.LonScore, cfg: DiagnoseConfig, res: Resolution
+) -> dict:
     ok, why = accept(b.heldout_rmse_mps, s.heldout_rmse_mps, b.bic, s.bic, res.speed_mps, cfg)
-    c = candidate(effect, "longitudinal", "speed", b, s, b.heldout_rmse_mps, s.heldout_rmse_mps,
-                  ok, why, cfg.window_lon_s)
+    c = candidate(
+        effect,
+        "longitudinal",
+        "speed",
+        b,
+        s,
+        b.heldout_rmse_mps,
+        s.heldout_rmse_mps,
+        ok,
+        why,
+        cfg.window_lon_s,
+    )
     w.cands.append(c)
     return c
 
@@ -98,8 +110,15 @@ def speed_cmd_response(ld: lon.LonData, b: lon.LonScore) -> dict:
     return out
 
 
-def lon_extra_step(w, ld: lon.LonData, b: lon.LonScore, lon_scores: dict, cfg: DiagnoseConfig,
-                   res: Resolution, cl: float) -> None:
+def lon_extra_step(
+    w,
+    ld: lon.LonData,
+    b: lon.LonScore,
+    lon_scores: dict,
+    cfg: DiagnoseConfig,
+    res: Resolution,
+    cl: float,
+) -> None:
     """Test the recording-dependent hypotheses (module doc) against the baseline ``b``; each
     score joins ``lon_scores``, each candidate ``w.cands``, each untested one ``w.hyps``."""
     if "speed_cmd" in ld.input_names:
@@ -108,8 +127,9 @@ def lon_extra_step(w, ld: lon.LonData, b: lon.LonScore, lon_scores: dict, cfg: D
         s = lon.evaluate(ld, "actuator_saturation", cfg, cl)
         gains = [s.model.C[z, 1] for z in s.model.fitted_zones]
         if "sat_level" in s.params and np.isfinite(s.params["sat_level"]):
-            s.params["accel_mps2"] = float(s.params["sat_level"] * np.mean(gains)) \
-                if gains else float("nan")
+            s.params["accel_mps2"] = (
+                float(s.params["sat_level"] * np.mean(gains)) if gains else float("nan")
+            )
         lon_scores["actuator_saturation"] = s
         c = _add(w, ld, "actuator_saturation", b, s, cfg, res)
         c["input"] = ld.input_names[0]
@@ -124,9 +144,12 @@ def lon_extra_step(w, ld: lon.LonData, b: lon.LonScore, lon_scores: dict, cfg: D
         if c["_ok"]:
             g = c["gears"]
             ratios = ", ".join(f"{r:.0f}" for r in g.get("ratios_rpm_per_mps", []))
-            w.notes.append(f"gears: {g['n']} from {g['source']}"
-                           + (f" (ratios {ratios} 1/min per m/s)" if ratios else "")
-                           + "; moving samples per gear " + ", ".join(map(str, g["samples"])))
+            w.notes.append(
+                f"gears: {g['n']} from {g['source']}"
+                + (f" (ratios {ratios} 1/min per m/s)" if ratios else "")
+                + "; moving samples per gear "
+                + ", ".join(map(str, g["samples"]))
+            )
     else:
         why = ld.gear_info.get("why", "no engine_rpm or gear channel")
         _untested(w, "gears", why)
@@ -137,14 +160,22 @@ def lon_extra_step(w, ld: lon.LonData, b: lon.LonScore, lon_scores: dict, cfg: D
         return
     sb, wins = braking.evaluate(ld, cfg, cl)
     if sb is None:
-        w.hyps.append({"effect": "unobserved_braking", "tested": True, "finding": False,
-                       "why": "no released-pedal deceleration beyond the coasting model"})
+        w.hyps.append(
+            {
+                "effect": "unobserved_braking",
+                "tested": True,
+                "finding": False,
+                "why": "no released-pedal deceleration beyond the coasting model",
+            }
+        )
         return
     lon_scores["unobserved_braking"] = sb
     c = _add(w, ld, "unobserved_braking", b, sb, cfg, res)
     c["braking_windows"] = wins
     if c["_ok"]:
-        w.notes.append(f"unobserved_braking: {len(wins)} window(s) where the car decelerates "
-                       "beyond its coasting with the pedal released and no brake channel, "
-                       f"first {wins[0][0]:.1f}-{wins[0][1]:.1f} s")
+        w.notes.append(
+            f"unobserved_braking: {len(wins)} window(s) where the car decelerates "
+            "beyond its coasting with the pedal released and no brake channel, "
+            f"first {wins[0][0]:.1f}-{wins[0][1]:.1f} s"
+        )
     c["absent_inputs"] = list(ld.absent_inputs)

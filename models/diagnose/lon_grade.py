@@ -1,5 +1,6 @@
 """The road grade a longitudinal hypothesis (``road_grade``) is fitted with: from the altitude
 over the distance travelled, else the INS pitch."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,8 +25,10 @@ def measured_grade(ch: dict, v: np.ndarray, dt: float) -> tuple[np.ndarray | Non
         idx = np.flatnonzero(np.isfinite(g))
         if len(idx) > 10:
             g = np.interp(np.arange(len(g)), idx, g[idx])
-            return g, ("altitude z over distance travelled (3 s Savitzky-Golay; below 2 m/s "
-                       f"the altitude's slope over {GRADE_LOW_SPEED_SPAN_M:g} m of distance)")
+            return g, (
+                "altitude z over distance travelled (3 s Savitzky-Golay; below 2 m/s "
+                f"the altitude's slope over {GRADE_LOW_SPEED_SPAN_M:g} m of distance)"
+            )
     p = ch.get("pitch")
     if p is not None and np.isfinite(p).mean() > 0.5:
         return np.nan_to_num(np.asarray(p, float)), "INS pitch"
@@ -49,8 +52,7 @@ def _grade_over_distance(z: np.ndarray, v: np.ndarray, dt: float, span_m: float)
     return out
 
 
-def _grade_over_distance_run(z: np.ndarray, v: np.ndarray, dt: float, span_m: float
-                             ) -> np.ndarray:
+def _grade_over_distance_run(z: np.ndarray, v: np.ndarray, dt: float, span_m: float) -> np.ndarray:
     s = np.cumsum(np.maximum(v, 0.0) * dt)
     b = (s / GRADE_BIN_M).astype(int)
     fin = np.isfinite(z)
@@ -63,10 +65,10 @@ def _grade_over_distance_run(z: np.ndarray, v: np.ndarray, dt: float, span_m: fl
     zb = np.interp(np.arange(nb), have, zs[have] / cnt[have])
     k = max(1, int(round(0.5 * span_m / GRADE_BIN_M)))
     x = np.arange(-k, k + 1) * GRADE_BIN_M
-    w = x / np.sum(x * x)                        # slope of a straight line over the span
+    w = x / np.sum(x * x)  # slope of a straight line over the span
     slope = np.convolve(np.pad(zb, k, mode="edge"), w[::-1], mode="valid")
     g = np.arcsin(np.clip(slope, -0.3, 0.3))
-    if nb > 2 * k:                               # ends: no full span (unless that is all)
+    if nb > 2 * k:  # ends: no full span (unless that is all)
         g[:k] = np.nan
-        g[nb - k:] = np.nan
+        g[nb - k :] = np.nan
     return g[b]

@@ -13,6 +13,7 @@ holds, and how a command enters eq. 8.
   the actuator hypotheses (dead time, lag), the speed the car's own; ``actuator_saturation``
   clips each command's regressor at a level (:func:`regressors`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -38,10 +39,10 @@ INPUT_USED = 0.01
 class InputChoice:
     """The inputs chosen for eq. 8 and what the recording does not hold."""
 
-    U: np.ndarray                 #: [n, m] inputs (brake as -brake_pedal; NaN where missing)
-    names: list[str]              #: the channel of each column
-    idle: np.ndarray              #: throttle released (bool; all False without accel_pedal)
-    absent: list[str]             #: input channels the recording does not hold
+    U: np.ndarray  #: [n, m] inputs (brake as -brake_pedal; NaN where missing)
+    names: list[str]  #: the channel of each column
+    idle: np.ndarray  #: throttle released (bool; all False without accel_pedal)
+    absent: list[str]  #: input channels the recording does not hold
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -94,23 +95,30 @@ def choose_inputs(ch: dict) -> InputChoice:
         other = [nm for nm in COMMANDS if nm != cmd and rec[nm] is not None]
         notes += [f"{nm} recorded but not used: {cmd} drives the car" for nm in other]
         return InputChoice(np.column_stack(cols), names, np.zeros(n, bool), absent, notes)
-    notes += [f"{nm} recorded but held constant (spread below {COMMAND_MIN_STD:g}): not used"
-              for nm in COMMANDS if rec[nm] is not None]
+    notes += [
+        f"{nm} recorded but held constant (spread below {COMMAND_MIN_STD:g}): not used"
+        for nm in COMMANDS
+        if rec[nm] is not None
+    ]
     cols, names = [], []
     for nm, sign in (("accel_pedal", 1.0), ("brake_pedal", -1.0)):
         if rec[nm] is not None:
             cols.append(sign * rec[nm])
             names.append(nm)
     if not names:
-        raise InputError("no longitudinal input: none of " + ", ".join(LON_INPUTS)
-                         + " is recorded")
+        raise InputError("no longitudinal input: none of " + ", ".join(LON_INPUTS) + " is recorded")
     ap = rec["accel_pedal"]
     idle = np.zeros(n, bool) if ap is None else np.nan_to_num(ap, nan=1.0) < INPUT_USED
     return InputChoice(np.column_stack(cols), names, idle, absent, notes)
 
 
-def regressors(U: np.ndarray, tracking: np.ndarray, v: np.ndarray, sat_level: float = 0.0,
-               commands: np.ndarray | None = None) -> np.ndarray:
+def regressors(
+    U: np.ndarray,
+    tracking: np.ndarray,
+    v: np.ndarray,
+    sat_level: float = 0.0,
+    commands: np.ndarray | None = None,
+) -> np.ndarray:
     """The inputs as eq. 8's regressors at speed ``v``: a speed command's column becomes the
     speed error ``speed_cmd - v``; with ``sat_level`` > 0 each command's regressor
     (``commands``: per column) is clipped to +-``sat_level`` (``actuator_saturation``)."""

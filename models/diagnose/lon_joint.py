@@ -1,12 +1,12 @@
 """The actuator's response to its longitudinal input fitted as a dead time AND a first-order
 lag together (:func:`joint_response`): the total effective delay, and whether a recording
 tells the two apart. On ``longitudinal``'s fits and blocked held-out replays."""
+
 from __future__ import annotations
 
 import numpy as np
 
-from hmpc.models.diagnose.common import (DiagnoseConfig, rmse, segment_fold_ids, train_mask,
-                                         windows)
+from hmpc.models.diagnose.common import DiagnoseConfig, rmse, segment_fold_ids, train_mask, windows
 from hmpc.models.diagnose.hypothesis import sse_per_sample
 from hmpc.models.diagnose.longitudinal import LonData, LonSpec, _covered, fit, free_run
 
@@ -56,8 +56,13 @@ def joint_response(d: LonData, base: dict | None, cfg: DiagnoseConfig, corr_len:
     near = np.array([k for k, (v, _) in sse.items() if ne * np.log(v / s0) <= 2 * 3.84])
     lo, hi = np.maximum(near.min(axis=0) - coarse, 0.0), near.max(axis=0) + coarse
     step = fine if np.prod((hi - lo) / fine + 1) <= JOINT_MAX_FINE else wide
-    run([(a, b) for a in np.arange(lo[0], hi[0] + 1e-9, step)
-         for b in np.arange(lo[1], hi[1] + 1e-9, step)])
+    run(
+        [
+            (a, b)
+            for a in np.arange(lo[0], hi[0] + 1e-9, step)
+            for b in np.arange(lo[1], hi[1] + 1e-9, step)
+        ]
+    )
     P = np.array(list(sse))
     v = np.array([x for x, _ in sse.values()])
     i = int(np.argmin(v))
@@ -70,14 +75,23 @@ def joint_response(d: LonData, base: dict | None, cfg: DiagnoseConfig, corr_len:
     lr_delay = float(lr[P[:, 1] == 0].min())
     lr_lag = float(lr[P[:, 0] == 0].min())
     d_hat, tau_hat = float(P[i, 0]), float(P[i, 1])
-    return {"input": "+".join(d.input_names), "dead_time_s": d_hat, "tau_s": tau_hat,
-            "effective_delay_s": d_hat + tau_hat,
-            "intervals": {"dead_time_s": interval(P[:, 0]), "tau_s": interval(P[:, 1]),
-                          "effective_delay_s": interval(P.sum(axis=1))},
-            "lr_dead_time_only": lr_delay, "lr_lag_only": lr_lag,
-            "separable": bool(min(lr_delay, lr_lag) > 3.84),
-            "heldout_rmse_mps": _joint_heldout(d, spec, (d_hat, tau_hat), cfg),
-            "n_eff": ne, "grid_step_s": step}
+    return {
+        "input": "+".join(d.input_names),
+        "dead_time_s": d_hat,
+        "tau_s": tau_hat,
+        "effective_delay_s": d_hat + tau_hat,
+        "intervals": {
+            "dead_time_s": interval(P[:, 0]),
+            "tau_s": interval(P[:, 1]),
+            "effective_delay_s": interval(P.sum(axis=1)),
+        },
+        "lr_dead_time_only": lr_delay,
+        "lr_lag_only": lr_lag,
+        "separable": bool(min(lr_delay, lr_lag) > 3.84),
+        "heldout_rmse_mps": _joint_heldout(d, spec, (d_hat, tau_hat), cfg),
+        "n_eff": ne,
+        "grid_step_s": step,
+    }
 
 
 def _joint_heldout(d: LonData, spec, best: tuple, cfg: DiagnoseConfig) -> float:
@@ -88,9 +102,13 @@ def _joint_heldout(d: LonData, spec, best: tuple, cfg: DiagnoseConfig) -> float:
     guard = int(cfg.guard_s / d.dt)
     L = int(cfg.window_lon_s / d.dt)
     near = JOINT_STEPS_S[2] * np.arange(-1, 2)
-    local = sorted({(round(float(a), 6), round(float(b), 6))
-                    for a in np.maximum(best[0] + near, 0.0)
-                    for b in np.maximum(best[1] + near, 0.0)})
+    local = sorted(
+        {
+            (round(float(a), 6), round(float(b), 6))
+            for a in np.maximum(best[0] + near, 0.0)
+            for b in np.maximum(best[1] + near, 0.0)
+        }
+    )
     err = np.full(d.n, np.nan)
     for f in range(cfg.n_folds):
         tr = train_mask(folds, f, guard)

@@ -37,6 +37,7 @@ speed free-run replays from the measured speed at each window start. ``lon_joint
 dead time and a lag together (the total effective delay of an actuator, and whether a
 recording tells the two apart).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -45,9 +46,17 @@ import numpy as np
 from scipy.signal import lfilter
 
 from hmpc.models.constants import G_MPS2
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded,
-                                         profile_interval, rmse, segment_fold_ids, segments,
-                                         train_mask, windows)
+from hmpc.models.diagnose.common import (
+    DiagnoseConfig,
+    bic,
+    lstsq_bounded,
+    profile_interval,
+    rmse,
+    segment_fold_ids,
+    segments,
+    train_mask,
+    windows,
+)
 from hmpc.models.diagnose.gear_data import gear_index
 from hmpc.models.diagnose.hypothesis import grid_search, sse_per_sample
 from hmpc.models.diagnose.lon_grade import measured_grade
@@ -65,10 +74,20 @@ LINEAR_EXT = {
     "idle_creep": ("accel_mps2", (0.0, 2.0)),
 }
 NONLINEAR: dict[str | None, str] = {
-    "actuator_delay": "delay_s", "actuator_lag": "tau_s", "idle_creep": "creep_speed_mps",
-    "road_grade": "comp_rate_per_s", "actuator_saturation": "sat_level"}
-HYPOTHESES = ("actuator_delay", "actuator_lag", "aero_drag", "rolling_resistance", "road_grade",
-              "idle_creep")
+    "actuator_delay": "delay_s",
+    "actuator_lag": "tau_s",
+    "idle_creep": "creep_speed_mps",
+    "road_grade": "comp_rate_per_s",
+    "actuator_saturation": "sat_level",
+}
+HYPOTHESES = (
+    "actuator_delay",
+    "actuator_lag",
+    "aero_drag",
+    "rolling_resistance",
+    "road_grade",
+    "idle_creep",
+)
 
 
 @dataclass
@@ -77,17 +96,17 @@ class LonData:
 
     t: np.ndarray
     dt: float
-    v: np.ndarray           #: measured speed [m/s]
-    vs: np.ndarray          #: smoothed speed [m/s]
-    a: np.ndarray           #: measured dv/dt [m/s^2]
-    U: np.ndarray           #: inputs [n, m]
+    v: np.ndarray  #: measured speed [m/s]
+    vs: np.ndarray  #: smoothed speed [m/s]
+    a: np.ndarray  #: measured dv/dt [m/s^2]
+    U: np.ndarray  #: inputs [n, m]
     input_names: list[str]
-    idle: np.ndarray        #: throttle released (bool)
+    idle: np.ndarray  #: throttle released (bool)
     grade: np.ndarray | None  #: measured grade [rad]
     grade_source: str
     zones: tuple
     segs: list[tuple[int, int]]
-    ok: np.ndarray          #: samples inside a usable segment
+    ok: np.ndarray  #: samples inside a usable segment
     _grade_cache: dict = field(default_factory=dict, repr=False)
     #: [s] the inputs' timing against the speed applied to ``U`` (:func:`input_alignment`)
     input_shift_s: float = 0.0
@@ -154,8 +173,23 @@ def prepare(ch: dict, zones=None, cfg: DiagnoseConfig = DiagnoseConfig()) -> Lon
     vs = savgol_derivative(np.where(ok, v, np.nan), dt, cfg.deriv_window_s, deriv=0)
     vs = np.where(np.isfinite(vs), vs, v)
     grade, src = measured_grade(ch, v, dt)
-    d = LonData(t, dt, v, vs, a, U, names, idle, grade, src, tuple(zones or DEFAULT_ZONES), segs,
-                ok, absent_inputs=inp.absent, input_notes=inp.notes)
+    d = LonData(
+        t,
+        dt,
+        v,
+        vs,
+        a,
+        U,
+        names,
+        idle,
+        grade,
+        src,
+        tuple(zones or DEFAULT_ZONES),
+        segs,
+        ok,
+        absent_inputs=inp.absent,
+        input_notes=inp.notes,
+    )
     d.gear, d.gear_info = gear_index(ch, v, ok)
     d.input_shift_s = input_alignment(d)
     d.U = shift_inputs(d, d.U, d.input_shift_s)
@@ -250,8 +284,8 @@ class LonSpec:
 @dataclass
 class LonModel:
     spec: LonSpec
-    C: np.ndarray                 #: per zone [offset, gain_1..m]
-    ext: float = 0.0              #: linear extension coefficient
+    C: np.ndarray  #: per zone [offset, gain_1..m]
+    ext: float = 0.0  #: linear extension coefficient
     fitted_zones: list = field(default_factory=list)
     sse: float = float("nan")
     n: int = 0
@@ -301,8 +335,9 @@ def fit_inputs(d: LonData, spec: LonSpec) -> np.ndarray:
     out = np.full_like(U, np.nan)
     for a, b in d.segs:
         for j in range(U.shape[1]):
-            out[a:b, j] = savgol_derivative(causal_integral(U[a:b, j], d.dt), d.dt,
-                                            DiagnoseConfig.deriv_window_s)
+            out[a:b, j] = savgol_derivative(
+                causal_integral(U[a:b, j], d.dt), d.dt, DiagnoseConfig.deriv_window_s
+            )
     return out
 
 
@@ -400,8 +435,14 @@ def _at_zone_edge(d: LonData) -> np.ndarray:
 def fit_samples(d: LonData, X: np.ndarray, zone: np.ndarray) -> np.ndarray:
     """The samples a zone fit may use: moving, measured, with a finite design row, and not
     where the zone is ambiguous (near a zone change, or at a zone boundary)."""
-    return d.ok & (d.vs > DiagnoseConfig.v_stop_mps) & np.isfinite(d.a) \
-        & np.isfinite(X).all(axis=1) & ~_near_zone_change(zone, d.dt) & ~_at_zone_edge(d)
+    return (
+        d.ok
+        & (d.vs > DiagnoseConfig.v_stop_mps)
+        & np.isfinite(d.a)
+        & np.isfinite(X).all(axis=1)
+        & ~_near_zone_change(zone, d.dt)
+        & ~_at_zone_edge(d)
+    )
 
 
 def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None) -> LonModel:
@@ -444,13 +485,17 @@ def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None
     for z in range(nz):  # a zone without data takes the nearest fitted zone's model
         if z not in fitted:
             C[z] = C[min(fitted, key=lambda f: abs(f - z))]
-    n_nl = sum(1 for k in ("delay_s", "tau_s", "comp_rate_per_s", "sat_level")
-               if getattr(spec, k) > 0) + (spec.name == "idle_creep") + spec.extra_params
+    n_nl = (
+        sum(1 for k in ("delay_s", "tau_s", "comp_rate_per_s", "sat_level") if getattr(spec, k) > 0)
+        + (spec.name == "idle_creep")
+        + spec.extra_params
+    )
     return LonModel(spec, C, ext_coef, fitted, sse, int(use.sum()), len(cols) + n_nl)
 
 
-def free_run(d: LonData, model: LonModel, idx: np.ndarray, U: np.ndarray | None = None
-             ) -> np.ndarray:
+def free_run(
+    d: LonData, model: LonModel, idx: np.ndarray, U: np.ndarray | None = None
+) -> np.ndarray:
     """Speed error [m/s] (replay - measured) of free-run windows ``idx`` [n_win, L]."""
     if idx.size == 0:
         return np.zeros(idx.shape)
@@ -463,8 +508,9 @@ def free_run(d: LonData, model: LonModel, idx: np.ndarray, U: np.ndarray | None 
         k = idx[:, j]
         out[:, j] = v
         z = group_of(d, spec, v, k)
-        a = model.C[z, 0] + np.einsum("ij,ij->i", model.C[z, 1:],
-                                      model_regressors(d, spec, U[k], v))
+        a = model.C[z, 0] + np.einsum(
+            "ij,ij->i", model.C[z, 1:], model_regressors(d, spec, U[k], v)
+        )
         e = ext_column(d, spec, v, k)
         if e is not None:
             a = a + model.ext * e
@@ -517,8 +563,14 @@ def _spec(name, val, base: dict | None = None) -> LonSpec:
     return LonSpec(name, **kw)
 
 
-def fit_best(d: LonData, name: str | None, mask: np.ndarray, cfg: DiagnoseConfig,
-             grid: np.ndarray | None = None, base: dict | None = None):
+def fit_best(
+    d: LonData,
+    name: str | None,
+    mask: np.ndarray,
+    cfg: DiagnoseConfig,
+    grid: np.ndarray | None = None,
+    base: dict | None = None,
+):
     """Fit hypothesis ``name`` on ``mask``, its nonlinear parameter by grid on the SSE
     (``grid`` overrides the default grid; delays and lags are refined around the best point).
 
@@ -531,8 +583,14 @@ def fit_best(d: LonData, name: str | None, mask: np.ndarray, cfg: DiagnoseConfig
         grid = saturation_grid(d)
     grid = _grid(name, cfg, d.dt, d.commanded) if grid is None else np.asarray(grid, float)
     # refined to one sample; numpy's default closeness to a coarse point (rtol 1e-5, atol 1e-8)
-    return grid_search(lambda g: fit(d, _spec(name, g, base), mask), grid,
-                       max(d.dt, 0.01) if refine else None, end_pad=1e-9, rtol=1e-5, atol=1e-8)
+    return grid_search(
+        lambda g: fit(d, _spec(name, g, base), mask),
+        grid,
+        max(d.dt, 0.01) if refine else None,
+        end_pad=1e-9,
+        rtol=1e-5,
+        atol=1e-8,
+    )
 
 
 def residual(d: LonData, m: LonModel) -> np.ndarray:
@@ -556,15 +614,16 @@ class LonScore:
     name: str | None
     model: LonModel
     heldout_rmse_mps: float
-    heldout_err: np.ndarray        #: per-sample held-out free-run error [m/s] (NaN elsewhere)
+    heldout_err: np.ndarray  #: per-sample held-out free-run error [m/s] (NaN elsewhere)
     bic: float
     params: dict
     intervals: dict
     fold_values: list
 
 
-def evaluate(d: LonData, name: str | None, cfg: DiagnoseConfig, corr_len: float,
-             base: dict | None = None) -> LonScore:
+def evaluate(
+    d: LonData, name: str | None, cfg: DiagnoseConfig, corr_len: float, base: dict | None = None
+) -> LonScore:
     """Blocked k-fold free-run score plus the full-data fit, parameters and intervals
     (``base``: an accepted delay or lag that every fit here keeps)."""
     folds = segment_fold_ids(d.n, d.segs, cfg.n_folds)
@@ -592,8 +651,9 @@ def evaluate(d: LonData, name: str | None, cfg: DiagnoseConfig, corr_len: float,
             err[idx] = free_run(d, m, idx)
         vals.append(_param_value(m))
     params, intervals = _params(d, full, grid, sse_grid, corr_len, cfg)
-    return LonScore(name, full, rmse(err), err, bic(full.sse, full.n, full.k, corr_len),
-                    params, intervals, vals)
+    return LonScore(
+        name, full, rmse(err), err, bic(full.sse, full.n, full.k, corr_len), params, intervals, vals
+    )
 
 
 def _covered(d: LonData, train: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -601,8 +661,11 @@ def _covered(d: LonData, train: np.ndarray, idx: np.ndarray) -> np.ndarray:
     training (a driver's pedal used only in the held-out fold) cannot be scored there."""
     if idx.size == 0:
         return idx
-    used = np.nanmax(np.abs(d.U[train & d.ok]), axis=0) > INPUT_USED if (train & d.ok).any() \
+    used = (
+        np.nanmax(np.abs(d.U[train & d.ok]), axis=0) > INPUT_USED
+        if (train & d.ok).any()
         else np.zeros(d.U.shape[1], bool)
+    )
     moved = np.nanmax(np.abs(d.U[idx]), axis=1) > INPUT_USED  # [n_win, m]
     return idx[~(moved & ~used).any(axis=1)]
 
@@ -665,10 +728,16 @@ def baseline_checks(m: LonModel, d: LonData) -> list[dict]:
         for j, nm in enumerate(d.input_names):
             g = m.C[z, 1 + j]
             if g < 0:  # exactly 0: the input never moved in that zone
-                out.append({"zone": d.zones[z][0], "term": nm, "value": float(g),
-                            "why": f"zone {d.zones[z][0]}: {nm} gain {g:+.3f} m/s^2 per unit is "
-                                   "negative: the map "
-                                   "from the actuator to acceleration is not monotone"})
+                out.append(
+                    {
+                        "zone": d.zones[z][0],
+                        "term": nm,
+                        "value": float(g),
+                        "why": f"zone {d.zones[z][0]}: {nm} gain {g:+.3f} m/s^2 per unit is "
+                        "negative: the map "
+                        "from the actuator to acceleration is not monotone",
+                    }
+                )
     return out
 
 

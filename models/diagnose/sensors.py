@@ -12,14 +12,22 @@ turn the four wheels and the GNSS antenna move at different speeds (the rear whe
 v cos(delta)), which is geometry, not a sensor error. Scores are the blocked held-out RMSE
 of the speed difference [m/s].
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, profile_interval, rmse,
-                                         segment_fold_ids, segments, train_mask)
+from hmpc.models.diagnose.common import (
+    DiagnoseConfig,
+    bic,
+    profile_interval,
+    rmse,
+    segment_fold_ids,
+    segments,
+    train_mask,
+)
 
 HYPOTHESES = ("wheel_radius_error", "sensor_time_offset")
 SCALE_BOUNDS = (0.9, 1.1)
@@ -34,11 +42,12 @@ class SensorData:
     g: np.ndarray
     segs: list
     ok: np.ndarray
-    straight: np.ndarray    #: driving straight (sensor comparison samples)
+    straight: np.ndarray  #: driving straight (sensor comparison samples)
 
 
-def prepare(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
-            ) -> SensorData | None:
+def prepare(
+    ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
+) -> SensorData | None:
     if "speed" not in ch or "gps_speed" not in ch:
         return None
     t = np.asarray(ch["time"], float)
@@ -49,8 +58,9 @@ def prepare(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
     straight = np.ones(len(t), bool)
     if "yaw_rate" in ch and np.isfinite(ch["yaw_rate"]).any():
         with np.errstate(invalid="ignore", divide="ignore"):
-            straight = np.abs(np.asarray(ch["yaw_rate"], float) * wheelbase_m
-                              / np.maximum(g, 0.1)) < 0.02
+            straight = (
+                np.abs(np.asarray(ch["yaw_rate"], float) * wheelbase_m / np.maximum(g, 0.1)) < 0.02
+            )
     ok = np.zeros(len(t), bool)
     for a, b in segs:
         ok[a:b] = True
@@ -161,8 +171,7 @@ def residual(d: SensorData, name=None, val=0.0) -> np.ndarray:
 
 def ins_shift(ch: dict, offset_s: float) -> dict:
     """Channels with the INS ones moved onto the CAN clock (INS sample at t - offset_s)."""
-    ins = ("yaw_rate", "accel_x", "accel_y", "x", "y", "z", "heading", "pitch", "roll",
-           "gps_speed")
+    ins = ("yaw_rate", "accel_x", "accel_y", "x", "y", "z", "heading", "pitch", "roll", "gps_speed")
     t = np.asarray(ch["time"], float)
     out = dict(ch)
     for k in ins:

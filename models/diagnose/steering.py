@@ -22,6 +22,7 @@ and steering over each window, against the INS heading (or the bias-corrected gy
 :func:`position_errors` replays eq. 1's position over the same windows, and
 :func:`separability` says whether a recording can tell understeer from the steering ratio.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -33,17 +34,31 @@ from scipy.signal import lfilter
 from hmpc.models.params import Vehicle
 from hmpc.models.plant import PlantExtensions
 from hmpc.models.diagnose.hypothesis import grid_search, sse_per_sample
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, lstsq_bounded, profile_interval,
-                                         rmse, segment_fold_ids, segments, train_mask,
-                                         windows)
+from hmpc.models.diagnose.common import (
+    DiagnoseConfig,
+    bic,
+    lstsq_bounded,
+    profile_interval,
+    rmse,
+    segment_fold_ids,
+    segments,
+    train_mask,
+    windows,
+)
 
 HYPOTHESES = ("actuator_delay", "actuator_lag", "steering_nonlinearity", "understeer")
 #: hypothesis -> its grid-searched parameter as the catalogue names it (the JSON's key)
-NONLINEAR = {"actuator_delay": "delay_s", "actuator_lag": "tau_s",
-             "understeer": "gradient_rad_per_mps2"}
+NONLINEAR = {
+    "actuator_delay": "delay_s",
+    "actuator_lag": "tau_s",
+    "understeer": "gradient_rad_per_mps2",
+}
 #: hypothesis -> the :class:`SteerModel` field that holds its grid-searched parameter
-SEARCHED_FIELD = {"actuator_delay": "delay_s", "actuator_lag": "tau_s",
-                  "understeer": "understeer_rad_per_mps2"}
+SEARCHED_FIELD = {
+    "actuator_delay": "delay_s",
+    "actuator_lag": "tau_s",
+    "understeer": "understeer_rad_per_mps2",
+}
 #: understeer gradients of passenger cars are 0.002..0.005 rad/(m/s^2); 0.02 is a bound
 K_MAX = 0.02
 #: rack nonlinearity bound [1/rad^2]: 0.02 changes the gain by 140 % at 8.4 rad (full lock)
@@ -54,32 +69,34 @@ K3_MAX = 0.02
 class SteerData:
     t: np.ndarray
     dt: float
-    v: np.ndarray             #: rear-axle centre speed [m/s]
+    v: np.ndarray  #: rear-axle centre speed [m/s]
     sw: np.ndarray
     yaw: np.ndarray
-    heading: np.ndarray       #: unwrapped heading reference [rad]
+    heading: np.ndarray  #: unwrapped heading reference [rad]
     heading_source: str
     b: float
-    dm: np.ndarray            #: measured road-wheel angle [rad] (NaN where unusable)
+    dm: np.ndarray  #: measured road-wheel angle [rad] (NaN where unusable)
     segs: list
-    ok: np.ndarray            #: samples usable for heading replay
-    fit_ok: np.ndarray        #: samples usable for the angle fit
-    vf: np.ndarray            #: front point speed v_rear / cos(delta_m) [m/s] (understeer)
+    ok: np.ndarray  #: samples usable for heading replay
+    fit_ok: np.ndarray  #: samples usable for the angle fit
+    vf: np.ndarray  #: front point speed v_rear / cos(delta_m) [m/s] (understeer)
 
     @property
     def n(self) -> int:
         return len(self.t)
 
 
-def prepare(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
-            ) -> SteerData | None:
+def prepare(
+    ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
+) -> SteerData | None:
     """Steering data, or None when the recording lacks steering angle, speed or yaw, or holds
     too little of them (:func:`support` says why)."""
     return support(ch, wheelbase_m, cfg)[0]
 
 
-def support(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
-            ) -> tuple[SteerData | None, str | None, dict]:
+def support(
+    ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
+) -> tuple[SteerData | None, str | None, dict]:
     """(steering data or None, the reason when None, the samples dropped by reason).
 
     The dropped samples are counted in order, each sample under the first reason that drops
@@ -95,8 +112,9 @@ def support(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
     if "wheel_speed_rl" in ch and "wheel_speed_rr" in ch:
         # the rear-axle centre's speed (unsteered wheels: exactly their mean); eq. 1's yaw
         # rate v sin(delta) / b of the front point is v_rear tan(delta) / b
-        v = 0.5 * (np.asarray(ch["wheel_speed_rl"], float)
-                   + np.asarray(ch["wheel_speed_rr"], float))
+        v = 0.5 * (
+            np.asarray(ch["wheel_speed_rl"], float) + np.asarray(ch["wheel_speed_rr"], float)
+        )
     else:
         v = np.asarray(ch["speed"], float)
     sw = np.asarray(ch["steering_wheel_angle"], float)
@@ -106,6 +124,7 @@ def support(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
         return None, "no yaw_rate or heading channel", {}
     if yaw is None or not np.isfinite(yaw).any():
         from hmpc.models.identify.stats import savgol_derivative
+
         assert head is not None  # a recording with no usable yaw rate has a heading here
         yaw = savgol_derivative(np.unwrap(np.nan_to_num(head)), dt, cfg.deriv_window_s)
     yaw = np.asarray(yaw, float)
@@ -122,17 +141,30 @@ def support(ch: dict, wheelbase_m: float, cfg: DiagnoseConfig = DiagnoseConfig()
         dm = np.arctan(b * yaw / v)
     fit_ok = ok & (v > cfg.v_steer_min_mps) & np.isfinite(dm)
     vf = np.where(np.isfinite(dm), v / np.cos(np.nan_to_num(dm)), v)  # front point speed
-    dropped = {"channel missing (NaN)": int((~finite).sum()),
-               f"speed at or below {cfg.v_move_min_mps:.2g} m/s": int((finite & ~valid).sum()),
-               f"moving runs shorter than {cfg.window_steer_s:g} s": int((valid & ~ok).sum()),
-               f"speed at or below {cfg.v_steer_min_mps:.2g} m/s (angle fit only)":
-                   int((ok & ~fit_ok).sum())}
-    samples = {"total": int(len(t)), "angle_fit": int(fit_ok.sum()), "replay": int(ok.sum()),
-               "dropped": {k: n for k, n in dropped.items() if n}}
+    dropped = {
+        "channel missing (NaN)": int((~finite).sum()),
+        f"speed at or below {cfg.v_move_min_mps:.2g} m/s": int((finite & ~valid).sum()),
+        f"moving runs shorter than {cfg.window_steer_s:g} s": int((valid & ~ok).sum()),
+        f"speed at or below {cfg.v_steer_min_mps:.2g} m/s (angle fit only)": int(
+            (ok & ~fit_ok).sum()
+        ),
+    }
+    samples = {
+        "total": int(len(t)),
+        "angle_fit": int(fit_ok.sum()),
+        "replay": int(ok.sum()),
+        "dropped": {k: n for k, n in dropped.items() if n},
+    }
     if fit_ok.sum() < int(cfg.min_steer_s / dt):
-        return None, (f"too little moving steering data ({fit_ok.sum() * dt:.1f} s above "
-                      f"{cfg.v_steer_min_mps:.2g} m/s in runs of {cfg.window_steer_s:g} s; "
-                      f"needs {cfg.min_steer_s:g} s)"), samples
+        return (
+            None,
+            (
+                f"too little moving steering data ({fit_ok.sum() * dt:.1f} s above "
+                f"{cfg.v_steer_min_mps:.2g} m/s in runs of {cfg.window_steer_s:g} s; "
+                f"needs {cfg.min_steer_s:g} s)"
+            ),
+            samples,
+        )
     if head is not None and np.isfinite(head).mean() > 0.5:
         href = np.full(len(t), np.nan)
         for a, b_ in segs:
@@ -154,10 +186,10 @@ class SteerModel:
     name: str | None
     offset_rad: float
     scale: float
-    bias_radps: float                     #: yaw-rate sensor bias r0 [rad/s]
-    delay_s: float = 0.0                  #: actuator_delay: dead time d [s]
-    tau_s: float = 0.0                    #: actuator_lag: time constant tau [s]
-    cubic_per_rad2: float = 0.0           #: steering_nonlinearity: cubic k3 [1/rad^2]
+    bias_radps: float  #: yaw-rate sensor bias r0 [rad/s]
+    delay_s: float = 0.0  #: actuator_delay: dead time d [s]
+    tau_s: float = 0.0  #: actuator_lag: time constant tau [s]
+    cubic_per_rad2: float = 0.0  #: steering_nonlinearity: cubic k3 [1/rad^2]
     understeer_rad_per_mps2: float = 0.0  #: understeer: gradient K [rad/(m/s^2)]
     sse: float = float("nan")
     n: int = 0
@@ -216,8 +248,17 @@ def fit(d: SteerData, name: str | None, value: float, mask: np.ndarray) -> Steer
     pred = (X @ c) / div if name == "understeer" else X @ c
     sse = float(np.sum((y - pred) ** 2))
     k = len(c) + (name in NONLINEAR)
-    return SteerModel(name, float(c[0]), float(c[1]), float(c[2]), cubic_per_rad2=k3, sse=sse,
-                      n=int(use.sum()), k=k, **searched_kw)
+    return SteerModel(
+        name,
+        float(c[0]),
+        float(c[1]),
+        float(c[2]),
+        cubic_per_rad2=k3,
+        sse=sse,
+        n=int(use.sum()),
+        k=k,
+        **searched_kw,
+    )
 
 
 def road_wheel_angle(d: SteerData, m: SteerModel) -> np.ndarray:
@@ -225,8 +266,9 @@ def road_wheel_angle(d: SteerData, m: SteerModel) -> np.ndarray:
     rack's cubic and the understeer gradient as the plant writes them
     (``models.plant.PlantExtensions.road_wheel_angle``, at the front point's speed), on the
     steering-wheel angle after the model's dead time or lag."""
-    ext = PlantExtensions(cubic_per_rad2=m.cubic_per_rad2,
-                          understeer_rad_per_mps2=m.understeer_rad_per_mps2)
+    ext = PlantExtensions(
+        cubic_per_rad2=m.cubic_per_rad2, understeer_rad_per_mps2=m.understeer_rad_per_mps2
+    )
     return ext.road_wheel_angle(_sw(d, m.delay_s, m.tau_s), d.vf, m.offset_rad, m.scale, d.b)
 
 
@@ -239,8 +281,9 @@ def free_run(d: SteerData, m: SteerModel, idx: np.ndarray) -> np.ndarray:
         r = r + m.bias_radps
     r = np.nan_to_num(r)
     rr = r[idx] * d.dt
-    pred = d.heading[idx[:, :1]] + np.concatenate([np.zeros((len(idx), 1)),
-                                                   np.cumsum(rr[:, :-1], axis=1)], axis=1)
+    pred = d.heading[idx[:, :1]] + np.concatenate(
+        [np.zeros((len(idx), 1)), np.cumsum(rr[:, :-1], axis=1)], axis=1
+    )
     return pred - d.heading[idx]
 
 
@@ -268,8 +311,14 @@ def fit_best(d: SteerData, name, mask, grid=None):
     fine_step: float | None = None
     if refine:
         fine_step = max(d.dt, 0.01) if name != "understeer" else (grid[1] - grid[0]) / 10
-    return grid_search(lambda g: fit(d, name, g, mask), grid, fine_step, end_pad=1e-12,
-                       rtol=0.0, atol=fine_step / 10 if fine_step is not None else 0.0)
+    return grid_search(
+        lambda g: fit(d, name, g, mask),
+        grid,
+        fine_step,
+        end_pad=1e-12,
+        rtol=0.0,
+        atol=fine_step / 10 if fine_step is not None else 0.0,
+    )
 
 
 def residual(d: SteerData, m: SteerModel) -> np.ndarray:
@@ -324,18 +373,22 @@ def evaluate(d: SteerData, name, cfg: DiagnoseConfig, corr_len: float) -> SteerS
         intervals["cubic_per_rad2"] = list(_k3_interval(d, full, corr_len))
     if name is not None:
         params["offset_rad"], params["scale"] = full.offset_rad, full.scale
-    return SteerScore(name, full, rmse(err), err, bic(full.sse, full.n, full.k, corr_len),
-                      params, intervals, vals)
+    return SteerScore(
+        name, full, rmse(err), err, bic(full.sse, full.n, full.k, corr_len), params, intervals, vals
+    )
 
 
 def _k3_interval(d: SteerData, m: SteerModel, corr_len: float):
-    grid = np.clip(m.cubic_per_rad2 + np.linspace(-1, 1, 41) * max(abs(m.cubic_per_rad2), 1e-4),
-                   -K3_MAX, K3_MAX)
+    grid = np.clip(
+        m.cubic_per_rad2 + np.linspace(-1, 1, 41) * max(abs(m.cubic_per_rad2), 1e-4),
+        -K3_MAX,
+        K3_MAX,
+    )
     sse = []
     use = d.fit_ok
     v, sw, y = d.v[use], d.sw[use], d.dm[use]
     for g in grid:
-        X = np.column_stack([np.ones(len(v)), sw + g * sw ** 3, d.b / v])
+        X = np.column_stack([np.ones(len(v)), sw + g * sw**3, d.b / v])
         _, s = lstsq_bounded(X, y)
         sse.append(s)
     return profile_interval(grid, np.array(sse), len(y), corr_len)
@@ -354,13 +407,16 @@ def position_errors(ch, d: SteerData, m: SteerModel, cfg) -> np.ndarray | None:
     r = d.v * np.tan(delta) / d.b
     vf = d.v / np.cos(delta)  # the front point (eq. 1's x, y) moves faster than the rear axle
     psi = d.heading[idx[:, :1]] + np.concatenate(
-        [np.zeros((len(idx), 1)), np.cumsum(r[idx][:, :-1] * d.dt, axis=1)], axis=1)
+        [np.zeros((len(idx), 1)), np.cumsum(r[idx][:, :-1] * d.dt, axis=1)], axis=1
+    )
     ang = psi + delta[idx]
     vx, vy = vf[idx] * np.cos(ang), vf[idx] * np.sin(ang)
-    px = x[idx[:, :1]] + np.concatenate([np.zeros((len(idx), 1)),
-                                         np.cumsum(vx[:, :-1] * d.dt, axis=1)], axis=1)
-    py = y[idx[:, :1]] + np.concatenate([np.zeros((len(idx), 1)),
-                                         np.cumsum(vy[:, :-1] * d.dt, axis=1)], axis=1)
+    px = x[idx[:, :1]] + np.concatenate(
+        [np.zeros((len(idx), 1)), np.cumsum(vx[:, :-1] * d.dt, axis=1)], axis=1
+    )
+    py = y[idx[:, :1]] + np.concatenate(
+        [np.zeros((len(idx), 1)), np.cumsum(vy[:, :-1] * d.dt, axis=1)], axis=1
+    )
     out = np.full(d.n, np.nan)
     out[idx] = np.hypot(px - x[idx], py - y[idx])
     return out
@@ -390,25 +446,41 @@ def excitation(d: SteerData, cfg: DiagnoseConfig) -> dict:
     a97 = float(np.percentile(ay, 97.5)) if len(ay) else 0.0
     lat_accel_mps2 = np.abs(d.v * d.yaw)[d.fit_ok]
     steered = d.v[d.fit_ok][lat_accel_mps2 > 0.25 * cfg.understeer_min_lat_accel_mps2]
-    ratio = (float((np.percentile(steered, 90) / np.percentile(steered, 10)) ** 2)
-             if len(steered) >= 10 else 1.0)
-    out: dict[str, Any] = {"lat_accel_p97_5_mps2": a97, "speed_sq_ratio": ratio,
-                           "testable": True}
+    ratio = (
+        float((np.percentile(steered, 90) / np.percentile(steered, 10)) ** 2)
+        if len(steered) >= 10
+        else 1.0
+    )
+    out: dict[str, Any] = {"lat_accel_p97_5_mps2": a97, "speed_sq_ratio": ratio, "testable": True}
     if a97 < cfg.understeer_min_lat_accel_mps2:
-        out.update(testable=False, why=(
-            f"lateral acceleration reaches only {a97:.2f} m/s^2 (97.5th percentile; "
-            f"{cfg.understeer_min_lat_accel_mps2:g} m/s^2 needed): understeer's angle K a_y "
-            "is not excited"))
+        out.update(
+            testable=False,
+            why=(
+                f"lateral acceleration reaches only {a97:.2f} m/s^2 (97.5th percentile; "
+                f"{cfg.understeer_min_lat_accel_mps2:g} m/s^2 needed): understeer's angle K a_y "
+                "is not excited"
+            ),
+        )
     elif ratio < cfg.understeer_min_speed_sq_ratio:
-        out.update(testable=False, why=(
-            f"the steered samples span a speed-squared ratio of only {ratio:.2f} "
-            f"({cfg.understeer_min_speed_sq_ratio:g} needed): at one speed understeer is a "
-            "constant factor on the steering gain"))
+        out.update(
+            testable=False,
+            why=(
+                f"the steered samples span a speed-squared ratio of only {ratio:.2f} "
+                f"({cfg.understeer_min_speed_sq_ratio:g} needed): at one speed understeer is a "
+                "constant factor on the steering gain"
+            ),
+        )
     return out
 
 
-def separability(d: SteerData, us: SteerScore, base: SteerScore, vehicle: Vehicle,
-                 corr_len: float, cfg: DiagnoseConfig = DiagnoseConfig()) -> dict:
+def separability(
+    d: SteerData,
+    us: SteerScore,
+    base: SteerScore,
+    vehicle: Vehicle,
+    corr_len: float,
+    cfg: DiagnoseConfig = DiagnoseConfig(),
+) -> dict:
     """Can this recording tell understeer (delta / (1 + K v^2 / b)) from the steering ratio?
 
     Only when it excites understeer (:func:`excitation`: lateral acceleration and a spread of
@@ -423,27 +495,34 @@ def separability(d: SteerData, us: SteerScore, base: SteerScore, vehicle: Vehicl
     exc = excitation(d, cfg)
     out: dict[str, Any] = {"gradient_interval": [lo, hi], "excitation": exc}
     if not exc["testable"]:
-        out.update(separable=False, testable=False,
-                   verdict=f"understeer against the steering ratio: not testable on this "
-                           f"recording ({exc['why']})")
+        out.update(
+            separable=False,
+            testable=False,
+            verdict=f"understeer against the steering ratio: not testable on this "
+            f"recording ({exc['why']})",
+        )
         return out
     ratio = vehicle.steering_ratio
     if ratio:
         sse_maker = _sse_fixed_scale(d, 1.0 / ratio)
         lr = float(ne * np.log(sse_maker / base.model.sse))
         ok = abs(lr) > 3.84
-        out.update(maker_scale=1.0 / ratio, kinematic_scale=base.model.scale,
-                   likelihood_ratio=lr)
-        verdict = ("understeer and the steering ratio are separable on this recording: "
-                   if ok else "this recording cannot separate understeer from the steering "
-                   "ratio: ") + (
+        out.update(maker_scale=1.0 / ratio, kinematic_scale=base.model.scale, likelihood_ratio=lr)
+        verdict = (
+            "understeer and the steering ratio are separable on this recording: "
+            if ok
+            else "this recording cannot separate understeer from the steering ratio: "
+        ) + (
             f"the kinematic scale {base.model.scale:.4f} with no understeer and the maker's "
             f"1/{ratio:g} = {1 / ratio:.4f} with understeer fit with likelihood ratio "
-            f"{lr:.1f} (separable above 3.84)")
+            f"{lr:.1f} (separable above 3.84)"
+        )
     else:
         ok = (hi - lo) < 0.003
-        verdict = ("understeer and the steering ratio are separable on this recording"
-                   if ok else "this recording cannot separate understeer from the steering ratio") \
-            + f": understeer gradient in [{lo:.4f}, {hi:.4f}] rad/(m/s^2)"
+        verdict = (
+            "understeer and the steering ratio are separable on this recording"
+            if ok
+            else "this recording cannot separate understeer from the steering ratio"
+        ) + f": understeer gradient in [{lo:.4f}, {hi:.4f}] rad/(m/s^2)"
     out.update(separable=bool(ok), testable=True, verdict=verdict)
     return out

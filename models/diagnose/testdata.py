@@ -11,6 +11,7 @@ The hilly road (``models.sim.effects_extra.HillyRoad``) is applied here to the I
 pitch, which the simulator only knows for a constant grade: the altitude is integrated from the
 truth's speed and the profile's grade, the pitch gets the grade added.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -29,32 +30,84 @@ ALL_EXPERIMENTS = ("arcs", "ramps", "figure8", "ramp_sequence", "circles", "open
 
 #: case -> (expected id, subsystem, effect factory, (parameter, truth value), experiments)
 CASES: dict[str, tuple[Any, ...]] = {
-    "actuator_delay_steering": ("actuator_delay", "steering",
-                                lambda: [fx.SteeringDeadTime(0.25)], ("delay_s", 0.25),
-                                STEER_EXPERIMENTS),
-    "actuator_delay_longitudinal": ("actuator_delay", "longitudinal",
-                                    lambda: [fx.PedalDeadTime(0.4)], ("delay_s", 0.4),
-                                    LON_EXPERIMENTS),
-    "actuator_lag": ("actuator_lag", "steering", lambda: [fx.SteeringLag(0.3)], ("tau_s", 0.3),
-                     STEER_EXPERIMENTS),
-    "steering_nonlinearity": ("steering_nonlinearity", "steering",
-                              lambda: [fx.SteeringCubic(0.004)], ("cubic_per_rad2", 0.004),
-                              STEER_EXPERIMENTS),
-    "understeer": ("understeer", "steering", lambda: [fx.Understeer(0.004)],
-                   ("gradient_rad_per_mps2", 0.004), STEER_EXPERIMENTS),
-    "aero_drag": ("aero_drag", "longitudinal", lambda: [fx.AeroDrag(1.5e-3)],
-                  ("coeff_per_m", 1.5e-3), LON_EXPERIMENTS),
-    "road_grade": ("road_grade", "longitudinal", lambda: [fx2.HillyRoad(0.05, 150.0)],
-                   ("gain", 1.0), LON_EXPERIMENTS),
-    "idle_creep": ("idle_creep", "longitudinal", lambda: [fx2.IdleCreep(0.6, 2.0)],
-                   ("accel_mps2", 0.6), LON_EXPERIMENTS),
-    "wheel_radius_error": ("wheel_radius_error", "longitudinal",
-                           lambda: [fx.WheelRadiusError(1.03)], ("scale", 1.03), ALL_EXPERIMENTS),
-    "sensor_time_offset": ("sensor_time_offset", "longitudinal",
-                           lambda: [fx.ClockOffset(0.3)], ("offset_s", 0.3), ALL_EXPERIMENTS),
+    "actuator_delay_steering": (
+        "actuator_delay",
+        "steering",
+        lambda: [fx.SteeringDeadTime(0.25)],
+        ("delay_s", 0.25),
+        STEER_EXPERIMENTS,
+    ),
+    "actuator_delay_longitudinal": (
+        "actuator_delay",
+        "longitudinal",
+        lambda: [fx.PedalDeadTime(0.4)],
+        ("delay_s", 0.4),
+        LON_EXPERIMENTS,
+    ),
+    "actuator_lag": (
+        "actuator_lag",
+        "steering",
+        lambda: [fx.SteeringLag(0.3)],
+        ("tau_s", 0.3),
+        STEER_EXPERIMENTS,
+    ),
+    "steering_nonlinearity": (
+        "steering_nonlinearity",
+        "steering",
+        lambda: [fx.SteeringCubic(0.004)],
+        ("cubic_per_rad2", 0.004),
+        STEER_EXPERIMENTS,
+    ),
+    "understeer": (
+        "understeer",
+        "steering",
+        lambda: [fx.Understeer(0.004)],
+        ("gradient_rad_per_mps2", 0.004),
+        STEER_EXPERIMENTS,
+    ),
+    "aero_drag": (
+        "aero_drag",
+        "longitudinal",
+        lambda: [fx.AeroDrag(1.5e-3)],
+        ("coeff_per_m", 1.5e-3),
+        LON_EXPERIMENTS,
+    ),
+    "road_grade": (
+        "road_grade",
+        "longitudinal",
+        lambda: [fx2.HillyRoad(0.05, 150.0)],
+        ("gain", 1.0),
+        LON_EXPERIMENTS,
+    ),
+    "idle_creep": (
+        "idle_creep",
+        "longitudinal",
+        lambda: [fx2.IdleCreep(0.6, 2.0)],
+        ("accel_mps2", 0.6),
+        LON_EXPERIMENTS,
+    ),
+    "wheel_radius_error": (
+        "wheel_radius_error",
+        "longitudinal",
+        lambda: [fx.WheelRadiusError(1.03)],
+        ("scale", 1.03),
+        ALL_EXPERIMENTS,
+    ),
+    "sensor_time_offset": (
+        "sensor_time_offset",
+        "longitudinal",
+        lambda: [fx.ClockOffset(0.3)],
+        ("offset_s", 0.3),
+        ALL_EXPERIMENTS,
+    ),
     "clean": (None, None, lambda: [], None, ALL_EXPERIMENTS),
-    "mass_change": (None, "longitudinal", lambda: [fx2.MassChange(0.0, 0.7)], None,
-                    LON_EXPERIMENTS),
+    "mass_change": (
+        None,
+        "longitudinal",
+        lambda: [fx2.MassChange(0.0, 0.7)],
+        None,
+        LON_EXPERIMENTS,
+    ),
 }
 
 
@@ -69,8 +122,7 @@ def _hilly(run, eff: fx2.HillyRoad) -> None:
     ch["pitch"] = ch["pitch"] + g[run.grid_index]
 
 
-def make_case(case: str, seed: int = 0, params_seed: int | None = None
-              ) -> tuple[Recording, dict]:
+def make_case(case: str, seed: int = 0, params_seed: int | None = None) -> tuple[Recording, dict]:
     """(recording, truth) of benchmark ``case`` (a key of ``CASES``), seeded.
 
     The mass change is the second half of the experiments driven with 0.7 times the pedal
@@ -90,8 +142,14 @@ def make_case(case: str, seed: int = 0, params_seed: int | None = None
         recs.append(run.recording)
     rec = concat_recordings(recs)
     rec.meta["path"] = f"<benchmark {case} seed {seed}>"
-    info: dict[str, Any] = {"case": case, "effect": expect, "subsystem": subsystem, "params": truth,
-            "parameter": param, "seed": seed}
+    info: dict[str, Any] = {
+        "case": case,
+        "effect": expect,
+        "subsystem": subsystem,
+        "params": truth,
+        "parameter": param,
+        "seed": seed,
+    }
     if case == "mass_change":
         n_first = sum(len(r) for r in recs[: len(recs) // 2])
         info["change_t_s"] = float(rec.time[n_first + int(2.0 * recs[0].rate_hz) - 1])

@@ -4,6 +4,7 @@ longitudinal model explain the data better than one fit for all of it (a Chow F 
 effective samples, Bonferroni over the split points, and an effect size). It is reported with
 its windows and its share of the error, never named.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,8 +21,10 @@ def _inputs_on_both_sides(d: lon.LonData, left: np.ndarray, right: np.ndarray) -
     act = np.abs(np.nan_to_num(d.U)) > 0.01
     n = act[d.ok].sum(axis=0)
     used = n > 0
-    return bool(np.all(act[left].sum(axis=0)[used] >= 0.1 * n[used])
-                and np.all(act[right].sum(axis=0)[used] >= 0.1 * n[used]))
+    return bool(
+        np.all(act[left].sum(axis=0)[used] >= 0.1 * n[used])
+        and np.all(act[right].sum(axis=0)[used] >= 0.1 * n[used])
+    )
 
 
 def _block_corr_length(r: np.ndarray, block: int) -> float:
@@ -37,37 +40,44 @@ def _block_corr_length(r: np.ndarray, block: int) -> float:
     nb = len(r) // block
     if nb < 2:
         return float(max(len(r), 1))
-    return block * corr_length(r[:nb * block].reshape(nb, block).mean(axis=1))
+    return block * corr_length(r[: nb * block].reshape(nb, block).mean(axis=1))
 
 
-def _split_test(d: lon.LonData, spec: lon.LonSpec, pooled: lon.LonModel, tk: float, t,
-                block: int) -> dict | None:
+def _split_test(
+    d: lon.LonData, spec: lon.LonSpec, pooled: lon.LonModel, tk: float, t, block: int
+) -> dict | None:
     """Chow F test of one split at ``tk`` [s]: the final model fitted before and after it
     against one fit for all, counted in effective samples. ``None`` when a side cannot be
     fitted or the effective samples do not exceed the split's parameters."""
     left, right = d.ok & (t < tk), d.ok & (t >= tk)
     m1, m2 = lon.fit(d, spec, left), lon.fit(d, spec, right)
     sse = m1.sse + m2.sse
-    extra = m1.k + m2.k - pooled.k    # the parameters the second fit adds
+    extra = m1.k + m2.k - pooled.k  # the parameters the second fit adds
     if not (m1.k and m2.k and np.isfinite(sse) and 0.0 < sse) or extra <= 0:
         return None
     # residual correlation under the split (a real change inflates the pooled one's), the
     # larger side's: fewer independent samples, the cautious count
-    cl = max(_block_corr_length(np.where(left, lon.residual(d, m1), np.nan), block),
-             _block_corr_length(np.where(right, lon.residual(d, m2), np.nan), block))
+    cl = max(
+        _block_corr_length(np.where(left, lon.residual(d, m1), np.nan), block),
+        _block_corr_length(np.where(right, lon.residual(d, m2), np.nan), block),
+    )
     n_eff = (m1.n + m2.n) / cl
     dof = n_eff - m1.k - m2.k
     if dof < 1.0:
         return None
     red = 1.0 - sse / pooled.sse
     f = max(pooled.sse - sse, 0.0) / extra / (sse / dof)
-    return {"t": float(tk), "reduction": float(red), "f": float(f),
-            "dof": [int(extra), round(dof, 1)], "effective_samples": round(n_eff, 1),
-            "p": float(f_dist.sf(f, extra, dof))}
+    return {
+        "t": float(tk),
+        "reduction": float(red),
+        "f": float(f),
+        "dof": [int(extra), round(dof, 1)],
+        "effective_samples": round(n_eff, 1),
+        "p": float(f_dist.sf(f, extra, dof)),
+    }
 
 
-def unexplained_change(d: lon.LonData, spec: lon.LonSpec, cfg: DiagnoseConfig,
-                       t) -> dict | None:
+def unexplained_change(d: lon.LonData, spec: lon.LonSpec, cfg: DiagnoseConfig, t) -> dict | None:
     """A change in the car no hypothesis models: the final longitudinal model (``spec``)
     fitted before and after a split explains the data better than one model for all of it,
     by more than chance and by more than ``cfg.change_min_reduction``.
@@ -115,20 +125,28 @@ def unexplained_change(d: lon.LonData, spec: lon.LonSpec, cfg: DiagnoseConfig,
     w = windows(d.ok, L)
     err = np.full(d.n, np.nan)
     err[w] = lon.free_run(d, ref, w)
-    sq = np.nan_to_num(err ** 2)
+    sq = np.nan_to_num(err**2)
     share = float(sq[t >= t_cp].sum() / sq.sum()) if sq.sum() > 0 else 0.0
     t_end = float(t[idx[-1]])
-    return {"channel": "speed", "windows": [[round(float(t_cp), 3), round(t_end, 3)]],
-            "share_of_error": share, "subsystem": "longitudinal",
-            "why": f"separate fits before and after t = {t_cp:.1f} s leave "
-                   f"{100 * best['reduction']:.0f} % less equation error than one model for "
-                   f"the whole recording (F = {best['f']:.1f} on {best['dof'][0]} and "
-                   f"{best['dof'][1]:g} effective degrees of freedom, p = {p_family:.2g} over "
-                   f"{len(tests)} split points); no catalogue hypothesis models such a change "
-                   "(mass, load, tyres, a trailer)",
-            "error_reduction_split": best["reduction"],
-            "split_test": {"f": best["f"], "dof": best["dof"],
-                           "effective_samples": best["effective_samples"],
-                           "p_value": best["p"], "p_family": p_family,
-                           "splits_tested": len(tests)},
-            "heldout_note": "windows after the change replayed with the model fitted before it"}
+    return {
+        "channel": "speed",
+        "windows": [[round(float(t_cp), 3), round(t_end, 3)]],
+        "share_of_error": share,
+        "subsystem": "longitudinal",
+        "why": f"separate fits before and after t = {t_cp:.1f} s leave "
+        f"{100 * best['reduction']:.0f} % less equation error than one model for "
+        f"the whole recording (F = {best['f']:.1f} on {best['dof'][0]} and "
+        f"{best['dof'][1]:g} effective degrees of freedom, p = {p_family:.2g} over "
+        f"{len(tests)} split points); no catalogue hypothesis models such a change "
+        "(mass, load, tyres, a trailer)",
+        "error_reduction_split": best["reduction"],
+        "split_test": {
+            "f": best["f"],
+            "dof": best["dof"],
+            "effective_samples": best["effective_samples"],
+            "p_value": best["p"],
+            "p_family": p_family,
+            "splits_tested": len(tests),
+        },
+        "heldout_note": "windows after the change replayed with the model fitted before it",
+    }

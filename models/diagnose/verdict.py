@@ -14,6 +14,7 @@ catalogue explains what the vehicle does, and the verdict is "this model does no
 vehicle", naming the channels and factors. A model that tracks a channel but not to its noise
 floor (a real car is never exactly the report's model) keeps a high skill and passes.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -49,8 +50,9 @@ def persistence_rmse(measured: np.ndarray, err: np.ndarray, length: int) -> floa
     return rmse(measured[idx] - measured[idx[:, :1]])
 
 
-def model_verdict(channels: dict, series: dict, findings: list, cfg: DiagnoseConfig,
-                  size: float = 1.0) -> dict:
+def model_verdict(
+    channels: dict, series: dict, findings: list, cfg: DiagnoseConfig, size: float = 1.0
+) -> dict:
     """``{model_describes_vehicle, channels: {name: {rmse, noise_floor, factor,
     rmse_persistence, skill, misses}}, text}`` (``model_describes_vehicle`` None when no
     free-run channel was replayed; ``size``: ``common.size_factor`` of the vehicle)."""
@@ -72,29 +74,47 @@ def model_verdict(channels: dict, series: dict, findings: list, cfg: DiagnoseCon
         skill = 1.0 - final / naive if np.isfinite(naive) and naive > 0 else float("nan")
         material = MATERIAL[name] * (np.sqrt(size) if name == "speed" else 1.0)
         misses = bool(factor >= MIN_FACTOR and not skill >= MIN_SKILL and final >= material)
-        out[name] = {"unit": c.get("unit"), "rmse": final, "noise_floor": floor,
-                     "factor": factor, "rmse_persistence": naive, "skill": skill,
-                     "material": material, "misses": misses}
+        out[name] = {
+            "unit": c.get("unit"),
+            "rmse": final,
+            "noise_floor": floor,
+            "factor": factor,
+            "rmse_persistence": naive,
+            "skill": skill,
+            "material": material,
+            "misses": misses,
+        }
     if not out:
-        return {"model_describes_vehicle": None, "channels": {},
-                "text": "no free-run channel was replayed: no verdict"}
+        return {
+            "model_describes_vehicle": None,
+            "channels": {},
+            "text": "no free-run channel was replayed: no verdict",
+        }
     missed = {k: v for k, v in out.items() if v["misses"]}
     if missed:
-        text = ("this model does not describe this vehicle: " + "; ".join(
-            f"{k} error {_q(v['rmse'], v['unit'])} is {v['factor']:.0f} x its noise floor "
-            f"{_q(v['noise_floor'], v['unit'], '.2g')} and predicts it "
-            f"{'no' if v['skill'] <= 0 else 'hardly'} better than holding its first value "
-            f"(skill {v['skill']:.2f})" for k, v in missed.items())
-            + "; nothing in the catalogue explains it")
+        text = (
+            "this model does not describe this vehicle: "
+            + "; ".join(
+                f"{k} error {_q(v['rmse'], v['unit'])} is {v['factor']:.0f} x its noise floor "
+                f"{_q(v['noise_floor'], v['unit'], '.2g')} and predicts it "
+                f"{'no' if v['skill'] <= 0 else 'hardly'} better than holding its first value "
+                f"(skill {v['skill']:.2f})"
+                for k, v in missed.items()
+            )
+            + "; nothing in the catalogue explains it"
+        )
     else:
         text = "the model describes this vehicle: " + "; ".join(
             f"{k} error {_q(v['rmse'], v['unit'])}, "
-            + (f"{100 * v['skill']:.0f} % better than holding its first value"
-               if v["skill"] >= MIN_SKILL else
-               f"below the {_q(v['material'], v['unit'])} that would be a miss"
-               if v["rmse"] < v["material"] else
-               f"{v['factor']:.1f} x its noise floor")
-            for k, v in out.items())
+            + (
+                f"{100 * v['skill']:.0f} % better than holding its first value"
+                if v["skill"] >= MIN_SKILL
+                else f"below the {_q(v['material'], v['unit'])} that would be a miss"
+                if v["rmse"] < v["material"]
+                else f"{v['factor']:.1f} x its noise floor"
+            )
+            for k, v in out.items()
+        )
     return {"model_describes_vehicle": not missed, "channels": out, "text": text}
 
 

@@ -20,6 +20,7 @@ the wheel-speed difference (:data:`MIN_R2`); otherwise rho = 1 and only eps is f
 Scores are the blocked held-out RMSE of the equation error [rad/s]; a finding needs
 ``candidates.accept`` and an interval that excludes the baseline (rho = 1 or eps = 0).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -27,8 +28,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_coeffs
 
-from hmpc.models.diagnose.common import (DiagnoseConfig, bic, rmse, segment_fold_ids,
-                                         segments, train_mask)
+from hmpc.models.diagnose.common import (
+    DiagnoseConfig,
+    bic,
+    rmse,
+    segment_fold_ids,
+    segments,
+    train_mask,
+)
 from hmpc.models.diagnose.locate import noise_floor
 from hmpc.models.identify.stats import savgol_derivative
 
@@ -53,25 +60,26 @@ EPS_BOUNDS = (-0.05, 0.05)
 class WheelYawData:
     t: np.ndarray
     dt: float
-    y: np.ndarray             #: (v_right - v_left) / T [rad/s] (smoothed)
-    r: np.ndarray             #: yaw rate [rad/s] (smoothed)
-    v_over_t: np.ndarray      #: v / T [1/s]
+    y: np.ndarray  #: (v_right - v_left) / T [rad/s] (smoothed)
+    r: np.ndarray  #: yaw rate [rad/s] (smoothed)
+    v_over_t: np.ndarray  #: v / T [1/s]
     segs: list
     ok: np.ndarray
-    pair: str                 #: "rear" or "front"
+    pair: str  #: "rear" or "front"
     track_m: float
     yaw_source: str
-    fit_rho: bool             #: the yaw rate is excited enough to fit rho
-    attenuation: float        #: noise share of the smoothed yaw rate's variance
-    r2: float                 #: share of y's variance the yaw rate explains (correlation^2)
+    fit_rho: bool  #: the yaw rate is excited enough to fit rho
+    attenuation: float  #: noise share of the smoothed yaw rate's variance
+    r2: float  #: share of y's variance the yaw rate explains (correlation^2)
 
     @property
     def n(self) -> int:
         return len(self.t)
 
 
-def prepare(ch: dict, vehicle, cfg: DiagnoseConfig = DiagnoseConfig()
-            ) -> tuple[WheelYawData | None, str]:
+def prepare(
+    ch: dict, vehicle, cfg: DiagnoseConfig = DiagnoseConfig()
+) -> tuple[WheelYawData | None, str]:
     """(data or None, the reason when None)."""
     if "wheel_speed_rl" in ch and "wheel_speed_rr" in ch:
         left, right, pair = ch["wheel_speed_rl"], ch["wheel_speed_rr"], "rear"
@@ -87,8 +95,7 @@ def prepare(ch: dict, vehicle, cfg: DiagnoseConfig = DiagnoseConfig()
     if "yaw_rate" in ch and np.isfinite(np.asarray(ch["yaw_rate"], float)).mean() > 0.5:
         r_raw, src = np.asarray(ch["yaw_rate"], float), "yaw_rate"
     elif "heading" in ch and np.isfinite(np.asarray(ch["heading"], float)).mean() > 0.5:
-        r_raw = savgol_derivative(np.unwrap(np.nan_to_num(np.asarray(ch["heading"], float))),
-                                  dt, w)
+        r_raw = savgol_derivative(np.unwrap(np.nan_to_num(np.asarray(ch["heading"], float))), dt, w)
         src = "the heading's derivative"
     else:
         return None, "no yaw_rate or heading channel"
@@ -102,9 +109,11 @@ def prepare(ch: dict, vehicle, cfg: DiagnoseConfig = DiagnoseConfig()
     for a, b in segs:
         ok[a:b] = True
     if ok.sum() < int(cfg.min_pair_s / dt):
-        return None, (f"too little moving data with both wheel speeds and a yaw rate "
-                      f"({ok.sum() * dt:.1f} s in runs of {cfg.min_segment_s:g} s; needs "
-                      f"{cfg.min_pair_s:g} s)")
+        return None, (
+            f"too little moving data with both wheel speeds and a yaw rate "
+            f"({ok.sum() * dt:.1f} s in runs of {cfg.min_segment_s:g} s; needs "
+            f"{cfg.min_pair_s:g} s)"
+        )
     # the noise the smoothing leaves in r: the raw noise times the kernel's noise gain
     k = int(round(w / dt)) | 1
     gain = float(np.sum(savgol_coeffs(max(k, 5), 2) ** 2))
@@ -112,8 +121,21 @@ def prepare(ch: dict, vehicle, cfg: DiagnoseConfig = DiagnoseConfig()
     var_r = float(np.var(r[ok]))
     att = var_noise / var_r if var_r > 0 else 1.0
     r2 = float(np.corrcoef(y[ok], r[ok])[0, 1] ** 2) if var_r > 0 else 0.0
-    return WheelYawData(t, dt, y, r, v / track, segs, ok, pair, track, src,
-                        att <= MAX_ATTENUATION and r2 >= MIN_R2, float(att), r2), ""
+    return WheelYawData(
+        t,
+        dt,
+        y,
+        r,
+        v / track,
+        segs,
+        ok,
+        pair,
+        track,
+        src,
+        att <= MAX_ATTENUATION and r2 >= MIN_R2,
+        float(att),
+        r2,
+    ), ""
 
 
 @dataclass
@@ -124,7 +146,7 @@ class WheelYawFit:
     sse: float
     n: int
     k: int
-    cov: np.ndarray           #: covariance of the fitted (rho, r0, eps) entries (white residual)
+    cov: np.ndarray  #: covariance of the fitted (rho, r0, eps) entries (white residual)
 
 
 def fit(d: WheelYawData, name: str | None, mask: np.ndarray) -> WheelYawFit:
@@ -177,8 +199,9 @@ class WheelYawScore:
     intervals: dict
 
 
-def evaluate(d: WheelYawData, name: str | None, cfg: DiagnoseConfig,
-             corr_len: float) -> WheelYawScore:
+def evaluate(
+    d: WheelYawData, name: str | None, cfg: DiagnoseConfig, corr_len: float
+) -> WheelYawScore:
     folds = segment_fold_ids(d.n, d.segs, cfg.n_folds)
     guard = int(cfg.guard_s / d.dt)
     err = np.full(d.n, np.nan)
@@ -195,8 +218,9 @@ def evaluate(d: WheelYawData, name: str | None, cfg: DiagnoseConfig,
             intervals["track_scale"] = [full.rho - 1.96 * se[0], full.rho + 1.96 * se[0]]
         intervals["side_ratio"] = [full.eps - 1.96 * se[-1], full.eps + 1.96 * se[-1]]
         params["gyro_bias_radps"] = full.r0
-    return WheelYawScore(name, full, rmse(err), err, bic(full.sse, full.n, full.k, corr_len),
-                         params, intervals)
+    return WheelYawScore(
+        name, full, rmse(err), err, bic(full.sse, full.n, full.k, corr_len), params, intervals
+    )
 
 
 def disagreement(d: WheelYawData, s: WheelYawScore) -> list[str]:
@@ -214,5 +238,7 @@ def disagreement(d: WheelYawData, s: WheelYawScore) -> list[str]:
 def in_bounds(s: WheelYawScore) -> bool:
     """Both parameters inside the catalogue's bounds (beyond them it is another problem: a
     wrong track in the geometry, swapped wheels)."""
-    return (RHO_BOUNDS[0] <= s.params["track_scale"] <= RHO_BOUNDS[1]
-            and EPS_BOUNDS[0] <= s.params["side_ratio"] <= EPS_BOUNDS[1])
+    return (
+        RHO_BOUNDS[0] <= s.params["track_scale"] <= RHO_BOUNDS[1]
+        and EPS_BOUNDS[0] <= s.params["side_ratio"] <= EPS_BOUNDS[1]
+    )

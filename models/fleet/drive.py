@@ -4,6 +4,7 @@ written under ``STORE/.tmp`` and the folder renamed into place when complete
 (``models.fleet.store``). A failure never raises: it is the drive's status (exit 2 for bad
 input, 1 for an internal failure, with a one-line error).
 """
+
 from __future__ import annotations
 
 import math
@@ -20,13 +21,27 @@ from hmpc.models.fleet import store as st
 from hmpc.models.fleet.manifest import Drive
 
 #: the per-drive table's columns (STORE/drives/*/values.parquet), in order
-VALUE_COLUMNS = ("vehicle_id", "model", "drive_id", "start_time", "key", "value", "ci_lo",
-                 "ci_hi", "identifiable")
+VALUE_COLUMNS = (
+    "vehicle_id",
+    "model",
+    "drive_id",
+    "start_time",
+    "key",
+    "value",
+    "ci_lo",
+    "ci_hi",
+    "identifiable",
+)
 
 #: parameter-file value -> the key of its 95 % interval, for the steering map and the zones
-_CI_KEYS = {"offset_rad": "offset_ci95_rad", "scale": "scale_ci95",
-            "offset_mps2": "offset_ci95_mps2", "scale_mps2": "scale_ci95_mps2",
-            "brake_scale_mps2": "brake_scale_ci95_mps2", "dead_time_s": None}
+_CI_KEYS = {
+    "offset_rad": "offset_ci95_rad",
+    "scale": "scale_ci95",
+    "offset_mps2": "offset_ci95_mps2",
+    "scale_mps2": "scale_ci95_mps2",
+    "brake_scale_mps2": "brake_scale_ci95_mps2",
+    "dead_time_s": None,
+}
 
 
 def _one_line(text: str) -> str:
@@ -42,8 +57,14 @@ def _load_recording(drive: Drive, progress):
     if drive.raw:
         from hmpc.models.logs.ingest import ingest_files
 
-        res = ingest_files(f["log"], f["dbc"], f["signals"], nav_path=f.get("nav"),
-                           imu_path=f.get("imu"), progress=progress)
+        res = ingest_files(
+            f["log"],
+            f["dbc"],
+            f["signals"],
+            nav_path=f.get("nav"),
+            imu_path=f.get("imu"),
+            progress=progress,
+        )
         sources = {k: f.get(k) for k in ("log", "dbc", "signals", "nav", "imu")}
         return res.recording, sources
     return Recording.load(f["recording"]), {"recording": f["recording"]}
@@ -65,8 +86,14 @@ def flat_values(params) -> list[tuple]:
         out.append(("longitudinal.dead_time_s", lon["dead_time_s"], None, None))
     for z in lon.get("zones") or []:
         for k in ("offset_mps2", "scale_mps2", "brake_scale_mps2"):
-            out.append((f"longitudinal.zones.{z['name']}.{k}", z[k], z.get(_CI_KEYS[k]),
-                        z.get("identifiable")))
+            out.append(
+                (
+                    f"longitudinal.zones.{z['name']}.{k}",
+                    z[k],
+                    z.get(_CI_KEYS[k]),
+                    z.get("identifiable"),
+                )
+            )
     for eid, subs in sorted((d.get("extensions") or {}).items()):
         for sub, entry in sorted(subs.items()):
             iv = entry.get("intervals") or {}
@@ -86,17 +113,30 @@ def write_values(path, drive: Drive, params) -> None:
     import pyarrow.parquet as pq
 
     rows = [r for r in flat_values(params) if math.isfinite(r[1])]
-    cols = {"vehicle_id": [drive.vehicle_id] * len(rows), "model": [drive.model] * len(rows),
-            "drive_id": [drive.drive_id] * len(rows),
-            "start_time": [drive.start_time] * len(rows),
-            "key": [r[0] for r in rows], "value": [r[1] for r in rows],
-            "ci_lo": [r[2] for r in rows], "ci_hi": [r[3] for r in rows],
-            "identifiable": [r[4] for r in rows]}
-    schema = pa.schema([("vehicle_id", pa.string()), ("model", pa.string()),
-                        ("drive_id", pa.string()), ("start_time", pa.string()),
-                        ("key", pa.string()), ("value", pa.float64()),
-                        ("ci_lo", pa.float64()), ("ci_hi", pa.float64()),
-                        ("identifiable", pa.bool_())])
+    cols = {
+        "vehicle_id": [drive.vehicle_id] * len(rows),
+        "model": [drive.model] * len(rows),
+        "drive_id": [drive.drive_id] * len(rows),
+        "start_time": [drive.start_time] * len(rows),
+        "key": [r[0] for r in rows],
+        "value": [r[1] for r in rows],
+        "ci_lo": [r[2] for r in rows],
+        "ci_hi": [r[3] for r in rows],
+        "identifiable": [r[4] for r in rows],
+    }
+    schema = pa.schema(
+        [
+            ("vehicle_id", pa.string()),
+            ("model", pa.string()),
+            ("drive_id", pa.string()),
+            ("start_time", pa.string()),
+            ("key", pa.string()),
+            ("value", pa.float64()),
+            ("ci_lo", pa.float64()),
+            ("ci_hi", pa.float64()),
+            ("identifiable", pa.bool_()),
+        ]
+    )
     pq.write_table(pa.table(cols, schema=schema), str(path))
 
 
@@ -106,16 +146,25 @@ def _peak_rss_mb() -> float:
 
 
 def base_status(drive: Drive, inputs: dict, inputs_sha256: str, steps) -> dict:
-    return {"vehicle_id": drive.vehicle_id, "drive_id": drive.drive_id,
-            "start_time": drive.start_time, "model": drive.model,
-            "inputs": inputs, "inputs_sha256": inputs_sha256, "hmpc_version": __version__,
-            "steps": list(steps), "exit": None, "error": None, "timings_s": {},
-            "worker": f"{socket.gethostname()}:{os.getpid()}", "worker_peak_rss_mb": None,
-            "finished_at": None}
+    return {
+        "vehicle_id": drive.vehicle_id,
+        "drive_id": drive.drive_id,
+        "start_time": drive.start_time,
+        "model": drive.model,
+        "inputs": inputs,
+        "inputs_sha256": inputs_sha256,
+        "hmpc_version": __version__,
+        "steps": list(steps),
+        "exit": None,
+        "error": None,
+        "timings_s": {},
+        "worker": f"{socket.gethostname()}:{os.getpid()}",
+        "worker_peak_rss_mb": None,
+        "finished_at": None,
+    }
 
 
-def process_drive(drive: Drive, inputs: dict, inputs_sha256: str, store: str,
-                  steps: tuple) -> dict:
+def process_drive(drive: Drive, inputs: dict, inputs_sha256: str, store: str, steps: tuple) -> dict:
     """Run ``steps`` on one drive, commit its folder to the store and return its status
     (status.json's content). Never raises for the drive's own failures."""
     from threadpoolctl import threadpool_limits
@@ -165,8 +214,9 @@ def _steps(drive: Drive, steps, tmp, status) -> None:
         from hmpc.models.identify.pipeline import identify
 
         t = time.perf_counter()
-        params = identify(rec, vehicle, sources={**sources, "vehicle": drive.files["geometry"]},
-                          progress=say).params
+        params = identify(
+            rec, vehicle, sources={**sources, "vehicle": drive.files["geometry"]}, progress=say
+        ).params
         timings["identify"] = round(time.perf_counter() - t, 3)
     if "diagnose" in steps:
         params = _diagnose(rec, vehicle, params, sources, drive, tmp, timings, say)

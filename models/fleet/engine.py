@@ -8,6 +8,7 @@ The drives left are submitted to a LocalCluster of worker processes (one thread 
 an existing scheduler; each worker runs ``models.fleet.drive.process_drive``, which commits
 the drive's folder itself, so a drive finished before an interrupt stays usable.
 """
+
 from __future__ import annotations
 
 import logging
@@ -40,9 +41,14 @@ class RunResult:
     interrupted: bool = False
 
     def to_json(self) -> dict:
-        return {"drives": self.drives, "done": self.done, "skipped": self.skipped,
-                "failed": self.failed, "wall_s": round(self.wall_s, 3),
-                "interrupted": self.interrupted}
+        return {
+            "drives": self.drives,
+            "done": self.done,
+            "skipped": self.skipped,
+            "failed": self.failed,
+            "wall_s": round(self.wall_s, 3),
+            "interrupted": self.interrupted,
+        }
 
 
 def _hash_inputs(drive: Drive) -> tuple[dict, str]:
@@ -53,8 +59,12 @@ def _hash_inputs(drive: Drive) -> tuple[dict, str]:
 
 
 def _failed_entry(status: dict) -> dict:
-    return {"vehicle_id": status["vehicle_id"], "drive_id": status["drive_id"],
-            "exit": status["exit"], "error": status["error"]}
+    return {
+        "vehicle_id": status["vehicle_id"],
+        "drive_id": status["drive_id"],
+        "exit": status["exit"],
+        "error": status["error"],
+    }
 
 
 #: characters of the progress bar: the whole line stays within 80 columns
@@ -81,11 +91,12 @@ class Progress:
         el = time.perf_counter() - self.t0
         eta = el / n * (self.total - n) if n else math.nan
         fill = int(round(_BAR_CHARS * n / max(self.total, 1)))
-        line = (f"hmpc fleet: [{'#' * fill}{'.' * (_BAR_CHARS - fill)}] {n}/{self.total} "
-                f"done {self.done}, failed {self.failed}, ETA {_clock(eta)} ({drive_id})")
+        line = (
+            f"hmpc fleet: [{'#' * fill}{'.' * (_BAR_CHARS - fill)}] {n}/{self.total} "
+            f"done {self.done}, failed {self.failed}, ETA {_clock(eta)} ({drive_id})"
+        )
         if self.tty:
-            print("\r" + line, end="" if n < self.total else "\n", file=self.stream,
-                  flush=True)
+            print("\r" + line, end="" if n < self.total else "\n", file=self.stream, flush=True)
         else:
             print(line, file=self.stream, flush=True)
 
@@ -123,8 +134,15 @@ def _commit_status(store, status: dict) -> None:
     st.commit(tmp, store, status["drive_id"])
 
 
-def run_fleet(manifest, store, *, steps=st.STEPS, workers: int | None = None,
-              scheduler: str | None = None, progress_stream=None) -> RunResult:
+def run_fleet(
+    manifest,
+    store,
+    *,
+    steps=st.STEPS,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress_stream=None,
+) -> RunResult:
     """Run the fleet of ``manifest`` into ``store`` (see the module doc).
 
     On Ctrl-C (KeyboardInterrupt) the drives not finished are cancelled and the result says
@@ -155,7 +173,8 @@ def run_fleet(manifest, store, *, steps=st.STEPS, workers: int | None = None,
             res.interrupted = True
             for d, _, digest in todo:
                 if d.drive_id not in res.statuses and st.finished(
-                        st.read_status(store, d.drive_id), digest, __version__, steps):
+                    st.read_status(store, d.drive_id), digest, __version__, steps
+                ):
                     res.done.append(d.drive_id)
     order = {d.drive_id: i for i, d in enumerate(drives)}
     res.done.sort(key=lambda d: order[d])
@@ -173,8 +192,9 @@ def _client(workers: int | None, scheduler: str | None):
         try:
             return Client(scheduler, timeout=f"{_CONNECT_TIMEOUT_S}s"), None
         except (OSError, TimeoutError, ValueError) as exc:
-            raise InputError(f"cannot reach the Dask scheduler ({' '.join(str(exc).split())})",
-                             scheduler) from None
+            raise InputError(
+                f"cannot reach the Dask scheduler ({' '.join(str(exc).split())})", scheduler
+            ) from None
     n = workers or os.cpu_count() or 1
     # the worker processes start with SIGINT ignored (inherited; Python then installs no
     # KeyboardInterrupt handler in them): Ctrl-C reaches this process alone, which cancels
@@ -184,10 +204,15 @@ def _client(workers: int | None, scheduler: str | None):
     try:
         # no dashboard; the scheduler's small HTTP server on a free loopback port (the
         # default, 8787, warns when another cluster on the machine holds it)
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address=None,
-                               scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-                               silence_logs=logging.CRITICAL)
+        cluster = LocalCluster(
+            n_workers=n,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+            silence_logs=logging.CRITICAL,
+        )
     finally:
         if old is not None:
             signal.signal(signal.SIGINT, old)
@@ -206,9 +231,16 @@ def _submit_all(todo, store, steps, workers, scheduler, res: RunResult, prog: Pr
     try:
         for d, inputs, digest in todo:
             # pure=False: a drive is a side effect on the store, never taken from a cache
-            fut = client.submit(process_drive, d, inputs, digest, store, steps,
-                                key=f"hmpc-fleet-{d.drive_id}-{uuid.uuid4().hex[:8]}",
-                                pure=False)
+            fut = client.submit(
+                process_drive,
+                d,
+                inputs,
+                digest,
+                store,
+                steps,
+                key=f"hmpc-fleet-{d.drive_id}-{uuid.uuid4().hex[:8]}",
+                pure=False,
+            )
             futures.append(fut)
             of[fut.key] = (d, inputs, digest)
         for fut in as_completed(futures):
@@ -218,8 +250,7 @@ def _submit_all(todo, store, steps, workers, scheduler, res: RunResult, prog: Pr
                 d, inputs, digest = of[fut.key]
                 status = base_status(d, inputs, digest, steps)
                 status["exit"] = 1
-                status["error"] = " ".join(f"worker failed: {type(exc).__name__}: {exc}"
-                                           .split())
+                status["error"] = " ".join(f"worker failed: {type(exc).__name__}: {exc}".split())
                 _commit_status(store, status)
             res.statuses[status["drive_id"]] = status
             if status["exit"] == 0:

@@ -1,6 +1,7 @@
 """``hmpc fleet report --html DIR``: the report as one HTML page (jinja2) with a figure per
 vehicle (``models.report.fleet``), the fleet-wide comparison per model, the failed drives with
 their errors, and links to each drive's diagnosis report in the store."""
+
 from __future__ import annotations
 
 import os
@@ -82,15 +83,29 @@ def write_html(report: dict, out_dir) -> str:
         for e in v["parameters"].values():
             for p in e["per_drive"]:
                 seen.setdefault(p["drive_id"], p["start_time"])
-        drives[vid] = [{"drive_id": d, "start_time": t,
-                        "link": _link(store / st.DRIVES / d, out)}
-                       for d, t in sorted(seen.items(), key=lambda kv: (kv[1], kv[0]))]
-    model_vehicles = {m: sorted({vid for e in keys.values() for vid in e["vehicles"]})
-                      for m, keys in report["models"].items()}
-    html = jinja2.Environment(autoescape=True).from_string(TEMPLATE).render(
-        store=str(store), vehicles=report["vehicles"], failed=report["failed"],
-        models=report["models"], model_vehicles=model_vehicles, figures=figures,
-        drives=drives, fmt=_fmt, n_drives=sum(v["drives"] for v in report["vehicles"].values()))
+        drives[vid] = [
+            {"drive_id": d, "start_time": t, "link": _link(store / st.DRIVES / d, out)}
+            for d, t in sorted(seen.items(), key=lambda kv: (kv[1], kv[0]))
+        ]
+    model_vehicles = {
+        m: sorted({vid for e in keys.values() for vid in e["vehicles"]})
+        for m, keys in report["models"].items()
+    }
+    html = (
+        jinja2.Environment(autoescape=True)
+        .from_string(TEMPLATE)
+        .render(
+            store=str(store),
+            vehicles=report["vehicles"],
+            failed=report["failed"],
+            models=report["models"],
+            model_vehicles=model_vehicles,
+            figures=figures,
+            drives=drives,
+            fmt=_fmt,
+            n_drives=sum(v["drives"] for v in report["vehicles"].values()),
+        )
+    )
     index = out / "index.html"
     tmp = out / ".index.html.tmp"
     tmp.write_text(html, encoding="utf-8")
@@ -102,6 +117,9 @@ def _link(drive_folder: Path, out: Path) -> str:
     """The drive's diagnosis report when it has one, else its folder, relative to ``out``."""
     target = drive_folder / st.REPORT / "index.html"
     if not target.exists():
-        target = drive_folder / st.PARAMS if (drive_folder / st.PARAMS).exists() \
+        target = (
+            drive_folder / st.PARAMS
+            if (drive_folder / st.PARAMS).exists()
             else drive_folder / st.STATUS
+        )
     return os.path.relpath(target.resolve(), out.resolve())

@@ -8,6 +8,7 @@ Columns ``vehicle_id``, ``drive_id`` (unique), ``start_time`` (ISO 8601 UTC), ``
 without its suffixes). A bad manifest is an InputError naming the file, the line and the
 column (exit 2).
 """
+
 from __future__ import annotations
 
 import csv
@@ -55,8 +56,9 @@ def _utc(text: str, where: str) -> str:
     try:
         dt = datetime.fromisoformat(t[:-1] + "+00:00" if t.endswith(("Z", "z")) else t)
     except ValueError:
-        raise InputError(f"{where}: start_time {text!r} is not ISO 8601 "
-                         "(e.g. 2026-01-05T08:00:00Z)") from None
+        raise InputError(
+            f"{where}: start_time {text!r} is not ISO 8601 (e.g. 2026-01-05T08:00:00Z)"
+        ) from None
     if dt.tzinfo is None:
         raise InputError(f"{where}: start_time {text!r} has no time zone (UTC: end it with Z)")
     dt = dt.astimezone(timezone.utc)
@@ -70,23 +72,27 @@ def read_manifest(path) -> list[Drive]:
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read the manifest ({getattr(exc, 'strerror', None) or exc})",
-                         str(path)) from None
+        raise InputError(
+            f"cannot read the manifest ({getattr(exc, 'strerror', None) or exc})", str(path)
+        ) from None
     rows = list(csv.reader(text.splitlines()))
     if not rows:
-        raise InputError("empty manifest (expected a header: "
-                         f"{','.join(REQUIRED)},recording)", str(path))
+        raise InputError(
+            f"empty manifest (expected a header: {','.join(REQUIRED)},recording)", str(path)
+        )
     header = [h.strip() for h in rows[0]]
     for h in header:
         if h not in COLUMNS:
-            raise InputError(f"line 1: unknown column {h!r} (known: {', '.join(COLUMNS)})",
-                             str(path))
+            raise InputError(
+                f"line 1: unknown column {h!r} (known: {', '.join(COLUMNS)})", str(path)
+            )
     missing = [c for c in REQUIRED if c not in header]
     if missing:
         raise InputError(f"line 1: missing column(s) {', '.join(missing)}", str(path))
     if "recording" not in header and not all(c in header for c in RAW):
-        raise InputError("line 1: needs a 'recording' column or 'log', 'dbc' and 'signals'",
-                         str(path))
+        raise InputError(
+            "line 1: needs a 'recording' column or 'log', 'dbc' and 'signals'", str(path)
+        )
     base = path.parent
     drives: list[Drive] = []
     seen: dict[str, int] = {}  # drive id -> manifest line
@@ -94,13 +100,15 @@ def read_manifest(path) -> list[Drive]:
         if not any(c.strip() for c in row):
             continue
         if len(row) != len(header):
-            raise InputError(f"line {i}: {len(row)} cells, the header has {len(header)}",
-                             str(path))
+            raise InputError(f"line {i}: {len(row)} cells, the header has {len(header)}", str(path))
         cells = {h: c.strip() for h, c in zip(header, row)}
         drives.append(_drive(cells, base, f"{path}: line {i}", i))
         if drives[-1].drive_id in seen:
-            raise InputError(f"line {i}: drive_id {drives[-1].drive_id!r} repeats line "
-                             f"{seen[drives[-1].drive_id]}", str(path))
+            raise InputError(
+                f"line {i}: drive_id {drives[-1].drive_id!r} repeats line "
+                f"{seen[drives[-1].drive_id]}",
+                str(path),
+            )
         seen[drives[-1].drive_id] = i
     if not drives:
         raise InputError("no drives (only a header)", str(path))
@@ -110,20 +118,23 @@ def read_manifest(path) -> list[Drive]:
 def _drive(cells: dict, base: Path, where: str, line: int) -> Drive:
     for c in ("vehicle_id", "drive_id"):
         if not _ID.match(cells[c]):
-            raise InputError(f"{where}: {c} {cells[c]!r} must be letters, digits, '.', '_' or "
-                             "'-' (it names a folder of the store)")
+            raise InputError(
+                f"{where}: {c} {cells[c]!r} must be letters, digits, '.', '_' or "
+                "'-' (it names a folder of the store)"
+            )
     for c in REQUIRED:
         if not cells[c]:
             raise InputError(f"{where}: empty {c}")
     rec = cells.get("recording", "")
     raw = [c for c in RAW if cells.get(c, "")]
     if rec and raw:
-        raise InputError(f"{where}: both 'recording' and {', '.join(raw)} given (one drive is "
-                         "a canonical recording or a raw log)")
+        raise InputError(
+            f"{where}: both 'recording' and {', '.join(raw)} given (one drive is "
+            "a canonical recording or a raw log)"
+        )
     if not rec and len(raw) != len(RAW):
         lacking = [c for c in RAW if not cells.get(c, "")]
-        raise InputError(f"{where}: no 'recording', and the raw log lacks "
-                         f"{', '.join(lacking)}")
+        raise InputError(f"{where}: no 'recording', and the raw log lacks {', '.join(lacking)}")
     if rec and any(cells.get(c, "") for c in OPTIONAL_RAW):
         raise InputError(f"{where}: nav/imu go with a raw log, not with a recording")
     files = {}
@@ -132,8 +143,9 @@ def _drive(cells: dict, base: Path, where: str, line: int) -> Drive:
         if v:
             files[role] = str((base / v).resolve())
     model = cells.get("model", "") or Path(cells["geometry"]).name.split(".")[0]
-    return Drive(cells["vehicle_id"], cells["drive_id"], _utc(cells["start_time"], where),
-                 files, model, line)
+    return Drive(
+        cells["vehicle_id"], cells["drive_id"], _utc(cells["start_time"], where), files, model, line
+    )
 
 
 def file_sha256(path: str) -> str:
@@ -152,8 +164,7 @@ def inputs_digest(drive: Drive, file_hashes: dict) -> str:
     """One sha256 over what a drive's result depends on: its row (vehicle, start time, model)
     and each input file's hash by role (a moved file with the same bytes keeps the digest)."""
     h = hashlib.sha256()
-    h.update(f"{drive.vehicle_id}\n{drive.drive_id}\n{drive.start_time}\n{drive.model}\n"
-             .encode())
+    h.update(f"{drive.vehicle_id}\n{drive.drive_id}\n{drive.start_time}\n{drive.model}\n".encode())
     for role in FILE_ROLES:
         if role in file_hashes:
             h.update(f"{role}={file_hashes[role]}\n".encode())

@@ -6,6 +6,7 @@ its own seed) until it lasts ``duration_s``; a vehicle is a truth parameter set
 (``models.sim.simulator.random_params``) that may change from one drive on (a concealed
 drift: ``pedal_factor`` scales every zone's accelerator and brake gains).
 """
+
 from __future__ import annotations
 
 import csv
@@ -41,9 +42,17 @@ class SimVehicle:
     def truth(self, drive_no: int) -> Params:
         p = random_params(self.truth_seed)
         if self.drift_from is not None and drive_no >= self.drift_from:
-            p = replace(p, zones=[replace(z, scale_mps2=z.scale_mps2 * self.pedal_factor,
-                                          brake_scale_mps2=z.brake_scale_mps2 * self.pedal_factor)
-                                  for z in p.zones])
+            p = replace(
+                p,
+                zones=[
+                    replace(
+                        z,
+                        scale_mps2=z.scale_mps2 * self.pedal_factor,
+                        brake_scale_mps2=z.brake_scale_mps2 * self.pedal_factor,
+                    )
+                    for z in p.zones
+                ],
+            )
         return p
 
 
@@ -60,8 +69,15 @@ def simulate_drive(truth: Params, seed: int, duration_s: float = 600.0):
     return concat_recordings(recs)
 
 
-def write_fleet(folder, vehicles: list[SimVehicle], drives_per_vehicle: int, *,
-                duration_s: float = 600.0, seed: int = 0, fmt: str = "parquet") -> Path:
+def write_fleet(
+    folder,
+    vehicles: list[SimVehicle],
+    drives_per_vehicle: int,
+    *,
+    duration_s: float = 600.0,
+    seed: int = 0,
+    fmt: str = "parquet",
+) -> Path:
     """Simulate every drive of ``vehicles`` into ``folder`` (recordings, one geometry file
     per vehicle, ``manifest.csv``); return the manifest's path. Drive ids are
     ``<vehicle_id><n>`` (``A1``, ``A2``, ...), n from 1; vehicle i's drive n starts on day n,
@@ -72,22 +88,33 @@ def write_fleet(folder, vehicles: list[SimVehicle], drives_per_vehicle: int, *,
     for vi, v in enumerate(vehicles):
         geo = folder / f"{v.vehicle_id}.geometry.yaml"
         veh = random_params(v.truth_seed).vehicle
-        geo.write_text(yaml.safe_dump({"vehicle": {"wheelbase_m": veh.wheelbase_m,
-                                                   "track_front_m": veh.track_front_m}}))
+        geo.write_text(
+            yaml.safe_dump(
+                {"vehicle": {"wheelbase_m": veh.wheelbase_m, "track_front_m": veh.track_front_m}}
+            )
+        )
         for n in range(1, drives_per_vehicle + 1):
             drive_id = f"{v.vehicle_id}{n}"
-            rec = simulate_drive(v.truth(n), seed=seed * 10_000 + vi * 1000 + n,
-                                 duration_s=duration_s)
+            rec = simulate_drive(
+                v.truth(n), seed=seed * 10_000 + vi * 1000 + n, duration_s=duration_s
+            )
             path = folder / f"{drive_id}.{fmt}"
             rec.save(path)
             start = _START + timedelta(days=n - 1, hours=vi)
-            rows.append({"vehicle_id": v.vehicle_id, "drive_id": drive_id,
-                         "start_time": start.strftime("%Y-%m-%dT%H:%M:%SZ"),
-                         "geometry": geo.name, "recording": path.name})
+            rows.append(
+                {
+                    "vehicle_id": v.vehicle_id,
+                    "drive_id": drive_id,
+                    "start_time": start.strftime("%Y-%m-%dT%H:%M:%SZ"),
+                    "geometry": geo.name,
+                    "recording": path.name,
+                }
+            )
     manifest = folder / "manifest.csv"
     with open(manifest, "w", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=["vehicle_id", "drive_id", "start_time", "geometry",
-                                           "recording"])
+        w = csv.DictWriter(
+            fh, fieldnames=["vehicle_id", "drive_id", "start_time", "geometry", "recording"]
+        )
         w.writeheader()
         w.writerows(rows)
     return manifest

@@ -16,6 +16,7 @@ width / 1.96 (the intervals hmpc writes are normal-theory or bootstrap 95 % inte
   ``alpha`` / (2 x number of candidates): a family-wise false-alarm rate ``alpha`` per
   parameter.
 """
+
 from __future__ import annotations
 
 import math
@@ -48,13 +49,13 @@ def _dl_tau2(y: np.ndarray, se: np.ndarray, X: np.ndarray) -> float:
     n, p = X.shape
     if n <= p:
         return 0.0
-    w = 1.0 / se ** 2
+    w = 1.0 / se**2
     XtW = X.T * w
     A = np.linalg.inv(XtW @ X)
     beta = A @ (XtW @ y)
     q = float(np.sum(w * (y - X @ beta) ** 2))
     # E[Q] = (n - p) + tau^2 * (sum w - tr(A X' W^2 X))
-    c = float(np.sum(w) - np.trace(A @ ((X.T * w ** 2) @ X)))
+    c = float(np.sum(w) - np.trace(A @ ((X.T * w**2) @ X)))
     return max(0.0, (q - (n - p)) / c) if c > 0 else 0.0
 
 
@@ -65,7 +66,7 @@ def _wls(y, se, X, knapp_hartung: bool = False):
     the coefficient is referred to Student t with n - p degrees of freedom); ``scaled`` says
     whether that happened."""
     tau2 = _dl_tau2(y, se, X)
-    w = 1.0 / (se ** 2 + tau2)
+    w = 1.0 / (se**2 + tau2)
     XtW = X.T * w
     A = np.linalg.inv(XtW @ X)
     beta = A @ (XtW @ y)
@@ -124,8 +125,9 @@ def drift(values, ses, alpha: float = DRIFT_ALPHA) -> Drift | None:
     y = np.asarray(values, float)
     se = np.asarray(ses, float)
     n = len(y)
-    if n < 2 * MIN_SEGMENT or not (np.isfinite(y).all() and np.isfinite(se).all()
-                                   and (se > 0).all()):
+    if n < 2 * MIN_SEGMENT or not (
+        np.isfinite(y).all() and np.isfinite(se).all() and (se > 0).all()
+    ):
         return None
     cands = list(_candidates(n))
     level = alpha / (2.0 * len(cands))  # Bonferroni: one two-sided test per candidate

@@ -13,6 +13,7 @@ Layout::
 A drive's folder is written under ``STORE/.tmp`` and renamed into place when complete, so a
 folder under ``drives/`` is always whole: an interrupted run leaves only finished drives.
 """
+
 from __future__ import annotations
 
 import json
@@ -88,7 +89,10 @@ def _plain(obj):
 def finished(status: dict | None, inputs_sha256: str, version: str, steps) -> bool:
     """True when ``status`` is a finished result (exit 0) of the same inputs, the same hmpc
     version and at least the steps asked for."""
-    return (status is not None and status.get("exit") == 0
-            and status.get("inputs_sha256") == inputs_sha256
-            and status.get("hmpc_version") == version
-            and set(steps) <= set(status.get("steps", ())))
+    return (
+        status is not None
+        and status.get("exit") == 0
+        and status.get("inputs_sha256") == inputs_sha256
+        and status.get("hmpc_version") == version
+        and set(steps) <= set(status.get("steps", ()))
+    )

@@ -34,6 +34,7 @@ interleaved hold-out would not test generalisation.
 The module is generic (a matrix and names in, a selection out): the steering and accelerator
 identification use it now, the mismatch diagnosis will reuse it.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -111,11 +112,22 @@ def block_holdout(n: int, *, fraction: float = 0.25, block_len: int = 250) -> np
     return mask
 
 
-def fos(P: np.ndarray, y: np.ndarray, names: list[str] | None = None, *,
-        holdout: np.ndarray | None | str = "blocks", holdout_fraction: float = 0.25,
-        block_len: int = 250, max_terms: int | None = None, min_reduction: float = 1e-4,
-        noise_threshold: bool = True, patience: int = 2, min_holdout_gain: float = 1e-3,
-        force: list[str] | tuple[str, ...] = (), collinear_tol: float = 1e-9) -> FosResult:
+def fos(
+    P: np.ndarray,
+    y: np.ndarray,
+    names: list[str] | None = None,
+    *,
+    holdout: np.ndarray | None | str = "blocks",
+    holdout_fraction: float = 0.25,
+    block_len: int = 250,
+    max_terms: int | None = None,
+    min_reduction: float = 1e-4,
+    noise_threshold: bool = True,
+    patience: int = 2,
+    min_holdout_gain: float = 1e-3,
+    force: list[str] | tuple[str, ...] = (),
+    collinear_tol: float = 1e-9,
+) -> FosResult:
     """Select terms of ``y ~ P[:, S] a`` greedily by error reduction (see the module doc).
 
     Args:
@@ -155,16 +167,16 @@ def fos(P: np.ndarray, y: np.ndarray, names: list[str] | None = None, *,
     Pt, yt = P[train], y[train]
     nt = Pt.shape[0]
     # The only passes over the data: time averages of products (Korenberg's correlations).
-    G = (Pt.T @ Pt) / nt          # [M, M]
-    c0 = (Pt.T @ yt) / nt         # [M]
-    y2 = float(yt @ yt) / nt      # mean square of the target = MSE of the empty model
+    G = (Pt.T @ Pt) / nt  # [M, M]
+    c0 = (Pt.T @ yt) / nt  # [M]
+    y2 = float(yt @ yt) / nt  # mean square of the target = MSE of the empty model
     Ph, yh = P[hmask], y[hmask]
     st = _Search.start(G, c0, max_terms)
     forced = [names.index(f) for f in force]
 
     mse = y2
     train_path = [mse]
-    hold_path = [float(np.mean(yh ** 2))] if use_holdout else []
+    hold_path = [float(np.mean(yh**2))] if use_holdout else []
     reductions: list[float] = []
     best_k, best_hold, bad = 0, (hold_path[0] if use_holdout else np.inf), 0
     stop = "all candidates used" if max_terms >= m else f"max_terms ({max_terms}) reached"
@@ -177,8 +189,9 @@ def fos(P: np.ndarray, y: np.ndarray, names: list[str] | None = None, *,
             if not ok[j]:
                 raise ValueError(f"forced term {names[j]!r} is linearly dependent on the others")
         else:
-            j, why = st.best(ok, min_reduction * y2, 4.0 / (nt + 1) * mse if noise_threshold
-                             else None, y2)
+            j, why = st.best(
+                ok, min_reduction * y2, 4.0 / (nt + 1) * mse if noise_threshold else None, y2
+            )
             if why is not None:
                 stop = why
                 break
@@ -196,17 +209,26 @@ def fos(P: np.ndarray, y: np.ndarray, names: list[str] | None = None, *,
         else:
             bad += 1
             if bad >= patience:
-                stop = (f"held-out MSE did not fall by {min_holdout_gain:g} (relative) for "
-                        f"{patience} term(s)")
+                stop = (
+                    f"held-out MSE did not fall by {min_holdout_gain:g} (relative) for "
+                    f"{patience} term(s)"
+                )
                 break
 
     k = best_k
     red = np.array(reductions[:k])
     return FosResult(
-        terms=[names[i] for i in st.sel[:k]], indices=st.sel[:k], coefficients=st.coefficients(k),
-        error_reduction=red, error_reduction_fraction=(red / y2) if y2 > 0 else np.zeros(k),
-        train_mse_path=np.array(train_path), holdout_mse_path=np.array(hold_path),
-        tried=[names[i] for i in st.sel], stop_reason=stop, train_mask=train)
+        terms=[names[i] for i in st.sel[:k]],
+        indices=st.sel[:k],
+        coefficients=st.coefficients(k),
+        error_reduction=red,
+        error_reduction_fraction=(red / y2) if y2 > 0 else np.zeros(k),
+        train_mse_path=np.array(train_path),
+        holdout_mse_path=np.array(hold_path),
+        tried=[names[i] for i in st.sel],
+        stop_reason=stop,
+        train_mask=train,
+    )
 
 
 def _check_inputs(P, y, names) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -264,16 +286,26 @@ class _Search:
     def start(cls, G: np.ndarray, c0: np.ndarray, max_terms: int) -> _Search:
         m = G.shape[0]
         diagG = np.diag(G).copy()
-        return cls(G, diagG, np.zeros((max_terms, m)), np.zeros((max_terms, max_terms)),
-                   np.zeros(max_terms), np.zeros(max_terms), diagG.copy(), c0.copy(),
-                   np.ones(m, dtype=bool), [])
+        return cls(
+            G,
+            diagG,
+            np.zeros((max_terms, m)),
+            np.zeros((max_terms, max_terms)),
+            np.zeros(max_terms),
+            np.zeros(max_terms),
+            diagG.copy(),
+            c0.copy(),
+            np.ones(m, dtype=bool),
+            [],
+        )
 
     def admissible(self, collinear_tol: float) -> np.ndarray:
         """Candidates not yet selected and not linearly dependent on the selection."""
         return self.available & (self.Djj > collinear_tol * np.maximum(self.diagG, 1e-300))
 
-    def best(self, ok: np.ndarray, min_q: float, noise_q: float | None,
-             y2: float) -> tuple[int, str | None]:
+    def best(
+        self, ok: np.ndarray, min_q: float, noise_q: float | None, y2: float
+    ) -> tuple[int, str | None]:
         """The admissible candidate with the largest error reduction, and why to stop instead
         (None to accept it): nothing admissible, below ``min_q`` or below ``noise_q``."""
         if not ok.any():
@@ -291,12 +323,12 @@ class _Search:
         """Select candidate ``j`` as the next term; return its error reduction."""
         r = len(self.sel)
         D, alpha, Dd = self.D, self.alpha, self.Dd
-        for i in range(r):                       # alpha(m_r, i) = D(m_r, i) / D(i, i)
+        for i in range(r):  # alpha(m_r, i) = D(m_r, i) / D(i, i)
             alpha[r, i] = D[i, j] / Dd[i]
-        D[r] = self.G[:, j] - alpha[r, :r] @ D[:r]    # D(:, r) by the recursion
+        D[r] = self.G[:, j] - alpha[r, :r] @ D[:r]  # D(:, r) by the recursion
         Dd[r] = D[r, j]
         self.g[r] = self.Cj[j] / Dd[r]
-        a_col = D[r] / Dd[r]                     # alpha(j', r) for every candidate j'
+        a_col = D[r] / Dd[r]  # alpha(j', r) for every candidate j'
         self.Djj = self.Djj - a_col * D[r]
         self.Cj = self.Cj - a_col * self.Cj[j]
         self.sel.append(j)

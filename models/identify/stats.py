@@ -32,6 +32,7 @@ covers the truth 4% of the time). hmpc's default, :func:`ols_hac` with ``method=
 Samples left out of a fit (masked) stay in the time series as zero scores, so lags and blocks
 are in time, across the gaps.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -99,8 +100,8 @@ def andrews_bandwidth(u: np.ndarray, mask: np.ndarray | None = None) -> int:
             continue
         rho = float(np.clip(np.dot(x0, x1) / np.dot(x0, x0), -RHO_MAX, RHO_MAX))
         s2 = float(np.mean((x1 - rho * x0) ** 2))
-        num += 4 * rho ** 2 * s2 ** 2 / ((1 - rho) ** 6 * (1 + rho) ** 2)
-        den += s2 ** 2 / (1 - rho) ** 4
+        num += 4 * rho**2 * s2**2 / ((1 - rho) ** 6 * (1 + rho) ** 2)
+        den += s2**2 / (1 - rho) ** 4
     if den <= 0:
         return 0
     n_eff = int(m.sum())
@@ -124,14 +125,15 @@ def long_run_cov(u: np.ndarray, bandwidth: int) -> np.ndarray:
         for b in range(a, k):
             # c[l] = sum_t u_a[t + l] u_b[t]
             c = np.fft.irfft(U[:, a] * np.conj(U[:, b]), nfft)
-            pos, neg = c[:L + 1], c[::-1][:L]  # lags 0..L and -1..-L
+            pos, neg = c[: L + 1], c[::-1][:L]  # lags 0..L and -1..-L
             val = w[0] * pos[0] + np.dot(w[1:], pos[1:]) + np.dot(w[1:], neg)
             S[a, b] = S[b, a] = val
     return S
 
 
-def hac_cov(X: np.ndarray, resid: np.ndarray, mask: np.ndarray | None = None,
-            bandwidth: int | None = None) -> tuple[np.ndarray, int]:
+def hac_cov(
+    X: np.ndarray, resid: np.ndarray, mask: np.ndarray | None = None, bandwidth: int | None = None
+) -> tuple[np.ndarray, int]:
     """Newey-West covariance of OLS coefficients; returns (cov [k, k], bandwidth).
 
     Args:
@@ -175,8 +177,9 @@ def scaled_cond(X: np.ndarray) -> float:
     return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
 
 
-def block_cov(X: np.ndarray, resid: np.ndarray, mask: np.ndarray | None = None,
-              bandwidth: int | None = None) -> tuple[np.ndarray, int, int]:
+def block_cov(
+    X: np.ndarray, resid: np.ndarray, mask: np.ndarray | None = None, bandwidth: int | None = None
+) -> tuple[np.ndarray, int, int]:
     """Time-block cluster-robust covariance; returns (cov [k, k], bandwidth, blocks G).
 
     Args as :func:`hac_cov`. See the module doc for the block length and G.
@@ -195,8 +198,13 @@ def block_cov(X: np.ndarray, resid: np.ndarray, mask: np.ndarray | None = None,
     return bread @ (scores.T @ scores) @ bread * adj, L, G
 
 
-def ols_hac(X: np.ndarray, y: np.ndarray, mask: np.ndarray | None = None,
-            bandwidth: int | None = None, method: str = "blocks") -> OlsResult:
+def ols_hac(
+    X: np.ndarray,
+    y: np.ndarray,
+    mask: np.ndarray | None = None,
+    bandwidth: int | None = None,
+    method: str = "blocks",
+) -> OlsResult:
     """OLS of ``y`` on ``X`` over ``mask`` (samples on a uniform time grid), HAC intervals.
 
     Args:
@@ -232,9 +240,20 @@ def ols_hac(X: np.ndarray, y: np.ndarray, mask: np.ndarray | None = None,
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     ci = np.column_stack([coef - crit * se, coef + crit * se])
     r = resid_full[m]
-    return OlsResult(coef=coef, cov=cov, se=se, ci95=ci, residuals=r,
-                     rmse=float(np.sqrt(np.mean(r ** 2))), bandwidth=L, n=int(m.sum()),
-                     cond=scaled_cond(X[m]), corr=_corr(cov), crit=crit, method=label)
+    return OlsResult(
+        coef=coef,
+        cov=cov,
+        se=se,
+        ci95=ci,
+        residuals=r,
+        rmse=float(np.sqrt(np.mean(r**2))),
+        bandwidth=L,
+        n=int(m.sum()),
+        cond=scaled_cond(X[m]),
+        corr=_corr(cov),
+        crit=crit,
+        method=label,
+    )
 
 
 def cluster_cov(J: np.ndarray, resid: np.ndarray, groups: np.ndarray) -> np.ndarray:
@@ -285,8 +304,7 @@ def quantisation_step(x: np.ndarray, tol: float = 0.05) -> float | None:
     return q if np.mean(np.abs(frac - np.round(frac)) <= tol) >= 0.9 else None
 
 
-def quantisation_cov(J: np.ndarray, reading: np.ndarray, index: np.ndarray,
-                     q: float) -> np.ndarray:
+def quantisation_cov(J: np.ndarray, reading: np.ndarray, index: np.ndarray, q: float) -> np.ndarray:
     """Covariance [p, p] of nonlinear least-squares parameters from the rounding error of a
     reading that rests on one level.
 
@@ -315,8 +333,9 @@ def quantisation_cov(J: np.ndarray, reading: np.ndarray, index: np.ndarray,
     return bread @ (g.T @ g) @ bread * (q * q / 12.0)
 
 
-def block_bootstrap_ci(stat, n: int, *, block_len: int, reps: int = 200, seed: int = 0,
-                       level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+def block_bootstrap_ci(
+    stat, n: int, *, block_len: int, reps: int = 200, seed: int = 0, level: float = 0.95
+) -> tuple[np.ndarray, np.ndarray]:
     """Moving-block bootstrap percentile interval of ``stat(indices) -> array``.
 
     Args:
@@ -344,8 +363,9 @@ def block_bootstrap_ci(stat, n: int, *, block_len: int, reps: int = 200, seed: i
     return np.nanquantile(arr, a, axis=0), np.nanquantile(arr, 1.0 - a, axis=0)
 
 
-def savgol_derivative(x: np.ndarray, dt_s: float, window_s: float = 0.5, order: int = 2,
-                      deriv: int = 1) -> np.ndarray:
+def savgol_derivative(
+    x: np.ndarray, dt_s: float, window_s: float = 0.5, order: int = 2, deriv: int = 1
+) -> np.ndarray:
     """Savitzky-Golay smoothed derivative of a uniformly sampled signal [unit/s^deriv].
 
     A least-squares polynomial of ``order`` over a centred window of ``window_s`` (rounded to an
@@ -384,7 +404,7 @@ def dilate(mask: np.ndarray, n_before: int, n_after: int | None = None) -> np.nd
         return m.copy()
     k = np.ones(nb + na + 1)
     # a True at sample j sets samples j-nb .. j+na
-    conv = np.convolve(m.astype(float), k, mode="full")[nb:nb + len(m)]
+    conv = np.convolve(m.astype(float), k, mode="full")[nb : nb + len(m)]
     return conv > 0.5
 
 
@@ -405,7 +425,7 @@ def matched_kernels(dt_s: float, window_s: float) -> tuple[np.ndarray, np.ndarra
     M = max(int(round(window_s / dt_s / 2.0)), 1)
     k = np.arange(-M, M + 1, dtype=float)
     d = k / (dt_s * np.sum(k * k))
-    H = -np.cumsum(d)[:-1]                       # offsets -M..M-1
+    H = -np.cumsum(d)[:-1]  # offsets -M..M-1
     g = np.zeros(2 * M + 1)
     g[:-1] += 0.5 * H * dt_s
     g[1:] += 0.5 * H * dt_s
@@ -423,7 +443,7 @@ def apply_kernel(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
         return out
     bad = ~np.isfinite(x)
     xf = np.where(bad, 0.0, x)
-    out[M:n - M] = np.correlate(xf, kernel, mode="valid")
+    out[M : n - M] = np.correlate(xf, kernel, mode="valid")
     if bad.any():
         out[np.convolve(bad.astype(float), np.ones(w), mode="same") > 0.5] = np.nan
     return out
@@ -452,8 +472,9 @@ def contiguous_fold_ids(n: int, k: int) -> np.ndarray:
     return np.minimum(np.arange(n) * k // max(n, 1), k - 1)
 
 
-def heldout_sse(X: np.ndarray, Y: np.ndarray, fold: np.ndarray, k: int,
-                fit_col: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def heldout_sse(
+    X: np.ndarray, Y: np.ndarray, fold: np.ndarray, k: int, fit_col: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """Blocked cross-validation of a linear least-squares fit, from per-fold sums.
 
     The coefficients are fitted to ``Y[:, fit_col]`` on every fold but one and evaluated on the
@@ -473,7 +494,7 @@ def heldout_sse(X: np.ndarray, Y: np.ndarray, fold: np.ndarray, k: int,
     p, c = X.shape[1], Y.shape[1]
     S, B, YY = np.zeros((k, p, p)), np.zeros((k, p, c)), np.zeros((k, c))
     cnt = np.bincount(fold, minlength=k).astype(float)
-    ordered = bool(np.all(np.diff(fold) >= 0))   # contiguous folds: slices, no copies
+    ordered = bool(np.all(np.diff(fold) >= 0))  # contiguous folds: slices, no copies
     edges = np.searchsorted(fold, np.arange(k + 1)) if ordered else None
     for g in range(k):
         sel = slice(edges[g], edges[g + 1]) if edges is not None else fold == g

@@ -14,6 +14,7 @@ from the INS velocity disagree in their dynamics by ~0.2 s (flat correlation fro
 0 s), while raw speeds (-0.03 s) agree with the yaw-rate cross-check (CAN KINEMATICS vs the
 device's IMU, +0.03 s); so speeds are correlated as they are by default.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -43,10 +44,14 @@ class OffsetEstimate:
     note: str = ""
 
     def to_dict(self) -> dict:
-        return {"offset_s": float(self.offset_s),
-                "correlation_peak": None if not np.isfinite(self.peak) else float(self.peak),
-                "samples": int(self.samples), "method": self.method, "ok": bool(self.ok),
-                "note": self.note}
+        return {
+            "offset_s": float(self.offset_s),
+            "correlation_peak": None if not np.isfinite(self.peak) else float(self.peak),
+            "samples": int(self.samples),
+            "method": self.method,
+            "ok": bool(self.ok),
+            "note": self.note,
+        }
 
 
 def _finite(t, v):
@@ -56,9 +61,19 @@ def _finite(t, v):
     return t[m], v[m]
 
 
-def estimate_offset(t_ref, v_ref, t_src, v_src, *, max_lag_s: float = 5.0,
-                    rate_hz: float = 50.0, derivative: bool = False, smooth_s: float = 0.2,
-                    min_peak: float = 0.5, what: str = "signals") -> OffsetEstimate:
+def estimate_offset(
+    t_ref,
+    v_ref,
+    t_src,
+    v_src,
+    *,
+    max_lag_s: float = 5.0,
+    rate_hz: float = 50.0,
+    derivative: bool = False,
+    smooth_s: float = 0.2,
+    min_peak: float = 0.5,
+    what: str = "signals",
+) -> OffsetEstimate:
     """Estimate the offset of a source clock relative to a reference clock.
 
     Args:
@@ -98,8 +113,9 @@ def estimate_offset(t_ref, v_ref, t_src, v_src, *, max_lag_s: float = 5.0,
     t1 = min(tr[-1], ts[-1] + max_lag_s)
     n = int(np.floor((t1 - t0) * rate_hz)) + 1
     if n < 4 * (1 + int(smooth_s * rate_hz)):
-        return OffsetEstimate(0.0, float("nan"), 0, method, False,
-                              "the two sources hardly overlap in time")
+        return OffsetEstimate(
+            0.0, float("nan"), 0, method, False, "the two sources hardly overlap in time"
+        )
     g = t0 + dt * np.arange(n)
     a = np.interp(g, tr, vr)
     ge = t0 + dt * np.arange(-k_max, n + k_max)
@@ -116,9 +132,9 @@ def estimate_offset(t_ref, v_ref, t_src, v_src, *, max_lag_s: float = 5.0,
     # edges of the moving average/derivative are not trustworthy
     trim = w + 1
     a_ok = np.zeros(n, bool)
-    a_ok[trim:n - trim] = True
+    a_ok[trim : n - trim] = True
     b_ok[:trim] = False
-    b_ok[len(b_ok) - trim:] = False
+    b_ok[len(b_ok) - trim :] = False
     lags = np.arange(-k_max, k_max + 1)
     corr = np.full(len(lags), np.nan)
     counts = np.zeros(len(lags), int)
@@ -126,8 +142,8 @@ def estimate_offset(t_ref, v_ref, t_src, v_src, *, max_lag_s: float = 5.0,
         # source value at reference time g is the raw source sample at g - offset; offset = k*dt
         # -> source grid index (j - k) + k_max for reference index j
         lo = k_max - k
-        bb = b[lo:lo + n]
-        m = a_ok & b_ok[lo:lo + n]
+        bb = b[lo : lo + n]
+        m = a_ok & b_ok[lo : lo + n]
         c = int(m.sum())
         counts[i] = c
         if c < 10:
@@ -138,8 +154,9 @@ def estimate_offset(t_ref, v_ref, t_src, v_src, *, max_lag_s: float = 5.0,
         if den > 0:
             corr[i] = float(np.dot(x, y) / den)
     if not np.isfinite(corr).any():
-        return OffsetEstimate(0.0, float("nan"), 0, method, False,
-                              "no overlap with variation in both signals")
+        return OffsetEstimate(
+            0.0, float("nan"), 0, method, False, "no overlap with variation in both signals"
+        )
     i = int(np.nanargmax(corr))
     peak = float(corr[i])
     frac = 0.0

@@ -12,14 +12,26 @@ only the other lines to :func:`parse_lines`. Neither runs Python per line.
 
 Imports only numpy and ``models.logs.textscan``/``candump_fixed``/``frames``.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from hmpc.models.logs.candump_fixed import REACH, Layout, learn_layout, parse_fixed, printable
 from hmpc.models.logs.frames import CAN_ERR_FLAG, EFF_MASK, MAX_PAYLOAD, SFF_MAX
-from hmpc.models.logs.textscan import (HEX, SKIP_ERROR_FRAME, SKIP_MALFORMED, SKIP_REMOTE, Buf,
-                                       Chunk, dec_time, hex_int, line_bounds, payload, width_of)
+from hmpc.models.logs.textscan import (
+    HEX,
+    SKIP_ERROR_FRAME,
+    SKIP_MALFORMED,
+    SKIP_REMOTE,
+    Buf,
+    Chunk,
+    dec_time,
+    hex_int,
+    line_bounds,
+    payload,
+    width_of,
+)
 
 #: lines parsed by one numpy operation of the bulk path: each of its uint64 temporaries
 #: (96 KB) stays below glibc's mmap threshold (128 KB), so it is reused from the heap and
@@ -83,10 +95,12 @@ def parse_lines(buf: Buf, ls: np.ndarray, le: np.ndarray, lineno: np.ndarray) ->
     nw = 8 if width_of(iflen, good, 16) <= 8 else 16
     names = buf.gather(s0[good] + 1, nw)
     names[np.arange(nw) >= iflen[good][:, None]] = 0
-    skipped = {SKIP_MALFORMED: lineno[bad], SKIP_REMOTE: lineno[remote & ok],
-               SKIP_ERROR_FRAME: lineno[errframe & ~remote]}
-    return Chunk(t[good], names, arb[good], ext[good], dlc[good], data[good],
-                 lineno[good], skipped)
+    skipped = {
+        SKIP_MALFORMED: lineno[bad],
+        SKIP_REMOTE: lineno[remote & ok],
+        SKIP_ERROR_FRAME: lineno[errframe & ~remote],
+    }
+    return Chunk(t[good], names, arb[good], ext[good], dlc[good], data[good], lineno[good], skipped)
 
 
 class CandumpScanner:
@@ -96,13 +110,12 @@ class CandumpScanner:
     def __init__(self):
         self.layouts: list[Layout] = []
 
-    def __call__(self, base: np.ndarray, pad: int, nl: np.ndarray, line0: int,
-                 first_line: int):
+    def __call__(self, base: np.ndarray, pad: int, nl: np.ndarray, line0: int, first_line: int):
         """Parts of the block ``base[pad:pad + nl[-1] + 1]`` (``nl``: its line feeds);
         ``base`` holds at least ``REACH`` bytes of padding on both sides."""
         if pad < REACH or len(base) - (pad + int(nl[-1]) + 1) < REACH:
             raise ValueError("block not padded for the bulk reader")
-        aligned = base[:len(base) // 8 * 8].view("<u8")
+        aligned = base[: len(base) // 8 * 8].view("<u8")
         for g0 in range(0, len(nl), GROUP_LINES):
             g1 = min(g0 + GROUP_LINES, len(nl))
             le = nl[g0:g1] + pad
@@ -143,11 +156,10 @@ class CandumpScanner:
         sub = parse_lines(Buf(base[lo:hi]), ls[slow] - lo, le[slow] - lo, lineno[slow])
         return _merge(fast, sub)
 
-
     def _new_layout(self, base, ls, le, todo) -> Layout | None:
         """A layout not yet known, from one of the first lines left over (None if none)."""
         for i in todo[:LAYOUT_CANDIDATES].tolist():
-            lay = learn_layout(base[ls[i]:le[i]].tobytes())
+            lay = learn_layout(base[ls[i] : le[i]].tobytes())
             if lay is not None and lay not in self.layouts:
                 return lay
         return None
@@ -176,17 +188,30 @@ def _join_fixed(fx, n: int, ok: np.ndarray, lineno: np.ndarray) -> Chunk:
         else:
             cols = tuple(c[ok] for c in (f.t_s, f.name, f.arb_id, f.ext, f.dlc, f.data, lineno))
     else:
-        full: tuple[np.ndarray, ...] = (np.zeros(n), np.zeros(n, np.uint64), np.zeros(n, np.uint32),
-                                        np.zeros(n, bool), np.zeros(n, np.uint8),
-                                        np.zeros(n, np.uint64))
+        full: tuple[np.ndarray, ...] = (
+            np.zeros(n),
+            np.zeros(n, np.uint64),
+            np.zeros(n, np.uint32),
+            np.zeros(n, bool),
+            np.zeros(n, np.uint8),
+            np.zeros(n, np.uint64),
+        )
         for rows, f in fx:
             idx = np.arange(n)[rows][f.ok]
             for dst, src in zip(full, (f.t_s, f.name, f.arb_id, f.ext, f.dlc, f.data)):
                 dst[idx] = src[f.ok]
         cols = tuple(c[ok] for c in full) + (lineno[ok],)
     t, name, arb, ext, dlc, data, where = cols
-    return Chunk(t, np.ascontiguousarray(name).view(np.uint8).reshape(-1, 8), arb, ext, dlc,
-                 np.ascontiguousarray(data).view(np.uint8).reshape(-1, 8), where, {})
+    return Chunk(
+        t,
+        np.ascontiguousarray(name).view(np.uint8).reshape(-1, 8),
+        arb,
+        ext,
+        dlc,
+        np.ascontiguousarray(data).view(np.uint8).reshape(-1, 8),
+        where,
+        {},
+    )
 
 
 def _merge(a: Chunk, b: Chunk) -> Chunk:
@@ -205,5 +230,13 @@ def _merge(a: Chunk, b: Chunk) -> Chunk:
             x, y = (np.pad(z, ((0, 0), (0, m - z.shape[1]))) for z in (x, y))
         return np.concatenate([x, y])[order]
 
-    return Chunk(cat(a.t, b.t), cat(a.bus, b.bus), cat(a.arb_id, b.arb_id), cat(a.ext, b.ext),
-                 cat(a.dlc, b.dlc), cat(a.data, b.data), cat(a.where, b.where), b.skipped)
+    return Chunk(
+        cat(a.t, b.t),
+        cat(a.bus, b.bus),
+        cat(a.arb_id, b.arb_id),
+        cat(a.ext, b.ext),
+        cat(a.dlc, b.dlc),
+        cat(a.data, b.data),
+        cat(a.where, b.where),
+        b.skipped,
+    )

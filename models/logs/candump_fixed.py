@@ -19,6 +19,7 @@ the text.
 
 Imports only numpy and ``models.logs.textscan``/``models.logs.frames``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -64,10 +65,10 @@ def _bytemask(first: int, count: int) -> int:
 #: payload characters (0..16; 17 for any other count) -> mask of those characters in the
 #: first / second 8-character word, and nonzero where the count is no payload (odd, or 17)
 _CHARS_LO = np.array([_bytemask(0, min(n, 8)) for n in range(MAX_PAYLOAD_CHARS + 2)], np.uint64)
-_CHARS_HI = np.array([_bytemask(0, max(n - 8, 0)) for n in range(MAX_PAYLOAD_CHARS + 2)],
-                     np.uint64)
-_CHARS_BAD = np.array([n % 2 or n > MAX_PAYLOAD_CHARS for n in range(MAX_PAYLOAD_CHARS + 2)],
-                      np.uint64)
+_CHARS_HI = np.array([_bytemask(0, max(n - 8, 0)) for n in range(MAX_PAYLOAD_CHARS + 2)], np.uint64)
+_CHARS_BAD = np.array(
+    [n % 2 or n > MAX_PAYLOAD_CHARS for n in range(MAX_PAYLOAD_CHARS + 2)], np.uint64
+)
 
 
 @dataclass(frozen=True)
@@ -98,15 +99,19 @@ class Layout:
 def learn_layout(line: bytes) -> Layout | None:
     """The layout of ``line``, or None when it has none this module reads."""
     close = line.find(b")")
-    if not line.startswith(b"(") or close < 2 or line[close + 1:close + 2] != b" ":
+    if not line.startswith(b"(") or close < 2 or line[close + 1 : close + 2] != b" ":
         return None
     text = line[1:close]
     digits = text.replace(b".", b"", 1)
-    if (len(text) > MAX_TIME_CHARS or not digits.isdigit() or not digits.isascii()
-            or len(digits) > MAX_TIME_DIGITS):
+    if (
+        len(text) > MAX_TIME_CHARS
+        or not digits.isdigit()
+        or not digits.isascii()
+        or len(digits) > MAX_TIME_DIGITS
+    ):
         return None
     end = line.find(b" ", close + 2)
-    name = line[close + 2:end]
+    name = line[close + 2 : end]
     if end < 0 or not 1 <= len(name) <= MAX_NAME or not printable(name):
         return None
     return Layout(len(text), text.find(b"."), len(name))
@@ -195,8 +200,13 @@ class _Plan:
                 mask = _bytemask(pos, j + 1 - i)
                 parts.append((cols[i] - pos, None if mask == 0xFFFFFFFFFFFFFFFF else _U(mask)))
                 i = j + 1
-            self.digit_words.append((parts, _U(_M30 & _U(_bytemask(0, fill))) if fill else None,
-                                     np.int64(10 ** (len(cols) - hi))))
+            self.digit_words.append(
+                (
+                    parts,
+                    _U(_M30 & _U(_bytemask(0, fill))) if fill else None,
+                    np.int64(10 ** (len(cols) - hi)),
+                )
+            )
 
 
 def _digits(plan: _Plan, lw: _LineWords, err: np.ndarray) -> np.ndarray:
@@ -223,8 +233,10 @@ def _digits(plan: _Plan, lw: _LineWords, err: np.ndarray) -> np.ndarray:
             bad |= y
         # pairs, then quadruples, then all eight (most significant digit in the lowest byte)
         x = x * _U(10) + (x >> _U(8))
-        x = ((((x & _U(0x000000FF000000FF)) * _U(100 + (1000000 << 32)))
-              + (((x >> _U(16)) & _U(0x000000FF000000FF)) * _U(1 + (10000 << 32)))) >> _U(32))
+        x = (
+            ((x & _U(0x000000FF000000FF)) * _U(100 + (1000000 << 32)))
+            + (((x >> _U(16)) & _U(0x000000FF000000FF)) * _U(1 + (10000 << 32)))
+        ) >> _U(32)
         x = x.view(np.int64)
         if value is None:
             value = x
@@ -243,10 +255,10 @@ def _hex_nibbles(x: np.ndarray):
     x7 = x & _M7F
     ascii_ = ~x
     ascii_ &= _M80
-    digit = x7 + _M50                                       # '0'..'9'
+    digit = x7 + _M50  # '0'..'9'
     digit &= ~(x7 + _M46)
     x7 |= _M20
-    alpha: np.ndarray = x7 + _M1F                           # 'a'..'f' or 'A'..'F'
+    alpha: np.ndarray = x7 + _M1F  # 'a'..'f' or 'A'..'F'
     alpha &= ~(x7 + _M19)
     alpha &= ascii_
     digit |= alpha
@@ -276,20 +288,21 @@ class Fixed:
     """What :func:`parse_fixed` read: per line of the group, ``ok`` and the frame's columns
     (meaningful where ``ok``)."""
 
-    ok: np.ndarray       # bool
-    t_s: np.ndarray      # float64
-    name: np.ndarray     # uint64: the interface name's bytes, zero padded
-    arb_id: np.ndarray   # uint32
-    ext: np.ndarray      # bool
-    dlc: np.ndarray      # uint8
-    data: np.ndarray     # uint64: the payload's 8 bytes (little-endian), zero padded
+    ok: np.ndarray  # bool
+    t_s: np.ndarray  # float64
+    name: np.ndarray  # uint64: the interface name's bytes, zero padded
+    arb_id: np.ndarray  # uint32
+    ext: np.ndarray  # bool
+    dlc: np.ndarray  # uint8
+    data: np.ndarray  # uint64: the payload's 8 bytes (little-endian), zero padded
 
 
 _PLANS: dict[Layout, _Plan] = {}
 
 
-def parse_fixed(lay: Layout, aligned: np.ndarray, base: np.ndarray, start: np.ndarray,
-                end: np.ndarray) -> Fixed:
+def parse_fixed(
+    lay: Layout, aligned: np.ndarray, base: np.ndarray, start: np.ndarray, end: np.ndarray
+) -> Fixed:
     """Read the lines [start, end) (positions in ``base``, the padded buffer whose first
     ``len(aligned) * 8`` bytes ``aligned`` views as uint64) that have layout ``lay``."""
     plan = _PLANS.get(lay)
@@ -355,8 +368,11 @@ def parse_fixed(lay: Layout, aligned: np.ndarray, base: np.ndarray, start: np.nd
         t = nval.astype(np.float64)
         t /= POW10_F[lay.decimals]
     else:
-        t = exact_quotient(nval, np.full(len(start), lay.decimals),
-                           lambda i: base[start[i] + 1:start[i] + 1 + tc].tobytes().decode())
+        t = exact_quotient(
+            nval,
+            np.full(len(start), lay.decimals),
+            lambda i: base[start[i] + 1 : start[i] + 1 + tc].tobytes().decode(),
+        )
     return Fixed(ok, t, name, idval, ext, (count >> 1).astype(np.uint8), data)
 
 

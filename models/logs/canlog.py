@@ -28,6 +28,7 @@ no usable frame or an unknown format raises :class:`~models.errors.InputError` n
 ``FrameTable.bus`` is the number at the end of the interface name (``can1`` -> 1, ``vcan0`` -> 0);
 a name without a number, or whose number another name already took, gets the next free number.
 """
+
 from __future__ import annotations
 
 import zlib
@@ -48,9 +49,14 @@ from hmpc.models.logs.textscan import SKIP_ERROR_FRAME, SKIP_MALFORMED, SKIP_REM
 #: formats read by hmpc's own vectorised text readers
 TEXT_FORMATS = ("candump", "libpanda")
 #: formats read through python-can's readers -> (reader class name, binary file?)
-PYTHON_CAN_FORMATS = {"asc": ("ASCReader", False), "blf": ("BLFReader", True),
-                      "trc": ("TRCReader", False), "csv": ("CSVReader", False),
-                      "mf4": ("MF4Reader", True), "sqlite": ("SqliteReader", True)}
+PYTHON_CAN_FORMATS = {
+    "asc": ("ASCReader", False),
+    "blf": ("BLFReader", True),
+    "trc": ("TRCReader", False),
+    "csv": ("CSVReader", False),
+    "mf4": ("MF4Reader", True),
+    "sqlite": ("SqliteReader", True),
+}
 FORMATS = TEXT_FORMATS + tuple(PYTHON_CAN_FORMATS)
 _SUFFIX_FORMAT = {".asc": "asc", ".blf": "blf", ".trc": "trc", ".mf4": "mf4", ".db": "sqlite"}
 
@@ -71,8 +77,14 @@ CHUNK_BYTES = 8 * 1024 * 1024
 
 
 # ----------------------------------------------------------------------------- entry point
-def read_log(path, problems: Problems, *, fmt: str | None = None, jump_s: float = 1.0,
-             chunk_bytes: int = CHUNK_BYTES) -> FrameTable:
+def read_log(
+    path,
+    problems: Problems,
+    *,
+    fmt: str | None = None,
+    jump_s: float = 1.0,
+    chunk_bytes: int = CHUNK_BYTES,
+) -> FrameTable:
     """Read a CAN log into a :class:`FrameTable`, sorted by time.
 
     Args:
@@ -92,13 +104,26 @@ def read_log(path, problems: Problems, *, fmt: str | None = None, jump_s: float 
     """
     p, gz, head, fmt = _resolve(path, fmt)
     if fmt == "candump":
-        table = _read_text(p, gz, problems, CandumpScanner(), first_line=1,
-                           chunk_bytes=chunk_bytes, what="candump -L")
+        table = _read_text(
+            p,
+            gz,
+            problems,
+            CandumpScanner(),
+            first_line=1,
+            chunk_bytes=chunk_bytes,
+            what="candump -L",
+        )
     elif fmt == "libpanda":
         cols, header_lines = _libpanda_columns(p, head)
-        table = _read_text(p, gz, problems, LibpandaChunkParser(cols).scan,
-                           first_line=1 + header_lines, chunk_bytes=chunk_bytes,
-                           what="libpanda CSV")
+        table = _read_text(
+            p,
+            gz,
+            problems,
+            LibpandaChunkParser(cols).scan,
+            first_line=1 + header_lines,
+            chunk_bytes=chunk_bytes,
+            what="libpanda CSV",
+        )
     else:
         table = _read_python_can(p, gz, fmt, problems)
     return _clock_checks(table, problems, jump_s)
@@ -181,24 +206,34 @@ def _detect_format(p: Path, gz: bool, head: bytes) -> str:
     if _looks_python_can_csv(head):
         return "csv"
     if suffix == ".csv":
-        raise InputError("unknown log format: a .csv file whose header is neither libpanda's "
-                         "'Time,Bus,MessageID,Message' nor python-can's "
-                         "'timestamp,arbitration_id,...'", str(p), line=1)
-    raise InputError(f"unknown log format (suffix {suffix or 'none'!r}); hmpc reads candump -L, "
-                     "libpanda CSV and python-can's .asc/.blf/.trc/.csv/.mf4/.db, optionally .gz",
-                     str(p))
+        raise InputError(
+            "unknown log format: a .csv file whose header is neither libpanda's "
+            "'Time,Bus,MessageID,Message' nor python-can's "
+            "'timestamp,arbitration_id,...'",
+            str(p),
+            line=1,
+        )
+    raise InputError(
+        f"unknown log format (suffix {suffix or 'none'!r}); hmpc reads candump -L, "
+        "libpanda CSV and python-can's .asc/.blf/.trc/.csv/.mf4/.db, optionally .gz",
+        str(p),
+    )
 
 
 # ----------------------------------------------------------------------------- text readers
 #: why a text parser skipped a line -> the problem kind reported
-_SKIP_KIND = {SKIP_MALFORMED: KIND_MALFORMED, SKIP_REMOTE: KIND_REMOTE,
-              SKIP_ERROR_FRAME: KIND_ERROR_FRAME}
+_SKIP_KIND = {
+    SKIP_MALFORMED: KIND_MALFORMED,
+    SKIP_REMOTE: KIND_REMOTE,
+    SKIP_ERROR_FRAME: KIND_ERROR_FRAME,
+}
 #: the frame columns are first sized for this many times the lines the first block promises
 _CAPACITY_MARGIN = 1.05
 
 
-def _read_text(p: Path, gz: bool, problems: Problems, scan, *, first_line: int,
-               chunk_bytes: int, what: str) -> FrameTable:
+def _read_text(
+    p: Path, gz: bool, problems: Problems, scan, *, first_line: int, chunk_bytes: int, what: str
+) -> FrameTable:
     """Read a text log block by block; ``scan(base, pad, nl, line0, first_line)`` yields each
     block's frames as parts in line order (``models.logs.candump``/``libpanda``)."""
     spath = str(p)
@@ -227,17 +262,27 @@ def _read_text(p: Path, gz: bool, problems: Problems, scan, *, first_line: int,
     for kind in DROPPED_KINDS:
         if kind in skipped:
             lines = np.concatenate(skipped[kind])
-            problems.add(kind, spath, lines[:Problems.MAX_FIRST], count=len(lines),
-                         detail=f"not a valid {what} line" if kind == KIND_MALFORMED else "")
+            problems.add(
+                kind,
+                spath,
+                lines[: Problems.MAX_FIRST],
+                count=len(lines),
+                detail=f"not a valid {what} line" if kind == KIND_MALFORMED else "",
+            )
     if cut_at:
-        problems.add(KIND_TRUNCATED, spath, line0 + first_line - 1,
-                     detail=f"after {cut_at[0]} bytes of text, in line {line0 + first_line - 1}")
+        problems.add(
+            KIND_TRUNCATED,
+            spath,
+            line0 + first_line - 1,
+            detail=f"after {cut_at[0]} bytes of text, in line {line0 + first_line - 1}",
+        )
     table = sink.table(spath) if sink is not None else FrameTable.empty(spath)
     if len(table) == 0:
         bad = skipped.get(KIND_MALFORMED)
         first = int(np.concatenate(bad)[0]) if bad else None
-        raise InputError(f"no usable CAN frame: not a {what} log, or every line is malformed",
-                         spath, line=first)
+        raise InputError(
+            f"no usable CAN frame: not a {what} log, or every line is malformed", spath, line=first
+        )
     return table
 
 
@@ -251,10 +296,12 @@ def _libpanda_columns(p: Path, head: bytes):
     names = [c.strip().decode("ascii", "replace") for c in _first_line(head).split(b",")]
     missing = [c for c in ("Time", "Bus", "MessageID", "Message") if c not in names]
     if missing:
-        raise InputError(f"libpanda CSV header lacks column(s) {', '.join(missing)}", str(p),
-                         line=nblank + 1)
-    cols: dict[str, int | None] = {c: names.index(c)
-                                   for c in ("Time", "Bus", "MessageID", "Message")}
+        raise InputError(
+            f"libpanda CSV header lacks column(s) {', '.join(missing)}", str(p), line=nblank + 1
+        )
+    cols: dict[str, int | None] = {
+        c: names.index(c) for c in ("Time", "Bus", "MessageID", "Message")
+    }
     cols["MessageLength"] = names.index("MessageLength") if "MessageLength" in names else None
     cols["ncols"] = len(names)
     return cols, nblank + 1
@@ -272,7 +319,7 @@ class _BusMapper:
             text = name.decode("latin-1")
             digits = len(text) - len(text.rstrip("0123456789"))
             taken = set(self.names.values())
-            if digits and int(text[-digits:]) not in taken and int(text[-digits:]) < 2 ** 15:
+            if digits and int(text[-digits:]) not in taken and int(text[-digits:]) < 2**15:
                 num = int(text[-digits:])
             else:
                 num = max(taken | {-1}) + 1
@@ -322,8 +369,9 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
     try:
         if gz:
             if fmt == "sqlite":
-                raise InputError("a gzip-compressed sqlite log cannot be read; decompress it",
-                                 spath)
+                raise InputError(
+                    "a gzip-compressed sqlite log cannot be read; decompress it", spath
+                )
             fh = open_binary(p, True) if binary else open_text(p, errors="replace")
             reader = cls(fh, **kwargs)
         elif fmt == "blf":  # python-can's BLFReader leaves the file it opens open on a bad header
@@ -360,8 +408,11 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
     except ImportError as exc:
         raise InputError(f"reading {fmt} files needs an extra package: {exc}", spath) from None
     except Exception as exc:  # python-can's readers raise many types on corrupt files
-        raise InputError(f"python-can's {cls_name} failed after {frame_no} frames: "
-                         f"{type(exc).__name__}: {exc}", spath, frame=frame_no + 1) from None
+        raise InputError(
+            f"python-can's {cls_name} failed after {frame_no} frames: {type(exc).__name__}: {exc}",
+            spath,
+            frame=frame_no + 1,
+        ) from None
     finally:
         if reader is not None:
             reader.stop()  # closes the file the reader opened, also after a failure
@@ -370,17 +421,21 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
     gzr = getattr(getattr(fh, "buffer", None), "raw", fh)
     if getattr(gzr, "truncated", False):
         assert gzr is not None
-        problems.add(KIND_TRUNCATED, spath, frame_no,
-                     detail=f"after {gzr.text_bytes} bytes of text, after frame {frame_no}")
-    problems.add(KIND_REMOTE, spath, remote[:Problems.MAX_FIRST], count=len(remote))
-    problems.add(KIND_ERROR_FRAME, spath, errf[:Problems.MAX_FIRST], count=len(errf))
+        problems.add(
+            KIND_TRUNCATED,
+            spath,
+            frame_no,
+            detail=f"after {gzr.text_bytes} bytes of text, after frame {frame_no}",
+        )
+    problems.add(KIND_REMOTE, spath, remote[: Problems.MAX_FIRST], count=len(remote))
+    problems.add(KIND_ERROR_FRAME, spath, errf[: Problems.MAX_FIRST], count=len(errf))
     if not t:
         raise InputError(f"no usable CAN frame in this {fmt} log", spath)
     # bus numbers: int channels as they are, names by their trailing number
     mapper = _BusMapper()
     busmap = {}
     for ch in names:
-        if isinstance(ch, (int, np.integer)) and not isinstance(ch, bool) and 0 <= ch < 2 ** 15:
+        if isinstance(ch, (int, np.integer)) and not isinstance(ch, bool) and 0 <= ch < 2**15:
             busmap[ch] = mapper.names[b"\0int%d" % ch] = int(ch)
     for ch in names:
         if ch not in busmap:
@@ -388,10 +443,17 @@ def _read_python_can(p: Path, gz: bool, fmt: str, problems: Problems) -> FrameTa
     width = max(8, max(len(d) for d in payloads))
     table = np.zeros((len(payloads), width), np.uint8)
     for i, d in enumerate(payloads):
-        table[i, :len(d)] = np.frombuffer(d, np.uint8)
-    return FrameTable(np.asarray(t, np.float64), np.asarray([busmap[c] for c in bus], np.int16),
-                      np.asarray(arb, np.uint32), np.asarray(ext, bool),
-                      np.asarray(dlc, np.uint8), table, np.asarray(where, np.int64), spath)
+        table[i, : len(d)] = np.frombuffer(d, np.uint8)
+    return FrameTable(
+        np.asarray(t, np.float64),
+        np.asarray([busmap[c] for c in bus], np.int16),
+        np.asarray(arb, np.uint32),
+        np.asarray(ext, bool),
+        np.asarray(dlc, np.uint8),
+        table,
+        np.asarray(where, np.int64),
+        spath,
+    )
 
 
 # ----------------------------------------------------------------------------- clock checks
@@ -407,16 +469,26 @@ def _clock_checks(ft: FrameTable, problems: Problems, jump_s: float) -> FrameTab
     spath = ft.path
     if not np.all(np.isfinite(ft.t_s)):
         bad = ~np.isfinite(ft.t_s)
-        problems.add(KIND_MALFORMED, spath, ft.where[bad][:Problems.MAX_FIRST],
-                     count=int(bad.sum()), detail="timestamp is not a finite number")
+        problems.add(
+            KIND_MALFORMED,
+            spath,
+            ft.where[bad][: Problems.MAX_FIRST],
+            count=int(bad.sum()),
+            detail="timestamp is not a finite number",
+        )
         ft = ft.take(~bad)
         if len(ft) == 0:
             raise InputError("no frame with a finite timestamp", spath)
     steps = _Steps(ft.t_s, jump_s)
     if len(steps.back):
         assert steps.dt_min is not None  # a step back is a negative step
-        problems.add(KIND_BACKWARDS, spath, ft.where[steps.back[:Problems.MAX_FIRST]],
-                     count=len(steps.back), detail=f"largest step back {-steps.dt_min:.6g} s")
+        problems.add(
+            KIND_BACKWARDS,
+            spath,
+            ft.where[steps.back[: Problems.MAX_FIRST]],
+            count=len(steps.back),
+            detail=f"largest step back {-steps.dt_min:.6g} s",
+        )
         order = np.argsort(ft.t_s, kind="stable")
         ft = ft.take(order)
         steps = _Steps(ft.t_s, jump_s)
@@ -424,16 +496,25 @@ def _clock_checks(ft: FrameTable, problems: Problems, jump_s: float) -> FrameTab
     if len(steps.same):
         drop = _duplicates(ft, steps.same)
         if len(drop):
-            problems.add(KIND_DUPLICATE, spath, np.sort(ft.where[drop])[:Problems.MAX_FIRST],
-                         count=len(drop))
+            problems.add(
+                KIND_DUPLICATE,
+                spath,
+                np.sort(ft.where[drop])[: Problems.MAX_FIRST],
+                count=len(drop),
+            )
             keep = np.ones(len(ft), bool)
             keep[drop] = False
             ft = ft.take(keep)
             steps = _Steps(ft.t_s, jump_s)
     if len(steps.jumps):
-        problems.add(KIND_JUMP, spath, ft.where[steps.jumps[:Problems.MAX_FIRST]],
-                     count=len(steps.jumps), detail=f"gap between consecutive frames over "
-                                                    f"{jump_s:g} s, largest {steps.dt_max:.6g} s")
+        problems.add(
+            KIND_JUMP,
+            spath,
+            ft.where[steps.jumps[: Problems.MAX_FIRST]],
+            count=len(steps.jumps),
+            detail=f"gap between consecutive frames over "
+            f"{jump_s:g} s, largest {steps.dt_max:.6g} s",
+        )
     return ft
 
 
@@ -450,7 +531,7 @@ class _Steps:
         buf = np.empty(min(max(n, 0), _CHECK_ROWS))
         for a in range(0, n, _CHECK_ROWS):
             b = min(a + _CHECK_ROWS, n)
-            d = np.subtract(t[a + 1:b + 1], t[a:b], out=buf[:b - a])
+            d = np.subtract(t[a + 1 : b + 1], t[a:b], out=buf[: b - a])
             lo, hi = d.min(), d.max()
             if lo < 0:
                 back.append(np.flatnonzero(d < 0) + (a + 1))
@@ -461,8 +542,9 @@ class _Steps:
             self.dt_min = lo if self.dt_min is None else min(self.dt_min, lo)
             self.dt_max = hi if self.dt_max is None else max(self.dt_max, hi)
         empty = np.zeros(0, np.int64)
-        self.back, self.same, self.jumps = (np.concatenate(x) if x else empty
-                                            for x in (back, same, jumps))
+        self.back, self.same, self.jumps = (
+            np.concatenate(x) if x else empty for x in (back, same, jumps)
+        )
 
 
 def _duplicates(ft: FrameTable, same: np.ndarray) -> np.ndarray:
@@ -502,7 +584,7 @@ def _streak_end(same: np.ndarray, end: int) -> int:
     """The first index at or after ``end`` that starts a new streak of ``same`` (or its end)."""
     m = len(same)
     while end < m:
-        w = same[end - 1:end + 1023]
+        w = same[end - 1 : end + 1023]
         brk = np.flatnonzero(w[1:] != w[:-1] + 1)
         if len(brk):
             return end + int(brk[0])
@@ -512,16 +594,18 @@ def _streak_end(same: np.ndarray, end: int) -> int:
 
 def _frame_hash(ft: FrameTable, rows: np.ndarray) -> np.ndarray:
     """A 64-bit hash of each row's bus, id, flags, length and payload (not its time)."""
-    h = (ft.arb_id.take(rows).astype(np.uint64)
-         | (ft.is_extended.take(rows).astype(np.uint64) << np.uint64(29))
-         | (ft.dlc.take(rows).astype(np.uint64) << np.uint64(32))
-         | (ft.bus.take(rows).astype(np.uint16).astype(np.uint64) << np.uint64(40)))
+    h = (
+        ft.arb_id.take(rows).astype(np.uint64)
+        | (ft.is_extended.take(rows).astype(np.uint64) << np.uint64(29))
+        | (ft.dlc.take(rows).astype(np.uint64) << np.uint64(32))
+        | (ft.bus.take(rows).astype(np.uint16).astype(np.uint64) << np.uint64(40))
+    )
     data = ft.data
     if data.shape[1] == 8 and data.flags.c_contiguous:
         words = data.view("<u8")[:, 0].take(rows)[:, None]
     else:
         padded = np.zeros((len(rows), -(-data.shape[1] // 8) * 8), np.uint8)
-        padded[:, :data.shape[1]] = data[rows]
+        padded[:, : data.shape[1]] = data[rows]
         words = padded.view("<u8")
     for j in range(words.shape[1]):
         h *= np.uint64(0x9E3779B97F4A7C15)
@@ -538,9 +622,12 @@ def _duplicates_exact(ft: FrameTable, cand: np.ndarray, long_runs: bool) -> np.n
     rows are sorted, time bytes included; otherwise each frame is compared with the frames
     before it in its run (no hashing either way)."""
     t = ft.t_s[cand]
-    meta = (ft.arb_id[cand].astype(np.uint64) | (ft.is_extended[cand].astype(np.uint64) << 29)
-            | (ft.dlc[cand].astype(np.uint64) << 32)
-            | (ft.bus[cand].astype(np.uint16).astype(np.uint64) << 40))
+    meta = (
+        ft.arb_id[cand].astype(np.uint64)
+        | (ft.is_extended[cand].astype(np.uint64) << 29)
+        | (ft.dlc[cand].astype(np.uint64) << 32)
+        | (ft.bus[cand].astype(np.uint16).astype(np.uint64) << 40)
+    )
     width = ft.data.shape[1]
     padded = np.zeros((len(cand), -(-width // 8) * 8), np.uint8)
     padded[:, :width] = ft.data[cand]
@@ -552,10 +639,10 @@ def _duplicates_exact(ft: FrameTable, cand: np.ndarray, long_runs: bool) -> np.n
     runlen = np.bincount(runid)
     dup = np.zeros(len(cand), bool)
     if long_runs:  # long runs of one timestamp: sort whole rows instead
-        key = np.concatenate([t.view(np.uint8).reshape(-1, 8), meta.view(np.uint8).reshape(-1, 8),
-                              padded], axis=1)
-        _, first = np.unique(key.view(np.dtype((np.void, key.shape[1]))).ravel(),
-                             return_index=True)
+        key = np.concatenate(
+            [t.view(np.uint8).reshape(-1, 8), meta.view(np.uint8).reshape(-1, 8), padded], axis=1
+        )
+        _, first = np.unique(key.view(np.dtype((np.void, key.shape[1]))).ravel(), return_index=True)
         dup[:] = True
         dup[first] = False
         return cand[dup]

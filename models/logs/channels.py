@@ -1,4 +1,5 @@
 """The canonical channels of a recording (docs/conventions.md), with their units."""
+
 from __future__ import annotations
 
 #: channel name -> unit, in the order columns are written.

@@ -5,6 +5,7 @@ decompressed; the text is parsed with ``cantools.database.load_string(text, data
 strict=False)`` (opendbc's DBCs hold overlapping mux-free signals that strict mode rejects;
 the data README prescribes ``strict=False``).
 """
+
 from __future__ import annotations
 
 import re
@@ -65,22 +66,34 @@ def load_dbc(path, *, strict: bool = False, lenient: bool = False, problems=None
     while True:
         try:
             # a DBC loads as a CAN database (load_string's other result type is for CDD files)
-            db = cast(cantools.database.can.Database,
-                      cantools.database.load_string("\n".join(lines), database_format="dbc",
-                                                    strict=strict))
+            db = cast(
+                cantools.database.can.Database,
+                cantools.database.load_string(
+                    "\n".join(lines), database_format="dbc", strict=strict
+                ),
+            )
             break
         # cantools raises ParseError, ValueError, KeyError, ... on bad DBCs
         except Exception as exc:
             msg = " ".join(str(exc).split())
             m = re.search(r"line (\d+)", msg)
             line = int(m.group(1)) if m else None
-            if not lenient or line is None or not 1 <= line <= len(lines) \
-                    or not lines[line - 1].strip() or skipped >= MAX_SKIPPED_LINES:
+            if (
+                not lenient
+                or line is None
+                or not 1 <= line <= len(lines)
+                or not lines[line - 1].strip()
+                or skipped >= MAX_SKIPPED_LINES
+            ):
                 hint = "" if lenient else " (--dbc-lenient skips such lines, reporting each)"
                 raise InputError(f"not a valid DBC: {msg}{hint}", spath, line=line) from None
             if problems is not None:
-                problems.add(f"DBC line {line} skipped (--dbc-lenient: cantools cannot parse it)",
-                             spath, line, detail=f"{lines[line - 1].strip()[:80]!r}: {msg}")
+                problems.add(
+                    f"DBC line {line} skipped (--dbc-lenient: cantools cannot parse it)",
+                    spath,
+                    line,
+                    detail=f"{lines[line - 1].strip()[:80]!r}: {msg}",
+                )
             lines[line - 1] = ""  # keep the numbering of the lines after it
             skipped += 1
     if not db.messages:

@@ -25,6 +25,7 @@ reported (kind :data:`KIND_SHORT`); longer payloads decode the DBC's bytes and a
 not an error); frames cantools cannot decode are skipped and reported (:data:`KIND_UNDECODABLE`).
 Asking for a message the DBC does not define raises :class:`InputError`.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -74,8 +75,15 @@ class DecodedMessage:
         return int(self.t_s.shape[0])
 
 
-def decode_frames(frames: FrameTable, db, problems: Problems, *, names=None, buses=None,
-                  dbc_path: str | None = None) -> dict[str, DecodedMessage]:
+def decode_frames(
+    frames: FrameTable,
+    db,
+    problems: Problems,
+    *,
+    names=None,
+    buses=None,
+    dbc_path: str | None = None,
+) -> dict[str, DecodedMessage]:
     """Decode frames with a cantools database, vectorised per message.
 
     Args:
@@ -96,8 +104,15 @@ def decode_frames(frames: FrameTable, db, problems: Problems, *, names=None, bus
     return _decode(frames, db, problems, names, buses, dbc_path, fast=True)
 
 
-def decode_frames_cantools(frames: FrameTable, db, problems: Problems, *, names=None,
-                           buses=None, dbc_path: str | None = None) -> dict[str, DecodedMessage]:
+def decode_frames_cantools(
+    frames: FrameTable,
+    db,
+    problems: Problems,
+    *,
+    names=None,
+    buses=None,
+    dbc_path: str | None = None,
+) -> dict[str, DecodedMessage]:
     """Same as :func:`decode_frames`, decoding every frame with ``db.decode_message``."""
     return _decode(frames, db, problems, names, buses, dbc_path, fast=False)
 
@@ -185,22 +200,25 @@ def _decode(frames, db, problems, names, buses, dbc_path, fast):
         rows = np.flatnonzero((block != 0) & (block != _OFF_BUS))
         kcode = block[rows]
         order = np.argsort(kcode, kind="stable")
-        bounds = np.concatenate([[0],
-                                 np.cumsum(np.bincount(kcode, minlength=len(db.messages) + 1)[1:])])
+        bounds = np.concatenate(
+            [[0], np.cumsum(np.bincount(kcode, minlength=len(db.messages) + 1)[1:])]
+        )
         known = _Rows.take(frames, rows[order] + lo)
         for i in wanted:
             a, b = int(bounds[i]), int(bounds[i + 1])
             if b > a:
-                pieces[i].append(_decode_message(known.slice(a, b), db.messages[i], problems,
-                                                 plans[i]))
+                pieces[i].append(
+                    _decode_message(known.slice(a, b), db.messages[i], problems, plans[i])
+                )
     out: dict[str, DecodedMessage] = {}
     for i in wanted:
         msg = db.messages[i]
         if not pieces[i].n_pieces:
             if names is None:
                 continue
-            pieces[i].append(_decode_message(_Rows.take(frames, np.zeros(0, np.int64)), msg,
-                                             problems, plans[i]))
+            pieces[i].append(
+                _decode_message(_Rows.take(frames, np.zeros(0, np.int64)), msg, problems, plans[i])
+            )
         out[msg.name] = pieces[i].joined()
     return out
 
@@ -221,17 +239,20 @@ class _Pieces:
             return
         if self.cols is None:  # a second piece: start the joined columns with the first
             f = self.first
-            self.cols = {k: np.empty(self.capacity, v.dtype) for k, v in
-                         [("t_s", f.t_s), ("bus", f.bus), ("where", f.where)]
-                         + [(("s", name), v) for name, v in f.signals.items()]}
+            self.cols = {
+                k: np.empty(self.capacity, v.dtype)
+                for k, v in [("t_s", f.t_s), ("bus", f.bus), ("where", f.where)]
+                + [(("s", name), v) for name, v in f.signals.items()]
+            }
             self._put(f)
         self._put(piece)
 
     def _put(self, p: DecodedMessage) -> None:
         a, b = self.n, self.n + len(p)
         assert self.cols is not None  # allocated by append
-        for k, v in [("t_s", p.t_s), ("bus", p.bus), ("where", p.where)] \
-                + [(("s", name), v) for name, v in p.signals.items()]:
+        for k, v in [("t_s", p.t_s), ("bus", p.bus), ("where", p.where)] + [
+            (("s", name), v) for name, v in p.signals.items()
+        ]:
             self.cols[k][a:b] = v
         self.n = b
 
@@ -240,8 +261,14 @@ class _Pieces:
         if self.cols is None:
             return self.first
         f, c, n = self.first, self.cols, self.n
-        return DecodedMessage(f.name, f.frame_id, c["t_s"][:n], c["bus"][:n], c["where"][:n],
-                              {name: c[("s", name)][:n] for name in f.signals})
+        return DecodedMessage(
+            f.name,
+            f.frame_id,
+            c["t_s"][:n],
+            c["bus"][:n],
+            c["where"][:n],
+            {name: c[("s", name)][:n] for name in f.signals},
+        )
 
 
 def _first_true(mask: np.ndarray, n: int) -> np.ndarray:
@@ -250,7 +277,7 @@ def _first_true(mask: np.ndarray, n: int) -> np.ndarray:
     start = 0
     found: list = []
     while start < len(mask) and len(found) < n:
-        found.extend((start + np.flatnonzero(mask[start:start + step])).tolist())
+        found.extend((start + np.flatnonzero(mask[start : start + step])).tolist())
         start += step
         step *= 4
     return np.asarray(found[:n], dtype=np.int64)
@@ -264,16 +291,24 @@ def _report_unknown(frames: FrameTable, code: np.ndarray, problems: Problems) ->
         return
     arb, ext = frames.arb_id, frames.is_extended
     std = ~ext & (arb < _SFF_IDS)
-    std_ids = np.flatnonzero(np.bincount(arb[unknown & std], minlength=_SFF_IDS)) \
-        if n_unknown < len(code) // 4 else \
-        np.flatnonzero(np.bincount(arb & (_SFF_IDS - 1), weights=unknown & std, minlength=_SFF_IDS))
+    std_ids = (
+        np.flatnonzero(np.bincount(arb[unknown & std], minlength=_SFF_IDS))
+        if n_unknown < len(code) // 4
+        else np.flatnonzero(
+            np.bincount(arb & (_SFF_IDS - 1), weights=unknown & std, minlength=_SFF_IDS)
+        )
+    )
     other = unknown & ~std
     ukeys = np.concatenate([std_ids, np.unique(arb[other]) if other.any() else []]).astype(np.int64)
     shown = ", ".join(f"0x{int(k):X}" for k in ukeys[:8])
-    problems.add(KIND_UNKNOWN_ID, frames.path,
-                 frames.where[_first_true(unknown, Problems.MAX_FIRST)], count=n_unknown,
-                 detail=f"{len(ukeys)} distinct id(s): {shown}{' ...' if len(ukeys) > 8 else ''}",
-                 info=True)  # normal on any real bus: information, not a problem
+    problems.add(
+        KIND_UNKNOWN_ID,
+        frames.path,
+        frames.where[_first_true(unknown, Problems.MAX_FIRST)],
+        count=n_unknown,
+        detail=f"{len(ukeys)} distinct id(s): {shown}{' ...' if len(ukeys) > 8 else ''}",
+        info=True,
+    )  # normal on any real bus: information, not a problem
 
 
 @dataclass
@@ -284,7 +319,7 @@ class _Rows:
     bus: np.ndarray
     where: np.ndarray
     dlc: np.ndarray
-    data: np.ndarray   # (n, width) uint8
+    data: np.ndarray  # (n, width) uint8
     path: str
 
     def __len__(self) -> int:
@@ -297,16 +332,34 @@ class _Rows:
             data = frames.data.view("<u8")[:, 0][rows].view(np.uint8).reshape(-1, 8)
         else:
             data = frames.data[rows]
-        return cls(frames.t_s[rows], frames.bus[rows], frames.where[rows], frames.dlc[rows],
-                   data, frames.path)
+        return cls(
+            frames.t_s[rows],
+            frames.bus[rows],
+            frames.where[rows],
+            frames.dlc[rows],
+            data,
+            frames.path,
+        )
 
     def slice(self, lo: int, hi: int) -> _Rows:
-        return _Rows(self.t_s[lo:hi], self.bus[lo:hi], self.where[lo:hi], self.dlc[lo:hi],
-                     self.data[lo:hi], self.path)
+        return _Rows(
+            self.t_s[lo:hi],
+            self.bus[lo:hi],
+            self.where[lo:hi],
+            self.dlc[lo:hi],
+            self.data[lo:hi],
+            self.path,
+        )
 
     def mask(self, keep: np.ndarray) -> _Rows:
-        return _Rows(self.t_s[keep], self.bus[keep], self.where[keep], self.dlc[keep],
-                     self.data[keep], self.path)
+        return _Rows(
+            self.t_s[keep],
+            self.bus[keep],
+            self.where[keep],
+            self.dlc[keep],
+            self.data[keep],
+            self.path,
+        )
 
 
 # ----------------------------------------------------------------------------- one message
@@ -316,15 +369,23 @@ def _decode_message(part: _Rows, msg, problems: Problems, plan) -> DecodedMessag
     length = int(msg.length)
     short = part.dlc < length
     if short.any():
-        problems.add(KIND_SHORT, path, part.where[short][:Problems.MAX_FIRST],
-                     count=int(short.sum()),
-                     detail=f"{msg.name} (0x{msg.frame_id:X}) needs {length} bytes")
+        problems.add(
+            KIND_SHORT,
+            path,
+            part.where[short][: Problems.MAX_FIRST],
+            count=int(short.sum()),
+            detail=f"{msg.name} (0x{msg.frame_id:X}) needs {length} bytes",
+        )
         part = part.mask(~short)
     long_ = part.dlc > length
     if long_.any():
-        problems.add(KIND_LONG, path, part.where[long_][:Problems.MAX_FIRST],
-                     count=int(long_.sum()),
-                     detail=f"{msg.name} (0x{msg.frame_id:X}) has {length} bytes in the DBC")
+        problems.add(
+            KIND_LONG,
+            path,
+            part.where[long_][: Problems.MAX_FIRST],
+            count=int(long_.sum()),
+            detail=f"{msg.name} (0x{msg.frame_id:X}) has {length} bytes in the DBC",
+        )
     if plan is not None and length <= 8 and part.data.shape[1] == 8:
         # one 8-byte word per frame; bytes past the DBC length are never read by a plan
         le = np.ascontiguousarray(part.data).view("<u8")[:, 0]
@@ -338,8 +399,13 @@ def _decode_message(part: _Rows, msg, problems: Problems, plan) -> DecodedMessag
         else:
             signals, ok = _decode_cantools(data, msg)
             if not ok.all():
-                problems.add(KIND_UNDECODABLE, path, part.where[~ok][:Problems.MAX_FIRST],
-                             count=int((~ok).sum()), detail=f"{msg.name} (0x{msg.frame_id:X})")
+                problems.add(
+                    KIND_UNDECODABLE,
+                    path,
+                    part.where[~ok][: Problems.MAX_FIRST],
+                    count=int((~ok).sum()),
+                    detail=f"{msg.name} (0x{msg.frame_id:X})",
+                )
                 signals = {k: v[ok] for k, v in signals.items()}
                 part = part.mask(ok)
     return DecodedMessage(msg.name, int(msg.frame_id), part.t_s, part.bus, part.where, signals)
@@ -370,21 +436,25 @@ class _SignalPlan:
     """How to read one signal from the message's 64-bit words (see :func:`_fast_plan`)."""
 
     name: str
-    window: int          # first payload byte of the 8-byte window
+    window: int  # first payload byte of the 8-byte window
     little: bool
-    shift: int           # right shift of the window word
-    length: int          # bits
+    shift: int  # right shift of the window word
+    length: int  # bits
     signed: bool
     is_float: bool
-    kind: str            # 'identity' | 'float' (raw*scale+offset) | 'int' (exact integer)
+    kind: str  # 'identity' | 'float' (raw*scale+offset) | 'int' (exact integer)
     scale: float | int
     offset: float | int
 
 
 def _fast_plan(msg):
     """A plan per signal, or None when the message needs cantools (mux, odd layouts)."""
-    from cantools.database.conversion import (IdentityConversion, LinearConversion,
-                                              LinearIntegerConversion, NamedSignalConversion)
+    from cantools.database.conversion import (
+        IdentityConversion,
+        LinearConversion,
+        LinearIntegerConversion,
+        NamedSignalConversion,
+    )
 
     if msg.is_multiplexed() or getattr(msg, "is_container", False):
         return None
@@ -400,7 +470,7 @@ def _fast_plan(msg):
         if conv.is_float and n not in (32, 64):
             return None
         if sig.byte_order == "little_endian":
-            first_bit = int(sig.start)           # LSB, counting from bit 0 of byte 0
+            first_bit = int(sig.start)  # LSB, counting from bit 0 of byte 0
             lo_byte, hi_byte = first_bit // 8, (first_bit + n - 1) // 8
         else:
             msb = (sig.start // 8) * 8 + (7 - sig.start % 8)  # network (stream) bit number
@@ -419,18 +489,30 @@ def _fast_plan(msg):
             kind, scale, offset = "identity", 1, 0
         elif isinstance(conv, LinearIntegerConversion):
             kind, scale, offset = "int", int(conv.scale), int(conv.offset)
-            if (2 ** n) * abs(scale) + abs(offset) >= 2 ** 62:
+            if (2**n) * abs(scale) + abs(offset) >= 2**62:
                 return None  # integer product could overflow int64
         elif isinstance(conv, LinearConversion):
             kind, scale, offset = "float", conv.scale, conv.offset
             if not isinstance(scale, (int, float)) or not isinstance(offset, (int, float)):
                 return None
-            if not conv.is_float and isinstance(scale, int) and (2 ** n) * abs(scale) >= 2 ** 53:
+            if not conv.is_float and isinstance(scale, int) and (2**n) * abs(scale) >= 2**53:
                 return None  # cantools multiplies exact Python ints; float64 could round here
         else:
             return None
-        plans.append(_SignalPlan(sig.name, window, little, shift, n, bool(sig.is_signed),
-                                 bool(conv.is_float), kind, scale, offset))
+        plans.append(
+            _SignalPlan(
+                sig.name,
+                window,
+                little,
+                shift,
+                n,
+                bool(sig.is_signed),
+                bool(conv.is_float),
+                kind,
+                scale,
+                offset,
+            )
+        )
     return plans
 
 
@@ -441,15 +523,16 @@ def _words(data: np.ndarray, window: int):
         block = np.ascontiguousarray(data)
     else:
         block = np.zeros((n, 8), np.uint8)
-        take = data[:, window:window + 8]
-        block[:, :take.shape[1]] = take
+        take = data[:, window : window + 8]
+        block[:, : take.shape[1]] = take
     le = block.view("<u8")[:, 0]
     be = block.view(">u8")[:, 0].astype(np.uint64)
     return le, be
 
 
-def _decode_fast(data: np.ndarray | None, plans,
-                 words: dict | None = None) -> dict[str, np.ndarray]:
+def _decode_fast(
+    data: np.ndarray | None, plans, words: dict | None = None
+) -> dict[str, np.ndarray]:
     """Signals from payload bytes ``data`` (n, length), or from prepared 8-byte ``words``.
 
     A signal occupies bits [shift, shift + length) of its 64-bit window word; shifting it
@@ -467,14 +550,20 @@ def _decode_fast(data: np.ndarray | None, plans,
         top = 64 - p.shift - p.length  # bits above the signal
         raw = word << np.uint64(top) if top else word
         if p.signed and not p.is_float:
-            value = raw.view(np.int64) >> np.int64(64 - p.length) if p.length < 64 \
+            value = (
+                raw.view(np.int64) >> np.int64(64 - p.length)
+                if p.length < 64
                 else raw.view(np.int64)
+            )
         else:
             value = raw >> np.uint64(64 - p.length) if p.length < 64 else raw
         if p.is_float:
             with np.errstate(invalid="ignore"):  # signalling NaNs widen quietly, as in Python
-                out[p.name] = (value.astype(np.uint32).view(np.float32) if p.length == 32
-                               else value.view(np.float64)).astype(np.float64)
+                out[p.name] = (
+                    value.astype(np.uint32).view(np.float32)
+                    if p.length == 32
+                    else value.view(np.float64)
+                ).astype(np.float64)
             if p.kind == "float":
                 out[p.name] *= p.scale
                 out[p.name] += p.offset

@@ -7,6 +7,7 @@ is read up to where it ends: ``truncated`` says so and ``text_bytes`` how far it
 reader can keep the frames before the cut and report where the log ends. Corrupt compressed
 data (not merely cut short) still raises ``zlib.error``.
 """
+
 from __future__ import annotations
 
 import io
@@ -53,9 +54,9 @@ class GzipReader(io.RawIOBase):
                 if not rest.strip(b"\x00"):
                     rest += self._raw.read(_RAW_CHUNK)
                     if not rest.strip(b"\x00"):
-                        self._done = True         # the last member ended cleanly
+                        self._done = True  # the last member ended cleanly
                         return
-                self._d = zlib.decompressobj(16 + zlib.MAX_WBITS)   # the next member
+                self._d = zlib.decompressobj(16 + zlib.MAX_WBITS)  # the next member
                 self._pending = self._d.decompress(rest, _RAW_CHUNK)
                 continue
             tail = self._d.unconsumed_tail
@@ -63,7 +64,7 @@ class GzipReader(io.RawIOBase):
             if not raw:
                 self._pending = self._d.flush()
                 self._done = True
-                self.truncated = True             # the file ended inside a member
+                self.truncated = True  # the file ended inside a member
                 return
             self._pending = self._d.decompress(raw, _RAW_CHUNK)
 
@@ -75,7 +76,7 @@ class GzipReader(io.RawIOBase):
             if not self._pending:
                 break
             k = min(len(view) - n, len(self._pending))
-            view[n:n + k] = self._pending[:k]
+            view[n : n + k] = self._pending[:k]
             self._pending = self._pending[k:]
             n += k
         self.text_bytes += n
@@ -95,11 +96,13 @@ def open_binary(path: str | Path, gz: bool | None = None):
     return GzipReader(path) if gz else open(path, "rb")
 
 
-def open_text(path: str | Path, *, encoding: str = "utf-8", errors: str = "strict",
-              newline: str | None = None):
+def open_text(
+    path: str | Path, *, encoding: str = "utf-8", errors: str = "strict", newline: str | None = None
+):
     """The file opened for reading text, decompressed when it is gzip."""
-    return io.TextIOWrapper(io.BufferedReader(open_binary(path)), encoding=encoding,
-                            errors=errors, newline=newline)
+    return io.TextIOWrapper(
+        io.BufferedReader(open_binary(path)), encoding=encoding, errors=errors, newline=newline
+    )
 
 
 def read_bytes(path: str | Path) -> bytes:

@@ -4,6 +4,7 @@ Readers (``models.logs.canlog``) produce a :class:`FrameTable`; decoders
 (``models.logs.decode``) consume it. Rows keep the 1-based line (text logs) or frame number
 (binary logs) of the source so every later problem can be reported where it came from.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -13,8 +14,8 @@ import numpy as np
 #: bytes stored per frame; CAN FD payloads of up to 64 bytes fit.
 MAX_PAYLOAD = 64
 CAN_ERR_FLAG = 0x20000000  # SocketCAN error-frame flag in the 32-bit id
-EFF_MASK = 0x1FFFFFFF      # 29-bit identifier
-SFF_MAX = 0x7FF            # 11-bit identifier
+EFF_MASK = 0x1FFFFFFF  # 29-bit identifier
+SFF_MAX = 0x7FF  # 11-bit identifier
 
 
 @dataclass
@@ -46,24 +47,48 @@ class FrameTable:
 
     @classmethod
     def empty(cls, path: str = "", width: int = 8) -> FrameTable:
-        return cls(np.zeros(0), np.zeros(0, np.int16), np.zeros(0, np.uint32),
-                   np.zeros(0, bool), np.zeros(0, np.uint8), np.zeros((0, width), np.uint8),
-                   np.zeros(0, np.int64), path)
+        return cls(
+            np.zeros(0),
+            np.zeros(0, np.int16),
+            np.zeros(0, np.uint32),
+            np.zeros(0, bool),
+            np.zeros(0, np.uint8),
+            np.zeros((0, width), np.uint8),
+            np.zeros(0, np.int64),
+            path,
+        )
 
     def take(self, idx) -> FrameTable:
         """Rows selected by a boolean mask or an index array."""
-        return FrameTable(self.t_s[idx], self.bus[idx], self.arb_id[idx], self.is_extended[idx],
-                          self.dlc[idx], self.data[idx], self.where[idx], self.path)
+        return FrameTable(
+            self.t_s[idx],
+            self.bus[idx],
+            self.arb_id[idx],
+            self.is_extended[idx],
+            self.dlc[idx],
+            self.data[idx],
+            self.where[idx],
+            self.path,
+        )
 
     @classmethod
     def concat(cls, parts: list[FrameTable]) -> FrameTable:
         if not parts:
             return cls.empty()
         width = max(p.data.shape[1] for p in parts)
-        datas = [p.data if p.data.shape[1] == width else
-                 np.pad(p.data, ((0, 0), (0, width - p.data.shape[1]))) for p in parts]
-        return cls(np.concatenate([p.t_s for p in parts]), np.concatenate([p.bus for p in parts]),
-                   np.concatenate([p.arb_id for p in parts]),
-                   np.concatenate([p.is_extended for p in parts]),
-                   np.concatenate([p.dlc for p in parts]), np.concatenate(datas),
-                   np.concatenate([p.where for p in parts]), parts[0].path)
+        datas = [
+            p.data
+            if p.data.shape[1] == width
+            else np.pad(p.data, ((0, 0), (0, width - p.data.shape[1])))
+            for p in parts
+        ]
+        return cls(
+            np.concatenate([p.t_s for p in parts]),
+            np.concatenate([p.bus for p in parts]),
+            np.concatenate([p.arb_id for p in parts]),
+            np.concatenate([p.is_extended for p in parts]),
+            np.concatenate([p.dlc for p in parts]),
+            np.concatenate(datas),
+            np.concatenate([p.where for p in parts]),
+            parts[0].path,
+        )

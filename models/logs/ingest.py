@@ -25,6 +25,7 @@ The result carries the recording (``raw`` keeps each chosen channel's samples, o
 before resampling), the recoverable problems, and a summary with stable keys (see
 :func:`ingest_files`) that ``hmpc ingest --json`` writes as is.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -43,8 +44,14 @@ from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS
 from hmpc.models.logs.dbc import load_dbc
 from hmpc.models.logs.decode import decode_frames
 from hmpc.models.errors import InputError, Problems
-from hmpc.models.logs.nav import (ImuColumns, NavColumns, NavData, imu_to_body, read_imu_raw,
-                                  read_nav)
+from hmpc.models.logs.nav import (
+    ImuColumns,
+    NavColumns,
+    NavData,
+    imu_to_body,
+    read_imu_raw,
+    read_nav,
+)
 from hmpc.models.logs.recording import Recording
 from hmpc.models.logs.resample import gap_threshold_s, make_grid, resample
 from hmpc.models.logs.signalmap import SignalMap, load_signal_map
@@ -98,8 +105,11 @@ def sha256_file(path: str | Path) -> str:
     """
     path = Path(path)
     if path.is_dir():
-        lines = [f"{f.relative_to(path).as_posix()} {sha256_file(f)}\n"
-                 for f in sorted(path.rglob("*")) if f.is_file()]
+        lines = [
+            f"{f.relative_to(path).as_posix()} {sha256_file(f)}\n"
+            for f in sorted(path.rglob("*"))
+            if f.is_file()
+        ]
         return hashlib.sha256("".join(lines).encode()).hexdigest()
     h = hashlib.sha256()
     with open(path, "rb") as fh:
@@ -118,8 +128,9 @@ def _wrap(a):
     return np.mod(np.asarray(a, float) + np.pi, 2 * np.pi) - np.pi
 
 
-def estimate_heading_mount(t_s, heading_rad, vel_east, vel_north, *,
-                           min_speed_mps: float = MOUNT_MIN_SPEED_MPS) -> dict | None:
+def estimate_heading_mount(
+    t_s, heading_rad, vel_east, vel_north, *, min_speed_mps: float = MOUNT_MIN_SPEED_MPS
+) -> dict | None:
     """Constant offset between the device heading and the course over ground (ENU).
 
     Args:
@@ -142,10 +153,14 @@ def estimate_heading_mount(t_s, heading_rad, vel_east, vel_north, *,
     d = _wrap(h[m] - np.arctan2(vn[m], ve[m]))
     off = float(np.arctan2(np.mean(np.sin(d)), np.mean(np.cos(d))))
     res = _wrap(d - off)
-    return {"offset_rad": off, "offset_deg": math.degrees(off), "samples": int(m.sum()),
-            "residual_rms_deg": math.degrees(float(np.sqrt(np.mean(res ** 2)))),
-            "residual_max_deg": math.degrees(float(np.max(np.abs(res)))),
-            "min_speed_mps": float(min_speed_mps)}
+    return {
+        "offset_rad": off,
+        "offset_deg": math.degrees(off),
+        "samples": int(m.sum()),
+        "residual_rms_deg": math.degrees(float(np.sqrt(np.mean(res**2)))),
+        "residual_max_deg": math.degrees(float(np.max(np.abs(res)))),
+        "min_speed_mps": float(min_speed_mps),
+    }
 
 
 Series = tuple[np.ndarray, np.ndarray]  # (t_s on the CAN clock, values)
@@ -157,21 +172,21 @@ class CanStage:
 
     smap: SignalMap
     channels: dict[str, Series]  # channel -> (t_s, values), dropped samples removed
-    describe: dict[str, str]     # channel -> "can: <message.signal expression>"
-    absent: list[str]            # optional channels of the map without a usable sample
-    log_format: str = ""         # the CAN log format detected (models.logs.canlog.FORMATS)
+    describe: dict[str, str]  # channel -> "can: <message.signal expression>"
+    absent: list[str]  # optional channels of the map without a usable sample
+    log_format: str = ""  # the CAN log format detected (models.logs.canlog.FORMATS)
 
 
 @dataclass
 class NavStage:
     """Step 3-4's result: nav channels on the CAN clock (heading mount-corrected if asked)."""
 
-    nav: NavData | None          # as read, on its own clock
+    nav: NavData | None  # as read, on its own clock
     channels: dict[str, Series]
-    offset_s: float              # added to nav times to reach the CAN clock [s]
-    clock: dict | None           # OffsetEstimate.to_dict() of the nav clock
-    mount: dict | None           # estimate_heading_mount(...) + "applied"
-    checks: dict                 # clock checks by yaw rate (name -> OffsetEstimate.to_dict())
+    offset_s: float  # added to nav times to reach the CAN clock [s]
+    clock: dict | None  # OffsetEstimate.to_dict() of the nav clock
+    mount: dict | None  # estimate_heading_mount(...) + "applied"
+    checks: dict  # clock checks by yaw rate (name -> OffsetEstimate.to_dict())
 
 
 @dataclass
@@ -180,7 +195,7 @@ class ImuStage:
 
     channels: dict[str, Series]
     clock: dict | None
-    gravity: object | None       # ImuData.gravity (how gravity was removed)
+    gravity: object | None  # ImuData.gravity (how gravity was removed)
     checks: dict
 
 
@@ -188,19 +203,31 @@ class ImuStage:
 class Resampled:
     """Step 6's result: the grid and every chosen channel on it."""
 
-    channels: dict[str, np.ndarray]   # "time" and each channel on the grid
-    gaps: dict[str, list]             # channel -> [{start_s, end_s, duration_s}]
-    info: dict[str, dict]             # channel -> summary["channels"] entry
+    channels: dict[str, np.ndarray]  # "time" and each channel on the grid
+    gaps: dict[str, list]  # channel -> [{start_s, end_s, duration_s}]
+    info: dict[str, dict]  # channel -> summary["channels"] entry
 
 
-def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
-                 rate_hz: float = 50.0, clock_offset_s: float | None = None,
-                 imu_offset_s: float | None = None, nav_columns: NavColumns | None = None,
-                 gap_s: float | None = None, problems: Problems | None = None, *,
-                 imu_columns: ImuColumns | None = None, mount_correction: bool = True,
-                 prefer: dict[str, str] | None = None, max_lag_s: float = MAX_LAG_S,
-                 dbc_lenient: bool = False,
-                 progress: Callable[[str], None] | None = None) -> IngestResult:
+def ingest_files(
+    log_path,
+    dbc_path,
+    signals_path,
+    nav_path=None,
+    imu_path=None,
+    rate_hz: float = 50.0,
+    clock_offset_s: float | None = None,
+    imu_offset_s: float | None = None,
+    nav_columns: NavColumns | None = None,
+    gap_s: float | None = None,
+    problems: Problems | None = None,
+    *,
+    imu_columns: ImuColumns | None = None,
+    mount_correction: bool = True,
+    prefer: dict[str, str] | None = None,
+    max_lag_s: float = MAX_LAG_S,
+    dbc_lenient: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> IngestResult:
     """Ingest a CAN log (+ optional nav and IMU CSVs) into a canonical recording.
 
     Args:
@@ -252,21 +279,48 @@ def ingest_files(log_path, dbc_path, signals_path, nav_path=None, imu_path=None,
     can = read_can(log_path, dbc_path, signals_path, problems, say, dbc_lenient=dbc_lenient)
     nav = NavStage(None, {}, 0.0, None, None, {})
     if nav_path is not None:
-        nav = read_nav_stage(nav_path, can.channels, problems, say, columns=nav_columns,
-                             offset_s=clock_offset_s, mount_correction=mount_correction,
-                             max_lag_s=max_lag_s)
+        nav = read_nav_stage(
+            nav_path,
+            can.channels,
+            problems,
+            say,
+            columns=nav_columns,
+            offset_s=clock_offset_s,
+            mount_correction=mount_correction,
+            max_lag_s=max_lag_s,
+        )
     imu = ImuStage({}, None, None, {})
     if imu_path is not None:
-        imu = read_imu_stage(imu_path, can.channels, nav, problems, say, columns=imu_columns,
-                             offset_s=imu_offset_s, mount_correction=mount_correction,
-                             max_lag_s=max_lag_s)
+        imu = read_imu_stage(
+            imu_path,
+            can.channels,
+            nav,
+            problems,
+            say,
+            columns=imu_columns,
+            offset_s=imu_offset_s,
+            mount_correction=mount_correction,
+            max_lag_s=max_lag_s,
+        )
     raw, origin = choose_sources(can, nav.channels, imu.channels, preference, nav_path, imu_path)
     say(f"resampling {len(raw)} channels at {rate_hz:g} Hz")
     grid = grid_for(can, rate_hz, str(log_path))
     _check_overlap(grid, (("nav", nav.channels, nav_path), ("IMU", imu.channels, imu_path)))
     res = resample_channels(raw, origin, can.smap, grid, gap_s)
-    summary = _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz,
-                       can, nav, imu, res, problems, log_sha256.result())
+    summary = _summary(
+        log_path,
+        dbc_path,
+        signals_path,
+        nav_path,
+        imu_path,
+        rate_hz,
+        can,
+        nav,
+        imu,
+        res,
+        problems,
+        log_sha256.result(),
+    )
     meta = dict(summary)
     meta["path"] = str(log_path)
     return IngestResult(Recording(res.channels, raw, meta), problems, summary)
@@ -281,15 +335,23 @@ def _check_options(rate_hz, gap_s, prefer) -> dict[str, tuple[str, ...]]:
     preference = dict(DEFAULT_PREFERENCE)
     for ch, src in (prefer or {}).items():
         if ch not in DEFAULT_PREFERENCE or src not in DEFAULT_PREFERENCE[ch]:
-            raise ValueError(f"cannot prefer {src!r} for {ch!r}; choices: "
-                             + ", ".join(f"{c}: {'/'.join(s)}"
-                                         for c, s in DEFAULT_PREFERENCE.items()))
+            raise ValueError(
+                f"cannot prefer {src!r} for {ch!r}; choices: "
+                + ", ".join(f"{c}: {'/'.join(s)}" for c, s in DEFAULT_PREFERENCE.items())
+            )
         preference[ch] = (src,) + tuple(s for s in DEFAULT_PREFERENCE[ch] if s != src)
     return preference
 
 
-def read_can(log_path, dbc_path, signals_path, problems: Problems,
-             say: Callable[[str], None], *, dbc_lenient: bool = False) -> CanStage:
+def read_can(
+    log_path,
+    dbc_path,
+    signals_path,
+    problems: Problems,
+    say: Callable[[str], None],
+    *,
+    dbc_lenient: bool = False,
+) -> CanStage:
     """Steps 1-2: DBC and signal map, read and decode the CAN log, evaluate every channel.
 
     Raises:
@@ -320,8 +382,9 @@ def read_can(log_path, dbc_path, signals_path, problems: Problems,
     problems.merge(dbc_problems)
     problems.merge(log_problems)
     say(f"decoding {len(frames)} frames ({', '.join(smap.messages())})")
-    decoded = decode_frames(frames, db, problems, names=smap.messages(), buses=smap.buses(),
-                            dbc_path=str(dbc_path))
+    decoded = decode_frames(
+        frames, db, problems, names=smap.messages(), buses=smap.buses(), dbc_path=str(dbc_path)
+    )
     stage = CanStage(smap, {}, {}, [], log_format)
     log_s = str(log_path)
     for ch, cm in smap.channels.items():
@@ -349,7 +412,10 @@ def _can_channel(ch: str, cm, dm, map_path, log_s: str, problems: Problems) -> S
         if len(buses) > 1:
             raise InputError(
                 f"message {cm.message} is on buses {', '.join(str(int(b)) for b in buses)}; "
-                f"say which with 'bus:' in {map_path}", log_s, channel=ch)
+                f"say which with 'bus:' in {map_path}",
+                log_s,
+                channel=ch,
+            )
     else:
         sel = dm.bus == cm.bus
     if not sel.any():
@@ -358,12 +424,16 @@ def _can_channel(ch: str, cm, dm, map_path, log_s: str, problems: Problems) -> S
             if dm is not None and len(dm) == 0:  # its frames were all refused by decoding
                 dropped = [p for p in problems if p.detail.startswith(f"{cm.message} (")]
                 first = dropped[0] if dropped else None
-                why = (f"every frame of message {cm.message} was dropped"
-                       + (f" ({first.count} x {first.kind}, first at {first.first[0]})"
-                          if first and first.first else " as undecodable"))
+                why = f"every frame of message {cm.message} was dropped" + (
+                    f" ({first.count} x {first.kind}, first at {first.first[0]})"
+                    if first and first.first
+                    else " as undecodable"
+                )
             elif dm is not None and len(dm):
-                why = (f"message {cm.message} is not on bus {cm.bus} (it is on bus "
-                       f"{', '.join(str(int(b)) for b in np.unique(dm.bus))})")
+                why = (
+                    f"message {cm.message} is not on bus {cm.bus} (it is on bus "
+                    f"{', '.join(str(int(b)) for b in np.unique(dm.bus))})"
+                )
             else:
                 why = f"message {cm.message}{bus} is not in the log"
             raise InputError(f"required channel has no sample: {why}", log_s, channel=ch)
@@ -374,27 +444,46 @@ def _can_channel(ch: str, cm, dm, map_path, log_s: str, problems: Problems) -> S
     if cm.gear is not None:
         bad = vals == ""
         if bad.any():
-            raw_bad = np.unique(np.rint(cm.expr({s: dm.signals[s][sel][bad]
-                                                 for s in cm.expr.signals})))
-            problems.add(KIND_UNKNOWN_GEAR, log_s, where[bad][:Problems.MAX_FIRST],
-                         count=int(bad.sum()),
-                         detail=f"{ch}: raw value(s) {', '.join(f'{v:g}' for v in raw_bad[:8])}")
+            raw_bad = np.unique(
+                np.rint(cm.expr({s: dm.signals[s][sel][bad] for s in cm.expr.signals}))
+            )
+            problems.add(
+                KIND_UNKNOWN_GEAR,
+                log_s,
+                where[bad][: Problems.MAX_FIRST],
+                count=int(bad.sum()),
+                detail=f"{ch}: raw value(s) {', '.join(f'{v:g}' for v in raw_bad[:8])}",
+            )
     else:
         bad = ~np.isfinite(vals)
         if bad.any():
-            problems.add(KIND_NONFINITE_EXPR, log_s, where[bad][:Problems.MAX_FIRST],
-                         count=int(bad.sum()), detail=f"{ch} = {cm.expr.text}")
+            problems.add(
+                KIND_NONFINITE_EXPR,
+                log_s,
+                where[bad][: Problems.MAX_FIRST],
+                count=int(bad.sum()),
+                detail=f"{ch} = {cm.expr.text}",
+            )
     if bad.all():
         if cm.required:
-            raise InputError("required channel has no valid sample (every value was dropped)",
-                             log_s, channel=ch)
+            raise InputError(
+                "required channel has no valid sample (every value was dropped)", log_s, channel=ch
+            )
         return None
     return t[~bad], vals[~bad]
 
 
-def read_nav_stage(nav_path, can: dict[str, Series], problems: Problems,
-                   say: Callable[[str], None], *, columns: NavColumns | None,
-                   offset_s: float | None, mount_correction: bool, max_lag_s: float) -> NavStage:
+def read_nav_stage(
+    nav_path,
+    can: dict[str, Series],
+    problems: Problems,
+    say: Callable[[str], None],
+    *,
+    columns: NavColumns | None,
+    offset_s: float | None,
+    mount_correction: bool,
+    max_lag_s: float,
+) -> NavStage:
     """Steps 3-4: read the nav file, put it on the CAN clock (``offset_s`` given, or CAN speed
     against GNSS speed), estimate the heading mount offset and remove it if asked."""
     say(f"reading nav {nav_path}")
@@ -402,14 +491,22 @@ def read_nav_stage(nav_path, can: dict[str, Series], problems: Problems,
     if offset_s is not None:
         est = OffsetEstimate(float(offset_s), method="given")
     elif "speed" in can and "gps_speed" in nav:
-        est = estimate_offset(*can["speed"], *nav["gps_speed"], max_lag_s=max_lag_s,
-                              what="CAN speed vs GNSS speed")
+        est = estimate_offset(
+            *can["speed"], *nav["gps_speed"], max_lag_s=max_lag_s, what="CAN speed vs GNSS speed"
+        )
     else:
-        est = OffsetEstimate(0.0, method="none", ok=False,
-                             note="no CAN speed or no GNSS speed to correlate")
+        est = OffsetEstimate(
+            0.0, method="none", ok=False, note="no CAN speed or no GNSS speed to correlate"
+        )
     est = _usable_offset(est, nav_path, problems)
-    stage = NavStage(nav, {ch: (t + est.offset_s, v) for ch, (t, v) in nav.items()},
-                     est.offset_s, est.to_dict(), None, {})
+    stage = NavStage(
+        nav,
+        {ch: (t + est.offset_s, v) for ch, (t, v) in nav.items()},
+        est.offset_s,
+        est.to_dict(),
+        None,
+        {},
+    )
     if "heading" in nav and nav.velocity is not None:
         tv, ve, vn = nav.velocity
         stage.mount = estimate_heading_mount(tv, nav["heading"][1], ve, vn)
@@ -421,15 +518,25 @@ def read_nav_stage(nav_path, can: dict[str, Series], problems: Problems,
     if "heading" in stage.channels and "yaw_rate" in can:
         th, h = stage.channels["heading"]
         hr = np.gradient(np.unwrap(h), th)
-        chk = estimate_offset(*can["yaw_rate"], th, hr, max_lag_s=max_lag_s,
-                              what="CAN yaw rate vs nav heading rate")
+        chk = estimate_offset(
+            *can["yaw_rate"], th, hr, max_lag_s=max_lag_s, what="CAN yaw rate vs nav heading rate"
+        )
         stage.checks["nav_residual_by_yaw_rate"] = chk.to_dict()
     return stage
 
 
-def read_imu_stage(imu_path, can: dict[str, Series], nav: NavStage, problems: Problems,
-                   say: Callable[[str], None], *, columns: ImuColumns | None,
-                   offset_s: float | None, mount_correction: bool, max_lag_s: float) -> ImuStage:
+def read_imu_stage(
+    imu_path,
+    can: dict[str, Series],
+    nav: NavStage,
+    problems: Problems,
+    say: Callable[[str], None],
+    *,
+    columns: ImuColumns | None,
+    offset_s: float | None,
+    mount_correction: bool,
+    max_lag_s: float,
+) -> ImuStage:
     """Step 5: read the IMU, put it on the CAN clock (given; the nav offset, same device; or
     CAN yaw rate against the IMU's), convert to ISO body axes with the nav attitude, and rotate
     the accelerations by the heading mount offset when it was removed from the heading."""
@@ -439,14 +546,24 @@ def read_imu_stage(imu_path, can: dict[str, Series], nav: NavStage, problems: Pr
         est = OffsetEstimate(float(offset_s), method="given")
     elif nav.nav is not None:
         assert nav.clock is not None  # a nav file has its clock estimate
-        est = OffsetEstimate(nav.offset_s, nav.clock["correlation_peak"] or float("nan"),
-                             method="same device as nav", ok=True)
+        est = OffsetEstimate(
+            nav.offset_s,
+            nav.clock["correlation_peak"] or float("nan"),
+            method="same device as nav",
+            ok=True,
+        )
     elif "yaw_rate" in can:
-        est = estimate_offset(*can["yaw_rate"], raw_imu.t_s, raw_imu.yaw_rate_device(),
-                              max_lag_s=max_lag_s, what="CAN yaw rate vs IMU yaw rate")
+        est = estimate_offset(
+            *can["yaw_rate"],
+            raw_imu.t_s,
+            raw_imu.yaw_rate_device(),
+            max_lag_s=max_lag_s,
+            what="CAN yaw rate vs IMU yaw rate",
+        )
     else:
-        est = OffsetEstimate(0.0, method="none", ok=False,
-                             note="no nav file and no CAN yaw rate to correlate")
+        est = OffsetEstimate(
+            0.0, method="none", ok=False, note="no nav file and no CAN yaw rate to correlate"
+        )
     est = _usable_offset(est, imu_path, problems)
     imu_off = est.offset_s
     attitude = None
@@ -454,8 +571,9 @@ def read_imu_stage(imu_path, can: dict[str, Series], nav: NavStage, problems: Pr
         tr = nav.nav["roll"][0] + nav.offset_s - imu_off  # nav times on the IMU's clock
         attitude = (tr, nav.nav["roll"][1], nav.nav["pitch"][1])
     body = imu_to_body(raw_imu, attitude)
-    stage = ImuStage({ch: (t + imu_off, v) for ch, (t, v) in body.items()}, est.to_dict(),
-                     body.gravity, {})
+    stage = ImuStage(
+        {ch: (t + imu_off, v) for ch, (t, v) in body.items()}, est.to_dict(), body.gravity, {}
+    )
     if nav.mount is not None and mount_correction:
         d = nav.mount["offset_rad"]
         t, ax = stage.channels["accel_x"]
@@ -465,15 +583,25 @@ def read_imu_stage(imu_path, can: dict[str, Series], nav: NavStage, problems: Pr
         stage.channels["accel_y"] = (t, s * ax + c * ay)
     if "heading" in nav.channels:
         th, h = nav.channels["heading"]
-        chk = estimate_offset(th, np.gradient(np.unwrap(h), th), *stage.channels["yaw_rate"],
-                              max_lag_s=max_lag_s, what="nav heading rate vs IMU yaw rate")
+        chk = estimate_offset(
+            th,
+            np.gradient(np.unwrap(h), th),
+            *stage.channels["yaw_rate"],
+            max_lag_s=max_lag_s,
+            what="nav heading rate vs IMU yaw rate",
+        )
         stage.checks["imu_residual_vs_nav_by_yaw_rate"] = chk.to_dict()
     return stage
 
 
-def choose_sources(can: CanStage, navc: dict[str, Series], imuc: dict[str, Series],
-                   preference: dict[str, tuple[str, ...]], nav_path, imu_path
-                   ) -> tuple[dict[str, Series], dict[str, str]]:
+def choose_sources(
+    can: CanStage,
+    navc: dict[str, Series],
+    imuc: dict[str, Series],
+    preference: dict[str, tuple[str, ...]],
+    nav_path,
+    imu_path,
+) -> tuple[dict[str, Series], dict[str, str]]:
     """Step 6a: one source per channel, in CONVENTIONS order: (raw samples, source text)."""
     by_source = {"can": can.channels, "nav": navc, "imu": imuc}
     raw: dict[str, Series] = {}
@@ -483,8 +611,11 @@ def choose_sources(can: CanStage, navc: dict[str, Series], imuc: dict[str, Serie
         for src in preference.get(ch, SOURCES):
             if ch in by_source[src]:
                 raw[ch] = by_source[src][ch]
-                origin[ch] = (can.describe[ch] if src == "can"
-                              else f"{src}: {_path_of(src, nav_path, imu_path)}")
+                origin[ch] = (
+                    can.describe[ch]
+                    if src == "can"
+                    else f"{src}: {_path_of(src, nav_path, imu_path)}"
+                )
                 break
     return raw, origin
 
@@ -497,20 +628,26 @@ def grid_for(can: CanStage, rate_hz: float, log_s: str) -> np.ndarray:
     """Step 6b: the uniform grid [s] over the time every required CAN channel covers (all CAN
     channels if none is required), so its first and last rows hold every required channel;
     other channels are NaN outside their span."""
-    core = [can.channels[c] for c in can.smap.required() if c in can.channels] \
-        or list(can.channels.values())
+    core = [can.channels[c] for c in can.smap.required() if c in can.channels] or list(
+        can.channels.values()
+    )
     t_start = max(float(t[0]) for t, _ in core)
     t_end = min(float(t[-1]) for t, _ in core)
     if t_end <= t_start:
         raise InputError("the required channels do not overlap in time", log_s)
     rows = (t_end - t_start) * float(rate_hz) + 1
     if rows > MAX_GRID_ROWS:
-        raise InputError(f"--rate {rate_hz:g} Hz over {t_end - t_start:.1f} s would make "
-                         f"{rows:.3g} rows (at most {MAX_GRID_ROWS:,}); choose a lower rate",
-                         log_s)
+        raise InputError(
+            f"--rate {rate_hz:g} Hz over {t_end - t_start:.1f} s would make "
+            f"{rows:.3g} rows (at most {MAX_GRID_ROWS:,}); choose a lower rate",
+            log_s,
+        )
     if rows < 2:
-        raise InputError(f"--rate {rate_hz:g} Hz over {t_end - t_start:.2f} s gives fewer than "
-                         "2 rows; choose a higher rate", log_s)
+        raise InputError(
+            f"--rate {rate_hz:g} Hz over {t_end - t_start:.2f} s gives fewer than "
+            "2 rows; choose a higher rate",
+            log_s,
+        )
     return make_grid(t_start, t_end, float(rate_hz))
 
 
@@ -525,11 +662,14 @@ def _check_overlap(grid: np.ndarray, others) -> None:
                     f"the {src} file does not overlap the CAN log in time ({src} "
                     f"{t[0]:.3f}..{t[-1]:.3f} s, CAN {t_start:.3f}..{t_end:.3f} s on the CAN "
                     "clock); "
-                    "give the clock offset (--clock-offset / --imu-offset)", str(path))
+                    "give the clock offset (--clock-offset / --imu-offset)",
+                    str(path),
+                )
 
 
-def resample_channels(raw: dict[str, Series], origin: dict[str, str], smap, grid: np.ndarray,
-                      gap_s: float | None) -> Resampled:
+def resample_channels(
+    raw: dict[str, Series], origin: dict[str, str], smap, grid: np.ndarray, gap_s: float | None
+) -> Resampled:
     """Step 6c: every chosen channel on the grid (kind by channel and source), gaps marked."""
     out = Resampled({"time": grid}, {}, {})
     for ch, (t, v) in raw.items():
@@ -544,15 +684,18 @@ def resample_channels(raw: dict[str, Series], origin: dict[str, str], smap, grid
         d = np.diff(t)
         med = np.median(d) if len(d) else None
         # with every step positive, their median is also the median of the positive steps
-        thr = gap_threshold_s(t, gap_s, median_step_s=float(med) if med is not None
-                              and d.min() > 0 else None)
+        thr = gap_threshold_s(
+            t, gap_s, median_step_s=float(med) if med is not None and d.min() > 0 else None
+        )
         values, g = resample(t, v, grid, kind, gap_s, threshold_s=thr)
         out.channels[ch] = values
         if g:
             out.gaps[ch] = [x.to_dict() for x in g]
         valid = (values != "") if ch in STRING_CHANNELS else np.isfinite(values)
         out.info[ch] = {
-            "unit": CHANNELS[ch], "source": origin[ch], "resample": kind,
+            "unit": CHANNELS[ch],
+            "source": origin[ch],
+            "resample": kind,
             "raw_samples": int(len(t)),
             "raw_rate_hz": float(1.0 / med) if med is not None and med > 0 else None,
             "valid_fraction": float(np.mean(valid)) if len(valid) else 0.0,
@@ -569,14 +712,27 @@ def speed_vs_gps(channels: dict[str, np.ndarray]) -> dict | None:
     m = np.isfinite(a) & np.isfinite(b) & (b > MOUNT_MIN_SPEED_MPS)
     if m.sum() < 10:
         return None
-    return {"ratio_mean": float(np.mean(a[m]) / np.mean(b[m])),
-            "rms_difference_mps": float(np.sqrt(np.mean((a[m] - b[m]) ** 2))),
-            "samples": int(m.sum())}
+    return {
+        "ratio_mean": float(np.mean(a[m]) / np.mean(b[m])),
+        "rms_difference_mps": float(np.sqrt(np.mean((a[m] - b[m]) ** 2))),
+        "samples": int(m.sum()),
+    }
 
 
-def _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz: float,
-             can: CanStage, nav: NavStage, imu: ImuStage, res: Resampled,
-             problems: Problems, log_sha256: str | None = None) -> dict:
+def _summary(
+    log_path,
+    dbc_path,
+    signals_path,
+    nav_path,
+    imu_path,
+    rate_hz: float,
+    can: CanStage,
+    nav: NavStage,
+    imu: ImuStage,
+    res: Resampled,
+    problems: Problems,
+    log_sha256: str | None = None,
+) -> dict:
     """Step 7: the summary with the stable keys listed in :func:`ingest_files`."""
     smap, grid, navd = can.smap, res.channels["time"], nav.nav
     speed_source = smap.channels["speed"].describe() if "speed" in smap.channels else None
@@ -584,9 +740,13 @@ def _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz: floa
         "hmpc_version": __version__,
         "vehicle": smap.vehicle,
         "log_format": can.log_format,  # as detected from the content, whatever the extension
-        "sources": {"log": _source(log_path, log_sha256), "dbc": _source(dbc_path),
-                    "signals": _source(signals_path), "nav": _source(nav_path),
-                    "imu": _source(imu_path)},
+        "sources": {
+            "log": _source(log_path, log_sha256),
+            "dbc": _source(dbc_path),
+            "signals": _source(signals_path),
+            "nav": _source(nav_path),
+            "imu": _source(imu_path),
+        },
         "start_s": float(grid[0]),
         "end_s": float(grid[-1]),
         "duration_s": float(grid[-1] - grid[0]),
@@ -596,12 +756,17 @@ def _summary(log_path, dbc_path, signals_path, nav_path, imu_path, rate_hz: floa
         "channels_absent": can.absent,
         "speed_source": speed_source,
         "speed_vs_gps": speed_vs_gps(res.channels),
-        "clock": {"reference": "CAN log", "nav": nav.clock, "imu": imu.clock,
-                  "checks": {**nav.checks, **imu.checks}},
+        "clock": {
+            "reference": "CAN log",
+            "nav": nav.clock,
+            "imu": imu.clock,
+            "checks": {**nav.checks, **imu.checks},
+        },
         "heading_mount": nav.mount,
         "imu_gravity": imu.gravity,
-        "nav_origin": None if navd is None or navd.origin is None else
-        {"lat_deg": navd.origin[0], "lon_deg": navd.origin[1], "alt_m": navd.origin[2]},
+        "nav_origin": None
+        if navd is None or navd.origin is None
+        else {"lat_deg": navd.origin[0], "lon_deg": navd.origin[1], "alt_m": navd.origin[2]},
         "gaps": res.gaps,
         "problems": {"total": int(problems.total()), "items": problems.to_list()},
         # counted apart from the problems: frames whose ids the DBC does not define

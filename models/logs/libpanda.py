@@ -5,13 +5,21 @@ the header), extra columns are ignored. Every field is read with the masked, var
 gathers of ``models.logs.textscan`` (no Python loop per line). Imports only numpy and
 ``models.logs.textscan``/``frames``.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from hmpc.models.logs.frames import EFF_MASK, MAX_PAYLOAD, SFF_MAX
-from hmpc.models.logs.textscan import (SKIP_MALFORMED, Buf, Chunk, dec_int, dec_time, line_bounds,
-                                       payload)
+from hmpc.models.logs.textscan import (
+    SKIP_MALFORMED,
+    Buf,
+    Chunk,
+    dec_int,
+    dec_time,
+    line_bounds,
+    payload,
+)
 
 
 class LibpandaChunkParser:
@@ -45,9 +53,17 @@ class LibpandaChunkParser:
         if c["MessageLength"] is not None:
             ml, ok = dec_int(buf, *field(c["MessageLength"]), ok, 3)
             ok &= ml == dlc
-        return Chunk(t[ok], bus[ok], mid[ok].astype(np.uint32), mid[ok] > SFF_MAX,
-                     dlc[ok], data[ok], lineno[ok], {SKIP_MALFORMED: lineno[~ok]})
+        return Chunk(
+            t[ok],
+            bus[ok],
+            mid[ok].astype(np.uint32),
+            mid[ok] > SFF_MAX,
+            dlc[ok],
+            data[ok],
+            lineno[ok],
+            {SKIP_MALFORMED: lineno[~ok]},
+        )
 
     def scan(self, base: np.ndarray, pad: int, nl: np.ndarray, line0: int, first_line: int):
         """The block ``base[pad:pad + nl[-1] + 1]`` as one part (the bulk readers' interface)."""
-        yield self(base[pad:pad + int(nl[-1]) + 1], line0, first_line)
+        yield self(base[pad : pad + int(nl[-1]) + 1], line0, first_line)

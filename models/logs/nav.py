@@ -33,6 +33,7 @@ fields, are skipped, counted and reported with their first line numbers; rows ou
 are re-sorted and duplicate times dropped (reported). A missing file, an empty or binary file,
 a missing column or no usable row raises :class:`InputError` naming the file (and line/column).
 """
+
 from __future__ import annotations
 
 import math
@@ -70,41 +71,54 @@ class NavColumns:
     """
 
     time: str = "time"
-    lat: str | None = "lat_deg"          # WGS84 latitude [deg]
-    lon: str | None = "lon_deg"          # WGS84 longitude [deg]
-    alt: str | None = "alt_m"            # height above the ellipsoid [m]
-    x: str | None = None                 # local east [m] (instead of lat/lon)
-    y: str | None = None                 # local north [m]
-    z: str | None = None                 # local up [m]
+    lat: str | None = "lat_deg"  # WGS84 latitude [deg]
+    lon: str | None = "lon_deg"  # WGS84 longitude [deg]
+    alt: str | None = "alt_m"  # height above the ellipsoid [m]
+    x: str | None = None  # local east [m] (instead of lat/lon)
+    y: str | None = None  # local north [m]
+    z: str | None = None  # local up [m]
     vel_north: str | None = "vel_north"  # [m/s]
-    vel_east: str | None = "vel_east"    # [m/s]
+    vel_east: str | None = "vel_east"  # [m/s]
     roll: str | None = "roll_rad"
     pitch: str | None = "pitch_rad"
     heading: str | None = "heading_rad"
     yaw_rate: str | None = None
-    attitude_frame: str = "ned"          # ned: heading clockwise from north; enu: CCW from east
-    angle_unit: str = "rad"              # rad | deg (roll, pitch, heading)
-    yaw_rate_unit: str = "rad/s"         # rad/s | deg/s
+    attitude_frame: str = "ned"  # ned: heading clockwise from north; enu: CCW from east
+    angle_unit: str = "rad"  # rad | deg (roll, pitch, heading)
+    yaw_rate_unit: str = "rad/s"  # rad/s | deg/s
 
     def check(self, path: str | None = None) -> None:
         """Raise ParamError for inconsistent settings."""
         if self.attitude_frame not in _FRAMES_ATT:
-            raise ParamError(f"attitude_frame must be ned or enu, got {self.attitude_frame!r}",
-                             path, key="nav.attitude_frame")
+            raise ParamError(
+                f"attitude_frame must be ned or enu, got {self.attitude_frame!r}",
+                path,
+                key="nav.attitude_frame",
+            )
         if self.angle_unit not in _ANGLE_UNITS:
-            raise ParamError(f"angle_unit must be rad or deg, got {self.angle_unit!r}", path,
-                             key="nav.angle_unit")
+            raise ParamError(
+                f"angle_unit must be rad or deg, got {self.angle_unit!r}",
+                path,
+                key="nav.angle_unit",
+            )
         if self.yaw_rate_unit not in _RATE_UNITS:
-            raise ParamError(f"yaw_rate_unit must be rad/s or deg/s, got {self.yaw_rate_unit!r}",
-                             path, key="nav.yaw_rate_unit")
+            raise ParamError(
+                f"yaw_rate_unit must be rad/s or deg/s, got {self.yaw_rate_unit!r}",
+                path,
+                key="nav.yaw_rate_unit",
+            )
         geo = self.lat is not None and self.lon is not None
         local = self.x is not None and self.y is not None
         if geo == local:
-            raise ParamError("give either lat and lon, or x and y (not both, not neither)", path,
-                             key="nav.lat" if not geo else "nav.x")
+            raise ParamError(
+                "give either lat and lon, or x and y (not both, not neither)",
+                path,
+                key="nav.lat" if not geo else "nav.x",
+            )
         if (self.vel_north is None) != (self.vel_east is None):
-            raise ParamError("give both vel_north and vel_east, or neither", path,
-                             key="nav.vel_north")
+            raise ParamError(
+                "give both vel_north and vel_east, or neither", path, key="nav.vel_north"
+            )
 
 
 @dataclass(frozen=True)
@@ -118,19 +132,25 @@ class ImuColumns:
     accel_x: str = "accel_x"
     accel_y: str = "accel_y"
     accel_z: str = "accel_z"
-    frame: str = "frd"          # frd: x forward, y right, z down; flu: x forward, y left, z up
-    gyro_unit: str = "rad/s"    # rad/s | deg/s
-    accel_unit: str = "m/s^2"   # m/s^2 | g (specific force, gravity included)
+    frame: str = "frd"  # frd: x forward, y right, z down; flu: x forward, y left, z up
+    gyro_unit: str = "rad/s"  # rad/s | deg/s
+    accel_unit: str = "m/s^2"  # m/s^2 | g (specific force, gravity included)
 
     def check(self, path: str | None = None) -> None:
         if self.frame not in _IMU_FRAMES:
             raise ParamError(f"frame must be frd or flu, got {self.frame!r}", path, key="imu.frame")
         if self.gyro_unit not in _RATE_UNITS:
-            raise ParamError(f"gyro_unit must be rad/s or deg/s, got {self.gyro_unit!r}", path,
-                             key="imu.gyro_unit")
+            raise ParamError(
+                f"gyro_unit must be rad/s or deg/s, got {self.gyro_unit!r}",
+                path,
+                key="imu.gyro_unit",
+            )
         if self.accel_unit not in _ACCEL_UNITS:
-            raise ParamError(f"accel_unit must be m/s^2 or g, got {self.accel_unit!r}", path,
-                             key="imu.accel_unit")
+            raise ParamError(
+                f"accel_unit must be m/s^2 or g, got {self.accel_unit!r}",
+                path,
+                key="imu.accel_unit",
+            )
 
 
 def load_columns(path: str | Path) -> tuple[NavColumns, ImuColumns]:
@@ -149,8 +169,9 @@ def load_columns(path: str | Path) -> tuple[NavColumns, ImuColumns]:
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         mark = getattr(exc, "problem_mark", None)
         why = getattr(exc, "problem", None) or exc.__class__.__name__
-        raise ParamError(f"not valid YAML ({why})", str(path),
-                         line=None if mark is None else mark.line + 1) from None
+        raise ParamError(
+            f"not valid YAML ({why})", str(path), line=None if mark is None else mark.line + 1
+        ) from None
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -168,11 +189,15 @@ def load_columns(path: str | Path) -> tuple[NavColumns, ImuColumns]:
         known = {f.name for f in fields(cls)}
         for k, v in sec.items():
             if k not in known:
-                raise ParamError(f"unknown key (expected one of {', '.join(sorted(known))})",
-                                 str(path), key=f"{section}.{k}")
+                raise ParamError(
+                    f"unknown key (expected one of {', '.join(sorted(known))})",
+                    str(path),
+                    key=f"{section}.{k}",
+                )
             if v is not None and not isinstance(v, str):
-                raise ParamError(f"expected a column name or null, got {v!r}", str(path),
-                                 key=f"{section}.{k}")
+                raise ParamError(
+                    f"expected a column name or null, got {v!r}", str(path), key=f"{section}.{k}"
+                )
         cols = cls(**sec)
         cols.check(str(path))
         out.append(cols)
@@ -180,8 +205,9 @@ def load_columns(path: str | Path) -> tuple[NavColumns, ImuColumns]:
 
 
 # --------------------------------------------------------------------------- CSV table
-def read_table(path: str | Path, problems: Problems, wanted: list[str], *,
-               what: str = "CSV") -> tuple[dict[str, np.ndarray], np.ndarray]:
+def read_table(
+    path: str | Path, problems: Problems, wanted: list[str], *, what: str = "CSV"
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Read the numeric columns ``wanted`` (the first one is time) of a CSV with a header.
 
     Returns (column -> float64 array, 1-based line number of each kept row), sorted by time,
@@ -249,9 +275,13 @@ def read_table(path: str | Path, problems: Problems, wanted: list[str], *,
     problems.add(KIND_NONFINITE, spath, nonfinite)
     if not rows:
         n_bad = len(bad) + len(nonfinite)
-        raise InputError(f"no usable {what} row ({n_bad} bad row(s) skipped)" if n_bad else
-                         f"no {what} data rows after the header", spath,
-                         line=(bad + nonfinite)[0] if n_bad else h + 1)
+        raise InputError(
+            f"no usable {what} row ({n_bad} bad row(s) skipped)"
+            if n_bad
+            else f"no {what} data rows after the header",
+            spath,
+            line=(bad + nonfinite)[0] if n_bad else h + 1,
+        )
     a = np.asarray(rows, dtype=float)
     w = np.asarray(where, dtype=np.int64)
     t = a[:, 0]
@@ -311,7 +341,7 @@ def read_nav(path: str | Path, problems: Problems, columns: NavColumns | None = 
     spath = str(path)
     geo = cols.lat is not None
     wanted = [cols.time]
-    for c in ((cols.lat, cols.lon, cols.alt) if geo else (cols.x, cols.y, cols.z)):
+    for c in (cols.lat, cols.lon, cols.alt) if geo else (cols.x, cols.y, cols.z):
         if c is not None:
             wanted.append(c)
     for c in (cols.vel_north, cols.vel_east, cols.roll, cols.pitch, cols.heading, cols.yaw_rate):
@@ -328,8 +358,9 @@ def read_nav(path: str | Path, problems: Problems, columns: NavColumns | None = 
         if not ok.all():
             problems.add(KIND_RANGE, spath, where[~ok])
             if not ok.any():
-                raise InputError("no row with a valid latitude/longitude", spath,
-                                 line=int(where[0]), channel="x")
+                raise InputError(
+                    "no row with a valid latitude/longitude", spath, line=int(where[0]), channel="x"
+                )
             data = {k: v[ok] for k, v in data.items()}
             t, where = data[cols.time], where[ok]
             lat, lon = data[cols.lat], data[cols.lon]
@@ -405,13 +436,19 @@ class ImuRaw:
         return -self.r
 
 
-def read_imu_raw(path: str | Path, problems: Problems,
-                 columns: ImuColumns | None = None) -> ImuRaw:
+def read_imu_raw(path: str | Path, problems: Problems, columns: ImuColumns | None = None) -> ImuRaw:
     """Read an IMU CSV into :class:`ImuRaw` (device frame FRD, SI units)."""
     cols = columns or ImuColumns()
     cols.check()
-    wanted = [cols.time, cols.gyro_x, cols.gyro_y, cols.gyro_z, cols.accel_x, cols.accel_y,
-              cols.accel_z]
+    wanted = [
+        cols.time,
+        cols.gyro_x,
+        cols.gyro_y,
+        cols.gyro_z,
+        cols.accel_x,
+        cols.accel_y,
+        cols.accel_z,
+    ]
     data, _ = read_table(path, problems, wanted, what="IMU CSV")
     kr, ka = _RATE_UNITS[cols.gyro_unit], _ACCEL_UNITS[cols.accel_unit]
     p, q, r = (data[c] * kr for c in (cols.gyro_x, cols.gyro_y, cols.gyro_z))
@@ -457,8 +494,10 @@ def imu_to_body(raw: ImuRaw, attitude: tuple | None = None) -> ImuData:
             gy = np.full_like(t, gb[1])
             theta = np.full_like(t, math.asin(max(-1.0, min(1.0, -gb[0] / G_MPS2))))
             phi = np.full_like(t, math.atan2(gb[1], gb[2]))
-            out.gravity = ("constant tilt removed (mean specific force taken as gravity; road "
-                           "grade and the file's mean acceleration are not separated)")
+            out.gravity = (
+                "constant tilt removed (mean specific force taken as gravity; road "
+                "grade and the file's mean acceleration are not separated)"
+            )
     ax = fx + gx
     ay = fy + gy
     psi_dot_ned = (q * np.sin(phi) + r * np.cos(phi)) / np.cos(theta)
@@ -468,8 +507,13 @@ def imu_to_body(raw: ImuRaw, attitude: tuple | None = None) -> ImuData:
     return out
 
 
-def read_imu(path: str | Path, problems: Problems, columns: ImuColumns | None = None, *,
-             attitude: tuple | None = None) -> ImuData:
+def read_imu(
+    path: str | Path,
+    problems: Problems,
+    columns: ImuColumns | None = None,
+    *,
+    attitude: tuple | None = None,
+) -> ImuData:
     """Read an IMU CSV into ``yaw_rate, accel_x, accel_y`` (ISO 8855 body axes, SI).
 
     Args:

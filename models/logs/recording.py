@@ -9,6 +9,7 @@ Columns not available are absent, never zero-filled. Samples inside a gap longer
 ingest threshold are NaN (``""`` for ``gear``), and the gaps are listed in ``meta['gaps']``.
 The raw, un-resampled samples of each channel stay available in ``raw``.
 """
+
 from __future__ import annotations
 
 import csv
@@ -61,15 +62,19 @@ class Recording:
         try:
             return self.channels[name]
         except KeyError:
-            raise InputError("required channel is absent from the recording",
-                             self.meta.get("path"), channel=name) from None
+            raise InputError(
+                "required channel is absent from the recording", self.meta.get("path"), channel=name
+            ) from None
 
     def require(self, *names: str) -> None:
         """Raise InputError naming the first of ``names`` that the recording lacks."""
         for n in names:
             if n not in self.channels:
-                raise InputError("required channel is absent from the recording",
-                                 self.meta.get("path"), channel=n)
+                raise InputError(
+                    "required channel is absent from the recording",
+                    self.meta.get("path"),
+                    channel=n,
+                )
 
     def __len__(self) -> int:
         return int(self.time.shape[0])
@@ -113,8 +118,9 @@ class Recording:
 CSV_SPLIT_ROWS = 50_000
 
 
-def write_csv(channels: dict[str, np.ndarray], path: str | Path, *,
-              split_rows: int = CSV_SPLIT_ROWS) -> None:
+def write_csv(
+    channels: dict[str, np.ndarray], path: str | Path, *, split_rows: int = CSV_SPLIT_ROWS
+) -> None:
     r"""Write the canonical CSV (columns in CONVENTIONS order, unknown extras last).
 
     Cells: ``time`` as ``f"{x:.6f}"``, numbers as ``repr(float(x))`` (empty for NaN), strings
@@ -165,10 +171,16 @@ CSV_ROWS_PER_WRITE = 1 << 14
 def _rows_text(names: list[str], channels: dict, lo: int, hi: int):
     """The CSV lines of rows [lo, hi), in pieces of :data:`CSV_ROWS_PER_WRITE` rows."""
     whole = lo == 0 and hi == len(channels[names[0]])
-    rows = list(zip(*[_csv_cells(name, channels[name] if whole else channels[name][lo:hi])
-                      for name in names]))
+    rows = list(
+        zip(
+            *[
+                _csv_cells(name, channels[name] if whole else channels[name][lo:hi])
+                for name in names
+            ]
+        )
+    )
     for i in range(0, len(rows), CSV_ROWS_PER_WRITE):
-        yield "".join([",".join(r) + "\r\n" for r in rows[i:i + CSV_ROWS_PER_WRITE]])
+        yield "".join([",".join(r) + "\r\n" for r in rows[i : i + CSV_ROWS_PER_WRITE]])
 
 
 def _write_rows(fh, names: list[str], channels: dict, lo: int, hi: int) -> None:
@@ -235,8 +247,11 @@ def _csv_cells(name: str, v: np.ndarray) -> list[str]:
     """One column's cells as ``csv.writer`` would write them in a row of several cells."""
     if name in STRING_CHANNELS:
         text = [str(s) for s in v]
-        return [_csv_quoted(s) for s in text] if any(_CSV_SPECIAL & set(s) for s in set(text)) \
+        return (
+            [_csv_quoted(s) for s in text]
+            if any(_CSV_SPECIAL & set(s) for s in set(text))
             else text
+        )
     if name == "time":
         return list(map("{:.6f}".format, v.tolist()))
     x = v.astype(float)
@@ -273,8 +288,9 @@ def write_parquet(channels: dict[str, np.ndarray], path: str | Path) -> None:
         import pyarrow as pa
         import pyarrow.parquet as pq
     except ImportError:  # optional dependency
-        raise InputError("writing Parquet needs pyarrow (pip install 'hmpc[parquet]')",
-                         str(path)) from None
+        raise InputError(
+            "writing Parquet needs pyarrow (pip install 'hmpc[parquet]')", str(path)
+        ) from None
     pq.write_table(pa.table({k: v for k, v in channels.items()}), str(path))
 
 
@@ -297,8 +313,12 @@ def read_channels(path: str | Path, *, allow_extra: bool = False) -> dict[str, n
         raise InputError("no 'time' column: not a canonical recording", str(path), channel="time")
     twice = [h for i, h in enumerate(header) if h in header[:i]]
     if twice:
-        raise InputError("column appears twice in the header", str(path),
-                         line=None if first_line is None else first_line - 1, channel=twice[0])
+        raise InputError(
+            "column appears twice in the header",
+            str(path),
+            line=None if first_line is None else first_line - 1,
+            channel=twice[0],
+        )
     unknown = [h for h in header if h not in CHANNELS]
     if unknown and not allow_extra:
         raise InputError("unknown column (not a canonical channel)", str(path), channel=unknown[0])
@@ -335,8 +355,9 @@ def _read_csv_text(path: Path) -> tuple[list[str], dict[str, list[str]], int]:
     rows = list(reader)
     for i, r in enumerate(rows):
         if len(r) != len(header):
-            raise InputError(f"expected {len(header)} fields, found {len(r)}", str(path),
-                             line=i + 2)
+            raise InputError(
+                f"expected {len(header)} fields, found {len(r)}", str(path), line=i + 2
+            )
     return header, {n: [r[j] for r in rows] for j, n in enumerate(header)}, 2
 
 
@@ -348,9 +369,12 @@ def _parse_column(name: str, vals: list[str], path: Path, first_line: int | None
         return np.array([float(v) if v != "" else np.nan for v in vals])
     except ValueError:
         bad = next(i for i, v in enumerate(vals) if not _is_float(v))
-        raise InputError(f"value {vals[bad]!r} is not a number", str(path),
-                         line=None if first_line is None else bad + first_line,
-                         channel=name) from None
+        raise InputError(
+            f"value {vals[bad]!r} is not a number",
+            str(path),
+            line=None if first_line is None else bad + first_line,
+            channel=name,
+        ) from None
 
 
 def _check_time(t: np.ndarray, path: Path) -> None:
@@ -364,34 +388,44 @@ def _check_time(t: np.ndarray, path: Path) -> None:
     d = np.diff(t)
     if np.any(d <= 0):
         bad = int(np.flatnonzero(d <= 0)[0]) + 1
-        raise InputError("time is not strictly increasing", str(path), line=bad + 2,
-                         channel="time")
+        raise InputError("time is not strictly increasing", str(path), line=bad + 2, channel="time")
     if len(d):
         # CONVENTIONS: one uniform grid; a gap is rows with empty cells, never a step in time
         step = float(np.median(d))
         off = (d > GRID_TOLERANCE * step) | (d < step / GRID_TOLERANCE)
         if off.any():
             bad = int(np.flatnonzero(off)[0]) + 1
-            raise InputError(f"time steps {d[bad - 1]:.6g} s where the grid step is {step:.6g} s "
-                             "(a clock jump?); a recording is on one uniform grid, a gap is "
-                             "rows with empty cells", str(path), line=bad + 2, channel="time")
+            raise InputError(
+                f"time steps {d[bad - 1]:.6g} s where the grid step is {step:.6g} s "
+                "(a clock jump?); a recording is on one uniform grid, a gap is "
+                "rows with empty cells",
+                str(path),
+                line=bad + 2,
+                channel="time",
+            )
 
 
 def _check_values(channels: dict[str, np.ndarray], path: Path, first_line: int | None) -> None:
     """No infinite number, pedals as fractions 0..1, gears from CONVENTIONS: otherwise
     InputError naming the line and channel of the first bad value (a missing sample, empty
     or NaN, is a gap and allowed)."""
+
     def fail(name: str, i: int, why: str):
-        raise InputError(why, str(path), line=None if first_line is None else i + first_line,
-                         channel=name)
+        raise InputError(
+            why, str(path), line=None if first_line is None else i + first_line, channel=name
+        )
 
     for name, v in channels.items():
         if name in STRING_CHANNELS:
             if name == "gear":
                 bad = [i for i, g in enumerate(v) if g != "" and str(g) not in VALID_GEARS]
                 if bad:
-                    fail(name, bad[0], f"gear {v[bad[0]]!r} is not one of "
-                                       f"{', '.join(sorted(VALID_GEARS))} (or empty)")
+                    fail(
+                        name,
+                        bad[0],
+                        f"gear {v[bad[0]]!r} is not one of "
+                        f"{', '.join(sorted(VALID_GEARS))} (or empty)",
+                    )
             continue
         inf = np.isinf(v)
         if inf.any():
@@ -401,8 +435,7 @@ def _check_values(channels: dict[str, np.ndarray], path: Path, first_line: int |
             out = (v < -FRACTION_SLACK) | (v > 1 + FRACTION_SLACK)
             if out.any():
                 i = int(np.flatnonzero(out)[0])
-                fail(name, i, f"value {v[i]:g} is outside 0..1 (pedals are fractions, not "
-                              "percent)")
+                fail(name, i, f"value {v[i]:g} is outside 0..1 (pedals are fractions, not percent)")
 
 
 def _is_float(v: str) -> bool:

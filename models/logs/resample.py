@@ -15,6 +15,7 @@ channel's median sample period), grid times strictly inside the gap are NaN (``"
 instead of interpolated, and the gap is listed. Grid times before the first or after the last
 raw sample are NaN as well (no extrapolation).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -41,8 +42,11 @@ class Gap:
         return self.end_s - self.start_s
 
     def to_dict(self) -> dict:
-        return {"start_s": float(self.start_s), "end_s": float(self.end_s),
-                "duration_s": float(self.duration_s)}
+        return {
+            "start_s": float(self.start_s),
+            "end_s": float(self.end_s),
+            "duration_s": float(self.duration_s),
+        }
 
 
 def make_grid(t_start_s: float, t_end_s: float, rate_hz: float) -> np.ndarray:
@@ -59,8 +63,9 @@ def make_grid(t_start_s: float, t_end_s: float, rate_hz: float) -> np.ndarray:
     return t_start_s + np.arange(n) / rate_hz
 
 
-def gap_threshold_s(t_s: np.ndarray, gap_s: float | None = None, *,
-                    median_step_s: float | None = None) -> float:
+def gap_threshold_s(
+    t_s: np.ndarray, gap_s: float | None = None, *, median_step_s: float | None = None
+) -> float:
     """The gap threshold of a channel sampled at ``t_s`` (see module docstring) [s].
     ``median_step_s``: the median of ``t_s``'s positive steps when the caller has it."""
     if gap_s is not None:
@@ -81,9 +86,15 @@ def find_gaps(t_s: np.ndarray, threshold_s: float) -> list[Gap]:
     return [Gap(float(t[k]), float(t[k + 1])) for k in i]
 
 
-def resample(t_s: np.ndarray, values: np.ndarray, grid_s: np.ndarray, kind: str = "linear",
-             gap_s: float | None = None, *,
-             threshold_s: float | None = None) -> tuple[np.ndarray, list[Gap]]:
+def resample(
+    t_s: np.ndarray,
+    values: np.ndarray,
+    grid_s: np.ndarray,
+    kind: str = "linear",
+    gap_s: float | None = None,
+    *,
+    threshold_s: float | None = None,
+) -> tuple[np.ndarray, list[Gap]]:
     """Resample one channel onto ``grid_s``.
 
     Args:
@@ -122,8 +133,9 @@ def resample(t_s: np.ndarray, values: np.ndarray, grid_s: np.ndarray, kind: str 
         order = np.argsort(t, kind="stable")
         t, v = t[order], v[order]
         threshold_s = None
-    empty = (np.full(grid.shape, "", dtype=object) if kind == "string"
-             else np.full(grid.shape, np.nan))
+    empty = (
+        np.full(grid.shape, "", dtype=object) if kind == "string" else np.full(grid.shape, np.nan)
+    )
     if len(t) == 0:
         return empty, []
     thr = gap_threshold_s(t, gap_s) if threshold_s is None else threshold_s

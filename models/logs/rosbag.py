@@ -17,6 +17,7 @@ Bad input: a topic the map names that the recording lacks, or a field its messag
 and a typo must not silently drop a channel. A message that does not deserialise is skipped,
 counted and reported.
 """
+
 from __future__ import annotations
 
 import difflib
@@ -54,8 +55,9 @@ def read_bag(path: str | Path, tmap: TopicMap, problems: Problems) -> dict[str, 
     if kind == MCAP:
         return _read_mcap(path, tmap, problems)
     if kind is None:
-        raise InputError("not a ROS 1 .bag, a ROS 2 bag folder (metadata.yaml) or an .mcap file",
-                         str(path))
+        raise InputError(
+            "not a ROS 1 .bag, a ROS 2 bag folder (metadata.yaml) or an .mcap file", str(path)
+        )
     return _read_rosbags(path, kind, tmap, problems)
 
 
@@ -72,7 +74,7 @@ class _Collector:
     def add(self, log_time_ns: int, msg: Any, msgtype: str | None) -> None:
         if self.msgtype is None:
             self.msgtype = msgtype
-            for f in self.fields:   # the first message decides: a missing field is a map error
+            for f in self.fields:  # the first message decides: a missing field is a map error
                 _value(msg, f, self)
         self.rows.append([_value(msg, f, self) for f in self.fields])
         self.t.append(self._time(log_time_ns, msg))
@@ -87,14 +89,24 @@ class _Collector:
 
     def result(self) -> TopicData:
         ts = self.tspec.time
-        source = ("log time" if ts is None or ts == LOG_TIME
-                  else ts if isinstance(ts, str) else f"{ts[0]} + {ts[1]} ns")
+        source = (
+            "log time"
+            if ts is None or ts == LOG_TIME
+            else ts
+            if isinstance(ts, str)
+            else f"{ts[0]} + {ts[1]} ns"
+        )
         t = np.asarray(self.t, float)
         vals = np.asarray(self.rows, float).reshape(len(self.rows), len(self.fields))
         order = np.argsort(t, kind="stable")
-        return TopicData(self.topic, t[order],
-                         {f: vals[order, i] for i, f in enumerate(self.fields)},
-                         self.where, self.msgtype, source)
+        return TopicData(
+            self.topic,
+            t[order],
+            {f: vals[order, i] for i, f in enumerate(self.fields)},
+            self.where,
+            self.msgtype,
+            source,
+        )
 
 
 def _value(msg: Any, path: str, col: _Collector) -> float:
@@ -103,9 +115,11 @@ def _value(msg: Any, path: str, col: _Collector) -> float:
     for part in path.split("."):
         if not hasattr(obj, part):
             have = ", ".join(_attrs(obj)) or "no fields"
-            raise InputError(f"topic '{col.topic}': field '{path}' is not in its messages "
-                             f"({col.msgtype or type(msg).__name__}: '{part}' not among {have})",
-                             col.where)
+            raise InputError(
+                f"topic '{col.topic}': field '{path}' is not in its messages "
+                f"({col.msgtype or type(msg).__name__}: '{part}' not among {have})",
+                col.where,
+            )
         obj = getattr(obj, part)
     return _number(obj, path, col)
 
@@ -118,9 +132,11 @@ def _number(obj: Any, path: str, col: _Collector) -> float:
     for sec, nsec in (("sec", "nanosec"), ("secs", "nsecs")):
         if hasattr(obj, sec) and hasattr(obj, nsec):
             return float(getattr(obj, sec)) + float(getattr(obj, nsec)) / 1e9
-    raise InputError(f"topic '{col.topic}': field '{path}' is not a number "
-                     f"(it is {type(obj).__name__}: {', '.join(_attrs(obj)) or 'no fields'})",
-                     col.where)
+    raise InputError(
+        f"topic '{col.topic}': field '{path}' is not a number "
+        f"(it is {type(obj).__name__}: {', '.join(_attrs(obj)) or 'no fields'})",
+        col.where,
+    )
 
 
 def _attrs(obj: Any) -> list[str]:
@@ -139,16 +155,19 @@ def _missing_topics(tmap: TopicMap, have: set[str], where: str) -> None:
             close = difflib.get_close_matches(topic, sorted(have), n=1)
             hint = f"; did you mean '{close[0]}'?" if close else ""
             listed = ", ".join(sorted(have)[:12]) + (" ..." if len(have) > 12 else "")
-            raise InputError(f"topic '{topic}' is not in the recording{hint} (it has: "
-                             f"{listed or 'no topics'})", where)
+            raise InputError(
+                f"topic '{topic}' is not in the recording{hint} (it has: {listed or 'no topics'})",
+                where,
+            )
 
 
 def _collectors(tmap: TopicMap, where: str) -> dict[str, _Collector]:
     return {t: _Collector(t, f, tmap.spec(t), where) for t, f in tmap.needs().items()}
 
 
-def _read_rosbags(path: Path, kind: str, tmap: TopicMap, problems: Problems
-                  ) -> dict[str, TopicData]:
+def _read_rosbags(
+    path: Path, kind: str, tmap: TopicMap, problems: Problems
+) -> dict[str, TopicData]:
     """ROS 1 bags and ROS 2 bags through rosbags' AnyReader."""
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
@@ -191,17 +210,22 @@ def _read_mcap(path: Path, tmap: TopicMap, problems: Problems) -> dict[str, Topi
                 _missing_topics(tmap, {c.topic for c in summary.channels.values()}, where)
             seen: set[str] = set()
             for schema, channel, message, decoded in reader.iter_decoded_messages(
-                    topics=list(cols)):
+                topics=list(cols)
+            ):
                 seen.add(channel.topic)
-                cols[channel.topic].add(message.log_time, decoded,
-                                        schema.name if schema is not None else None)
-            if summary is None:   # an unindexed file: the topics are known once read
+                cols[channel.topic].add(
+                    message.log_time, decoded, schema.name if schema is not None else None
+                )
+            if summary is None:  # an unindexed file: the topics are known once read
                 _missing_topics(tmap, seen, where)
     except InputError:
         raise
     except DecoderNotFoundError as exc:
-        raise InputError(f"a topic's message encoding cannot be decoded ({_why(exc)}); "
-                         "hmpc reads ROS 1 and ROS 2 (CDR) messages", where) from None
+        raise InputError(
+            f"a topic's message encoding cannot be decoded ({_why(exc)}); "
+            "hmpc reads ROS 1 and ROS 2 (CDR) messages",
+            where,
+        ) from None
     except (McapError, OSError, ValueError, KeyError, EOFError) as exc:
         raise InputError(f"cannot read as MCAP ({_why(exc)})", where) from None
     return {t: c.result() for t, c in cols.items()}
@@ -210,4 +234,3 @@ def _read_mcap(path: Path, tmap: TopicMap, problems: Problems) -> dict[str, Topi
 def _why(exc: BaseException) -> str:
     text = " ".join(str(exc).split()) or exc.__class__.__name__
     return text if len(text) <= 200 else text[:197] + "..."
-

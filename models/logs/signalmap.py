@@ -33,6 +33,7 @@ Everything is validated at load time against the DBC: an unknown top-level key, 
 per-channel key, message, signal, unit or function raises :class:`ParamError` naming the map
 file, the YAML line and the key (``channels.<channel>.<key>``) -- one line, no traceback.
 """
+
 from __future__ import annotations
 
 import ast
@@ -60,28 +61,46 @@ UNITS: dict[str, tuple[str, float]] = {
     "deg/s": ("rad/s", math.pi / 180.0),
     "m/s": ("m/s", 1.0),
     "km/h": ("m/s", 1.0 / 3.6),
-    "mph": ("m/s", 0.44704),            # international mile / hour, exact
+    "mph": ("m/s", 0.44704),  # international mile / hour, exact
     "m/s^2": ("m/s^2", 1.0),
-    "g": ("m/s^2", G_MPS2),             # standard gravity
+    "g": ("m/s^2", G_MPS2),  # standard gravity
     "1": ("1", 1.0),
     "fraction": ("1", 1.0),
     "%": ("1", 0.01),
     "rpm": ("1/min", 1.0),
     "1/min": ("1/min", 1.0),
     "m": ("m", 1.0),
-    "ft": ("m", 0.3048),                # international foot, exact
+    "ft": ("m", 0.3048),  # international foot, exact
 }
 
 #: other spellings of those units found in DBCs in the field (opendbc writes ``kph``, other
 #: makers ``km/hr``, ``deg/sec``, ``m/s2``, ``percent``) -> the spelling in :data:`UNITS`.
 #: Matched exactly, after stripping surrounding blanks; an unknown spelling stays an error.
 UNIT_ALIASES: dict[str, str] = {
-    "kph": "km/h", "kmh": "km/h", "km/hr": "km/h", "kmph": "km/h", "kilometer/hour": "km/h",
-    "degree": "deg", "degrees": "deg", "°": "deg",
-    "deg/sec": "deg/s", "degree/s": "deg/s", "degrees/s": "deg/s", "°/s": "deg/s",
-    "rad/sec": "rad/s", "mps": "m/s", "m/sec": "m/s",
-    "m/s2": "m/s^2", "m/s²": "m/s^2", "m/s/s": "m/s^2", "mps2": "m/s^2",
-    "percent": "%", "pct": "%", "rev/min": "rpm", "meter": "m", "metre": "m",
+    "kph": "km/h",
+    "kmh": "km/h",
+    "km/hr": "km/h",
+    "kmph": "km/h",
+    "kilometer/hour": "km/h",
+    "degree": "deg",
+    "degrees": "deg",
+    "°": "deg",
+    "deg/sec": "deg/s",
+    "degree/s": "deg/s",
+    "degrees/s": "deg/s",
+    "°/s": "deg/s",
+    "rad/sec": "rad/s",
+    "mps": "m/s",
+    "m/sec": "m/s",
+    "m/s2": "m/s^2",
+    "m/s²": "m/s^2",
+    "m/s/s": "m/s^2",
+    "mps2": "m/s^2",
+    "percent": "%",
+    "pct": "%",
+    "rev/min": "rpm",
+    "meter": "m",
+    "metre": "m",
 }
 
 
@@ -105,8 +124,12 @@ _FUNCS: dict[str, tuple[Callable, int, int]] = {
     "min": (np.minimum, 2, 2),
     "max": (np.maximum, 2, 2),
 }
-_BINOPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
-           ast.Div: operator.truediv}
+_BINOPS = {
+    ast.Add: operator.add,
+    ast.Sub: operator.sub,
+    ast.Mult: operator.mul,
+    ast.Div: operator.truediv,
+}
 _UNOPS: dict[type, Callable[..., Any]] = {ast.USub: operator.neg, ast.UAdd: operator.pos}
 #: an expression longer than this (characters or AST nodes) is refused: no map needs more
 MAX_EXPR_CHARS = 400
@@ -187,12 +210,17 @@ def parse_expr(text: str, allowed: set[str] | frozenset[str]) -> Expr:
                 raise ValueError("keyword arguments are not allowed")
             fn, lo, hi = _FUNCS[node.func.id]
             if not lo <= len(node.args) <= hi:
-                raise ValueError(f"{node.func.id}() takes {lo} argument(s)"
-                                 if lo == hi else f"{node.func.id}() takes {lo}..{hi} arguments")
+                raise ValueError(
+                    f"{node.func.id}() takes {lo} argument(s)"
+                    if lo == hi
+                    else f"{node.func.id}() takes {lo}..{hi} arguments"
+                )
             args = [build(a) for a in node.args]
             return lambda env: fn(*(a(env) for a in args))
-        raise ValueError(f"'{ast.unparse(node)}' is not allowed in an expression "
-                         "(numbers, signal names, + - * /, parentheses, abs/min/max only)")
+        raise ValueError(
+            f"'{ast.unparse(node)}' is not allowed in an expression "
+            "(numbers, signal names, + - * /, parentheses, abs/min/max only)"
+        )
 
     fn = build(tree)
     if not used:
@@ -252,8 +280,9 @@ class ChannelMap:
 
     def describe(self) -> str:
         bus = "" if self.bus is None else f" bus {self.bus}"
-        return f"{self.message}{bus}: {self.expr.text} [{self.unit}]" + \
-            (" x -1" if self.sign < 0 else "")
+        return f"{self.message}{bus}: {self.expr.text} [{self.unit}]" + (
+            " x -1" if self.sign < 0 else ""
+        )
 
 
 @dataclass(frozen=True)
@@ -326,15 +355,17 @@ def load_signal_map(path: str | Path, db=None) -> SignalMap:
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read the signal map as text ({exc.__class__.__name__})",
-                         str(path)) from None
+        raise InputError(
+            f"cannot read the signal map as text ({exc.__class__.__name__})", str(path)
+        ) from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         problem = getattr(exc, "problem", None) or exc.__class__.__name__
-        raise ParamError(f"not valid YAML ({problem})",
-                         str(path), line=None if mark is None else mark.line + 1) from None
+        raise ParamError(
+            f"not valid YAML ({problem})", str(path), line=None if mark is None else mark.line + 1
+        ) from None
     return parse_signal_map(data, str(path), db, _key_lines(text))
 
 
@@ -410,8 +441,9 @@ def _parse_channel(ch: str, entry: Any, db, err, lines) -> ChannelMap:
     try:
         expr = parse_expr(expr_text, allowed if allowed is not None else _AnyName())
     except ValueError as exc:
-        raise err(f"{exc} '{message}'" if "is not in the message" in str(exc) else str(exc),
-                  *base, "expr") from None
+        raise err(
+            f"{exc} '{message}'" if "is not in the message" in str(exc) else str(exc), *base, "expr"
+        ) from None
 
     # unit
     if is_gear:
@@ -420,8 +452,11 @@ def _parse_channel(ch: str, entry: Any, db, err, lines) -> ChannelMap:
         unit, factor = "-", 1.0
     else:
         if "unit" not in entry:
-            raise err(f"required key is missing (the expression's unit; one of {', '.join(UNITS)})",
-                      *base, "unit")
+            raise err(
+                f"required key is missing (the expression's unit; one of {', '.join(UNITS)})",
+                *base,
+                "unit",
+            )
         unit = entry["unit"]
         if isinstance(unit, (int, float)) and not isinstance(unit, bool):
             unit = str(unit)
@@ -431,8 +466,9 @@ def _parse_channel(ch: str, entry: Any, db, err, lines) -> ChannelMap:
             raise err(f"unknown unit {unit!r} (known: {', '.join(UNITS)})", *base, "unit")
         si, factor = UNITS[unit]
         if si != CHANNELS[ch]:
-            raise err(f"unit '{unit}' converts to {si}, but {ch} is in {CHANNELS[ch]}",
-                      *base, "unit")
+            raise err(
+                f"unit '{unit}' converts to {si}, but {ch} is in {CHANNELS[ch]}", *base, "unit"
+            )
 
     sign = entry["sign"] if "sign" in entry else 1
     if isinstance(sign, bool) or sign not in (1, -1):
@@ -451,8 +487,11 @@ def _parse_channel(ch: str, entry: Any, db, err, lines) -> ChannelMap:
     default_kind = "hold" if ch in HOLD_CHANNELS else "linear"
     resample = entry["resample"] if "resample" in entry else default_kind
     if resample not in RESAMPLE_KINDS:
-        raise err(f"resample must be one of {', '.join(RESAMPLE_KINDS)}, got {resample!r}",
-                  *base, "resample")
+        raise err(
+            f"resample must be one of {', '.join(RESAMPLE_KINDS)}, got {resample!r}",
+            *base,
+            "resample",
+        )
     if is_gear and resample != "hold":
         raise err("gear can only be resampled by 'hold'", *base, "resample")
 
@@ -469,8 +508,12 @@ def _parse_channel(ch: str, entry: Any, db, err, lines) -> ChannelMap:
                 raise err(f"raw gear value {k!r} is not an integer", *base, "gear", str(k))
             v = str(v)
             if v not in VALID_GEARS:
-                raise err(f"gear {v!r} is not one of {', '.join(sorted(VALID_GEARS))}",
-                          *base, "gear", str(k))
+                raise err(
+                    f"gear {v!r} is not one of {', '.join(sorted(VALID_GEARS))}",
+                    *base,
+                    "gear",
+                    str(k),
+                )
             gear[int(k)] = v
     elif "gear" in entry:
         raise err("a 'gear' table is only allowed for the gear channel", *base, "gear")
@@ -479,14 +522,27 @@ def _parse_channel(ch: str, entry: Any, db, err, lines) -> ChannelMap:
     if note is not None and not isinstance(note, str):
         raise err("expected text", *base, "note")
 
-    return ChannelMap(ch, message, expr, unit, factor * sign, float(sign), bus, required,
-                      resample, gear, note, lines.get(base))
+    return ChannelMap(
+        ch,
+        message,
+        expr,
+        unit,
+        factor * sign,
+        float(sign),
+        bus,
+        required,
+        resample,
+        gear,
+        note,
+        lines.get(base),
+    )
 
 
 #: channels resampled by zero-order hold unless the map says otherwise: a pedal or gear sample
 #: is a held value; hold never invents values between two samples.
-HOLD_CHANNELS = frozenset({"gear", "accel_pedal", "brake_pedal", "accel_pedal_cmd",
-                           "brake_pedal_cmd"})
+HOLD_CHANNELS = frozenset(
+    {"gear", "accel_pedal", "brake_pedal", "accel_pedal_cmd", "brake_pedal_cmd"}
+)
 
 
 class _AnyName(frozenset):

@@ -8,6 +8,7 @@ for the whole file, allocated once; a worker thread touches their memory ahead o
 
 Imports only numpy, ``models.errors`` and ``models.logs.frames``/``candump_fixed``.
 """
+
 from __future__ import annotations
 
 import mmap
@@ -36,8 +37,9 @@ PREFAULT_ROWS = 1 << 16
 PREFAULT_AHEAD = 1 << 21
 
 
-def iter_blocks(p: Path, gz: bool, chunk_bytes: int,
-                on_truncated: Callable[[int], None] | None = None):
+def iter_blocks(
+    p: Path, gz: bool, chunk_bytes: int, on_truncated: Callable[[int], None] | None = None
+):
     """Yield (base, nl, cut): blocks of whole lines at ``base[PAD:PAD + nl[-1] + 1]``, ``nl``
     their line feeds (the last one's is added when the file lacks it), ``base`` zero padded by
     at least :data:`PAD` bytes on both sides of the block.
@@ -59,12 +61,13 @@ def iter_blocks(p: Path, gz: bool, chunk_bytes: int,
     cur, held = 0, 0
     try:
         with open_binary(p, gz) as fh, ThreadPoolExecutor(1) as pool:
+
             def fill(k: int, held: int):
                 """Read the next chunk into buffer k after its ``held`` bytes: (bytes read,
                 line feeds among all its bytes)."""
                 view = memoryview(cast(Any, bufs[k]))  # numpy's stubs: no buffer before 3.12
-                n = fh.readinto(view[PAD + held:PAD + held + chunk_bytes])
-                np.equal(bufs[k][PAD + held:PAD + held + n], 10, out=is_lf[k][:n])
+                n = fh.readinto(view[PAD + held : PAD + held + chunk_bytes])
+                np.equal(bufs[k][PAD + held : PAD + held + n], 10, out=is_lf[k][:n])
                 return n, np.flatnonzero(is_lf[k][:n]) + held
 
             job = pool.submit(fill, cur, held)
@@ -85,7 +88,7 @@ def iter_blocks(p: Path, gz: bool, chunk_bytes: int,
                     continue
                 end = int(nl[-1]) + 1
                 held = total - end
-                bufs[1 - cur][PAD:PAD + held] = base[PAD + end:PAD + total]
+                bufs[1 - cur][PAD : PAD + held] = base[PAD + end : PAD + total]
                 job = pool.submit(fill, 1 - cur, held)
                 yield base, nl, 0
                 cur = 1 - cur
@@ -145,13 +148,18 @@ class FrameSink:
 
     def _grow(self, cap: int, width: int) -> None:
         old, n = self.cols, self.n
-        self.cols = {"t_s": _anonymous(cap, np.float64), "bus": _anonymous(cap, np.int16),
-                     "arb_id": _anonymous(cap, np.uint32), "is_extended": _anonymous(cap, bool),
-                     "dlc": _anonymous(cap, np.uint8), "data": _anonymous((cap, width), np.uint8),
-                     "where": _anonymous(cap, np.int64)}
+        self.cols = {
+            "t_s": _anonymous(cap, np.float64),
+            "bus": _anonymous(cap, np.int16),
+            "arb_id": _anonymous(cap, np.uint32),
+            "is_extended": _anonymous(cap, bool),
+            "dlc": _anonymous(cap, np.uint8),
+            "data": _anonymous((cap, width), np.uint8),
+            "where": _anonymous(cap, np.int64),
+        }
         for k, v in old.items():
             if k == "data":
-                self.cols[k][:n, :v.shape[1]] = v[:n]
+                self.cols[k][:n, : v.shape[1]] = v[:n]
             else:
                 self.cols[k][:n] = v[:n]
         self.cap, self.width = cap, width
@@ -161,12 +169,14 @@ class FrameSink:
         w = ch.data.shape[1]
         a, b = self.n, self.n + k
         with self._cond:
-            while self._claim is not None and (b > self.cap or w > self.width
-                                               or (self._claim[0] < b and a < self._claim[1])):
+            while self._claim is not None and (
+                b > self.cap or w > self.width or (self._claim[0] < b and a < self._claim[1])
+            ):
                 self._cond.wait()
             if b > self.cap or w > self.width:
-                self._grow(self.cap if b <= self.cap else max(b, self.cap * 3 // 2),
-                           max(w, self.width))
+                self._grow(
+                    self.cap if b <= self.cap else max(b, self.cap * 3 // 2), max(w, self.width)
+                )
             self.n = b  # reserved: the prefault starts past it
             self._cond.notify_all()
         c = self.cols
@@ -186,8 +196,9 @@ class FrameSink:
         done = 0
         while True:
             with self._cond:
-                while not self._closed and max(done, self.n) >= min(self.n + PREFAULT_AHEAD,
-                                                                    self.cap):
+                while not self._closed and max(done, self.n) >= min(
+                    self.n + PREFAULT_AHEAD, self.cap
+                ):
                     self._cond.wait()
                 if self._closed:
                     return
@@ -197,7 +208,7 @@ class FrameSink:
             try:
                 for v in cols.values():
                     row = v.strides[0]
-                    v.reshape(-1).view(np.uint8)[a * row:b * row:mmap.PAGESIZE] = 0
+                    v.reshape(-1).view(np.uint8)[a * row : b * row : mmap.PAGESIZE] = 0
             finally:
                 with self._cond:
                     self._claim = None
@@ -212,5 +223,13 @@ class FrameSink:
 
     def table(self, path: str) -> FrameTable:
         n, c = self.n, self.cols
-        return FrameTable(c["t_s"][:n], c["bus"][:n], c["arb_id"][:n], c["is_extended"][:n],
-                          c["dlc"][:n], c["data"][:n], c["where"][:n], path)
+        return FrameTable(
+            c["t_s"][:n],
+            c["bus"][:n],
+            c["arb_id"][:n],
+            c["is_extended"][:n],
+            c["dlc"][:n],
+            c["data"][:n],
+            c["where"][:n],
+            path,
+        )

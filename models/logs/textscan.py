@@ -5,6 +5,7 @@ The readers of ``models.logs.candump`` and ``models.logs.libpanda`` build on the
 function works on whole columns of lines at once (no Python loop per line). Imports only numpy
 and ``models.logs.frames``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -31,11 +32,13 @@ POW10_I = 10 ** np.arange(19, dtype=np.int64)
 POW10_F = 10.0 ** np.arange(25)
 POW10_LD = np.longdouble(10) ** np.arange(25).astype(np.longdouble)
 #: two hex digits (as a little-endian uint16 of their bytes) -> byte value, 0xFFFF if not hex
-HEX2 = np.where((HEX[np.arange(65536) & 0xFF] < 16) & (HEX[np.arange(65536) >> 8] < 16),
-                HEX[np.arange(65536) & 0xFF].astype(np.uint16) * 16 + HEX[np.arange(65536) >> 8],
-                0xFFFF).astype(np.uint16)
+HEX2 = np.where(
+    (HEX[np.arange(65536) & 0xFF] < 16) & (HEX[np.arange(65536) >> 8] < 16),
+    HEX[np.arange(65536) & 0xFF].astype(np.uint16) * 16 + HEX[np.arange(65536) >> 8],
+    0xFFFF,
+).astype(np.uint16)
 LONGDOUBLE_OK = np.finfo(np.longdouble).nmant >= 63  # x87 80-bit or IEEE quad
-TWO53 = 2 ** 53
+TWO53 = 2**53
 
 
 def line_bounds(b: np.ndarray):
@@ -65,7 +68,7 @@ class Buf:
         self.b = b
         self.n = len(b)
         self.padded = np.zeros(self.n + 2 * self.PAD, np.uint8)
-        self.padded[self.PAD:self.PAD + self.n] = b
+        self.padded[self.PAD : self.PAD + self.n] = b
         self._win: dict[int, np.ndarray] = {}
 
     def gather(self, start: np.ndarray, width: int) -> np.ndarray:
@@ -109,7 +112,7 @@ def dec_int(buf: Buf, start, length, ok, cap):
     inside = np.arange(width) >= (width - length)[:, None]
     ok = ok & (length >= 1) & (length <= width) & ~np.any(inside & (g == 255), axis=1)
     d = np.where(inside, g, 0).astype(np.int64)
-    return d @ POW10_I[width - 1::-1], ok
+    return d @ POW10_I[width - 1 :: -1], ok
 
 
 def exact_quotient(nval: np.ndarray, k: np.ndarray, text_of) -> np.ndarray:
@@ -163,10 +166,9 @@ def dec_time(buf: Buf, start, length, ok):
         g = buf.gather(start[rows], L0)[:, cols] - np.uint8(48)
         good = np.all(g < 10, axis=1)
         rows, g = rows[good], g[good]
-        nval = g.astype(np.int64) @ POW10_I[len(cols) - 1::-1]
+        nval = g.astype(np.int64) @ POW10_I[len(cols) - 1 :: -1]
         k = np.full(len(rows), 0 if D0 < 0 else L0 - 1 - D0)
-        t[rows] = exact_quotient(nval, k,
-                                 lambda i, r=rows: text_at(buf, start[r[i]], length[r[i]]))
+        t[rows] = exact_quotient(nval, k, lambda i, r=rows: text_at(buf, start[r[i]], length[r[i]]))
         tok[rows] = True
     rest = np.flatnonzero(ok & ~tok & (length >= 1) & (length <= 24))
     if len(rest):
@@ -177,7 +179,7 @@ def dec_time(buf: Buf, start, length, ok):
 
 
 def text_at(buf: Buf, start: int, length: int) -> str:
-    return buf.b[start:start + length].tobytes().decode("ascii")
+    return buf.b[start : start + length].tobytes().decode("ascii")
 
 
 def dec_time_general(buf: Buf, start, length):
@@ -191,8 +193,14 @@ def dec_time_general(buf: Buf, start, length):
     d = DEC[g]
     isdigit = inside & (d != 255)
     ndig = isdigit.sum(axis=1)
-    ok = ((length >= 1) & (length <= width) & (ndot <= 1) & (ndig >= 1) & (ndig <= 18)
-          & np.all(~inside | isdigit | isdot, axis=1))
+    ok = (
+        (length >= 1)
+        & (length <= width)
+        & (ndot <= 1)
+        & (ndig >= 1)
+        & (ndig <= 18)
+        & np.all(~inside | isdigit | isdot, axis=1)
+    )
     r = width - 1 - j
     k = np.where(ndot == 1, width - 1 - np.argmax(isdot, axis=1), 0)
     power = r[None, :] - ((r[None, :] > k[:, None]) & (ndot == 1)[:, None])
@@ -227,4 +235,3 @@ class Chunk:
     def __init__(self, t, bus, arb_id, ext, dlc, data, where, skipped):
         self.t, self.bus, self.arb_id, self.ext = t, bus, arb_id, ext
         self.dlc, self.data, self.where, self.skipped = dlc, data, where, skipped
-

@@ -19,6 +19,7 @@ summary with the same keys (``log_format`` is ``ros1 bag``, ``ros2 bag``, ``mcap
 export``; ``clock``, ``heading_mount``, ``imu_gravity`` and ``nav_origin`` are empty), plus
 ``topics`` (per topic: file, messages, type, time source, span) and ``position_origin``.
 """
+
 from __future__ import annotations
 
 import math
@@ -45,9 +46,14 @@ CSV_EXPORT = "csv export"
 Series = tuple[np.ndarray, np.ndarray]
 
 
-def ingest_topics(path, topics_path, rate_hz: float = 50.0, gap_s: float | None = None,
-                  problems: Problems | None = None,
-                  progress: Callable[[str], None] | None = None) -> IngestResult:
+def ingest_topics(
+    path,
+    topics_path,
+    rate_hz: float = 50.0,
+    gap_s: float | None = None,
+    problems: Problems | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> IngestResult:
     """Ingest a ROS recording into a canonical recording.
 
     Args:
@@ -146,8 +152,9 @@ def _values(c: TopicChannel, d: TopicData) -> np.ndarray:
     return d.fields[c.field] * c.factor
 
 
-def make_channels(tmap: TopicMap, data: dict[str, TopicData], where: str
-                  ) -> tuple[dict[str, Series], dict | None, list[str]]:
+def make_channels(
+    tmap: TopicMap, data: dict[str, TopicData], where: str
+) -> tuple[dict[str, Series], dict | None, list[str]]:
     """Step 3: channel -> (t_s, SI values) with only finite samples, the position origin
     (None without x/y), and the optional channels without a value."""
     vals = {ch: _values(c, data[c.topic]) for ch, c in tmap.channels.items()}
@@ -161,9 +168,12 @@ def make_channels(tmap: TopicMap, data: dict[str, TopicData], where: str
         ok = np.isfinite(vals[ch]) & np.isfinite(d.t_s)
         if not ok.any():
             if c.required:
-                raise InputError(f"required channel has no value: topic '{c.topic}' field "
-                                 f"'{c.field}' has {len(d.t_s)} messages and no finite value",
-                                 d.where, channel=ch)
+                raise InputError(
+                    f"required channel has no value: topic '{c.topic}' field "
+                    f"'{c.field}' has {len(d.t_s)} messages and no finite value",
+                    d.where,
+                    channel=ch,
+                )
             absent.append(ch)
             continue
         raw[ch] = (d.t_s[ok], vals[ch][ok])
@@ -172,8 +182,9 @@ def make_channels(tmap: TopicMap, data: dict[str, TopicData], where: str
     return raw, origin, absent
 
 
-def _to_local(tmap: TopicMap, data: dict[str, TopicData], vals: dict[str, np.ndarray]
-              ) -> dict | None:
+def _to_local(
+    tmap: TopicMap, data: dict[str, TopicData], vals: dict[str, np.ndarray]
+) -> dict | None:
     """Positions relative to the first fix with x and y (UTM turned to local ENU), in place;
     the origin's description, or None when no fix has both."""
     cx = tmap.channels["x"]
@@ -184,13 +195,19 @@ def _to_local(tmap: TopicMap, data: dict[str, TopicData], vals: dict[str, np.nda
         return None
     i0 = int(fix[0])
     x0, y0 = float(x[i0]), float(y[i0])
-    out = {"topic": cx.topic, "t_s": float(d.t_s[i0]), "frame": str(spec.frame or "local"),
-           "x_m": x0, "y_m": y0}
+    out = {
+        "topic": cx.topic,
+        "t_s": float(d.t_s[i0]),
+        "frame": str(spec.frame or "local"),
+        "x_m": x0,
+        "y_m": y0,
+    }
     if spec.frame is not None:
         gp = utm_to_geodetic(x0, y0, spec.frame)
         vals["x"], vals["y"] = grid_to_local(x, y, spec.frame, gp)
-        out.update({"lat_deg": gp.lat_deg, "lon_deg": gp.lon_deg,
-                    "convergence_rad": gp.convergence_rad})
+        out.update(
+            {"lat_deg": gp.lat_deg, "lon_deg": gp.lon_deg, "convergence_rad": gp.convergence_rad}
+        )
         if "heading" in tmap.channels and tmap.channels["heading"].topic == cx.topic:
             # a heading on the grid is from grid east: turned to true east like the positions
             vals["heading"] = _wrap(vals["heading"] - gp.convergence_rad)
@@ -199,16 +216,20 @@ def _to_local(tmap: TopicMap, data: dict[str, TopicData], vals: dict[str, np.nda
     if "z" in vals:
         z = vals["z"]
         cz = tmap.channels["z"]
-        zi = i0 if cz.topic == cx.topic and np.isfinite(z[i0]) else \
-            next(iter(np.flatnonzero(np.isfinite(z))), None)
+        zi = (
+            i0
+            if cz.topic == cx.topic and np.isfinite(z[i0])
+            else next(iter(np.flatnonzero(np.isfinite(z))), None)
+        )
         if zi is not None:
             out["z_m"] = float(z[zi])
             vals["z"] = z - float(z[zi])
     return out
 
 
-def resample_topics(raw: dict[str, Series], tmap: TopicMap, grid: np.ndarray,
-                    gap_s: float | None) -> tuple[dict[str, np.ndarray], dict, dict]:
+def resample_topics(
+    raw: dict[str, Series], tmap: TopicMap, grid: np.ndarray, gap_s: float | None
+) -> tuple[dict[str, np.ndarray], dict, dict]:
     """Step 4: every channel on the grid, its gaps and its summary entry."""
     chans: dict[str, np.ndarray] = {"time": grid}
     gaps: dict[str, list] = {}
@@ -221,7 +242,9 @@ def resample_topics(raw: dict[str, Series], tmap: TopicMap, grid: np.ndarray,
             gaps[ch] = [x.to_dict() for x in g]
         d = np.diff(t)
         info[ch] = {
-            "unit": CHANNELS[ch], "source": "topic " + c.describe(), "resample": c.resample,
+            "unit": CHANNELS[ch],
+            "source": "topic " + c.describe(),
+            "resample": c.resample,
             "raw_samples": int(len(t)),
             "raw_rate_hz": float(1.0 / np.median(d)) if len(d) and np.median(d) > 0 else None,
             "valid_fraction": float(np.mean(np.isfinite(values))) if len(values) else 0.0,
@@ -238,13 +261,18 @@ def _sources(path: Path, files: dict[str, Path] | None) -> dict:
     """Provenance of the recording: its file, or every file of a bag folder or CSV export."""
     if path.is_file() and files is None:
         return _source(path)
-    members = sorted(set(files.values())) if files else sorted(p for p in path.iterdir()
-                                                               if p.is_file())
+    members = (
+        sorted(set(files.values())) if files else sorted(p for p in path.iterdir() if p.is_file())
+    )
     return {"path": str(path), "files": [_source(p) for p in members]}
 
 
 def _topic_summary(d: TopicData) -> dict:
-    return {"file": d.where, "messages": int(len(d.t_s)), "type": d.msgtype,
-            "time": d.time_source,
-            "start_s": float(d.t_s[0]) if len(d.t_s) else None,
-            "end_s": float(d.t_s[-1]) if len(d.t_s) else None}
+    return {
+        "file": d.where,
+        "messages": int(len(d.t_s)),
+        "type": d.msgtype,
+        "time": d.time_source,
+        "start_s": float(d.t_s[0]) if len(d.t_s) else None,
+        "end_s": float(d.t_s[-1]) if len(d.t_s) else None,
+    }

@@ -21,6 +21,7 @@ used cell or an unusable time is skipped, counted and reported with its line; wh
 cells than the header has no value in its missing trailing columns (as pandas reads it), which
 is reported once per file as information; empty and ``nan`` cells are no value.
 """
+
 from __future__ import annotations
 
 import csv
@@ -39,7 +40,10 @@ from hmpc.models.logs.topicmap import LOG_TIME, TopicData, TopicMap, TopicSpec
 MAX_MALFORMED_FRACTION = 0.5
 #: time columns tried, in order, when the map gives none: (columns, description)
 AUTO_TIME: tuple[tuple[tuple[str, ...], str], ...] = (
-    (("Time",), "Time column"), (("s", "ns"), "s + ns columns"), (("time",), "time column"))
+    (("Time",), "Time column"),
+    (("s", "ns"), "s + ns columns"),
+    (("time",), "time column"),
+)
 
 KIND_MALFORMED = "malformed row (skipped)"
 KIND_SHORT_ROWS = "rows with fewer cells than the header (missing trailing cells: no value)"
@@ -68,9 +72,11 @@ def resolve_export(path: str | Path, tmap: TopicMap) -> dict[str, Path]:
     for s in specs:
         f = _file_of(folder, prefix, s)
         if f is None:
-            raise InputError(f"topic '{s.topic}': no file {prefix}{_name(s)}[.gz] in the export "
-                             f"(set topics.{s.topic}.file in {tmap.path} if it is named otherwise)",
-                             str(folder))
+            raise InputError(
+                f"topic '{s.topic}': no file {prefix}{_name(s)}[.gz] in the export "
+                f"(set topics.{s.topic}.file in {tmap.path} if it is named otherwise)",
+                str(folder),
+            )
         out[s.topic] = f
     return out
 
@@ -95,8 +101,10 @@ def _prefix_of(path: Path, specs: list[TopicSpec]) -> str:
         for c in _candidates(_name(s)):
             if path.name.endswith(c):
                 return path.name[: -len(c)]
-    raise InputError("not one of the topic files the map names ("
-                     + ", ".join(_name(s) for s in specs) + ")", str(path))
+    raise InputError(
+        "not one of the topic files the map names (" + ", ".join(_name(s) for s in specs) + ")",
+        str(path),
+    )
 
 
 def _only_prefix(folder: Path, specs: list[TopicSpec]) -> str:
@@ -108,21 +116,25 @@ def _only_prefix(folder: Path, specs: list[TopicSpec]) -> str:
     for s in specs:
         found = {n[: -len(c)] for n in names for c in _candidates(_name(s)) if n.endswith(c)}
         if not found:
-            return ""   # that topic's file is missing: resolve_export names it
+            return ""  # that topic's file is missing: resolve_export names it
         common = found if common is None else common & found
     assert common is not None  # a topic map has at least one topic
     if len(common) > 1:
         listed = ", ".join(sorted(common))
-        raise InputError(f"the folder holds several recordings (file-name prefixes {listed}); "
-                         f"name one as {folder / sorted(common)[0]}", str(folder))
+        raise InputError(
+            f"the folder holds several recordings (file-name prefixes {listed}); "
+            f"name one as {folder / sorted(common)[0]}",
+            str(folder),
+        )
     return next(iter(common)) if common else ""
 
 
-def read_export(files: dict[str, Path], tmap: TopicMap, problems: Problems
-                ) -> dict[str, TopicData]:
+def read_export(files: dict[str, Path], tmap: TopicMap, problems: Problems) -> dict[str, TopicData]:
     """Every topic the map reads, from its CSV file (see the module docstring)."""
-    return {t: read_topic_csv(files[t], tmap.spec(t), fields, problems, tmap.path)
-            for t, fields in tmap.needs().items()}
+    return {
+        t: read_topic_csv(files[t], tmap.spec(t), fields, problems, tmap.path)
+        for t, fields in tmap.needs().items()
+    }
 
 
 def _read_text(path: Path) -> str:
@@ -133,24 +145,32 @@ def _read_text(path: Path) -> str:
                 raise EOFError("the gzip stream ends early")
             return text
     except (OSError, EOFError, UnicodeDecodeError, zlib.error) as exc:
-        raise InputError(f"cannot read as CSV text ({exc.__class__.__name__})", str(path)) \
-            from None
+        raise InputError(f"cannot read as CSV text ({exc.__class__.__name__})", str(path)) from None
 
 
-def _time_columns(spec: TopicSpec, header: list[str], where: str, map_path: str
-                  ) -> tuple[tuple[str, ...], str]:
+def _time_columns(
+    spec: TopicSpec, header: list[str], where: str, map_path: str
+) -> tuple[tuple[str, ...], str]:
     if spec.time is None or spec.time == LOG_TIME:
         for cols, what in AUTO_TIME:
             if all(c in header for c in cols):
                 return cols, what
-        raise InputError(f"topic '{spec.topic}': no time column (Time, or s and ns); name it "
-                         f"with topics.{spec.topic}.time in {map_path}", where)
+        raise InputError(
+            f"topic '{spec.topic}': no time column (Time, or s and ns); name it "
+            f"with topics.{spec.topic}.time in {map_path}",
+            where,
+        )
     cols = spec.time_fields()
     return cols, (f"{cols[0]} column" if len(cols) == 1 else f"{cols[0]} + {cols[1]} columns")
 
 
-def read_topic_csv(path: Path, spec: TopicSpec, fields: set[str], problems: Problems,
-                   map_path: str = "the topic map") -> TopicData:
+def read_topic_csv(
+    path: Path,
+    spec: TopicSpec,
+    fields: set[str],
+    problems: Problems,
+    map_path: str = "the topic map",
+) -> TopicData:
     """One topic's CSV file: sample times [s] and the requested columns as floats."""
     where = str(path)
     reader = csv.reader(io.StringIO(_read_text(path)))
@@ -165,8 +185,12 @@ def read_topic_csv(path: Path, spec: TopicSpec, fields: set[str], problems: Prob
     index = {}
     for name in list(tcols) + wanted:
         if name not in header:
-            raise InputError(f"topic '{spec.topic}': field '{name}' is not a column (columns: "
-                             f"{', '.join(h for h in header if h) or 'none'})", where, line=1)
+            raise InputError(
+                f"topic '{spec.topic}': field '{name}' is not a column (columns: "
+                f"{', '.join(h for h in header if h) or 'none'})",
+                where,
+                line=1,
+            )
         if header.count(name) > 1:
             raise InputError(f"topic '{spec.topic}': column '{name}' appears twice", where, line=1)
         index[name] = header.index(name)
@@ -192,36 +216,52 @@ def read_topic_csv(path: Path, spec: TopicSpec, fields: set[str], problems: Prob
             t.append(vals[0])
             rows.append(vals[1:])
     except csv.Error as exc:
-        raise InputError(f"topic '{spec.topic}': not CSV ({exc})", where, line=n_rows + 2) \
-            from None
+        raise InputError(f"topic '{spec.topic}': not CSV ({exc})", where, line=n_rows + 2) from None
     if n_rows and (len(bad) > MAX_MALFORMED_FRACTION * n_rows or not t):
-        raise InputError(f"topic '{spec.topic}': {len(bad)} of {n_rows} rows are malformed "
-                         f"(first: {first_bad[1]})" if first_bad else
-                         f"topic '{spec.topic}': no usable row", where,
-                         line=first_bad[0] if first_bad else None)
+        raise InputError(
+            f"topic '{spec.topic}': {len(bad)} of {n_rows} rows are malformed "
+            f"(first: {first_bad[1]})"
+            if first_bad
+            else f"topic '{spec.topic}': no usable row",
+            where,
+            line=first_bad[0] if first_bad else None,
+        )
     if not t:
         raise InputError(f"topic '{spec.topic}': no data row", where)
     if bad:
         assert first_bad is not None  # recorded with the first bad row
-        problems.add(KIND_MALFORMED, where, bad[:Problems.MAX_FIRST], count=len(bad),
-                     detail=f"topic '{spec.topic}': {first_bad[1]}")
+        problems.add(
+            KIND_MALFORMED,
+            where,
+            bad[: Problems.MAX_FIRST],
+            count=len(bad),
+            detail=f"topic '{spec.topic}': {first_bad[1]}",
+        )
     if short:
-        problems.add(KIND_SHORT_ROWS, where, count=short, info=True,
-                     detail=f"topic '{spec.topic}': at most {min_len} of {len(header)} cells; "
-                            f"columns {', '.join(header[min_len:])} have no value there")
+        problems.add(
+            KIND_SHORT_ROWS,
+            where,
+            count=short,
+            info=True,
+            detail=f"topic '{spec.topic}': at most {min_len} of {len(header)} cells; "
+            f"columns {', '.join(header[min_len:])} have no value there",
+        )
     ta = np.asarray(t, float)
     va = np.asarray(rows, float).reshape(len(rows), len(wanted))
     if np.any(np.diff(ta) < 0):
-        problems.add(KIND_UNSORTED, where, count=int(np.sum(np.diff(ta) < 0)),
-                     detail=f"topic '{spec.topic}'")
+        problems.add(
+            KIND_UNSORTED, where, count=int(np.sum(np.diff(ta) < 0)), detail=f"topic '{spec.topic}'"
+        )
     order = np.argsort(ta, kind="stable")
     out = {name: va[order, i] for i, name in enumerate(wanted)}
     return TopicData(spec.topic, ta[order], out, where, None, tdesc)
 
 
-def _row_values(row: list[str], index: dict[str, int], tcols: tuple[str, ...],
-                wanted: list[str]) -> tuple[list[float], str | None]:
+def _row_values(
+    row: list[str], index: dict[str, int], tcols: tuple[str, ...], wanted: list[str]
+) -> tuple[list[float], str | None]:
     """[time, *wanted values] of a row, or the reason it is malformed."""
+
     def cell(name: str) -> str:
         j = index[name]
         return row[j].strip() if j < len(row) else ""

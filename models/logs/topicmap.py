@@ -49,6 +49,7 @@ Everything is validated at load time: an unknown top-level key, channel, per-cha
 per-topic key, unit or time/frame form raises :class:`ParamError` naming the map file, the YAML
 line and the key -- one line, no traceback.
 """
+
 from __future__ import annotations
 
 import difflib
@@ -62,8 +63,13 @@ import yaml
 
 from hmpc.models.errors import InputError, ParamError
 from hmpc.models.logs.channels import CHANNELS, STRING_CHANNELS
-from hmpc.models.logs.signalmap import (HOLD_CHANNELS, RESAMPLE_KINDS, UNITS, _key_lines,
-                                        canonical_unit)
+from hmpc.models.logs.signalmap import (
+    HOLD_CHANNELS,
+    RESAMPLE_KINDS,
+    UNITS,
+    _key_lines,
+    canonical_unit,
+)
 from hmpc.models.logs.utm import UtmZone, parse_zone
 
 TOP_KEYS = ("vehicle", "note", "topics", "channels")
@@ -208,15 +214,17 @@ def load_topic_map(path: str | Path) -> TopicMap:
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read the topic map as text ({exc.__class__.__name__})",
-                         str(path)) from None
+        raise InputError(
+            f"cannot read the topic map as text ({exc.__class__.__name__})", str(path)
+        ) from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         problem = getattr(exc, "problem", None) or exc.__class__.__name__
-        raise ParamError(f"not valid YAML ({problem})",
-                         str(path), line=None if mark is None else mark.line + 1) from None
+        raise ParamError(
+            f"not valid YAML ({problem})", str(path), line=None if mark is None else mark.line + 1
+        ) from None
     return parse_topic_map(data, str(path), _key_lines(text))
 
 
@@ -271,16 +279,18 @@ def _parse_topic(topic: str, entry: Any, err) -> TopicSpec:
             raise err("expected [SECONDS_FIELD, NANOSECONDS_FIELD]", *base, "time")
         time = (time[0], time[1])
     elif time is not None and (not isinstance(time, str) or not time):
-        raise err(f"expected '{LOG_TIME}', a field, or [SECONDS_FIELD, NANOSECONDS_FIELD]",
-                  *base, "time")
+        raise err(
+            f"expected '{LOG_TIME}', a field, or [SECONDS_FIELD, NANOSECONDS_FIELD]", *base, "time"
+        )
     frame = entry.get("frame", LOCAL_FRAME)
     zone = None
     if frame != LOCAL_FRAME:
         try:
             zone = parse_zone(frame)
         except ValueError as exc:
-            raise err(f"frame: '{LOCAL_FRAME}' or {exc}".replace("expected ", ""), *base,
-                      "frame") from None
+            raise err(
+                f"frame: '{LOCAL_FRAME}' or {exc}".replace("expected ", ""), *base, "frame"
+            ) from None
     if "note" in entry and not isinstance(entry["note"], str):
         raise err("expected text", *base, "note")
     return TopicSpec(topic, file, time, zone)
@@ -293,8 +303,9 @@ def _parse_channel(ch: str, entry: Any, err, lines) -> TopicChannel:
         hint = f" (did you mean '{close[0]}'?)" if close else ""
         raise err(f"unknown channel{hint}; channels are those of CONVENTIONS.md", *base)
     if ch in STRING_CHANNELS:
-        raise err(f"{ch} cannot be read from a topic (it needs a value table: use a signal map)",
-                  *base)
+        raise err(
+            f"{ch} cannot be read from a topic (it needs a value table: use a signal map)", *base
+        )
     if not isinstance(entry, dict):
         raise err("entry must be a mapping with topic, field, unit", *base)
     for k in entry:
@@ -315,16 +326,20 @@ def _parse_channel(ch: str, entry: Any, err, lines) -> TopicChannel:
             raise err(f"a quaternion makes only {', '.join(QUATERNION_CHANNELS)}", *base, "unit")
         factor = 1.0
     elif unit not in UNITS:
-        raise err(f"unknown unit {unit!r} (known: {', '.join(UNITS)}, {QUATERNION})", *base,
-                  "unit")
+        raise err(f"unknown unit {unit!r} (known: {', '.join(UNITS)}, {QUATERNION})", *base, "unit")
     else:
         si, factor = UNITS[unit]
         if si != CHANNELS[ch]:
-            raise err(f"unit '{unit}' converts to {si}, but {ch} is in {CHANNELS[ch]}",
-                      *base, "unit")
+            raise err(
+                f"unit '{unit}' converts to {si}, but {ch} is in {CHANNELS[ch]}", *base, "unit"
+            )
     scale = entry.get("scale", 1.0)
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) \
-            or not math.isfinite(scale) or scale == 0:
+    if (
+        isinstance(scale, bool)
+        or not isinstance(scale, (int, float))
+        or not math.isfinite(scale)
+        or scale == 0
+    ):
         raise err(f"scale must be a finite non-zero number, got {scale!r}", *base, "scale")
     if unit == QUATERNION and scale != 1.0:
         raise err("a quaternion cannot be scaled", *base, "scale")
@@ -334,16 +349,32 @@ def _parse_channel(ch: str, entry: Any, err, lines) -> TopicChannel:
     default_kind = "angle" if ch == "heading" else "hold" if ch in HOLD_CHANNELS else "linear"
     resample = entry.get("resample", default_kind)
     if ch == "heading" and resample != "angle":
-        raise err("heading is always resampled as an angle (unwrapped, interpolated, wrapped)",
-                  *base, "resample")
+        raise err(
+            "heading is always resampled as an angle (unwrapped, interpolated, wrapped)",
+            *base,
+            "resample",
+        )
     if ch != "heading" and resample not in RESAMPLE_KINDS:
-        raise err(f"resample must be one of {', '.join(RESAMPLE_KINDS)}, got {resample!r}",
-                  *base, "resample")
+        raise err(
+            f"resample must be one of {', '.join(RESAMPLE_KINDS)}, got {resample!r}",
+            *base,
+            "resample",
+        )
     note = entry.get("note")
     if note is not None and not isinstance(note, str):
         raise err("expected text", *base, "note")
-    return TopicChannel(ch, topic, fld, unit, factor * float(scale), float(scale), required,
-                        resample, note, lines.get(base))
+    return TopicChannel(
+        ch,
+        topic,
+        fld,
+        unit,
+        factor * float(scale),
+        float(scale),
+        required,
+        resample,
+        note,
+        lines.get(base),
+    )
 
 
 def _check_positions(chans: dict[str, TopicChannel], err) -> None:
@@ -351,8 +382,8 @@ def _check_positions(chans: dict[str, TopicChannel], err) -> None:
     has = [c for c in ("x", "y") if c in chans]
     if len(has) == 1:
         other = "y" if has[0] == "x" else "x"
-        raise err(f"{has[0]} without {other}: a position needs both, from one topic",
-                  "channels", has[0])
+        raise err(
+            f"{has[0]} without {other}: a position needs both, from one topic", "channels", has[0]
+        )
     if len(has) == 2 and chans["x"].topic != chans["y"].topic:
-        raise err("x and y must come from one topic (one fix gives both)", "channels", "y",
-                  "topic")
+        raise err("x and y must come from one topic (one fix gives both)", "channels", "y", "topic")

@@ -8,6 +8,7 @@ subtracting the grid convergence at the fix (grid north minus true north, positi
 which :func:`utm_to_geodetic` reads off the projection itself: the grid direction of a step
 due north.
 """
+
 from __future__ import annotations
 
 import math
@@ -59,8 +60,10 @@ def parse_zone(text: str) -> UtmZone:
 @lru_cache(maxsize=8)
 def _transformers(zone: UtmZone) -> tuple[Transformer, Transformer]:
     """(grid -> lon/lat, lon/lat -> grid) for ``zone``, built once."""
-    return (Transformer.from_crs(zone.epsg, 4326, always_xy=True),
-            Transformer.from_crs(4326, zone.epsg, always_xy=True))
+    return (
+        Transformer.from_crs(zone.epsg, 4326, always_xy=True),
+        Transformer.from_crs(4326, zone.epsg, always_xy=True),
+    )
 
 
 @dataclass(frozen=True)
@@ -85,8 +88,9 @@ def utm_to_geodetic(easting_m: float, northing_m: float, zone: UtmZone) -> GridP
     return GridPoint(float(lat), float(lon), gamma)
 
 
-def grid_to_local(easting_m, northing_m, zone: UtmZone, origin: GridPoint
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def grid_to_local(
+    easting_m, northing_m, zone: UtmZone, origin: GridPoint
+) -> tuple[np.ndarray, np.ndarray]:
     """UTM positions [m] to local ENU east, north [m] from ``origin`` (the first fix), on the
     ellipsoid (heights are not used: a drive's few metres of height change its east/north by
     well under a millimetre)."""

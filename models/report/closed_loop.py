@@ -3,6 +3,7 @@
 Each function takes a finished run and writes labelled PNGs (units on every axis) on its own
 Agg canvas (``models.report.figure``); it computes nothing the run did not already hold.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -23,22 +24,48 @@ def _smoothness_panel(ax, t, ch, m, upd) -> None:
 
     def rate(name):
         return np.diff(ch[name][upd]) / dt
+
     # each rate held over the period that ends at its update
-    ax.step(tu[1:], rate("steering_cmd"), where="pre", color="C0", lw=0.8,
-            label="steering-wheel cmd rate")
+    ax.step(
+        tu[1:],
+        rate("steering_cmd"),
+        where="pre",
+        color="C0",
+        lw=0.8,
+        label="steering-wheel cmd rate",
+    )
     ax.set_ylabel("steering-wheel rate [rad/s]")
     ax2 = ax.twinx()
-    ax2.step(tu[1:], rate("accel_pedal_cmd"), where="pre", color="C2", lw=0.8,
-             label="accel pedal cmd rate")
-    ax2.step(tu[1:], rate("brake_pedal_cmd"), where="pre", color="C3", lw=0.8,
-             label="brake pedal cmd rate")
+    ax2.step(
+        tu[1:],
+        rate("accel_pedal_cmd"),
+        where="pre",
+        color="C2",
+        lw=0.8,
+        label="accel pedal cmd rate",
+    )
+    ax2.step(
+        tu[1:],
+        rate("brake_pedal_cmd"),
+        where="pre",
+        color="C3",
+        lw=0.8,
+        label="brake pedal cmd rate",
+    )
     ax2.set_ylabel("pedal rate [1/s]")
     rv = m["steering_reversals_per_min"]
-    ax.text(0.01, 0.95, f"steering reversals >= 1 deg: {rv['1deg']:.1f}/min, >= 5 deg: "
-            f"{rv['5deg']:.1f}/min; steering rate RMS {m['steering_rate_rms_radps']:.3f} rad/s; "
-            f"pedal rate RMS accel {m['accel_pedal_rate_rms_ps']:.3f} /s, brake "
-            f"{m['brake_pedal_rate_rms_ps']:.3f} /s", transform=ax.transAxes, va="top",
-            fontsize=8, bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
+    ax.text(
+        0.01,
+        0.95,
+        f"steering reversals >= 1 deg: {rv['1deg']:.1f}/min, >= 5 deg: "
+        f"{rv['5deg']:.1f}/min; steering rate RMS {m['steering_rate_rms_radps']:.3f} rad/s; "
+        f"pedal rate RMS accel {m['accel_pedal_rate_rms_ps']:.3f} /s, brake "
+        f"{m['brake_pedal_rate_rms_ps']:.3f} /s",
+        transform=ax.transAxes,
+        va="top",
+        fontsize=8,
+        bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
+    )
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax2.get_legend_handles_labels()
     ax.legend(h1 + h2, l1 + l2, loc="lower right", fontsize=8)
@@ -82,9 +109,11 @@ def plot_closed_loop(res, ref, out_dir: str | Path, controller: str, zones, upda
     ax[5].set_yticks(range(len(zones)), [f"{n} ({lo:g}-{hi:g} m/s)" for n, lo, hi in zones])
     ax[5].set_ylabel("plant zone")
     ax[5].set_xlabel("time [s]")
-    fig.suptitle(f"{controller} on {ref.name}: speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
-                 f"lateral RMS {m['lateral_error_rms_m']:.3f} m, "
-                 f"{m['pedal_switches_per_min']:.1f} pedal switches/min")
+    fig.suptitle(
+        f"{controller} on {ref.name}: speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
+        f"lateral RMS {m['lateral_error_rms_m']:.3f} m, "
+        f"{m['pedal_switches_per_min']:.1f} pedal switches/min"
+    )
     files.append(save_png(fig, out / "closed_loop.png", dpi=90))
     fig, ax = new_figure(figsize=(7, 7))
     ax.plot(ref.x_m, ref.y_m, "k--", label="reference path")
@@ -101,8 +130,13 @@ def plot_closed_loop(res, ref, out_dir: str | Path, controller: str, zones, upda
 def _shade(ax, windows, color="C3") -> None:
     """Shade the windows where the two differ most (the JSON's ``windows``)."""
     for i, w in enumerate(windows):
-        ax.axvspan(w["t0_s"], w["t1_s"], color=color, alpha=0.12,
-                   label="largest differences" if i == 0 else None)
+        ax.axvspan(
+            w["t0_s"],
+            w["t1_s"],
+            color=color,
+            alpha=0.12,
+            label="largest differences" if i == 0 else None,
+        )
 
 
 def _panels(rows: int):
@@ -137,14 +171,17 @@ def plot_reference_replay(rr, out_dir: str | Path, controller: str, zones=()) ->
     ax[4].step(t, rr.run.zone, where="post", label=controller)
     ax[4].set_ylabel("speed zone")
     if zones:
-        ax[4].set_yticks(range(len(zones)),
-                         [f"{n} ({lo:g}-{hi:g} m/s)" for n, lo, hi in zones], fontsize=8)
+        ax[4].set_yticks(
+            range(len(zones)), [f"{n} ({lo:g}-{hi:g} m/s)" for n, lo, hi in zones], fontsize=8
+        )
     ax[4].set_xlabel("time from the recording's start [s]")
     for a in ax:
         a.legend(loc="best", fontsize=8)
     k = rr.summary["kpis"]["controller"]
-    fig.suptitle(f"reference replay, {controller}: speed error RMS {k['speed_error_rms_mps']:.3f} "
-                 f"m/s, lateral RMS {k['lateral_error_rms_m']:.3f} m")
+    fig.suptitle(
+        f"reference replay, {controller}: speed error RMS {k['speed_error_rms_mps']:.3f} "
+        f"m/s, lateral RMS {k['lateral_error_rms_m']:.3f} m"
+    )
     files = [save_png(fig, out / "replay_reference.png", dpi=90)]
     fig, a = new_figure(figsize=(7, 7))
     a.plot(rr.reference.x_m, rr.reference.y_m, "k--", label="car (recorded path)")
@@ -169,18 +206,36 @@ def plot_log_replay(lr, out_dir: str | Path, controller: str) -> list[str]:
         a.plot(s["t_s"], s["log"], "k", lw=0.8, label="log (recorded sender)")
         a.plot(s["t_s"], s["hmpc"], "C0", lw=0.8, label=f"hmpc ({controller})")
         both = s["engaged_log"] & s["engaged_hmpc"]
-        a.fill_between(s["t_s"], 0, 1, where=~both, color="0.5", alpha=0.15,
-                       transform=a.get_xaxis_transform(), label="not both engaged")
+        a.fill_between(
+            s["t_s"],
+            0,
+            1,
+            where=~both,
+            color="0.5",
+            alpha=0.15,
+            transform=a.get_xaxis_transform(),
+            label="not both engaged",
+        )
         _shade(a, lr.summary["windows"].get(name, []))
         a.set_ylabel(f"{name}\n[{s['unit']}]", fontsize=8)
         a.legend(loc="best", fontsize=7)
     tr = lr.drive.trace
     eng = np.asarray(tr["engaged"]) > 0.5
     t = np.asarray(tr["t_s"])
-    ax[-1].plot(t[eng], np.degrees(np.asarray(tr["sw"])[eng]), "k", lw=0.8,
-                label="measured (what the log's controller steered)")
-    ax[-1].plot(t[eng], np.degrees(np.asarray(tr["sw_cmd"])[eng]), "C0", lw=0.8,
-                label="hmpc's angle command")
+    ax[-1].plot(
+        t[eng],
+        np.degrees(np.asarray(tr["sw"])[eng]),
+        "k",
+        lw=0.8,
+        label="measured (what the log's controller steered)",
+    )
+    ax[-1].plot(
+        t[eng],
+        np.degrees(np.asarray(tr["sw_cmd"])[eng]),
+        "C0",
+        lw=0.8,
+        label="hmpc's angle command",
+    )
     ax[-1].set_ylabel("steering-wheel\nangle [deg]")
     ax[-1].set_xlabel("time from the log's first frame [s]")
     ax[-1].legend(loc="best", fontsize=7)

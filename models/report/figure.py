@@ -4,6 +4,7 @@ Importing or calling this never selects a backend and never touches pyplot's fig
 so a caller's interactive backend and open figures are left alone (``matplotlib.use`` on import
 of a library module would switch them).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -12,8 +13,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 
-def new_figure(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float],
-               **subplots_kw):
+def new_figure(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **subplots_kw):
     """A ``Figure`` with an Agg canvas and its axes, as ``pyplot.subplots`` returns them."""
     fig = Figure(figsize=figsize)
     FigureCanvasAgg(fig)

@@ -21,6 +21,7 @@ Plotting only: every number comes from the identification result. ``steering_fig
 ``replay_figure`` and ``zone_figure`` return the figure (tests inspect its axes); the
 ``plot_*`` functions write it.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -52,8 +53,15 @@ def _legend_right(ax, **kw) -> None:
 def _legend_above(ax, handles=None, ncol: int = 4) -> None:
     """Legend in one row just above the axes: never over the data."""
     kw = {} if handles is None else {"handles": handles}
-    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.01), ncol=ncol, fontsize=8,
-              frameon=False, borderaxespad=0.0, **kw)
+    ax.legend(
+        loc="lower left",
+        bbox_to_anchor=(0.0, 1.01),
+        ncol=ncol,
+        fontsize=8,
+        frameon=False,
+        borderaxespad=0.0,
+        **kw,
+    )
 
 
 def _trusted_limits(arrays, trust, pad: float = 0.1) -> tuple[float, float] | None:
@@ -78,10 +86,14 @@ def steering_figure(result):
     fl = np.asarray(s["wheel_speed_fl"], float)
     fr = np.asarray(s["wheel_speed_fr"], float)
     have_wheels = bool(np.isfinite(fl).any() and np.isfinite(fr).any())
-    measured = [(label, meas) for label, meas in (
-        ("from wheel speeds (eqs. 2-6)", s.get("delta_wheels_rad")),
-        ("from yaw rate, atan(L r / v)", s.get("delta_yaw_rad")))
-        if meas is not None and np.isfinite(np.asarray(meas, float)).any()]
+    measured = [
+        (label, meas)
+        for label, meas in (
+            ("from wheel speeds (eqs. 2-6)", s.get("delta_wheels_rad")),
+            ("from yaw rate, atan(L r / v)", s.get("delta_yaw_rad")),
+        )
+        if meas is not None and np.isfinite(np.asarray(meas, float)).any()
+    ]
     if not measured:  # no measured angle (replay only): the model alone
         measured = [("model only (no measured road-wheel angle)", None)]
     n = (2 if have_wheels else 0) + 1 + len(measured)
@@ -99,18 +111,20 @@ def steering_figure(result):
         k = 2
     ax[k].plot(t, np.degrees(s["steering_wheel_angle"]), lw=0.7)
     # a car without a steering measurement: the map's input is the command (steering_cmd)
-    ax[k].set_ylabel("steering_cmd\n[deg]" if st.report.get("input") == "steering_cmd"
-                     else "steering-wheel\nangle [deg]")
+    ax[k].set_ylabel(
+        "steering_cmd\n[deg]"
+        if st.report.get("input") == "steering_cmd"
+        else "steering-wheel\nangle [deg]"
+    )
     trust = np.asarray(s["trustworthy"], dtype=bool)
     model = np.degrees(s["delta_model_rad"])
     # the measured angles divide by the speed: below the fit's minimum speed they are noise
-    v_min = float(st.report.get("thresholds", {}).get("v_min_mps",
-                                                      SteeringIdConfig().v_min_mps))
+    v_min = float(st.report.get("thresholds", {}).get("v_min_mps", SteeringIdConfig().v_min_mps))
     with np.errstate(invalid="ignore"):
         v_front = 0.5 * (fl + fr)
         slow = v_front < v_min
     have_speed = bool(np.isfinite(v_front).any())
-    for a, (label, meas) in zip(ax[k + 1:], measured):
+    for a, (label, meas) in zip(ax[k + 1 :], measured):
         m = None if meas is None else np.degrees(np.asarray(meas, float))
         if m is not None:
             a.plot(t, np.where(slow, np.nan, m), lw=0.5, color="0.6", label=label)
@@ -125,19 +139,24 @@ def steering_figure(result):
                     off = int(np.sum(~slow & ((m < lim[0]) | (m > lim[1]))))
                 if off:
                     notes.append(f"{off} untrusted samples beyond the fitted range clipped")
-        a.set_title(f"road-wheel angle {label.split(',')[0]} vs model"
-                    + (f" ({'; '.join(notes)})" if notes else ""), fontsize=9)
+        a.set_title(
+            f"road-wheel angle {label.split(',')[0]} vs model"
+            + (f" ({'; '.join(notes)})" if notes else ""),
+            fontsize=9,
+        )
         _legend_right(a)
     ax[-1].set_xlabel("time [s]")
     for a in ax:
         a.grid(True, alpha=0.3)
     verdict = "identifiable" if st.identifiable else "NOT identifiable"
     deg = np.degrees
-    fig.suptitle(f"steering map (eq. 7): offset {deg(st.offset_rad):+.3f} deg "
-                 f"[{deg(st.offset_ci95_rad[0]):+.3f}, {deg(st.offset_ci95_rad[1]):+.3f}], scale "
-                 f"{st.scale:.4f} [{st.scale_ci95[0]:.4f}, {st.scale_ci95[1]:.4f}]\n"
-                 f"method {st.method}, {verdict}; model shown on trustworthy samples",
-                 fontsize=10)
+    fig.suptitle(
+        f"steering map (eq. 7): offset {deg(st.offset_rad):+.3f} deg "
+        f"[{deg(st.offset_ci95_rad[0]):+.3f}, {deg(st.offset_ci95_rad[1]):+.3f}], scale "
+        f"{st.scale:.4f} [{st.scale_ci95[0]:.4f}, {st.scale_ci95[1]:.4f}]\n"
+        f"method {st.method}, {verdict}; model shown on trustworthy samples",
+        fontsize=10,
+    )
     return fig
 
 
@@ -167,21 +186,27 @@ def replay_figure(result):
     if min(ext) > 0 and max(ext) / min(ext) <= PATH_ASPECT_MAX:
         ax[0].set_aspect("equal", adjustable="datalim")
     else:  # a long straight at equal scale is a sliver: the axes are scaled apart, and say so
-        ax[0].set_title(f"axes NOT to scale (the path spans {ext[0]:.0f} m east by "
-                        f"{ext[1]:.0f} m north)", fontsize=9)
+        ax[0].set_title(
+            f"axes NOT to scale (the path spans {ext[0]:.0f} m east by {ext[1]:.0f} m north)",
+            fontsize=9,
+        )
     ax[0].legend(loc="best", fontsize=8)
     ax[1].plot(t, err_line, lw=1.0, color="C3")
     ax[1].set_xlabel("time [s]")
     ax[1].set_ylabel("position error of the replay [m]")
-    ax[1].set_title("distance between replayed and measured position "
-                    "(each window restarts at 0)", fontsize=10)
+    ax[1].set_title(
+        "distance between replayed and measured position (each window restarts at 0)", fontsize=10
+    )
     ax[1].set_ylim(bottom=0.0)
     for a in ax:
         a.grid(True, alpha=0.3)
     fit = result.steering.fits.get("position_replay")
     if fit is not None:
-        fig.suptitle(f"position replay: rms position error {fit.rms_error:.3f} m over "
-                     f"{fit.extra['windows']} windows of {fit.extra['window_s']:g} s", fontsize=11)
+        fig.suptitle(
+            f"position replay: rms position error {fit.rms_error:.3f} m over "
+            f"{fit.extra['windows']} windows of {fit.extra['window_s']:g} s",
+            fontsize=11,
+        )
     return fig
 
 
@@ -223,7 +248,7 @@ def zone_axis(t: np.ndarray, used: np.ndarray, join_gap_s: float = JOIN_GAP_S):
         x[a:e] = off + (t[a:e] - t[a])
         off += t[e - 1] - t[a]
     if len(stretches) == 1:  # one stretch: keep the real time
-        x[stretches[0][0]:stretches[0][1]] += t[stretches[0][0]]
+        x[stretches[0][0] : stretches[0][1]] += t[stretches[0][0]]
         cuts = []
     return x, cuts
 
@@ -241,33 +266,45 @@ def zone_figure(result, zone_index: int):
     used = np.asarray(s["used"], dtype=bool) & (np.asarray(s["zone"]) == zone_index)
     nm = "n/a" if z.nmse_pct is None else f"{z.nmse_pct:.1f}%"
     sr = "n/a" if z.speed_rmse_mps is None else f"{z.speed_rmse_mps:.3f} m/s"
-    title = (f"zone {z.name} ({z.v_min_mps:g}, {z.v_max_mps:g}] m/s: a = "
-             f"{z.offset_mps2:+.3f} + {z.scale_mps2:.3f} * accel_pedal - "
-             f"{z.brake_scale_mps2:.3f} * brake_pedal [m/s^2]\nNMSE {nm}, speed RMSE {sr}"
-             f"{'' if z.identifiable else ' (NOT identifiable)'}")
+    title = (
+        f"zone {z.name} ({z.v_min_mps:g}, {z.v_max_mps:g}] m/s: a = "
+        f"{z.offset_mps2:+.3f} + {z.scale_mps2:.3f} * accel_pedal - "
+        f"{z.brake_scale_mps2:.3f} * brake_pedal [m/s^2]\nNMSE {nm}, speed RMSE {sr}"
+        f"{'' if z.identifiable else ' (NOT identifiable)'}"
+    )
     dt = float(np.median(np.diff(s["time"])))
     fig, ax = new_figure(3, 1, figsize=(11, 9), sharex=True)
     if not used.any():
         x, cuts = t, []
         ax[2].set_xlabel("time [s]")
         for a in ax[1:]:
-            a.text(0.5, 0.5, f"no samples in zone {z.name} ({z.v_min_mps:g}, "
-                   f"{z.v_max_mps:g}] m/s", transform=a.transAxes, ha="center", va="center")
+            a.text(
+                0.5,
+                0.5,
+                f"no samples in zone {z.name} ({z.v_min_mps:g}, {z.v_max_mps:g}] m/s",
+                transform=a.transAxes,
+                ha="center",
+                va="center",
+            )
         title += "; NO SAMPLES in this zone"
     else:
         x, cuts = zone_axis(t, used)
         n_s = used.sum() * dt
-        ax[2].set_xlabel(f"time [s] ({n_s:.1f} s of zone samples)" if not cuts else
-                         f"time within the zone's stretches [s] ({n_s:.1f} s of zone samples; "
-                         f"gaps cut at the dotted lines, labelled with the real start time)")
+        ax[2].set_xlabel(
+            f"time [s] ({n_s:.1f} s of zone samples)"
+            if not cuts
+            else f"time within the zone's stretches [s] ({n_s:.1f} s of zone samples; "
+            f"gaps cut at the dotted lines, labelled with the real start time)"
+        )
     # upper panel: the inputs and the speed on the zone's stretches
     h = ax[0].plot(x, s["accel_pedal"], lw=0.8, label="accelerator pedal [0..1]")
     if s.get("brake_pedal") is not None:
         h += ax[0].plot(x, s["brake_pedal"], lw=0.8, label="brake pedal [0..1]")
     ax0b = ax[0].twinx()
     h += ax0b.plot(x, s["v_mps"], lw=0.8, color="k", label="speed [m/s]")
-    h.append(ax0b.axhspan(z.v_min_mps, z.v_max_mps, color="C2", alpha=0.08,
-                          label="zone speed range"))
+    h.append(
+        ax0b.axhspan(z.v_min_mps, z.v_max_mps, color="C2", alpha=0.08, label="zone speed range")
+    )
     ax0b.set_ylabel("speed [m/s]")
     ax[0].set_ylabel("pedal [0..1]")
     _legend_above(ax[0], handles=h)
@@ -279,8 +316,13 @@ def zone_figure(result, zone_index: int):
         _legend_above(ax[1])
         tt, vv = _reconstructed_speed(lo, z, s, used, x, dt)
         ax[2].plot(x, np.where(used, s["v_mps"], np.nan), lw=0.8, color="0.4", label="measured")
-        ax[2].plot(tt, vv, lw=1.0, color="C3",
-                   label="integrated from the model (restarted every run / 10 s)")
+        ax[2].plot(
+            tt,
+            vv,
+            lw=1.0,
+            color="C3",
+            label="integrated from the model (restarted every run / 10 s)",
+        )
         _legend_above(ax[2])
         lo_x, hi_x = float(np.nanmin(x[used])), float(np.nanmax(x[used]))
         pad = max(0.01 * (hi_x - lo_x), dt)
@@ -291,8 +333,15 @@ def zone_figure(result, zone_index: int):
         if k:
             for a in ax:
                 a.axvline(xc, color="0.3", ls=":", lw=0.8)
-        ax[2].annotate(f"{t_start:.1f} s", (xc, 0.0), xycoords=("data", "axes fraction"),
-                       xytext=(2, 2), textcoords="offset points", fontsize=7, color="0.3")
+        ax[2].annotate(
+            f"{t_start:.1f} s",
+            (xc, 0.0),
+            xycoords=("data", "axes fraction"),
+            xytext=(2, 2),
+            textcoords="offset points",
+            fontsize=7,
+            color="0.3",
+        )
     for a in ax:
         a.grid(True, alpha=0.3)
     fig.suptitle(title, fontsize=10)
@@ -304,8 +353,11 @@ def _reconstructed_speed(lo, z, s, used, x, dt):
     measured speed every run and every 10 s (as ``speed_rmse_mps``): (x, v) with NaN breaks."""
     v = np.asarray(s["v_mps"], dtype=float)
     ap = np.nan_to_num(np.asarray(s["accel_pedal"], dtype=float))
-    bp = np.zeros_like(ap) if s.get("brake_pedal") is None else \
-        np.nan_to_num(np.asarray(s["brake_pedal"], dtype=float))
+    bp = (
+        np.zeros_like(ap)
+        if s.get("brake_pedal") is None
+        else np.nan_to_num(np.asarray(s["brake_pedal"], dtype=float))
+    )
     shift = int(round(lo.dead_time_s / dt))
     if shift:
         ap = np.concatenate([np.zeros(shift), ap[:-shift]])
@@ -317,8 +369,11 @@ def _reconstructed_speed(lo, z, s, used, x, dt):
         for a in range(a0, e0, seg):
             e = min(a + seg, e0)
             aa = a_raw[a:e]
-            vv += list(np.maximum(v[a] + np.concatenate(
-                [[0.0], np.cumsum(0.5 * dt * (aa[1:] + aa[:-1]))]), 0.0)) + [np.nan]
+            vv += list(
+                np.maximum(
+                    v[a] + np.concatenate([[0.0], np.cumsum(0.5 * dt * (aa[1:] + aa[:-1]))]), 0.0
+                )
+            ) + [np.nan]
             tt += list(x[a:e]) + [np.nan]  # NaN: a new run starts from the measured speed
     return tt, vv
 

@@ -1,4 +1,5 @@
 """Overview figure of a canonical recording: what a user looks at first after ingest."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -12,10 +13,24 @@ def plot_overview(rec: Recording, path: str, title: str = "") -> str:
     t = rec.time - rec.time[0]
     panels = []
     if "steering_wheel_angle" in rec:
-        panels.append(("steering-wheel angle [deg]",
-                       [("steering_wheel_angle", np.degrees(rec["steering_wheel_angle"]))]))
-    speeds = [(n, rec[n]) for n in ("speed", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
-                                    "wheel_speed_rr", "gps_speed") if n in rec]
+        panels.append(
+            (
+                "steering-wheel angle [deg]",
+                [("steering_wheel_angle", np.degrees(rec["steering_wheel_angle"]))],
+            )
+        )
+    speeds = [
+        (n, rec[n])
+        for n in (
+            "speed",
+            "wheel_speed_fl",
+            "wheel_speed_fr",
+            "wheel_speed_rl",
+            "wheel_speed_rr",
+            "gps_speed",
+        )
+        if n in rec
+    ]
     if speeds:
         panels.append(("speed [m/s]", speeds))
     pedals = [(n, rec[n]) for n in ("accel_pedal", "brake_pedal") if n in rec]

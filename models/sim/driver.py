@@ -14,6 +14,7 @@ grid, inputs held over each step; the result is the truth
 
 The car starts at rest at the ENU origin with the heading it is given.
 """
+
 from __future__ import annotations
 
 import math
@@ -65,9 +66,13 @@ class DriverConfig:
 
 
 def _phase_segment(ph: Phase, t0_s: float, t1_s: float) -> dict:
-    what = {"throttle": f"throttle {ph.level:.2f}", "sweep": f"throttle sweep {ph.level:.2f}-"
-            f"{ph.level_end:.2f}", "brake": f"brake {ph.level:.2f}", "hold": f"hold brake "
-            f"{ph.level:.2f} at rest", "coast": "coast (no pedal)"}[ph.kind]
+    what = {
+        "throttle": f"throttle {ph.level:.2f}",
+        "sweep": f"throttle sweep {ph.level:.2f}-{ph.level_end:.2f}",
+        "brake": f"brake {ph.level:.2f}",
+        "hold": f"hold brake {ph.level:.2f} at rest",
+        "coast": "coast (no pedal)",
+    }[ph.kind]
     return {"label": f"open loop {what}", "t_start_s": round(t0_s, 6), "t_end_s": round(t1_s, 6)}
 
 
@@ -105,9 +110,23 @@ class _DriverState:
 
 #: integral share of the driver's pedal command [fraction].
 _KI_LIMIT = 0.5
-_TRUTH_NAMES = ("x_m", "y_m", "psi_rad", "v_mps", "sw_rad", "sw_eff_rad", "accel_pedal",
-                "brake_pedal", "accel_pedal_eff", "brake_pedal_eff", "zone", "accel_model_mps2",
-                "accel_extra_mps2", "accel_mps2", "grade_rad")
+_TRUTH_NAMES = (
+    "x_m",
+    "y_m",
+    "psi_rad",
+    "v_mps",
+    "sw_rad",
+    "sw_eff_rad",
+    "accel_pedal",
+    "brake_pedal",
+    "accel_pedal_eff",
+    "brake_pedal_eff",
+    "zone",
+    "accel_model_mps2",
+    "accel_extra_mps2",
+    "accel_mps2",
+    "grade_rad",
+)
 
 
 def _drive_refs(plan: Plan, dt: float, rng, driver: DriverConfig) -> _DriveRefs:
@@ -122,14 +141,24 @@ def _drive_refs(plan: Plan, dt: float, rng, driver: DriverConfig) -> _DriveRefs:
     else:
         v_ref, a_ref, sw_ref, low = plan.arrays()
         n_max = len(v_ref)
-    dither = (np.zeros(n_max) if open_loop
-              else sn.gauss_markov(rng, n_max, driver.dither, driver.dither_tau_s, dt))
+    dither = (
+        np.zeros(n_max)
+        if open_loop
+        else sn.gauss_markov(rng, n_max, driver.dither, driver.dither_tau_s, dt)
+    )
     lane_noise = sn.gauss_markov(rng, n_max, driver.lane_noise_rad, driver.lane_noise_tau_s, dt)
     return _DriveRefs(open_loop, n_max, v_ref, a_ref, sw_ref, low, dither, lane_noise)
 
 
-def drive(params: Params, plan: Plan, dt: float, rng, effects: list[Effect],
-           driver: DriverConfig, psi0: float) -> Truth:
+def drive(
+    params: Params,
+    plan: Plan,
+    dt: float,
+    rng,
+    effects: list[Effect],
+    driver: DriverConfig,
+    psi0: float,
+) -> Truth:
     """Run the driver and the plant; return the truth on the internal grid."""
     truth_plant = TruthPlant(params, effects, dt)
     plant = truth_plant.plant
@@ -185,8 +214,9 @@ def drive(params: Params, plan: Plan, dt: float, rng, effects: list[Effect],
     return _truth(rec, n, dt, off, scl, plant.wheelbase_m, refs.low)
 
 
-def _programme_pedals(plan: Plan, d: _DriverState, t: float,
-                      v: float) -> tuple[float, float] | None:
+def _programme_pedals(
+    plan: Plan, d: _DriverState, t: float, v: float
+) -> tuple[float, float] | None:
     """The open-loop programme's pedal targets (throttle, brake) at time ``t`` [s] and speed
     ``v`` [m/s], advancing ``d``'s phase (and ``plan.segments``) as phases end; None when the
     programme has finished."""
@@ -219,8 +249,15 @@ def _programme_pedals(plan: Plan, d: _DriverState, t: float,
     return 0.0, 0.0
 
 
-def _speed_pedals(d: _DriverState, driver: DriverConfig, vr: float, v: float, a_ref: float,
-                  dither: float, dt: float) -> tuple[float, float]:
+def _speed_pedals(
+    d: _DriverState,
+    driver: DriverConfig,
+    vr: float,
+    v: float,
+    a_ref: float,
+    dither: float,
+    dt: float,
+) -> tuple[float, float]:
     """The human speed controller's pedal targets (throttle, brake): hold the brake at rest,
     else feed-forward plus PI on the speed error with dither, through the pedal dead bands."""
     if vr <= 0.05 and v < 0.3:  # at rest: hold the car on the brake
@@ -229,8 +266,7 @@ def _speed_pedals(d: _DriverState, driver: DriverConfig, vr: float, v: float, a_
     err = vr - v
     i_max = _KI_LIMIT / driver.ki_per_m
     d.integ = min(max(d.integ + err * dt, -i_max), i_max)
-    u = (driver.ff_per_mps2 * a_ref + driver.kp_per_mps * err
-         + driver.ki_per_m * d.integ + dither)
+    u = driver.ff_per_mps2 * a_ref + driver.kp_per_mps * err + driver.ki_per_m * d.integ + dither
     if u > driver.deadband:
         return min(u - driver.deadband, 1.0), 0.0
     if u < -driver.brake_deadband:
@@ -238,8 +274,14 @@ def _speed_pedals(d: _DriverState, driver: DriverConfig, vr: float, v: float, a_
     return 0.0, 0.0
 
 
-def _move_feet(d: _DriverState, want: tuple[float, float], t: float, driver: DriverConfig,
-               dth_max: float, dbr_max: float) -> None:
+def _move_feet(
+    d: _DriverState,
+    want: tuple[float, float],
+    t: float,
+    driver: DriverConfig,
+    dth_max: float,
+    dbr_max: float,
+) -> None:
     """Move the pedals toward ``want`` (throttle, brake) at their rate limits, one pedal at a
     time: release the other to zero, then move the foot across (``pedal_switch_s``)."""
     th_d, br_d = want
@@ -257,8 +299,9 @@ def _move_feet(d: _DriverState, want: tuple[float, float], t: float, driver: Dri
         d.t_br_last = t
 
 
-def _truth(rec: dict[str, np.ndarray], n: int, dt: float, off: float, scl: float, b: float,
-           low: np.ndarray) -> Truth:
+def _truth(
+    rec: dict[str, np.ndarray], n: int, dt: float, off: float, scl: float, b: float, low: np.ndarray
+) -> Truth:
     """The first ``n`` steps of ``rec`` with the derived truth arrays (time, road-wheel angle,
     yaw rate, low gear, height from the grade)."""
     arr = {k: v[:n] for k, v in rec.items()}

@@ -24,6 +24,7 @@ Hooks (each a no-op in the base class; a subclass overrides only what it changes
 Effects compose: steering and pedal hooks are chained in list order, accelerations add,
 grades add, wheel-speed scales multiply, clock offsets add.
 """
+
 from __future__ import annotations
 
 import math
@@ -71,8 +72,9 @@ class Effect:
         return f"{type(self).__name__}({args})"
 
 
-def finite_param(name: str, value: float, *, lo: float | None = None,
-                 lo_open: bool = False) -> float:
+def finite_param(
+    name: str, value: float, *, lo: float | None = None, lo_open: bool = False
+) -> float:
     """``value`` as a float; ValueError naming ``name`` unless finite and at least ``lo``
     (above it with ``lo_open``)."""
     v = float(value)

@@ -8,6 +8,7 @@ checking that hmpc notices them. The default run has no effects.
 The named effects (``EFFECTS`` here, ``EXTRA_EFFECTS`` of ``models.sim.effects_extra``) can be
 built from text, e.g. for a command line: ``parse_effect("steering_dead_time:delay_s=0.2")``.
 """
+
 from __future__ import annotations
 
 import math
@@ -107,7 +108,7 @@ class SteeringCubic(Effect):
         self.cubic_per_rad2 = finite_param("cubic_per_rad2", cubic_per_rad2)
 
     def steering(self, sw_rad: float, v_mps: float) -> float:
-        return sw_rad + self.cubic_per_rad2 * sw_rad ** 3
+        return sw_rad + self.cubic_per_rad2 * sw_rad**3
 
     def describe(self) -> dict:
         return {"type": self.name, "cubic_per_rad2": self.cubic_per_rad2}
@@ -125,8 +126,9 @@ class Understeer(Effect):
     name = "understeer"
 
     def __init__(self, gradient_rad_per_mps2: float):
-        self.gradient_rad_per_mps2 = finite_param("gradient_rad_per_mps2", gradient_rad_per_mps2,
-                                                  lo=0.0)
+        self.gradient_rad_per_mps2 = finite_param(
+            "gradient_rad_per_mps2", gradient_rad_per_mps2, lo=0.0
+        )
         self._map: tuple[float, float, float] | None = None  # offset, scale, wheelbase
 
     def start(self, dt_s: float, params=None) -> None:
@@ -249,8 +251,18 @@ class ClockOffset(Effect):
 
 #: registry name -> Effect class (constructor keyword arguments carry their units).
 EFFECTS: dict[str, type[Effect]] = {
-    cls.name: cls for cls in (SteeringDeadTime, SteeringLag, SteeringCubic, Understeer,
-                              PedalDeadTime, AeroDrag, RoadGrade, WheelRadiusError, ClockOffset)
+    cls.name: cls
+    for cls in (
+        SteeringDeadTime,
+        SteeringLag,
+        SteeringCubic,
+        Understeer,
+        PedalDeadTime,
+        AeroDrag,
+        RoadGrade,
+        WheelRadiusError,
+        ClockOffset,
+    )
 }
 
 
@@ -265,13 +277,15 @@ def effect_from_dict(spec: dict, *, where: str | None = None) -> Effect:
     known = {**EFFECTS, **EXTRA_EFFECTS}
     cls = known.get(kind) if isinstance(kind, str) else None
     if cls is None:
-        raise InputError(f"unknown effect {kind!r} (known: {', '.join(sorted(known))})", where,
-                         key="type")
+        raise InputError(
+            f"unknown effect {kind!r} (known: {', '.join(sorted(known))})", where, key="type"
+        )
     kwargs = {k: v for k, v in spec.items() if k != "type"}
     try:
         return cls(**kwargs)
     except TypeError:
         import inspect
+
         allowed = [p for p in inspect.signature(cls).parameters]
         bad = [k for k in kwargs if k not in allowed]
         key = bad[0] if bad else kind
@@ -294,6 +308,7 @@ def parse_effect(text: str) -> Effect:
         try:
             spec[key.strip()] = float(val)
         except ValueError:
-            raise InputError(f"value {val!r} is not a number in effect '{text}'", None,
-                             key=key.strip()) from None
+            raise InputError(
+                f"value {val!r} is not a number in effect '{text}'", None, key=key.strip()
+            ) from None
     return effect_from_dict(spec, where=None)

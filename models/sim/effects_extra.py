@@ -11,6 +11,7 @@ Kept apart from ``models.sim.effects`` (same :class:`~hmpc.models.sim.effect_bas
   pedal authority is scaled by ``factor`` from then on. Not in the diagnosis catalogue on
   purpose: it must be reported as unexplained.
 """
+
 from __future__ import annotations
 
 import math
@@ -31,8 +32,9 @@ class IdleCreep(Effect):
 
     def __init__(self, accel_mps2: float, creep_speed_mps: float):
         self.accel_mps2 = finite_param("accel_mps2", accel_mps2, lo=0.0)
-        self.creep_speed_mps = finite_param("creep_speed_mps", creep_speed_mps, lo=0.0,
-                                            lo_open=True)
+        self.creep_speed_mps = finite_param(
+            "creep_speed_mps", creep_speed_mps, lo=0.0, lo_open=True
+        )
 
     def accel_extra_mps2(self, state, u) -> float:
         if u[1] >= 0.01:
@@ -40,8 +42,11 @@ class IdleCreep(Effect):
         return self.accel_mps2 * max(0.0, 1.0 - float(state[3]) / self.creep_speed_mps)
 
     def describe(self) -> dict:
-        return {"type": self.name, "accel_mps2": self.accel_mps2,
-                "creep_speed_mps": self.creep_speed_mps}
+        return {
+            "type": self.name,
+            "accel_mps2": self.accel_mps2,
+            "creep_speed_mps": self.creep_speed_mps,
+        }
 
 
 class HillyRoad(Effect):
@@ -68,6 +73,7 @@ class HillyRoad(Effect):
     def grade_at(self, s_m):
         """Grade [rad] at distance ``s_m`` [m] (scalar or array)."""
         import numpy as np
+
         return self.amplitude_rad * np.sin(2.0 * math.pi * np.asarray(s_m) / self.wavelength_m)
 
     def accel_extra_mps2(self, state, u) -> float:
@@ -76,8 +82,11 @@ class HillyRoad(Effect):
         return -G_MPS2 * math.sin(g)
 
     def describe(self) -> dict:
-        return {"type": self.name, "amplitude_rad": self.amplitude_rad,
-                "wavelength_m": self.wavelength_m}
+        return {
+            "type": self.name,
+            "amplitude_rad": self.amplitude_rad,
+            "wavelength_m": self.wavelength_m,
+        }
 
 
 class MassChange(Effect):
@@ -109,5 +118,6 @@ class MassChange(Effect):
 
 #: the effects of this module by name, for ``models.sim.effects.effect_from_dict`` and
 #: ``parse_effect`` (e.g. ``idle_creep:accel_mps2=0.5,creep_speed_mps=2``)
-EXTRA_EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (IdleCreep, HillyRoad,
-                                                                     MassChange)}
+EXTRA_EFFECTS: dict[str, type[Effect]] = {
+    cls.name: cls for cls in (IdleCreep, HillyRoad, MassChange)
+}

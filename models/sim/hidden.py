@@ -6,6 +6,7 @@ figures, tools/adaptation_figures.py).
 each scaled by ``1 +- U(0.10, 0.25)`` (sign drawn too), the steering offset moved by +-13 mrad;
 zone offsets and boundaries, geometry and everything else as in ``base``.
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -29,10 +30,19 @@ def hidden_params(base: Params, seed: int) -> Params:
     rng = np.random.default_rng(int(seed))
     st = base.steering
     assert st is not None  # base is a complete model
-    steering = replace(st, scale=st.scale * _factor(rng),
-                       offset_rad=st.offset_rad + float(rng.choice((-1.0, 1.0))) * OFFSET_SHIFT_RAD)
-    zones = [replace(z, scale_mps2=z.scale_mps2 * _factor(rng),
-                     brake_scale_mps2=z.brake_scale_mps2 * _factor(rng)) for z in base.zones]
+    steering = replace(
+        st,
+        scale=st.scale * _factor(rng),
+        offset_rad=st.offset_rad + float(rng.choice((-1.0, 1.0))) * OFFSET_SHIFT_RAD,
+    )
+    zones = [
+        replace(
+            z,
+            scale_mps2=z.scale_mps2 * _factor(rng),
+            brake_scale_mps2=z.brake_scale_mps2 * _factor(rng),
+        )
+        for z in base.zones
+    ]
     return replace(base, steering=steering, zones=zones, path=f"hidden-{seed}")
 
 

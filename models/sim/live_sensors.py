@@ -30,6 +30,7 @@ Also here: :func:`measure_trajectory` (every message of a whole true trajectory)
 :func:`random_drive` (a seeded open-loop drive of the hybrid plant with optional hidden process
 noise: known truth for the estimator's tests and benchmark).
 """
+
 from __future__ import annotations
 
 import math
@@ -104,8 +105,9 @@ class SensorConfig:
                 raise ValueError(f"gnss_outages entries are (t_start_s, t_end_s), got {w!r}")
         for j in self.gnss_jumps:
             if len(j) != 4 or not j[0] < j[1]:
-                raise ValueError("gnss_jumps entries are (t_start_s, t_end_s, dx_m, dy_m), "
-                                 f"got {j!r}")
+                raise ValueError(
+                    f"gnss_jumps entries are (t_start_s, t_end_s, dx_m, dy_m), got {j!r}"
+                )
 
 
 @dataclass(slots=True)
@@ -141,8 +143,9 @@ class LiveSensors:
             period after it.
     """
 
-    def __init__(self, params: Params, config: SensorConfig | None = None, seed: int = 0,
-                 t0_s: float = 0.0):
+    def __init__(
+        self, params: Params, config: SensorConfig | None = None, seed: int = 0, t0_s: float = 0.0
+    ):
         if params.steering is None:
             raise ValueError("LiveSensors needs a parameter file with the steering map (eq. 7)")
         self.params = params
@@ -156,20 +159,25 @@ class LiveSensors:
         self._scale = float(params.steering.scale)
         ss = np.random.SeedSequence(self.seed)
         rng_phase, self._rng_can, self._rng_imu, self._rng_gnss = (
-            np.random.default_rng(s) for s in ss.spawn(4))
+            np.random.default_rng(s) for s in ss.spawn(4)
+        )
         k = cfg.noise_scale
         self.sensor_truth = {
-            "gyro_bias_radps": k * float(rng_phase.uniform(-cfg.gyro_bias_max_radps,
-                                                           cfg.gyro_bias_max_radps)),
-            "can_yaw_rate_bias_radps": k * float(rng_phase.uniform(
-                -cfg.can_yaw_rate_bias_max_radps, cfg.can_yaw_rate_bias_max_radps)),
+            "gyro_bias_radps": k
+            * float(rng_phase.uniform(-cfg.gyro_bias_max_radps, cfg.gyro_bias_max_radps)),
+            "can_yaw_rate_bias_radps": k
+            * float(
+                rng_phase.uniform(-cfg.can_yaw_rate_bias_max_radps, cfg.can_yaw_rate_bias_max_radps)
+            ),
             "accel_x_bias_mps2": k * float(rng_phase.normal(0.0, cfg.accel_bias_mps2)),
             "wheel_speed_scale": cfg.wheel_speed_scale,
         }
         self._streams = {}
-        for kind, rate, lat in (("can", cfg.can_rate_hz, cfg.can_latency_s),
-                                ("imu", cfg.imu_rate_hz, cfg.imu_latency_s),
-                                ("gnss", cfg.gnss_rate_hz, cfg.gnss_latency_s)):
+        for kind, rate, lat in (
+            ("can", cfg.can_rate_hz, cfg.can_latency_s),
+            ("imu", cfg.imu_rate_hz, cfg.imu_latency_s),
+            ("gnss", cfg.gnss_rate_hz, cfg.gnss_latency_s),
+        ):
             period = 1.0 / rate
             self._streams[kind] = _Stream(period, lat, t0_s + float(rng_phase.uniform(0, period)))
         self._prev: tuple | None = None
@@ -182,12 +190,22 @@ class LiveSensors:
         t1, s1, sw1, d1, a1 = cur
         w = 0.0 if t1 <= t0 else min(max((t_s - t0) / (t1 - t0), 0.0), 1.0)
         dpsi = math.remainder(s1[2] - s0[2], 2 * math.pi)
-        s = (s0[0] + w * (s1[0] - s0[0]), s0[1] + w * (s1[1] - s0[1]), s0[2] + w * dpsi,
-             s0[3] + w * (s1[3] - s0[3]))
+        s = (
+            s0[0] + w * (s1[0] - s0[0]),
+            s0[1] + w * (s1[1] - s0[1]),
+            s0[2] + w * dpsi,
+            s0[3] + w * (s1[3] - s0[3]),
+        )
         return s, sw0 + w * (sw1 - sw0), d0 + w * (d1 - d0), a0 + w * (a1 - a0)
 
-    def observe(self, t_s: float, state, steering_wheel_angle_rad: float, accel_mps2: float = 0.0,
-                delta_rad: float | None = None) -> list[Measurement]:
+    def observe(
+        self,
+        t_s: float,
+        state,
+        steering_wheel_angle_rad: float,
+        accel_mps2: float = 0.0,
+        delta_rad: float | None = None,
+    ) -> list[Measurement]:
         """Feed the truth at ``t_s``; return the messages that arrive in (previous t, t_s].
 
         Args:
@@ -203,8 +221,13 @@ class LiveSensors:
             arrived messages in order of arrival (then of measurement time).
         """
         d = self._off + self._scale * steering_wheel_angle_rad if delta_rad is None else delta_rad
-        cur = (float(t_s), tuple(float(q) for q in state[:4]), float(steering_wheel_angle_rad),
-               float(d), float(accel_mps2))
+        cur = (
+            float(t_s),
+            tuple(float(q) for q in state[:4]),
+            float(steering_wheel_angle_rad),
+            float(d),
+            float(accel_mps2),
+        )
         prev = self._prev if self._prev is not None else cur
         if self._prev is not None and cur[0] <= prev[0]:
             raise ValueError(f"truth times must increase: {cur[0]} after {prev[0]}")
@@ -226,8 +249,9 @@ class LiveSensors:
         return out
 
     # ---------------------------------------------------------------- sensors
-    def _measure(self, kind: str, t: float, s, sw: float, delta: float,
-                 a: float) -> Measurement | None:
+    def _measure(
+        self, kind: str, t: float, s, sw: float, delta: float, a: float
+    ) -> Measurement | None:
         cfg, k = self.cfg, self.cfg.noise_scale
         v = max(s[3], 0.0)
         r = heading_rate(v, delta, self._b, math)
@@ -235,25 +259,42 @@ class LiveSensors:
             rng = self._rng_can
             fl, fr, rl, rr = sn.wheel_speeds(v, delta, self._b, self._tf, self._tr)
             common = k * cfg.speed_noise_mps * rng.standard_normal()
-            ws = np.array([fl, fr, rl, rr]) * cfg.wheel_speed_scale + common \
+            ws = (
+                np.array([fl, fr, rl, rr]) * cfg.wheel_speed_scale
+                + common
                 + k * cfg.wheel_jitter_mps * rng.standard_normal(4)
+            )
             ws = _quantise_wheel_speed(np.maximum(ws, 0.0))
-            vals = {"wheel_speeds_mps": tuple(float(q) for q in ws),
-                    "steering_wheel_angle_rad": float(np.deg2rad(
-                        sn.steer_angle_sensor_deg(np.rad2deg(sw))))}
+            vals = {
+                "wheel_speeds_mps": tuple(float(q) for q in ws),
+                "steering_wheel_angle_rad": float(
+                    np.deg2rad(sn.steer_angle_sensor_deg(np.rad2deg(sw)))
+                ),
+            }
             if cfg.can_yaw_rate:
-                vals["yaw_rate_radps"] = r + self.sensor_truth["can_yaw_rate_bias_radps"] \
+                vals["yaw_rate_radps"] = (
+                    r
+                    + self.sensor_truth["can_yaw_rate_bias_radps"]
                     + k * cfg.can_yaw_rate_noise_radps * rng.standard_normal()
+                )
             self.counts["can"] += 1
             return Measurement("can", t, t, vals)
         if kind == "imu":
             rng = self._rng_imu
             self.counts["imu"] += 1
-            return Measurement("imu", t, t, {
-                "yaw_rate_radps": r + self.sensor_truth["gyro_bias_radps"]
-                + k * cfg.gyro_noise_radps * rng.standard_normal(),
-                "accel_x_mps2": a + self.sensor_truth["accel_x_bias_mps2"]
-                + k * cfg.accel_noise_mps2 * rng.standard_normal()})
+            return Measurement(
+                "imu",
+                t,
+                t,
+                {
+                    "yaw_rate_radps": r
+                    + self.sensor_truth["gyro_bias_radps"]
+                    + k * cfg.gyro_noise_radps * rng.standard_normal(),
+                    "accel_x_mps2": a
+                    + self.sensor_truth["accel_x_bias_mps2"]
+                    + k * cfg.accel_noise_mps2 * rng.standard_normal(),
+                },
+            )
         # gnss: draw the noise even inside an outage, so outages do not shift the other fixes
         rng = self._rng_gnss
         e = rng.standard_normal(4)
@@ -266,11 +307,17 @@ class LiveSensors:
                 dx, dy = dx + jx, dy + jy
                 self.counts["gnss_jump"] += 1
         self.counts["gnss"] += 1
-        return Measurement("gnss", t, t, {
-            "x_m": s[0] + dx + k * cfg.position_noise_m * e[0],
-            "y_m": s[1] + dy + k * cfg.position_noise_m * e[1],
-            "heading_rad": math.remainder(s[2] + k * cfg.heading_noise_rad * e[2], 2 * math.pi),
-            "speed_mps": abs(v + k * cfg.gnss_speed_noise_mps * e[3])})
+        return Measurement(
+            "gnss",
+            t,
+            t,
+            {
+                "x_m": s[0] + dx + k * cfg.position_noise_m * e[0],
+                "y_m": s[1] + dy + k * cfg.position_noise_m * e[1],
+                "heading_rad": math.remainder(s[2] + k * cfg.heading_noise_rad * e[2], 2 * math.pi),
+                "speed_mps": abs(v + k * cfg.gnss_speed_noise_mps * e[3]),
+            },
+        )
 
     def pending(self) -> int:
         """Messages measured but not yet arrived (latency in flight)."""
@@ -282,9 +329,16 @@ def _quantise_wheel_speed(ws_mps: np.ndarray) -> np.ndarray:
     return sn.quantise_dbc(ws_mps, _WHEEL_SIGNAL)
 
 
-def measure_trajectory(params: Params, t_s, states, steering_wheel_angle_rad, accel_mps2=None,
-                       delta_rad=None, config: SensorConfig | None = None,
-                       seed: int = 0) -> list[Measurement]:
+def measure_trajectory(
+    params: Params,
+    t_s,
+    states,
+    steering_wheel_angle_rad,
+    accel_mps2=None,
+    delta_rad=None,
+    config: SensorConfig | None = None,
+    seed: int = 0,
+) -> list[Measurement]:
     """Every message of a whole true trajectory, in order of arrival.
 
     Args:
@@ -304,8 +358,11 @@ def measure_trajectory(params: Params, t_s, states, steering_wheel_angle_rad, ac
     sensors = LiveSensors(params, config, seed, t0_s=float(t[0]))
     out: list[Measurement] = []
     for i in range(len(t)):
-        out.extend(sensors.observe(t[i], s[i], sw[i], a[i],
-                                   None if delta_rad is None else float(delta_rad[i])))
+        out.extend(
+            sensors.observe(
+                t[i], s[i], sw[i], a[i], None if delta_rad is None else float(delta_rad[i])
+            )
+        )
     return out
 
 
@@ -332,11 +389,20 @@ def _ou(rng: np.random.Generator, n: int, sigma: float, tau_s: float, dt_s: floa
     return sn.gauss_markov(rng, n, sigma, tau_s, dt_s)
 
 
-def random_drive(params: Params, duration_s: float, seed: int, *, dt_s: float = 0.01,
-                 v0_mps: float = 6.0, v_range_mps: tuple[float, float] = (2.0, 12.0),
-                 steer_rms_rad: float = 0.08, speed_walk_mps_rts: float = 0.0,
-                 heading_walk_rad_rts: float = 0.0, position_walk_m_rts: float = 0.0,
-                 delta_offset_walk_rad_rts: float = 0.0) -> TruthTrajectory:
+def random_drive(
+    params: Params,
+    duration_s: float,
+    seed: int,
+    *,
+    dt_s: float = 0.01,
+    v0_mps: float = 6.0,
+    v_range_mps: tuple[float, float] = (2.0, 12.0),
+    steer_rms_rad: float = 0.08,
+    speed_walk_mps_rts: float = 0.0,
+    heading_walk_rad_rts: float = 0.0,
+    position_walk_m_rts: float = 0.0,
+    delta_offset_walk_rad_rts: float = 0.0,
+) -> TruthTrajectory:
     """A seeded open-loop drive of ``models.plant.HybridPlant`` with smooth random inputs.
 
     Steering: a Gauss-Markov road-wheel angle (``steer_rms_rad`` rms, 2 s correlation, through
@@ -353,8 +419,11 @@ def random_drive(params: Params, duration_s: float, seed: int, *, dt_s: float = 
     ss = np.random.SeedSequence(int(seed))
     rng_in, rng_w = (np.random.default_rng(s) for s in ss.spawn(2))
     # a Gauss-Markov road-wheel angle through a 0.3 s lag: a hand on a wheel is smooth
-    delta_cmd = lfilter([1.0 - math.exp(-dt_s / 0.3)], [1.0, -math.exp(-dt_s / 0.3)],
-                        _ou(rng_in, n, steer_rms_rad, 2.0, dt_s))
+    delta_cmd = lfilter(
+        [1.0 - math.exp(-dt_s / 0.3)],
+        [1.0, -math.exp(-dt_s / 0.3)],
+        _ou(rng_in, n, steer_rms_rad, 2.0, dt_s),
+    )
     a_des = _ou(rng_in, n, 0.5, 3.0, dt_s)
     psi0 = float(rng_in.uniform(-math.pi, math.pi))
     sw = (delta_cmd - plant.offset_rad) / plant.scale

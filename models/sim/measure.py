@@ -9,6 +9,7 @@ sensor noise and biases), ``"quantised"`` (quantisation and message rates only, 
 errors), ``"none"`` (ideal sensors: every channel is the truth at the grid time, nothing
 quantised or delayed; eq. 1, 7 and 8 hold exactly on it, effects aside).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,9 +23,15 @@ from hmpc.models.sim.truth_plant import Truth
 NOISE_LEVELS = ("typical", "quantised", "none")
 
 
-def measure(truth: Truth, params: Params, rate_hz: float, noise: str, effects: list[Effect],
-            rng_can: np.random.Generator, rng_ins: np.random.Generator
-            ) -> tuple[dict, dict, dict, np.ndarray]:
+def measure(
+    truth: Truth,
+    params: Params,
+    rate_hz: float,
+    noise: str,
+    effects: list[Effect],
+    rng_can: np.random.Generator,
+    rng_ins: np.random.Generator,
+) -> tuple[dict, dict, dict, np.ndarray]:
     """What the car's CAN and the INS report about ``truth`` (``models.sim.sensors``).
 
     Reusable for any truth on a uniform grid (a closed loop, too) holding the arrays listed in
@@ -41,8 +48,9 @@ def measure(truth: Truth, params: Params, rate_hz: float, noise: str, effects: l
     dt = truth.dt_s
     m = int(round(1.0 / (rate_hz * dt)))
     if m < 1 or abs(m * rate_hz * dt - 1.0) > 1e-9:
-        raise ValueError(f"rate_hz {rate_hz} is not the truth rate {1 / dt:g} Hz over a whole "
-                         "number")
+        raise ValueError(
+            f"rate_hz {rate_hz} is not the truth rate {1 / dt:g} Hz over a whole number"
+        )
     t = tr["t_s"]
     idx = np.arange(0, len(t), m)
     grid = t[idx]
@@ -55,8 +63,13 @@ def measure(truth: Truth, params: Params, rate_hz: float, noise: str, effects: l
     ch: dict[str, np.ndarray] = {"time": grid.copy()}
     raw: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     _measure_can(tr, veh, t_r, grid, idx, noise, c, ws, rng_can, ch, raw)
-    sensor_truth = {"can_clock_offset_s": c, "wheel_speed_scale": ws,
-                    "yaw_rate_bias_radps": 0.0, "accel_x_bias_mps2": 0.0, "accel_y_bias_mps2": 0.0}
+    sensor_truth = {
+        "can_clock_offset_s": c,
+        "wheel_speed_scale": ws,
+        "yaw_rate_bias_radps": 0.0,
+        "accel_x_bias_mps2": 0.0,
+        "accel_y_bias_mps2": 0.0,
+    }
     ins = _measure_ins(tr, dt, b, noise, rng_ins, sensor_truth)
     for name, val in ins.items():
         raw[name] = (t.copy(), val)
@@ -65,21 +78,36 @@ def measure(truth: Truth, params: Params, rate_hz: float, noise: str, effects: l
     return ordered, raw, sensor_truth, idx
 
 
-def _measure_can(tr: dict, veh, t_r: float, grid: np.ndarray, idx: np.ndarray, noise: str,
-                 c: float, ws: float, rng_can: np.random.Generator, ch: dict, raw: dict) -> None:
+def _measure_can(
+    tr: dict,
+    veh,
+    t_r: float,
+    grid: np.ndarray,
+    idx: np.ndarray,
+    noise: str,
+    c: float,
+    ws: float,
+    rng_can: np.random.Generator,
+    ch: dict,
+    raw: dict,
+) -> None:
     """The CAN channels of :func:`measure` into ``ch`` (on ``grid``) and ``raw`` (at message
     times): exact samples at ``noise="none"``, else periodic messages with random phase
     (and jitter and noise at ``"typical"``), DBC-quantised and held on the grid. ``c``: CAN
     clock offset [s]; ``ws``: wheel-speed scale."""
     t = tr["t_s"]
     # ---- CAN truth signals on the internal grid (continuous, SI)
-    fl, fr, rl, rr = sn.wheel_speeds(tr["v_mps"], tr["delta_rad"], veh.wheelbase_m,
-                                     veh.track_front_m, t_r)
+    fl, fr, rl, rr = sn.wheel_speeds(
+        tr["v_mps"], tr["delta_rad"], veh.wheelbase_m, veh.track_front_m, t_r
+    )
     can_truth = {
         "steering_wheel_angle": tr["sw_rad"],
-        "wheel_speed_fl": fl * ws, "wheel_speed_fr": fr * ws,
-        "wheel_speed_rl": rl * ws, "wheel_speed_rr": rr * ws,
-        "accel_pedal": tr["accel_pedal"], "brake_pedal": tr["brake_pedal"],
+        "wheel_speed_fl": fl * ws,
+        "wheel_speed_fr": fr * ws,
+        "wheel_speed_rl": rl * ws,
+        "wheel_speed_rr": rr * ws,
+        "accel_pedal": tr["accel_pedal"],
+        "brake_pedal": tr["brake_pedal"],
         "engine_rpm": sn.engine_rpm(tr["v_mps"], tr["accel_pedal"], veh, tr["low_gear"]),
     }
     gear_truth = np.where(tr["low_gear"], "L", "D").astype(object)
@@ -118,20 +146,27 @@ def _measure_can(tr: dict, veh, t_r: float, grid: np.ndarray, idx: np.ndarray, n
     ch["gear"] = sn.hold_on_grid(tg + c, gear_truth[gi], grid)
 
 
-def _measure_ins(tr: dict, dt: float, b: float, noise: str, rng_ins: np.random.Generator,
-                 sensor_truth: dict) -> dict[str, np.ndarray]:
+def _measure_ins(
+    tr: dict, dt: float, b: float, noise: str, rng_ins: np.random.Generator, sensor_truth: dict
+) -> dict[str, np.ndarray]:
     """The INS channels of :func:`measure` at the internal rate, reference point = the
     front-axle centre; at ``noise="typical"`` with ``InsNoise`` errors, whose biases are
     written into ``sensor_truth``."""
     t = tr["t_s"]
     ddelta = np.gradient(tr["delta_rad"], dt) if len(t) > 1 else np.zeros(len(t))
     ax, ay = sn.ins_body_accel(tr["v_mps"], tr["accel_mps2"], tr["delta_rad"], ddelta, b)
-    ins = {"yaw_rate": tr["yaw_rate_radps"].copy(), "accel_x": ax, "accel_y": ay,
-           "x": tr["x_m"].copy(), "y": tr["y_m"].copy(), "z": tr["z_m"].copy(),
-           "heading": tr["psi_rad"].copy(),
-           "pitch": tr["grade_rad"] + sn.PITCH_PER_ACCEL * ax,
-           "roll": sn.ROLL_PER_LATERAL_ACCEL * ay,
-           "gps_speed": tr["v_mps"].copy()}
+    ins = {
+        "yaw_rate": tr["yaw_rate_radps"].copy(),
+        "accel_x": ax,
+        "accel_y": ay,
+        "x": tr["x_m"].copy(),
+        "y": tr["y_m"].copy(),
+        "z": tr["z_m"].copy(),
+        "heading": tr["psi_rad"].copy(),
+        "pitch": tr["grade_rad"] + sn.PITCH_PER_ACCEL * ax,
+        "roll": sn.ROLL_PER_LATERAL_ACCEL * ay,
+        "gps_speed": tr["v_mps"].copy(),
+    }
     if noise == "typical":
         nz = sn.InsNoise()
         n = len(t)
@@ -143,14 +178,20 @@ def _measure_ins(tr: dict, dt: float, b: float, noise: str, rng_ins: np.random.G
         ins["pitch"] += gm(nz.attitude_rad, nz.attitude_tau_s)
         ins["roll"] += gm(nz.attitude_rad, nz.attitude_tau_s)
         bias_r = float(rng_ins.uniform(-nz.yaw_rate_bias_max_radps, nz.yaw_rate_bias_max_radps))
-        bias_ax, bias_ay = np.clip(rng_ins.normal(0.0, nz.accel_bias_mps2, 2),
-                                   -nz.accel_bias_max_mps2, nz.accel_bias_max_mps2)
+        bias_ax, bias_ay = np.clip(
+            rng_ins.normal(0.0, nz.accel_bias_mps2, 2),
+            -nz.accel_bias_max_mps2,
+            nz.accel_bias_max_mps2,
+        )
         ins["yaw_rate"] += bias_r + rng_ins.normal(0.0, nz.yaw_rate_radps, n)
         ins["accel_x"] += bias_ax + rng_ins.normal(0.0, nz.accel_mps2, n)
         ins["accel_y"] += bias_ay + rng_ins.normal(0.0, nz.accel_mps2, n)
         ins["gps_speed"] = np.abs(ins["gps_speed"] + rng_ins.normal(0.0, nz.gps_speed_mps, n))
-        sensor_truth.update(yaw_rate_bias_radps=bias_r, accel_x_bias_mps2=float(bias_ax),
-                            accel_y_bias_mps2=float(bias_ay))
+        sensor_truth.update(
+            yaw_rate_bias_radps=bias_r,
+            accel_x_bias_mps2=float(bias_ax),
+            accel_y_bias_mps2=float(bias_ay),
+        )
     ins["heading"] = np.angle(np.exp(1j * ins["heading"]))  # wrap to (-pi, pi]
     ins["heading"][ins["heading"] <= -np.pi] = np.pi
     return ins

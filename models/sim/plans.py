@@ -4,6 +4,7 @@ into the recording's meta), or an open-loop pedal programme. ``EXPERIMENTS`` nam
 describes them; ``PLANNERS`` builds each from the truth parameters, the internal step [s] and
 the plan's random stream.
 """
+
 from __future__ import annotations
 
 import math
@@ -18,17 +19,17 @@ from hmpc.models.sim import sensors as sn
 #: experiment name -> what it does (the report's section III).
 EXPERIMENTS: dict[str, str] = {
     "arcs": "III-A.1 steering reference steps, each returning to 0: clockwise at 2.8 m/s, "
-            "counter-clockwise at 2.4 m/s, then the pair at 5.2 m/s",
+    "counter-clockwise at 2.4 m/s, then the pair at 5.2 m/s",
     "circles": "III-A.2 steering ramped to full lock, one full circle held, back to straight: "
-               "clockwise then counter-clockwise, at 1.5 m/s (idle creep, braked) and 3.5 m/s",
+    "clockwise then counter-clockwise, at 1.5 m/s (idle creep, braked) and 3.5 m/s",
     "figure8": "III-A.3 figure eights at about 3.5 m/s in Low gear, human-like smooth steering "
-               "and speed",
+    "and speed",
     "ramps": "III-B.1 speed ramps 0-6-0, 0-4-0 and 0-8-0 with holds (after an idle creep), "
-             "steering near straight with small human corrections",
+    "steering near straight with small human corrections",
     "ramp_sequence": "III-B.2 speed ramp sequence 0-4, 4-8, 8-4, 4-0 with holds, twice (gentle, "
-                     "then brisk), steering near straight",
+    "then brisk), steering near straight",
     "open_loop": "III-B.3 throttle and brake open loop: accelerate, coast, brake to a halt, "
-                 "repeated at several pedal levels and a slow throttle sweep",
+    "repeated at several pedal levels and a slow throttle sweep",
 }
 
 #: full lock when the vehicle file has no steering_wheel_angle_max_rad: a RAV4 turns about
@@ -76,8 +77,15 @@ class Plan:
         self.v_now = 0.0
         self.program: list[Phase] | None = None  # open-loop pedal programme
 
-    def add(self, label: str, dur_s: float, *, v_end: float | None = None, sw=0.0,
-            low_gear: bool = False) -> None:
+    def add(
+        self,
+        label: str,
+        dur_s: float,
+        *,
+        v_end: float | None = None,
+        sw=0.0,
+        low_gear: bool = False,
+    ) -> None:
         n = max(int(round(dur_s / self.dt)), 1)
         tau = np.arange(n) * self.dt
         v0 = self.v_now
@@ -92,8 +100,13 @@ class Plan:
         else:
             self.sw.append(np.full(n, float(sw)))
         self.low_gear.append(np.full(n, low_gear))
-        self.segments.append({"label": label, "t_start_s": round(self.n * self.dt, 6),
-                              "t_end_s": round((self.n + n) * self.dt, 6)})
+        self.segments.append(
+            {
+                "label": label,
+                "t_start_s": round(self.n * self.dt, 6),
+                "t_end_s": round((self.n + n) * self.dt, 6),
+            }
+        )
         self.n += n
         self.v_now = v1
 
@@ -126,10 +139,12 @@ def sw_max_rad(p: Params) -> float:
 def _plan_arcs(p: Params, dt: float, rng) -> Plan:
     pl = Plan(dt)
     pl.add("standstill", 2.0, sw=0.0)
-    blocks = (("cw 2.8 m/s", 2.8, -1.0, (1.0, 2.0, 3.5, 5.0)),
-              ("ccw 2.4 m/s", 2.4, +1.0, (1.0, 2.0, 3.5, 5.0)),
-              ("cw 5.2 m/s", 5.2, -1.0, (0.6, 1.2, 2.0, 3.0)),
-              ("ccw 5.2 m/s", 5.2, +1.0, (0.6, 1.2, 2.0, 3.0)))
+    blocks = (
+        ("cw 2.8 m/s", 2.8, -1.0, (1.0, 2.0, 3.5, 5.0)),
+        ("ccw 2.4 m/s", 2.4, +1.0, (1.0, 2.0, 3.5, 5.0)),
+        ("cw 5.2 m/s", 5.2, -1.0, (0.6, 1.2, 2.0, 3.0)),
+        ("ccw 5.2 m/s", 5.2, +1.0, (0.6, 1.2, 2.0, 3.0)),
+    )
     for label, v, sign, steps in blocks:
         if abs(pl.v_now - v) > 1e-9:
             pl.ramp(f"to {v} m/s", v, 0.8 if v > pl.v_now else 0.5, sw=0.0)
@@ -185,8 +200,9 @@ def _plan_figure8(p: Params, dt: float, rng) -> Plan:
     pl.add("standstill", 2.0, sw=0.0, low_gear=True)
     pl.ramp("to 3.5 m/s", v, 0.7, sw=0.0, low_gear=True)
     radii = rng.uniform(6.5, 10.0, 6)  # six loops: three figure eights
-    levels = [_sw_for((1.0 if i % 2 == 0 else -1.0) * math.asin(b / r), p)
-              for i, r in enumerate(radii)]
+    levels = [
+        _sw_for((1.0 if i % 2 == 0 else -1.0) * math.asin(b / r), p) for i, r in enumerate(radii)
+    ]
     blend = 2.0  # [s] a human unwinds and winds the wheel over about 2 s
     prev = 0.0
     for i, (r, lev) in enumerate(zip(radii, levels)):
@@ -196,11 +212,20 @@ def _plan_figure8(p: Params, dt: float, rng) -> Plan:
         def prof(tau, a0=a0, lev=lev):
             w = 0.5 - 0.5 * np.cos(np.pi * np.clip(tau / blend, 0.0, 1.0))
             return a0 + (lev - a0) * w
-        pl.add(f"figure8 loop {i + 1} ({'ccw' if lev > prev else 'cw'}, R {r:.1f} m)", loop_s,
-               sw=prof, low_gear=True)
+
+        pl.add(
+            f"figure8 loop {i + 1} ({'ccw' if lev > prev else 'cw'}, R {r:.1f} m)",
+            loop_s,
+            sw=prof,
+            low_gear=True,
+        )
         prev = lev
-    pl.add("unwind", 3.0, low_gear=True,
-           sw=lambda tau, a0=prev: a0 * (0.5 + 0.5 * np.cos(np.pi * np.clip(tau / 2.0, 0, 1))))
+    pl.add(
+        "unwind",
+        3.0,
+        low_gear=True,
+        sw=lambda tau, a0=prev: a0 * (0.5 + 0.5 * np.cos(np.pi * np.clip(tau / 2.0, 0, 1))),
+    )
     pl.ramp("brake to rest", 0.0, 0.8, sw=0.0, low_gear=True)
     pl.add("standstill", 2.0, sw=0.0, low_gear=True)
     v_ref, a_ref, sw, low = pl.arrays()
@@ -269,6 +294,11 @@ def _plan_open_loop(p: Params, dt: float, rng) -> Plan:
     return pl
 
 
-PLANNERS = {"arcs": _plan_arcs, "circles": _plan_circles, "figure8": _plan_figure8,
-             "ramps": _plan_ramps, "ramp_sequence": _plan_ramp_sequence,
-             "open_loop": _plan_open_loop}
+PLANNERS = {
+    "arcs": _plan_arcs,
+    "circles": _plan_circles,
+    "figure8": _plan_figure8,
+    "ramps": _plan_ramps,
+    "ramp_sequence": _plan_ramp_sequence,
+    "open_loop": _plan_open_loop,
+}

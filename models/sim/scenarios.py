@@ -15,6 +15,7 @@ Speed corners are rounded by a moving average (jerk about 1.25 m/s^3, under the
 ISO 15622 bound the controller enforces) and curvature changes are rate-limited to what
 the steering rate limit can follow.
 """
+
 from __future__ import annotations
 
 import math
@@ -51,8 +52,9 @@ def _rate_limit(k: np.ndarray, rate_per_s: float) -> np.ndarray:
     return out
 
 
-def _integrate(name: str, speed: np.ndarray, curv_of_s, heading0: float = 0.0,
-               curv_rate_1pmps: float = 0.12) -> Reference:
+def _integrate(
+    name: str, speed: np.ndarray, curv_of_s, heading0: float = 0.0, curv_rate_1pmps: float = 0.12
+) -> Reference:
     """Integrate the front-point kinematics x' = v cos th, y' = v sin th, th' = v kappa(s).
 
     ``curv_rate_1pmps``: curvature rate limit [1/m per s]; 0.12 is under the 0.19 that the
@@ -70,8 +72,12 @@ def _integrate(name: str, speed: np.ndarray, curv_of_s, heading0: float = 0.0,
     return Reference(t, x, y, th, speed, name=name, curvature_1pm=kap)
 
 
-def _speed_profile(segments: list[tuple[float, float]], v0: float = 0.0, accel_mps2: float = 1.0,
-                   smooth_s: float = 0.8) -> np.ndarray:
+def _speed_profile(
+    segments: list[tuple[float, float]],
+    v0: float = 0.0,
+    accel_mps2: float = 1.0,
+    smooth_s: float = 0.8,
+) -> np.ndarray:
     """Piecewise-linear speed: segments of (target speed [m/s], hold time [s]), ramps at
     ``accel_mps2``, corners rounded by a ``smooth_s`` moving average."""
     v = [v0]
@@ -109,6 +115,7 @@ def _piecewise_curvature(pieces: list[tuple[float, float]]):
     def f(s: float) -> float:
         i = int(np.searchsorted(edges, s, side="right"))
         return vals[i] if i < len(vals) else 0.0
+
     return f
 
 
@@ -118,25 +125,38 @@ def make_scenario(name: str, params: Params | None = None) -> Reference:
         v = _speed_profile([(4.0, 4.0), (8.0, 4.0), (4.0, 4.0), (0.0, 3.0)], v0=0.0)
         return _integrate(name, v, lambda s: 0.0)
     if name == "ramps":
-        v = _speed_profile([(6.0, 3.0), (0.0, 2.0), (4.0, 3.0), (0.0, 2.0), (8.0, 3.0),
-                            (0.0, 2.0)], v0=0.0)
+        v = _speed_profile(
+            [(6.0, 3.0), (0.0, 2.0), (4.0, 3.0), (0.0, 2.0), (8.0, 3.0), (0.0, 2.0)], v0=0.0
+        )
         return _integrate(name, v, lambda s: 0.0)
     if name == "idle_hold":
-        v = _speed_profile([(1.0, 20.0), (0.0, 5.0), (1.0, 15.0), (0.0, 3.0)], v0=0.0,
-                           accel_mps2=0.25)
+        v = _speed_profile(
+            [(1.0, 20.0), (0.0, 5.0), (1.0, 15.0), (0.0, 3.0)], v0=0.0, accel_mps2=0.25
+        )
         return _integrate(name, v, lambda s: 0.0)
     if name == "arcs":
         # CW arcs (negative curvature) at 2.8 m/s, CCW at 2.4, the pair at 5.2 m/s; the
         # steering is set back to straight after each arc (III-A.1).
-        v = _speed_profile([(2.8, 3.0 + 10.0 + 3.0), (2.4, 3.0 + 10.0 + 3.0),
-                            (5.2, 3.0 + 7.0 + 3.0 + 7.0 + 3.0), (0.0, 2.0)], v0=2.8)
+        v = _speed_profile(
+            [
+                (2.8, 3.0 + 10.0 + 3.0),
+                (2.4, 3.0 + 10.0 + 3.0),
+                (5.2, 3.0 + 7.0 + 3.0 + 7.0 + 3.0),
+                (0.0, 2.0),
+            ],
+            v0=2.8,
+        )
         t = np.arange(len(v)) * _SAMPLE_DT_S
         s = np.concatenate([[0.0], np.cumsum(v[1:] * _SAMPLE_DT_S)])
         s_of_t = lambda tt: float(np.interp(tt, t, s))  # noqa: E731
         # lengths from the speed profile: arc k starts at a time, lasts a time
         r1, r2 = 10.0, 25.0
-        t_edges = [(3.0, 13.0, -1 / r1), (19.0, 29.0, 1 / r1), (35.5, 42.5, -1 / r2),
-                   (45.5, 52.5, 1 / r2)]
+        t_edges = [
+            (3.0, 13.0, -1 / r1),
+            (19.0, 29.0, 1 / r1),
+            (35.5, 42.5, -1 / r2),
+            (45.5, 52.5, 1 / r2),
+        ]
         pieces = []
         last = 0.0
         for t0, t1, k in t_edges:
@@ -147,8 +167,11 @@ def make_scenario(name: str, params: Params | None = None) -> Reference:
     if name == "circles":
         r = _lock_radius_m(params, 0.8)
         vc = 2.5
-        v = _speed_profile([(vc, 4.0 + 2 * math.pi * r / vc + 4.0 + 2 * math.pi * r / vc + 3.0),
-                            (0.0, 2.0)], v0=0.0, accel_mps2=0.8)
+        v = _speed_profile(
+            [(vc, 4.0 + 2 * math.pi * r / vc + 4.0 + 2 * math.pi * r / vc + 3.0), (0.0, 2.0)],
+            v0=0.0,
+            accel_mps2=0.8,
+        )
         lead = 0.5 * vc * vc / 0.8 + 4.0 * vc
         pieces = [(lead, 0.0), (2 * math.pi * r, 1 / r), (4.0 * vc, 0.0), (2 * math.pi * r, -1 / r)]
         return _integrate(name, v, _piecewise_curvature(pieces), curv_rate_1pmps=0.1)

@@ -53,6 +53,7 @@ Body-frame acceleration of F (v along delta, body turning at r):
 Body attitude: pitch = grade + 0.002 rad per m/s^2 of accel_x (squat, nose up under throttle),
 roll = 0.006 rad per m/s^2 of accel_y (about 3.4 deg/g, SUV-like body roll).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -114,8 +115,9 @@ class CanSignal:
 
     @property
     def to_si(self) -> float:
-        return {"deg": np.pi / 180.0, "km/h": 1.0 / KPH_PER_MPS, "%": 0.01, "rpm": 1.0,
-                "": 1.0}[self.unit_dbc]
+        return {"deg": np.pi / 180.0, "km/h": 1.0 / KPH_PER_MPS, "%": 0.01, "rpm": 1.0, "": 1.0}[
+            self.unit_dbc
+        ]
 
     @property
     def step_si(self) -> float:
@@ -126,8 +128,9 @@ class CanSignal:
 #: jitter by 0.02 km/h rms (tone-wheel edge timing), rpm by 5 rpm; angle and pedal sensors are exact
 #: encoders. Rates: comma2k19 minute (82.9, 31.5, 41.5, 42.5, 1.1 Hz).
 CAN_SIGNALS: tuple[CanSignal, ...] = (
-    CanSignal("steering_wheel_angle", "STEER_ANGLE_SENSOR", "STEER_ANGLE+STEER_FRACTION", 83.3,
-              0.1, "deg"),
+    CanSignal(
+        "steering_wheel_angle", "STEER_ANGLE_SENSOR", "STEER_ANGLE+STEER_FRACTION", 83.3, 0.1, "deg"
+    ),
     CanSignal("wheel_speed_fl", "WHEEL_SPEEDS", "WHEEL_SPEED_FL", 83.3, 0.01, "km/h", -67.67, 0.02),
     CanSignal("wheel_speed_fr", "WHEEL_SPEEDS", "WHEEL_SPEED_FR", 83.3, 0.01, "km/h", -67.67, 0.02),
     CanSignal("wheel_speed_rl", "WHEEL_SPEEDS", "WHEEL_SPEED_RL", 83.3, 0.01, "km/h", -67.67, 0.02),
@@ -167,8 +170,9 @@ ROLL_PER_LATERAL_ACCEL = 0.006
 
 
 # --------------------------------------------------------------------------- geometry
-def wheel_speeds(v_mps, delta_rad, wheelbase_m: float, track_front_m: float,
-                 track_rear_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def wheel_speeds(
+    v_mps, delta_rad, wheelbase_m: float, track_front_m: float, track_rear_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Wheel-centre speeds (fl, fr, rl, rr) [m/s] of the kinematic bicycle (module docstring).
 
     Args:
@@ -205,12 +209,15 @@ def ins_body_accel(v_mps, a_mps2, delta_rad, delta_rate_radps, wheelbase_m: floa
     v = np.asarray(v_mps, dtype=float)
     d = np.asarray(delta_rad, dtype=float)
     turn = v * np.sin(d) / wheelbase_m + np.asarray(delta_rate_radps, dtype=float)
-    return (np.asarray(a_mps2) * np.cos(d) - v * np.sin(d) * turn,
-            np.asarray(a_mps2) * np.sin(d) + v * np.cos(d) * turn)
+    return (
+        np.asarray(a_mps2) * np.cos(d) - v * np.sin(d) * turn,
+        np.asarray(a_mps2) * np.sin(d) + v * np.cos(d) * turn,
+    )
 
 
-def engine_rpm(v_mps, accel_pedal, vehicle, low_gear_only=None, *,
-               drivetrain: Drivetrain = RAV4_DRIVETRAIN) -> np.ndarray:
+def engine_rpm(
+    v_mps, accel_pedal, vehicle, low_gear_only=None, *, drivetrain: Drivetrain = RAV4_DRIVETRAIN
+) -> np.ndarray:
     """A plausible engine speed [1/min]: idle plus throttle flare, or wheel speed through the gear.
 
     Args:
@@ -258,8 +265,9 @@ def steer_angle_sensor_deg(angle_deg) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------ noise
-def gauss_markov(rng: np.random.Generator, n: int, sigma: float, tau_s: float,
-                 dt_s: float) -> np.ndarray:
+def gauss_markov(
+    rng: np.random.Generator, n: int, sigma: float, tau_s: float, dt_s: float
+) -> np.ndarray:
     """A stationary first-order Gauss-Markov sequence: rms ``sigma``, correlation time ``tau_s``."""
     if n == 0 or sigma == 0.0:
         return np.zeros(n)
@@ -271,8 +279,13 @@ def gauss_markov(rng: np.random.Generator, n: int, sigma: float, tau_s: float,
 
 
 # --------------------------------------------------------------------------- sampling
-def message_times(rng: np.random.Generator | None, rate_hz: float, t_start_s: float, t_end_s: float,
-                  jitter_s: float) -> np.ndarray:
+def message_times(
+    rng: np.random.Generator | None,
+    rate_hz: float,
+    t_start_s: float,
+    t_end_s: float,
+    jitter_s: float,
+) -> np.ndarray:
     """Send times [s] of a periodic message covering [t_start, t_end], random phase and jitter.
 
     ``rng`` None: phase 0 and no jitter. Strictly increasing.

@@ -26,6 +26,7 @@ recording (numpy ``SeedSequence(seed)`` feeds separate streams for plan, driver,
 ``run_experiment`` returns the recording with its truth (:class:`SimRun`), ``coverage`` says
 what a run exercised (also in ``meta['coverage']``); ``random_params`` draws a plausible truth.
 """
+
 from __future__ import annotations
 
 import math
@@ -62,14 +63,28 @@ def random_params(seed: int, vehicle: Vehicle | None = None) -> Params:
     veh = vehicle if vehicle is not None else Vehicle(**DEFAULT_VEHICLE)
     u = lambda lo, hi: round(float(rng.uniform(lo, hi)), 4)  # noqa: E731 (readable table below)
     steering = Steering(offset_rad=u(-0.03, 0.03), scale=u(0.05, 0.10))
-    table = (("idle", 0.0, 2.0, (0.15, 0.45), (1.5, 3.0), (3.0, 6.0)),
-             ("low", 2.0, 5.0, (-0.25, 0.0), (2.0, 3.5), (4.0, 7.0)),
-             ("high", 5.0, 20.0, (-0.45, -0.15), (2.0, 3.5), (5.0, 8.0)))
-    zones = [Zone(name=n, v_min_mps=lo, v_max_mps=hi, offset_mps2=u(*o), scale_mps2=u(*s),
-                  brake_scale_mps2=u(*b)) for n, lo, hi, o, s, b in table]
-    return Params(vehicle=veh, steering=steering, zones=zones,
-                  provenance={"source": "hmpc.models.sim.simulator.random_params",
-                              "seed": int(seed)})
+    table = (
+        ("idle", 0.0, 2.0, (0.15, 0.45), (1.5, 3.0), (3.0, 6.0)),
+        ("low", 2.0, 5.0, (-0.25, 0.0), (2.0, 3.5), (4.0, 7.0)),
+        ("high", 5.0, 20.0, (-0.45, -0.15), (2.0, 3.5), (5.0, 8.0)),
+    )
+    zones = [
+        Zone(
+            name=n,
+            v_min_mps=lo,
+            v_max_mps=hi,
+            offset_mps2=u(*o),
+            scale_mps2=u(*s),
+            brake_scale_mps2=u(*b),
+        )
+        for n, lo, hi, o, s, b in table
+    ]
+    return Params(
+        vehicle=veh,
+        steering=steering,
+        zones=zones,
+        provenance={"source": "hmpc.models.sim.simulator.random_params", "seed": int(seed)},
+    )
 
 
 @dataclass
@@ -93,19 +108,25 @@ class SimRun:
 
 def _check_args(name: str, params: Params, rate_hz: float, noise: str, effects) -> None:
     if name not in EXPERIMENTS:
-        raise InputError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})",
-                         None, key="experiment")
+        raise InputError(
+            f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})", None, key="experiment"
+        )
     if noise not in NOISE_LEVELS:
-        raise InputError(f"unknown noise level {noise!r} (known: {', '.join(NOISE_LEVELS)})",
-                         None, key="noise")
+        raise InputError(
+            f"unknown noise level {noise!r} (known: {', '.join(NOISE_LEVELS)})", None, key="noise"
+        )
     if not isinstance(params, Params) or not params.is_model:
-        raise ParamError("the simulator needs a complete model (steering and longitudinal zones)",
-                         getattr(params, "path", None), key="steering")
+        raise ParamError(
+            "the simulator needs a complete model (steering and longitudinal zones)",
+            getattr(params, "path", None),
+            key="steering",
+        )
     assert params.steering is not None  # is_model
     if params.steering.scale <= 0:
         raise ParamError("steering scale must be positive", params.path, key="steering.scale")
-    if not (isinstance(rate_hz, numbers.Real) and math.isfinite(rate_hz)
-            and 1.0 <= rate_hz <= 1000.0):
+    if not (
+        isinstance(rate_hz, numbers.Real) and math.isfinite(rate_hz) and 1.0 <= rate_hz <= 1000.0
+    ):
         raise ValueError(f"rate_hz must be within 1..1000 Hz, got {rate_hz!r}")
     for e in effects:
         if not isinstance(e, Effect):
@@ -113,9 +134,16 @@ def _check_args(name: str, params: Params, rate_hz: float, noise: str, effects) 
 
 
 # -------------------------------------------------------------------------------- API
-def run_experiment(name: str, params: Params, *, seed: int = 0, rate_hz: float = 50.0,
-                   noise: str = "typical", effects: list[Effect] | None = None,
-                   driver: DriverConfig | None = None) -> SimRun:
+def run_experiment(
+    name: str,
+    params: Params,
+    *,
+    seed: int = 0,
+    rate_hz: float = 50.0,
+    noise: str = "typical",
+    effects: list[Effect] | None = None,
+    driver: DriverConfig | None = None,
+) -> SimRun:
     """Simulate experiment ``name`` on the truth ``params``; return the recording and the truth.
 
     Args:
@@ -166,15 +194,23 @@ def run_experiment(name: str, params: Params, *, seed: int = 0, rate_hz: float =
     return run
 
 
-def simulate_experiment(name: str, params: Params, *, seed: int = 0, rate_hz: float = 50.0,
-                        noise: str = "typical", effects: list[Effect] | None = None) -> Recording:
+def simulate_experiment(
+    name: str,
+    params: Params,
+    *,
+    seed: int = 0,
+    rate_hz: float = 50.0,
+    noise: str = "typical",
+    effects: list[Effect] | None = None,
+) -> Recording:
     """A complete canonical recording of experiment ``name`` on the truth ``params``.
 
     See :func:`run_experiment` for the arguments; ``meta`` holds the truth (``params``,
     ``seed``, ``experiment``, ``effects``, ``sensor_truth``, ``segments``, ``coverage``).
     """
-    return run_experiment(name, params, seed=seed, rate_hz=rate_hz, noise=noise,
-                          effects=effects).recording
+    return run_experiment(
+        name, params, seed=seed, rate_hz=rate_hz, noise=noise, effects=effects
+    ).recording
 
 
 def coverage(run: SimRun) -> dict:
@@ -204,6 +240,11 @@ def coverage(run: SimRun) -> dict:
             bands[f"{lo:g}-{hi:g} m/s"] = {
                 "sw_min_rad": round(float(tr["sw_rad"][sel].min()), 3),
                 "sw_max_rad": round(float(tr["sw_rad"][sel].max()), 3),
-                "seconds": round(float(sel.sum() * dt), 2)}
-    return {"duration_s": round(float(len(v) * dt), 2), "v_max_mps": round(float(v.max()), 3),
-            "zones": out_z, "steering_by_speed": bands}
+                "seconds": round(float(sel.sum() * dt), 2),
+            }
+    return {
+        "duration_s": round(float(len(v) * dt), 2),
+        "v_max_mps": round(float(v.max()), 3),
+        "zones": out_z,
+        "steering_by_speed": bands,
+    }

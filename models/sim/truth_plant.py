@@ -8,6 +8,7 @@ sets it): zone (v_min, v_max] as in ``docs/conventions.md``, so identification b
 sees the model that acted. At rest the plant holds the car (no rolling backwards), so samples
 at v = 0 do not follow eq. 8.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -81,8 +82,9 @@ class TruthPlant:
         self.zone: int | None = None
         self._steer = [e for e in self.effects if type(e).steering is not Effect.steering]
         self._pedal = [e for e in self.effects if type(e).pedals is not Effect.pedals]
-        self._accel = [e for e in self.effects
-                       if type(e).accel_extra_mps2 is not Effect.accel_extra_mps2]
+        self._accel = [
+            e for e in self.effects if type(e).accel_extra_mps2 is not Effect.accel_extra_mps2
+        ]
         self.grade_rad = float(sum(e.grade_rad() for e in self.effects))
 
     def step(self, state, u) -> TruthStep:

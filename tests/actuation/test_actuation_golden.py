@@ -2,6 +2,7 @@
 comma2k19 minute is decoded and rebuilt with hmpc's builders, byte for byte, checksum included.
 The frames come from the real log (hmpc's candump reader, decoded with hmpc's decoder); the
 builder only sees the decoded command values, the request bit and the counter."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -25,8 +26,9 @@ def sent(comma_log):
     for role, fid in (("steer_torque", 0x2E4), ("accel", 0x343)):
         rows = (frames.arb_id == fid) & (frames.bus == 0)
         out[role] = frames.take(rows)
-    dec = decode_frames(frames, prof.db, Problems(), names=["STEERING_LKA", "ACC_CONTROL"],
-                        buses=[0])
+    dec = decode_frames(
+        frames, prof.db, Problems(), names=["STEERING_LKA", "ACC_CONTROL"], buses=[0]
+    )
     return prof, out, dec
 
 
@@ -51,14 +53,18 @@ def test_steering_lka_rebuilt_byte_for_byte(sent):
     pays = _payloads(ft["steer_torque"])
     assert len(d) == len(pays) == 6000
     assert np.unique(d.signals["STEER_REQUEST"]).tolist() == [0.0, 1.0]  # both states covered
-    assert np.ptp(d.signals["STEER_TORQUE_CMD"]) > 100                      # real torques
+    assert np.ptp(d.signals["STEER_TORQUE_CMD"]) > 100  # real torques
     for i, want in enumerate(pays):
-        msg = builders.steering_lka(spec, d.signals["STEER_TORQUE_CMD"][i],
-                                    bool(d.signals["STEER_REQUEST"][i]),
-                                    int(d.signals["COUNTER"][i]))
+        msg = builders.steering_lka(
+            spec,
+            d.signals["STEER_TORQUE_CMD"][i],
+            bool(d.signals["STEER_REQUEST"][i]),
+            int(d.signals["COUNTER"][i]),
+        )
         assert msg.arbitration_id == 0x2E4 and msg.dlc == 5
-        assert bytes(msg.data) == want, (f"frame {i}: built {bytes(msg.data).hex()} "
-                                         f"want {want.hex()}")
+        assert bytes(msg.data) == want, (
+            f"frame {i}: built {bytes(msg.data).hex()} want {want.hex()}"
+        )
 
 
 def test_acc_control_rebuilt_byte_for_byte(sent):
@@ -70,8 +76,9 @@ def test_acc_control_rebuilt_byte_for_byte(sent):
     assert d.signals["ACCEL_CMD"].min() < -0.5 < 0.5 < d.signals["ACCEL_CMD"].max()
     for i, want in enumerate(pays):
         msg = builders.acc_control(spec, d.signals["ACCEL_CMD"][i])
-        assert bytes(msg.data) == want, (f"frame {i}: built {bytes(msg.data).hex()} "
-                                         f"want {want.hex()}")
+        assert bytes(msg.data) == want, (
+            f"frame {i}: built {bytes(msg.data).hex()} want {want.hex()}"
+        )
 
 
 def test_profile_rates_match_the_log(sent):
@@ -107,7 +114,7 @@ def test_builder_refuses_values_that_do_not_fit(sent):
     prof, _, _ = sent
     spec = prof.commands["steer_torque"]
     with pytest.raises(builders.EncodeError):
-        builders.steering_lka(spec, 40000, True, 0)   # would wrap in 16 signed bits
+        builders.steering_lka(spec, 40000, True, 0)  # would wrap in 16 signed bits
     with pytest.raises(builders.EncodeError):
         builders.acc_control(prof.commands["accel"], float("nan"))
 
@@ -118,8 +125,13 @@ def _panda_replay(comma_log, prof, perturb=None):
     the 100 Hz send clock, with the EPS torque (STEER_TORQUE_SENSOR) and controls allowed
     (PCM_CRUISE.CRUISE_ACTIVE) as panda saw them. Returns the reasons of refused frames."""
     frames = read_log(comma_log, Problems())
-    dec = decode_frames(frames, prof.db, Problems(), buses=[0],
-                        names=["STEERING_LKA", "STEER_TORQUE_SENSOR", "PCM_CRUISE"])
+    dec = decode_frames(
+        frames,
+        prof.db,
+        Problems(),
+        buses=[0],
+        names=["STEERING_LKA", "STEER_TORQUE_SENSOR", "PCM_CRUISE"],
+    )
     lka, eps, pcm = dec["STEERING_LKA"], dec["STEER_TORQUE_SENSOR"], dec["PCM_CRUISE"]
     step = np.diff(lka.signals["COUNTER"].astype(int)) % 64
     step[step > 32] -= 64
@@ -130,9 +142,11 @@ def _panda_replay(comma_log, prof, perturb=None):
     request = lka.signals["STEER_REQUEST"][order].astype(bool)
     if perturb is not None:
         torque[perturb[0]] += perturb[1]
-    events = sorted([(t, 0, i) for i, t in enumerate(eps.t_s)] +
-                    [(t, 1, i) for i, t in enumerate(pcm.t_s)] +
-                    [(t, 2, j) for j, t in enumerate(t_send)])
+    events = sorted(
+        [(t, 0, i) for i, t in enumerate(eps.t_s)]
+        + [(t, 1, i) for i, t in enumerate(pcm.t_s)]
+        + [(t, 2, j) for j, t in enumerate(t_send)]
+    )
     check, allowed, refused = ToyotaSteerCheck(ToyotaLimits()), False, []
     for t, kind, i in events:
         if kind == 0:

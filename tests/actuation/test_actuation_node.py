@@ -1,6 +1,7 @@
 """The vehicle simulator node as an ECU: on a real python-can virtual bus it accepts good
 command frames, ignores and counts frames with a bad checksum/CRC or a skipped counter, faults
 on a command beyond the car's own limits, and publishes its feedback messages."""
+
 from __future__ import annotations
 
 import itertools
@@ -49,13 +50,21 @@ def test_toyota_node_checks_checksum_counter_and_limits():
             bus.send(m)
         bad_ck = builders.steering_lka(spec, 0, True, 5)
         bad_ck.data[-1] ^= 0xFF
-        bus.send(bad_ck)                                          # checksum wrong
-        bus.send(builders.steering_lka(spec, 0, True, 9))          # counter skips 5..8
-        bus.send(builders.steering_lka(spec, 0, True, 10))         # in sequence again
-        bus.send(builders.steering_lka(spec, 500, True, 11))       # +500 in one frame: EPS fault
+        bus.send(bad_ck)  # checksum wrong
+        bus.send(builders.steering_lka(spec, 0, True, 9))  # counter skips 5..8
+        bus.send(builders.steering_lka(spec, 0, True, 10))  # in sequence again
+        bus.send(builders.steering_lka(spec, 500, True, 11))  # +500 in one frame: EPS fault
         _settle(node, 9)
-        seen, want = set(), {"WHEEL_SPEEDS", "STEER_ANGLE_SENSOR", "STEER_TORQUE_SENSOR",
-                             "EPS_STATUS", "PCM_CRUISE"}
+        seen, want = (
+            set(),
+            {
+                "WHEEL_SPEEDS",
+                "STEER_ANGLE_SENSOR",
+                "STEER_TORQUE_SENSOR",
+                "EPS_STATUS",
+                "PCM_CRUISE",
+            },
+        )
         t_end = time.monotonic() + 2.0
         while time.monotonic() < t_end and not want <= seen:
             m = bus.recv(timeout=0.1)
@@ -78,11 +87,11 @@ def test_bywire_node_checks_crc_and_refuses_both_pedals():
     try:
         bus.send(builders.bw_pedal_cmd(spec, 0.1, 0.0, True, 0))
         bad = builders.bw_pedal_cmd(spec, 0.1, 0.0, True, 1)
-        bad.data[0] ^= 0x01                                        # payload corrupted: CRC fails
+        bad.data[0] ^= 0x01  # payload corrupted: CRC fails
         bus.send(bad)
         bus.send(builders.bw_pedal_cmd(spec, 0.1, 0.0, True, 1))
         both = builders.encode_command(spec, {"accel_pedal": 0.2, "brake_pedal": 0.2}, True, 2)
-        bus.send(both)                                             # throttle with brake: fault
+        bus.send(both)  # throttle with brake: fault
         _settle(node, 4)
     finally:
         bus.shutdown()

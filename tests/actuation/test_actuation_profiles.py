@@ -1,5 +1,6 @@
 """Strict loading of actuation profiles: both shipped profiles load; any unknown key, missing key
 or name the DBC lacks is a one-line ParamError naming the file, the line and the key."""
+
 from __future__ import annotations
 
 import shutil
@@ -39,22 +40,42 @@ def _copy(tmp_path, src, edit):
     return out
 
 
-@pytest.mark.parametrize("src,edit,key", [
-    (TOY, lambda d: d.update(colour="red"), "colour"),
-    (TOY, lambda d: d["commands"]["steer_torque"].update(rate=100), "commands.steer_torque.rate"),
-    (TOY, lambda d: d["commands"]["accel"].pop("rate_hz"), "commands.accel.rate_hz"),
-    (TOY, lambda d: d["commands"]["accel"].update(message="NO_SUCH"), "commands.accel.message"),
-    (TOY, lambda d: d["commands"]["steer_torque"]["values"].update(steer_torque="NOPE"),
-     "commands.steer_torque.values.steer_torque"),
-    (TOY, lambda d: d["commands"]["steer_torque"].update(counter="STEER_TORQUE_CMD"),
-     "commands.steer_torque.counter"),
-    (TOY, lambda d: d["commands"]["accel"]["checksum"].update(scheme="md5"),
-     "commands.accel.checksum.scheme"),
-    (TOY, lambda d: d["feedback"].pop("eps_torque"), "feedback"),
-    (TOY, lambda d: d.update(limits="none"), "limits"),
-    (BW, lambda d: d["commands"].pop("heartbeat"), "commands"),
-    (BW, lambda d: d["feedback"]["gas_pressed"].update(actve=[1]), "feedback.gas_pressed.actve"),
-])
+@pytest.mark.parametrize(
+    "src,edit,key",
+    [
+        (TOY, lambda d: d.update(colour="red"), "colour"),
+        (
+            TOY,
+            lambda d: d["commands"]["steer_torque"].update(rate=100),
+            "commands.steer_torque.rate",
+        ),
+        (TOY, lambda d: d["commands"]["accel"].pop("rate_hz"), "commands.accel.rate_hz"),
+        (TOY, lambda d: d["commands"]["accel"].update(message="NO_SUCH"), "commands.accel.message"),
+        (
+            TOY,
+            lambda d: d["commands"]["steer_torque"]["values"].update(steer_torque="NOPE"),
+            "commands.steer_torque.values.steer_torque",
+        ),
+        (
+            TOY,
+            lambda d: d["commands"]["steer_torque"].update(counter="STEER_TORQUE_CMD"),
+            "commands.steer_torque.counter",
+        ),
+        (
+            TOY,
+            lambda d: d["commands"]["accel"]["checksum"].update(scheme="md5"),
+            "commands.accel.checksum.scheme",
+        ),
+        (TOY, lambda d: d["feedback"].pop("eps_torque"), "feedback"),
+        (TOY, lambda d: d.update(limits="none"), "limits"),
+        (BW, lambda d: d["commands"].pop("heartbeat"), "commands"),
+        (
+            BW,
+            lambda d: d["feedback"]["gas_pressed"].update(actve=[1]),
+            "feedback.gas_pressed.actve",
+        ),
+    ],
+)
 def test_bad_profile_names_file_and_key(tmp_path, src, edit, key):
     path = _copy(tmp_path, src, edit)
     with pytest.raises(ParamError) as ei:

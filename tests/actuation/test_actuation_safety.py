@@ -2,6 +2,7 @@
 operator produces, the limiter after the controller makes it pass the independent check at the
 encoder, and the bytes that leave decode to values within the limits. Never throttle with brake.
 """
+
 from __future__ import annotations
 
 import math
@@ -14,9 +15,18 @@ from hypothesis import strategies as st
 from _data import PARAMS_DIR, REPORT_PARAMS
 from hmpc.controller.actuation import builders
 from hmpc.controller.actuation.profiles import load_profile
-from hmpc.controller.actuation.safety import (AngleCheck, AngleLimiter, AngleLimits, ToyotaLimits,
-                                              ToyotaSteerCheck, ToyotaTorqueLimiter, accel_ok,
-                                              clip_accel, clip_pedals, pedals_ok)
+from hmpc.controller.actuation.safety import (
+    AngleCheck,
+    AngleLimiter,
+    AngleLimits,
+    ToyotaLimits,
+    ToyotaSteerCheck,
+    ToyotaTorqueLimiter,
+    accel_ok,
+    clip_accel,
+    clip_pedals,
+    pedals_ok,
+)
 from hmpc.models.params import load_params
 
 SEED = 20261123  # printed by hypothesis on failure; fixed so a failure reproduces
@@ -29,8 +39,13 @@ wild = st.one_of(st.floats(-5000, 5000), st.sampled_from([math.nan, math.inf, -m
 
 @seed(SEED)
 @settings(max_examples=150, deadline=None)
-@given(st.lists(st.tuples(wild, st.floats(-2000, 2000), st.booleans(),
-                          st.floats(0.005, 0.02)), min_size=1, max_size=300))
+@given(
+    st.lists(
+        st.tuples(wild, st.floats(-2000, 2000), st.booleans(), st.floats(0.005, 0.02)),
+        min_size=1,
+        max_size=300,
+    )
+)
 def test_toyota_torque_never_leaves_outside_panda_limits(stream):
     lim = ToyotaLimits()
     limiter, check = ToyotaTorqueLimiter(lim), ToyotaSteerCheck(lim)
@@ -50,8 +65,13 @@ def test_toyota_torque_never_leaves_outside_panda_limits(stream):
 
 @seed(SEED)
 @settings(max_examples=150, deadline=None)
-@given(st.lists(st.tuples(st.one_of(st.floats(-50, 50), st.just(math.nan)), st.booleans()),
-                min_size=1, max_size=100))
+@given(
+    st.lists(
+        st.tuples(st.one_of(st.floats(-50, 50), st.just(math.nan)), st.booleans()),
+        min_size=1,
+        max_size=100,
+    )
+)
 def test_toyota_accel_within_bounds(stream):
     lim = ToyotaLimits()
     spec = TOY.commands["accel"]
@@ -64,9 +84,18 @@ def test_toyota_accel_within_bounds(stream):
 
 @seed(SEED)
 @settings(max_examples=150, deadline=None)
-@given(st.lists(st.tuples(st.one_of(st.floats(-20, 20), st.just(math.nan)), st.floats(0, 30),
-                          st.floats(-1, 2), st.floats(-1, 2)),
-                min_size=1, max_size=200))
+@given(
+    st.lists(
+        st.tuples(
+            st.one_of(st.floats(-20, 20), st.just(math.nan)),
+            st.floats(0, 30),
+            st.floats(-1, 2),
+            st.floats(-1, 2),
+        ),
+        min_size=1,
+        max_size=200,
+    )
+)
 def test_bywire_angle_and_pedals_within_schedule_never_both_pedals(stream):
     lim = AngleLimits.from_params(PARAMS)
     s_spec, p_spec = BW.commands["steer_angle"], BW.commands["pedals"]
@@ -91,9 +120,9 @@ def test_checks_catch_what_the_limiter_would_have_stopped():
     lim = ToyotaLimits()
     c = ToyotaSteerCheck(lim)
     assert c.check(0, True, 0.01, True) == ""
-    assert "rate" in c.check(100, True, 0.02, True)          # +100 in one frame
+    assert "rate" in c.check(100, True, 0.02, True)  # +100 in one frame
     assert c.check(5, True, 0.03, True) == ""
-    assert c.check(3, True, 0.04, False) != ""               # torque while not allowed
+    assert c.check(3, True, 0.04, False) != ""  # torque while not allowed
     assert accel_ok(2.5, True) != "" and accel_ok(-4.0, True) != ""
     assert accel_ok(0.5, False) != ""
     al = AngleLimits.from_params(PARAMS)
@@ -146,8 +175,8 @@ def test_steer_request_cut_follows_panda_tolerance():
     c = ToyotaSteerCheck(lim)
     seq = [c.check(min(15 * (k + 1), 60), True, 0.01 * k, True) for k in range(18)]
     assert seq == [""] * 18
-    assert c.check(60, False, 0.18, True) == ""                     # the first cut: allowed
-    later = _cut_stream(c, "1" * 10 + "0", t0=0.19, torque=60)      # 10 frames later: refused
+    assert c.check(60, False, 0.18, True) == ""  # the first cut: allowed
+    later = _cut_stream(c, "1" * 10 + "0", t0=0.19, torque=60)  # 10 frames later: refused
     assert later[:10] == [""] * 10 and "too few" in later[10]
     # 18 valid frames but within 170 ms of the last cut (frames at 5 ms): refused
     c = ToyotaSteerCheck(lim)
@@ -164,16 +193,16 @@ def test_cutting_torque_to_zero_is_always_allowed_as_in_panda():
     lim = ToyotaLimits()
     c = ToyotaSteerCheck(lim)
     t, tq = 0.0, 0
-    while t < 0.7:                                       # ramp to 600, hold past a window
-        c.eps_torque(tq / lim.eps_torque_factor)        # the EPS follows the command
+    while t < 0.7:  # ramp to 600, hold past a window
+        c.eps_torque(tq / lim.eps_torque_factor)  # the EPS follows the command
         tq = min(tq + lim.max_rate_up, 600)
         t += lim.steer_period_s
         assert c.check(tq, True, t, True) == ""
-    assert c.rt_last > lim.max_rt_delta                  # the window's reference is high
-    assert c.check(0, True, t + 0.01, True) == ""        # 600 -> 0 in one frame: allowed
+    assert c.rt_last > lim.max_rt_delta  # the window's reference is high
+    assert c.check(0, True, t + 0.01, True) == ""  # 600 -> 0 in one frame: allowed
     c2 = ToyotaSteerCheck(lim)
-    assert c2.check(60, True, 0.01, True) != ""          # 0 -> 60 in one frame: refused
-    lt = ToyotaTorqueLimiter(lim)                        # the limiter agrees: it may cut to 0
+    assert c2.check(60, True, 0.01, True) != ""  # 0 -> 60 in one frame: refused
+    lt = ToyotaTorqueLimiter(lim)  # the limiter agrees: it may cut to 0
     t = 0.0
     for _ in range(60):
         t += lim.steer_period_s
@@ -186,6 +215,7 @@ def test_watchdog_stops_on_three_consecutive_late_steps_only():
     one or two late control steps are counted, three in a row stop the car; an on-time step
     resets the count."""
     from hmpc.controller.actuation.watchdog import Watchdog
+
     wd = Watchdog()
     assert [wd.deadline(x) for x in (True, True, False, True, True)] == [""] * 5
     assert wd.deadline(True) == "deadline_misses"

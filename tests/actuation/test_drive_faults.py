@@ -1,6 +1,7 @@
 """Each injectable fault ends in a controlled stop: detected after the fault, the stop's first
 frame within 2 control periods (40 ms at 50 Hz) of the detection, standstill reached, no limit
 violated (audited from the candump), and the reason in the run's summary."""
+
 from __future__ import annotations
 
 import pytest
@@ -13,9 +14,14 @@ pytestmark = pytest.mark.realtime
 FAULT_AT_S = 1.5
 PERIOD_S = DriveConfig().control_period_s
 
-CASES = [("feedback_loss", "feedback_loss"), ("clock_freeze", "clock_freeze"),
-         ("solver_failure", "solver_failure"), ("bus_error", "bus_error"),
-         ("driver_override", "driver_override"), ("vehicle_rejects", "vehicle_rejects")]
+CASES = [
+    ("feedback_loss", "feedback_loss"),
+    ("clock_freeze", "clock_freeze"),
+    ("solver_failure", "solver_failure"),
+    ("bus_error", "bus_error"),
+    ("driver_override", "driver_override"),
+    ("vehicle_rejects", "vehicle_rejects"),
+]
 
 
 @pytest.mark.parametrize("profile", ["toyota", "bywire"])

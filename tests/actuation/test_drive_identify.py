@@ -3,6 +3,7 @@ report's experiments on the vehicle simulator node and recover the simulated car
 (params/report_2008.yaml): the steering map from the Toyota path (arcs; KINEMATICS yaw rate),
 the zone models from the by-wire path (ramps; the kit reports continuous pedal positions, the
 Toyota's brake is a switch). Real time: about 1.5 minutes."""
+
 from __future__ import annotations
 
 import json
@@ -19,8 +20,22 @@ pytestmark = pytest.mark.realtime
 
 def _identify(log, dbc, signals, tmp_path):
     out, js = tmp_path / "id.yaml", tmp_path / "id.json"
-    rc = main(["identify", str(log), "--dbc", str(dbc), "--signals", str(signals),
-               "--vehicle", str(REPORT_PARAMS), "--out", str(out), "--json", str(js)])
+    rc = main(
+        [
+            "identify",
+            str(log),
+            "--dbc",
+            str(dbc),
+            "--signals",
+            str(signals),
+            "--vehicle",
+            str(REPORT_PARAMS),
+            "--out",
+            str(out),
+            "--json",
+            str(js),
+        ]
+    )
     assert rc == 0
     return yaml.safe_load(out.read_text()), json.loads(js.read_text())
 
@@ -30,8 +45,12 @@ def test_steering_map_recovered_from_a_toyota_drive_of_arcs(tmp_path):
     counter-clockwise at 2.4 m/s, III-A.1), read back by ``hmpc identify``; one drive, two
     properties (one test, so that parallel workers never drive it twice)."""
     res, log = drive("toyota", "arcs", 30.0, tmp_path, ref_s=30.5)
-    _, j = _identify(log, DATA_DIR / "dbc/toyota_rav4_2017.dbc.gz",
-                     PARAMS_DIR / "toyota_rav4_2017.signals.yaml", tmp_path)
+    _, j = _identify(
+        log,
+        DATA_DIR / "dbc/toyota_rav4_2017.dbc.gz",
+        PARAMS_DIR / "toyota_rav4_2017.signals.yaml",
+        tmp_path,
+    )
     summary = res.summary
     assert summary["stop"]["reason"] == "duration", summary["stop"]  # drove the whole 30 s
     assert summary["limit_violations"] == 0
@@ -82,8 +101,9 @@ def _yaw_rate_offset_tied_to_the_gyro_bias(yaw: dict, st: dict, truth) -> None:
 def test_zone_models_recovered_from_a_bywire_drive_of_ramps(tmp_path):
     res, log = drive("bywire", "ramps", 51.0, tmp_path)
     assert res.summary["limit_violations"] == 0
-    got, _ = _identify(log, PARAMS_DIR / "hmpc_bywire.dbc",
-                       PARAMS_DIR / "hmpc_bywire.signals.yaml", tmp_path)
+    got, _ = _identify(
+        log, PARAMS_DIR / "hmpc_bywire.dbc", PARAMS_DIR / "hmpc_bywire.signals.yaml", tmp_path
+    )
     zones = {z["name"]: z for z in got["longitudinal"]["zones"]}
     for z in params().zones:
         g = zones[z.name]

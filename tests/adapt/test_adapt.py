@@ -3,6 +3,7 @@ parameter filter (held directions, gate, widening, bounds, drift capped at the p
 sensor checks (spikes, a frozen wheel), the dead-time and lag fit, straight driving (the offset
 learns, the scale holds), the learned file (round trip, another vehicle refused, nothing hmpc
 would refuse is written) and the hand-over to the MPC and the state estimator."""
+
 from __future__ import annotations
 
 import math
@@ -29,8 +30,15 @@ def params():
 
 
 def _filter(**kw):
-    a = dict(theta0=[0.0, 1.0], sigma0=[1.0, 1.0], walk_per_rts=[0.0, 0.0], lo=[-10, 0.1],
-             hi=[10, 10], gate_chi2=10.83, widen_after=20)
+    a = dict(
+        theta0=[0.0, 1.0],
+        sigma0=[1.0, 1.0],
+        walk_per_rts=[0.0, 0.0],
+        lo=[-10, 0.1],
+        hi=[10, 10],
+        gate_chi2=10.83,
+        widen_after=20,
+    )
     a.update(kw)
     return ParamFilter(**a)
 
@@ -60,7 +68,7 @@ def test_filter_gates_an_outlier_widens_on_a_real_change_and_clamps_at_its_bound
     for x in np.linspace(-1, 1, 100):
         f.update([1.0, x], 2.0 * x, 1e-4, [True, True])
     before = list(f.theta)
-    assert not f.update([1.0, 0.5], 50.0, 1e-4, [True, True])   # a spike: gated out
+    assert not f.update([1.0, 0.5], 50.0, 1e-4, [True, True])  # a spike: gated out
     assert f.theta == before and f.rejected == 1
     # the car changed for real: after ``widen_after`` rejections the filter re-learns
     for x in np.tile(np.linspace(-1, 1, 11), 6):
@@ -86,14 +94,14 @@ def test_signals_drop_a_spike_follow_a_step_and_flag_a_frozen_wheel():
     s = PeriodSignals(AdaptConfig(), 1.6)
     for k in range(10):
         s.add_yaw(k * 0.01, 0.10)
-    s.add_yaw(0.1, 1.10)                       # one spike
+    s.add_yaw(0.1, 1.10)  # one spike
     assert s.spikes["yaw_rate"] == 1 and s.sum_yaw / s.n_yaw == pytest.approx(0.1)
-    for k in range(10):                        # a real step
+    for k in range(10):  # a real step
         s.add_yaw(0.2 + k * 0.01, 0.5)
     assert s._yaw_last == 0.5
     s.add_can(1.0, (5.0, 5.0, 5.0, 5.0))
     assert not s.suspect(1.0)
-    s.add_can(1.1, (3.0, 5.4, 5.4, 5.4))       # front-left stuck at an old speed
+    s.add_can(1.1, (3.0, 5.4, 5.4, 5.4))  # front-left stuck at an old speed
     assert s.suspect(1.1) and s.suspect(2.0) and not s.suspect(2.2) and s.wheel_faults == 1
 
 
@@ -102,7 +110,7 @@ def test_response_fit_finds_a_known_dead_time_and_lag():
     T = 0.1
     fit = ResponseFit(cfg, T, (0.2, 0.2))
     rng = np.random.default_rng(3)
-    cmds = np.repeat(rng.uniform(-1, 1, 60), 8)          # steps every 0.8 s
+    cmds = np.repeat(rng.uniform(-1, 1, 60), 8)  # steps every 0.8 s
     # truth: 0.2 s dead time, 0.3 s lag, simulated finely (1 ms) and averaged per period
     d, tau, h = 0.2, 0.3, 0.001
     e, ys = 0.0, []
@@ -118,14 +126,14 @@ def test_response_fit_finds_a_known_dead_time_and_lag():
         fit.command(k * T, (cmds[k], cmds[k]))
         fit.advance()
         fit.weight[:] = 1.0
-        fit.y[:] = (0.3 + 2.0 * ys[k], 0.0)               # a gain and an offset too
+        fit.y[:] = (0.3 + 2.0 * ys[k], 0.0)  # a gain and an offset too
         fit.add((k + 1) * T)
     est = fit.estimate(0)
     assert est["valid"] and est["r2"] > 0.99
     assert est["delay_s"] == pytest.approx(0.2, abs=0.051)
     assert est["lag_s"] == pytest.approx(0.3, abs=0.051)
     assert est["delay_ci95_s"][0] <= est["delay_s"] <= est["delay_ci95_s"][1]
-    assert fit.estimate(1) is None or not fit.estimate(1)["valid"]   # no response at all
+    assert fit.estimate(1) is None or not fit.estimate(1)["valid"]  # no response at all
 
 
 def _straight(adapter, params, truth_off, truth_scale, seconds, rng):
@@ -148,7 +156,7 @@ def test_ten_minutes_straight_learn_the_offset_and_hold_the_scale(params):
     ad = ModelAdapter(params, 0.1)
     _straight(ad, params, 0.030, 0.094, 600.0, np.random.default_rng(0))
     rep = ad.report()
-    assert rep["steering.scale"]["final"] == params.steering.scale           # held, exactly
+    assert rep["steering.scale"]["final"] == params.steering.scale  # held, exactly
     assert not rep["steering.scale"]["identified"]
     # the offset that drives straight with the held scale: 0.030 - (0.094 - 0.08) sw0
     sw0 = -0.030 / 0.094
@@ -161,7 +169,7 @@ def test_learned_file_round_trip_restore_and_refusals(tmp_path, params):
     _straight(ad, params, 0.030, 0.094, 30.0, np.random.default_rng(1))
     out = tmp_path / "car.learned.yaml"
     save_learned(learned_params(ad, run_s=30.0), out)
-    lp = load_params(out, require_model=True)         # a file every hmpc tool loads
+    lp = load_params(out, require_model=True)  # a file every hmpc tool loads
     assert lp.steering.offset_rad == pytest.approx(ad.model().offset_rad)
     assert lp.steering.offset_ci95_rad[0] < lp.steering.offset_rad < lp.steering.offset_ci95_rad[1]
     assert lp.provenance["started_from"] == str(params.path)
@@ -182,8 +190,9 @@ def test_learned_file_round_trip_restore_and_refusals(tmp_path, params):
 
 def test_model_hand_over_mpc_values_only_and_estimator_keeps_its_road_wheel_angle(params):
     ctl = MpcController(params)
-    m = LearnedModel(0.03, 0.09, (0.3, -0.1, -0.25), (2.2, 2.1, 3.3), (4.4, 5.5, 6.6),
-                     0.1, 0.2, 0.0, 0.0)
+    m = LearnedModel(
+        0.03, 0.09, (0.3, -0.1, -0.25), (2.2, 2.1, 3.3), (4.4, 5.5, 6.6), 0.1, 0.2, 0.0, 0.0
+    )
     ctl.use_model(m)
     assert (ctl.plant.offset_rad, ctl.plant.scale) == (0.03, 0.09)
     assert list(ctl.plant.z_scale) == [2.2, 2.1, 3.3] and ctl.plant._eq8[1] == (-0.1, 2.1, 5.5)

@@ -7,6 +7,7 @@ channel and a yaw-rate spike; the CLI's JSON, learned file and plots; and a run 
 follow its reference (the steering wheel at its lock, a car that never pulls away) saying so
 with exit 1. The acceptance per hidden set (learned values, tracking against the truth's
 controller, smoothness) is tests/test_adapt_sets.py."""
+
 from __future__ import annotations
 
 import json
@@ -35,8 +36,9 @@ def _run(params, truth, scenario, adapt=True, **kw):
     ctl_params = params if adapt else truth
     ref = make_scenario(scenario, params)
     ad = ModelAdapter(params, 0.1) if adapt else None
-    res = run_closed_loop(make_controller("mpc", ctl_params), ref, ctl_params,
-                          plant_params=truth, adapter=ad, **kw)
+    res = run_closed_loop(
+        make_controller("mpc", ctl_params), ref, ctl_params, plant_params=truth, adapter=ad, **kw
+    )
     return res.metrics
 
 
@@ -44,8 +46,13 @@ def test_a_gnss_outage_a_frozen_wheel_and_a_yaw_spike_do_not_poison_the_estimate
     from hmpc.models.sim.live_sensors import SensorConfig
 
     truth = hidden_params(params, 3)
-    out = _run(params, truth, "figure8", sensors=SensorConfig(gnss_outages=((8.0, 10.0),)),
-               sensor_faults=[SensorFault("yaw_rate_spike", 12.0, 12.03, 1.5)])
+    out = _run(
+        params,
+        truth,
+        "figure8",
+        sensors=SensorConfig(gnss_outages=((8.0, 10.0),)),
+        sensor_faults=[SensorFault("yaw_rate_spike", 12.0, 12.03, 1.5)],
+    )
     a = out["adaptation"]
     assert abs(a[OFF]["final"] - truth.steering.offset_rad) < 0.002
     assert abs(a[SCALE]["final"] / truth.steering.scale - 1) < 0.03
@@ -53,8 +60,9 @@ def test_a_gnss_outage_a_frozen_wheel_and_a_yaw_spike_do_not_poison_the_estimate
     assert out["estimator"]["messages"]["gnss_outage"] > 0
     # a front wheel stuck at 4 m/s from 6 s on while the car goes to 8 m/s and back
     truth = hidden_params(params, 4)
-    fr = _run(params, truth, "ramp_sequence",
-              sensor_faults=[SensorFault("frozen_wheel_speed", 6.0, 40.0)])
+    fr = _run(
+        params, truth, "ramp_sequence", sensor_faults=[SensorFault("frozen_wheel_speed", 6.0, 40.0)]
+    )
     assert fr["adaptation_details"]["wheel_speed_faults"] >= 1
     assert fr["adaptation_details"]["sensor_faults"] > 100
     for zone in (1, 2):
@@ -67,8 +75,19 @@ def test_a_gnss_outage_a_frozen_wheel_and_a_yaw_spike_do_not_poison_the_estimate
 def test_cli_adapt_json_learned_file_and_plots(tmp_path, params):
     hidden = write_hidden(params, 2, tmp_path / "hidden.yaml")
     js, learned, plots = tmp_path / "r.json", tmp_path / "car.learned.yaml", tmp_path / "plots"
-    args = ["simulate", "--params", str(REPORT_PARAMS), "--plant-params", hidden,
-            "--scenario", "figure8", "--json", str(js), "--learned", str(learned)]
+    args = [
+        "simulate",
+        "--params",
+        str(REPORT_PARAMS),
+        "--plant-params",
+        hidden,
+        "--scenario",
+        "figure8",
+        "--json",
+        str(js),
+        "--learned",
+        str(learned),
+    ]
     assert main(args + ["--plots", str(plots)]) == 0
     d = json.loads(js.read_text())
     e = d["adaptation"][SCALE]
@@ -76,7 +95,7 @@ def test_cli_adapt_json_learned_file_and_plots(tmp_path, params):
     assert e["initial"] == 0.08 and d["details"]["adaptation_details"]["cost_us"]["p50"] > 0
     assert "extensions.actuator_lag.longitudinal.tau_s" in d["adaptation"]
     assert (plots / "adaptation.png").stat().st_size > 10_000
-    lp = load_params(learned, require_model=True)          # identify/diagnose/fleet load it
+    lp = load_params(learned, require_model=True)  # identify/diagnose/fleet load it
     assert lp.steering.scale == pytest.approx(e["final"])
     # the next drive starts from it; without --adapt nothing of it is in the JSON
     assert main(args) == 0
@@ -85,28 +104,43 @@ def test_cli_adapt_json_learned_file_and_plots(tmp_path, params):
     assert main(args[:-2]) == 0 and "adaptation" not in json.loads(js.read_text())
 
 
-def test_a_run_that_could_not_follow_its_reference_says_so_and_exits_1(tmp_path, params,
-                                                                       capsys):
+def test_a_run_that_could_not_follow_its_reference_says_so_and_exits_1(tmp_path, params, capsys):
     # the comma minute's identified steering map (scale 0.038, hmpc identify on the bundled
     # minute) on the RAV4's 8.42 rad lock: figure8's 8 m circles need more than the lock
     veh = load_params(PARAMS_DIR / "toyota_rav4_2017.yaml").vehicle
-    comma = replace(params, vehicle=veh, steering=replace(params.steering, offset_rad=0.0004,
-                                                          scale=0.0383))
+    comma = replace(
+        params, vehicle=veh, steering=replace(params.steering, offset_rad=0.0004, scale=0.0383)
+    )
     p = tmp_path / "comma.yaml"
     dump_params(comma, p)
     js = tmp_path / "r.json"
-    assert main(["simulate", "--params", str(p), "--scenario", "figure8", "--json",
-                 str(js)]) == 1
+    assert main(["simulate", "--params", str(p), "--scenario", "figure8", "--json", str(js)]) == 1
     d = json.loads(js.read_text())
     assert not d["followed"] and d["limits"]["steering_at_lock_s"] > 10.0
     assert "lock" in capsys.readouterr().err
     # a car whose pedal does nothing below 2 m/s: it stands while the reference moves
-    stuck = replace(params, zones=[replace(params.zones[0], scale_mps2=0.01, offset_mps2=-0.3)]
-                    + params.zones[1:])
+    stuck = replace(
+        params,
+        zones=[replace(params.zones[0], scale_mps2=0.01, offset_mps2=-0.3)] + params.zones[1:],
+    )
     q = tmp_path / "stuck.yaml"
     dump_params(stuck, q)
-    assert main(["simulate", "--params", str(REPORT_PARAMS), "--plant-params", str(q),
-                 "--scenario", "ramp_sequence", "--json", str(js)]) == 1
+    assert (
+        main(
+            [
+                "simulate",
+                "--params",
+                str(REPORT_PARAMS),
+                "--plant-params",
+                str(q),
+                "--scenario",
+                "ramp_sequence",
+                "--json",
+                str(js),
+            ]
+        )
+        == 1
+    )
     d = json.loads(js.read_text())
     assert not d["followed"] and d["stalls"]["longest_s"] > 10.0
     assert "stood still" in d["not_followed"][0]

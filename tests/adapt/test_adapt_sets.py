@@ -17,6 +17,7 @@ off). Per set:
 Sets 2, 3 and 8 have a steering gain 14-25 % above the file's (the lateral loop's margin
 smallest). docs/results.md lists these sets and eight more that no tuning looked at.
 """
+
 from __future__ import annotations
 
 import pytest
@@ -46,8 +47,13 @@ def _run(params, truth, scenario: str, mode: str) -> dict:
     learning) or "adapt" (the file and the online learner)."""
     ctl_params = truth if mode == "truth" else params
     ad = ModelAdapter(params, 0.1) if mode == "adapt" else None
-    res = run_closed_loop(make_controller("mpc", ctl_params), make_scenario(scenario, params),
-                          ctl_params, plant_params=truth, adapter=ad)
+    res = run_closed_loop(
+        make_controller("mpc", ctl_params),
+        make_scenario(scenario, params),
+        ctl_params,
+        plant_params=truth,
+        adapter=ad,
+    )
     m = res.metrics
     assert m["internal_errors"] == 0, res.internal_errors[:1]
     return m
@@ -86,10 +92,23 @@ def test_a_hidden_set_is_learned_tracked_and_driven_smoothly(params, seed):
     assert rs["steering_reversals_per_min"]["1deg"] <= MAX_REVERSALS_PER_MIN
 
 
-@pytest.mark.parametrize("seed", [s if s != 8 else pytest.param(8, marks=pytest.mark.xfail(
-    strict=True, reason="without learning, set 8's file is 10 deg of steering wheel off its "
-    "straight-ahead angle: the car runs 0.26 m off the path and the wheel swings slowly with "
-    "the speed, 13.5 reversals a minute (docs/results.md, Adaptation)")) for s in SEEDS])
+@pytest.mark.parametrize(
+    "seed",
+    [
+        s
+        if s != 8
+        else pytest.param(
+            8,
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="without learning, set 8's file is 10 deg of steering wheel off its "
+                "straight-ahead angle: the car runs 0.26 m off the path and the wheel swings "
+                "slowly with the speed, 13.5 reversals a minute (docs/results.md, Adaptation)",
+            ),
+        )
+        for s in SEEDS
+    ],
+)
 def test_without_learning_the_steering_stays_calm_on_a_straight_road(params, seed):
     truth = hidden_params(params, seed)
     rf = _run(params, truth, "ramp_sequence", "file")

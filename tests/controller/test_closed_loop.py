@@ -4,6 +4,7 @@ The controller sees the plant through simulated sensors and the EKF, with seeded
 wheel-speed noise (0.05 m/s) and GNSS position noise (0.02 m); seeds are fixed and printed.
 The figures are printed (pytest -s).
 """
+
 from __future__ import annotations
 
 import copy
@@ -42,11 +43,13 @@ def run_closed_loop(*args, **kwargs):
 
 
 def _fig(m):
-    return (f"speed RMS {m['speed_error_rms_mps']:.3f} m/s, lateral RMS "
-            f"{m['lateral_error_rms_m']:.3f} m, "
-            f"pedal switches {m['pedal_switches_per_min']:.1f}/min, "
-            f"zone transitions {m['zone_transitions_per_min']:.1f}/min, failures {m['failures']}, "
-            f"solve p50/p99 {m['solve_time_ms']['p50']:.2f}/{m['solve_time_ms']['p99']:.2f} ms")
+    return (
+        f"speed RMS {m['speed_error_rms_mps']:.3f} m/s, lateral RMS "
+        f"{m['lateral_error_rms_m']:.3f} m, "
+        f"pedal switches {m['pedal_switches_per_min']:.1f}/min, "
+        f"zone transitions {m['zone_transitions_per_min']:.1f}/min, failures {m['failures']}, "
+        f"solve p50/p99 {m['solve_time_ms']['p50']:.2f}/{m['solve_time_ms']['p99']:.2f} ms"
+    )
 
 
 def test_idle_hold_without_throttle_brake_chatter(params):
@@ -94,13 +97,16 @@ def _boundary_reference(seconds=32.0, centre=5.0, amp=0.4, period=8.0):
 def test_transition_penalty_reduces_zone_transitions(params):
     ref = _boundary_reference()
     with_p = run_closed_loop(MpcController(params), ref, params, **NOISE).metrics
-    without = run_closed_loop(MpcController(params, MpcConfig(w_transition=0.0)), ref, params,
-                              **NOISE).metrics
-    print(f"\nboundary swing seed {SEED}: zone transitions with penalty "
-          f"{with_p['zone_transitions']} ({with_p['zone_transitions_per_min']:.1f}/min), without "
-          f"{without['zone_transitions']} ({without['zone_transitions_per_min']:.1f}/min); "
-          f"speed RMS {with_p['speed_error_rms_mps']:.3f} vs "
-          f"{without['speed_error_rms_mps']:.3f} m/s")
+    without = run_closed_loop(
+        MpcController(params, MpcConfig(w_transition=0.0)), ref, params, **NOISE
+    ).metrics
+    print(
+        f"\nboundary swing seed {SEED}: zone transitions with penalty "
+        f"{with_p['zone_transitions']} ({with_p['zone_transitions_per_min']:.1f}/min), without "
+        f"{without['zone_transitions']} ({without['zone_transitions_per_min']:.1f}/min); "
+        f"speed RMS {with_p['speed_error_rms_mps']:.3f} vs "
+        f"{without['speed_error_rms_mps']:.3f} m/s"
+    )
     assert without["zone_transitions"] >= 6
     assert with_p["zone_transitions"] <= without["zone_transitions"] // 2
     # the ramps of ramp_sequence ask for transitions at steady acceleration: still allowed
@@ -118,8 +124,10 @@ def test_model_mismatch_20_percent_weaker_zones_stays_stable(params):
     for name in ("ramp_sequence", "idle_hold"):
         ref = make_scenario(name, params)
         m = run_closed_loop(MpcController(params), ref, params, plant_params=weak, **NOISE).metrics
-        print(f"\nmismatch (plant zones 20% weaker) {name} seed {SEED}: MPC {_fig(m)}, "
-              f"max speed error {m['speed_error_max_mps']:.3f} m/s")
+        print(
+            f"\nmismatch (plant zones 20% weaker) {name} seed {SEED}: MPC {_fig(m)}, "
+            f"max speed error {m['speed_error_max_mps']:.3f} m/s"
+        )
         assert m["failures"] == 0
         assert m["speed_error_rms_mps"] <= 0.3
         assert m["speed_error_max_mps"] <= 1.0
@@ -132,10 +140,13 @@ def test_dead_times_are_compensated(params):
     delayed.longitudinal_dead_time_s = 0.4
     ref = make_scenario("ramp_sequence", params)
     aware = run_closed_loop(MpcController(delayed), ref, delayed, **NOISE).metrics
-    unaware = run_closed_loop(MpcController(params), ref, params, plant_params=delayed,
-                              **NOISE).metrics
-    print(f"\ndead times 0.2/0.4 s: speed RMS aware {aware['speed_error_rms_mps']:.3f}, "
-          f"unaware {unaware['speed_error_rms_mps']:.3f} m/s")
+    unaware = run_closed_loop(
+        MpcController(params), ref, params, plant_params=delayed, **NOISE
+    ).metrics
+    print(
+        f"\ndead times 0.2/0.4 s: speed RMS aware {aware['speed_error_rms_mps']:.3f}, "
+        f"unaware {unaware['speed_error_rms_mps']:.3f} m/s"
+    )
     assert aware["failures"] == 0
     assert aware["speed_error_rms_mps"] < 0.85 * unaware["speed_error_rms_mps"]
 
@@ -144,8 +155,19 @@ def test_recording_is_canonical_and_round_trips(params, tmp_path):
     ref = _boundary_reference(seconds=6.0)
     res = run_closed_loop(MpcController(params), ref, params, **NOISE)
     rec = res.recording
-    for ch in ("time", "x", "y", "heading", "speed", "steering_wheel_angle", "accel_pedal",
-               "brake_pedal", "steering_cmd", "accel_pedal_cmd", "brake_pedal_cmd"):
+    for ch in (
+        "time",
+        "x",
+        "y",
+        "heading",
+        "speed",
+        "steering_wheel_angle",
+        "accel_pedal",
+        "brake_pedal",
+        "steering_cmd",
+        "accel_pedal_cmd",
+        "brake_pedal_cmd",
+    ):
         assert ch in rec
     assert np.allclose(np.diff(rec["time"]), 0.02)
     rec.save(tmp_path / "run.csv")
@@ -187,8 +209,14 @@ def test_controller_sees_the_estimate_never_the_plant(params):
     assert np.all(res.estimator_time_s > 0)
     # no GNSS for 2 s: the estimate dead-reckons on wheel speeds, gyro and steering angle
     from hmpc.models.sim.live_sensors import SensorConfig
-    out = run_closed_loop(MpcController(params), ref, params, seed=SEED,
-                          sensors=SensorConfig(gnss_outages=((2.0, 4.0),)))
+
+    out = run_closed_loop(
+        MpcController(params),
+        ref,
+        params,
+        seed=SEED,
+        sensors=SensorConfig(gnss_outages=((2.0, 4.0),)),
+    )
     assert out.metrics["failures"] == 0
     assert out.metrics["estimator"]["messages"]["gnss_outage"] == 40
     assert out.metrics["estimator"]["position_error_rms_m"] < 0.1
@@ -214,17 +242,24 @@ def _random_reference(draw_speeds, draw_curv, seconds=12.0):
 
 
 @seed(20240605)
-@settings(max_examples=5, deadline=None, derandomize=False,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-@given(speeds=st.lists(st.floats(0.0, 9.0), min_size=3, max_size=5),
-       curv=st.lists(st.floats(-0.15, 0.15), min_size=3, max_size=5),
-       noise_seed=st.integers(0, 1000))
+@settings(
+    max_examples=5,
+    deadline=None,
+    derandomize=False,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+@given(
+    speeds=st.lists(st.floats(0.0, 9.0), min_size=3, max_size=5),
+    curv=st.lists(st.floats(-0.15, 0.15), min_size=3, max_size=5),
+    noise_seed=st.integers(0, 1000),
+)
 def test_property_limits_never_exceeded(params, speeds, curv, noise_seed):
     n = min(len(speeds), len(curv))
     ref = _random_reference(speeds[:n], curv[:n])
     ctl = MpcController(params)
-    res = run_closed_loop(ctl, ref, params, speed_noise_mps=0.05, position_noise_m=0.02,
-                          seed=noise_seed)
+    res = run_closed_loop(
+        ctl, ref, params, speed_noise_mps=0.05, position_noise_m=0.02, seed=noise_seed
+    )
     lim = ActuatorLimits.from_params(params)
     rec = res.recording
     sw, ap, bp = rec["steering_cmd"], rec["accel_pedal_cmd"], rec["brake_pedal_cmd"]
@@ -249,12 +284,22 @@ def test_concealed_effects_reach_the_plant_not_the_model(params):
     car below what the effect-free run reaches; the loop stays stable, without failures."""
     from hmpc.models.sim.effects import parse_effect
     from hmpc.models.plant import heading_rate
+
     ref = make_scenario("figure8", params)
-    ref = Reference(ref.time_s[:1000], ref.x_m[:1000], ref.y_m[:1000], ref.heading_rad[:1000],
-                    ref.speed_mps[:1000], name="figure8[:20s]")
-    run = {e: _run_closed_loop(MpcController(params), ref, params, seed=SEED,
-                               effects=[parse_effect(e)] if e else None)
-           for e in ("", "steering_dead_time:delay_s=0.3", "road_grade:grade_rad=0.05")}
+    ref = Reference(
+        ref.time_s[:1000],
+        ref.x_m[:1000],
+        ref.y_m[:1000],
+        ref.heading_rad[:1000],
+        ref.speed_mps[:1000],
+        name="figure8[:20s]",
+    )
+    run = {
+        e: _run_closed_loop(
+            MpcController(params), ref, params, seed=SEED, effects=[parse_effect(e)] if e else None
+        )
+        for e in ("", "steering_dead_time:delay_s=0.3", "road_grade:grade_rad=0.05")
+    }
     for e, r in run.items():
         assert r.metrics["failures"] == 0, e
     rec = run["steering_dead_time:delay_s=0.3"].recording
@@ -270,8 +315,13 @@ def test_concealed_effects_reach_the_plant_not_the_model(params):
 
 # ------------------------------------------------------------ the drive loop's candump
 def _candump_times(path) -> np.ndarray:
-    return np.array([float(line[1:line.index(")")]) for line in
-                     path.read_text().splitlines() if line.startswith("(")])
+    return np.array(
+        [
+            float(line[1 : line.index(")")])
+            for line in path.read_text().splitlines()
+            if line.startswith("(")
+        ]
+    )
 
 
 def test_candump_writer_orders_a_frame_read_late(tmp_path):
@@ -282,21 +332,22 @@ def test_candump_writer_orders_a_frame_read_late(tmp_path):
     from hmpc.controller.actuation.candump import OrderedCandump
 
     def frame(t, rx):
-        return can.Message(timestamp=t, arbitration_id=0x100 + int(1000 * t), data=b"\x01",
-                           is_rx=rx, channel=0)
+        return can.Message(
+            timestamp=t, arbitration_id=0x100 + int(1000 * t), data=b"\x01", is_rx=rx, channel=0
+        )
 
     path = tmp_path / "c.log"
     w = OrderedCandump(path)
-    w.reading(10.000)                                      # tick 0: read
+    w.reading(10.000)  # tick 0: read
     w.on_message_received(frame(9.999, True))
-    w.on_message_received(frame(10.004, False))            # sent
+    w.on_message_received(frame(10.004, False))  # sent
     w.on_message_received(frame(10.005, False))
     w.flush()
-    w.reading(10.020)                                      # tick 1: read a frame of 10.003
+    w.reading(10.020)  # tick 1: read a frame of 10.003
     w.on_message_received(frame(10.003, True))
     w.on_message_received(frame(10.021, True))
     w.on_message_received(frame(10.024, False))
-    w.flush()                                              # up to tick 0's read: 9.999 only
+    w.flush()  # up to tick 0's read: 9.999 only
     assert len(_candump_times(path)) <= 1
     w.reading(10.040)
     w.on_message_received(frame(10.041, True))
@@ -327,10 +378,20 @@ def test_drive_candump_is_time_ordered_and_ingests_cleanly(tmp_path):
     assert sum(line.endswith(" T") for line in lines) == sum(res.summary["frames_sent"].values())
     assert sum(line.endswith(" R") for line in lines) > 0
     out = tmp_path / "ingest.json"
-    rc = main(["ingest", str(log), "--dbc",
-               str(PARAMS_DIR.parent / "tools/data/dbc/toyota_rav4_2017.dbc.gz"),
-               "--signals", str(PARAMS_DIR / "toyota_rav4_2017.signals.yaml"),
-               "--out", str(tmp_path / "rec.csv"), "--json", str(out)])
+    rc = main(
+        [
+            "ingest",
+            str(log),
+            "--dbc",
+            str(PARAMS_DIR.parent / "tools/data/dbc/toyota_rav4_2017.dbc.gz"),
+            "--signals",
+            str(PARAMS_DIR / "toyota_rav4_2017.signals.yaml"),
+            "--out",
+            str(tmp_path / "rec.csv"),
+            "--json",
+            str(out),
+        ]
+    )
     assert rc == 0
     problems = json.loads(out.read_text())["problems"]
     assert problems["total"] == 0, problems["items"]

@@ -2,6 +2,7 @@
 raises and never returns None, and a bug inside a controller is an internal error with its
 traceback (and a safe stop), never a quiet "controlled_stop". Also the deceleration limit of
 a controlled stop (controller/limits.py)."""
+
 from __future__ import annotations
 
 import inspect
@@ -59,23 +60,40 @@ def test_every_controller_implements_the_protocol(params, cls):
 
 
 def test_status_values_are_the_stable_json_text():
-    assert [s.value for s in Status] == ["solved", "solved_inaccurate", "ok", "hold",
-                                         "shifted_plan", "controlled_stop", "internal_error"]
+    assert [s.value for s in Status] == [
+        "solved",
+        "solved_inaccurate",
+        "ok",
+        "hold",
+        "shifted_plan",
+        "controlled_stop",
+        "internal_error",
+    ]
     assert str(Status.SHIFTED_PLAN) == "shifted_plan" and Status("hold") is Status.HOLD
-    assert {s for s in Status if s.ok} == {Status.SOLVED, Status.SOLVED_INACCURATE, Status.OK,
-                                           Status.HOLD}
+    assert {s for s in Status if s.ok} == {
+        Status.SOLVED,
+        Status.SOLVED_INACCURATE,
+        Status.OK,
+        Status.HOLD,
+    }
 
 
 def _boom(*_a, **_k):
     raise TypeError("deliberate bug")
 
 
-@pytest.mark.parametrize("cls, part, method", [(MpcController, "qp", "solve"),
-                                               (NmpcController, None, "_set_parameters"),
-                                               (PidController, None, "_step")],
-                         ids=["mpc", "nmpc", "pid"])
-def test_a_bug_is_an_internal_error_with_traceback_and_a_safe_stop(params, cls, part, method,
-                                                                   monkeypatch):
+@pytest.mark.parametrize(
+    "cls, part, method",
+    [
+        (MpcController, "qp", "solve"),
+        (NmpcController, None, "_set_parameters"),
+        (PidController, None, "_step"),
+    ],
+    ids=["mpc", "nmpc", "pid"],
+)
+def test_a_bug_is_an_internal_error_with_traceback_and_a_safe_stop(
+    params, cls, part, method, monkeypatch
+):
     ctl = cls(params)
     monkeypatch.setattr(ctl if part is None else getattr(ctl, part), method, _boom)
     ref = straight(3.0)
@@ -174,7 +192,7 @@ def test_the_controlled_stop_path_uses_the_stop_limit(params):
     ctl._zone = 1
     z = params.zones[1]
     bps = [ctl._controlled_stop(0.1 * i, "test", 1).command.brake_pedal for i in range(40)]
-    assert np.all(np.diff(bps) >= 0) and bps[0] < bps[-1]   # a ramp
+    assert np.all(np.diff(bps) >= 0) and bps[0] < bps[-1]  # a ramp
     assert z.accel_mps2(0.0, bps[-1]) == pytest.approx(-4.0, abs=1e-9)
     r = ctl._controlled_stop(4.0, "test", 1)
     assert r.status is Status.CONTROLLED_STOP and r.reason == "test"

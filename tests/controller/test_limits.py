@@ -1,4 +1,5 @@
 """controller/limits.py: the last line of defence, independent of any optimiser."""
+
 from __future__ import annotations
 
 import copy
@@ -23,8 +24,9 @@ def test_limits_come_from_the_parameter_file(params):
     assert ActuatorLimits.from_params(None) == ActuatorLimits()
     p = copy.deepcopy(params)
     p.vehicle.steering_wheel_angle_max_rad = 8.0
-    p.limits = VehicleLimits(steering_wheel_rate_max_radps=3.0, accel_max_mps2=1.5,
-                           jerk_max_mps3=1.0)
+    p.limits = VehicleLimits(
+        steering_wheel_rate_max_radps=3.0, accel_max_mps2=1.5, jerk_max_mps3=1.0
+    )
     lim = ActuatorLimits.from_params(p)
     assert lim.steering_wheel_angle_max_rad == 8.0
     assert lim.steering_wheel_rate_max_radps == 3.0
@@ -81,8 +83,14 @@ any_float = st.one_of(finite, st.just(float("nan")), st.just(float("inf")))
 
 @seed(4242)
 @settings(max_examples=300, deadline=None)
-@given(sw=any_float, ap=any_float, bp=any_float, psw=st.floats(-7.8, 7.8),
-       pap=st.floats(0, 1), dt=st.floats(0.01, 0.5))
+@given(
+    sw=any_float,
+    ap=any_float,
+    bp=any_float,
+    psw=st.floats(-7.8, 7.8),
+    pap=st.floats(0, 1),
+    dt=st.floats(0.01, 0.5),
+)
 def test_property_output_always_within_limits(sw, ap, bp, psw, pap, dt):
     lim = ActuatorLimits()
     prev = Command(psw, pap, 0.0)

@@ -1,4 +1,5 @@
 """The OSQP fast path (controller/mpc/): structure, modes, failure handling."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -34,8 +35,18 @@ def straight(v_mps: float, seconds: float = 20.0, v_end: float | None = None) ->
     return Reference(t, x, 0 * t, 0 * t, v, name="straight")
 
 
-def drive(ctl, ref, params, seconds, *, x0=None, plant_params=None, stop_at=None,
-          obstacle_x=None, period=0.1):
+def drive(
+    ctl,
+    ref,
+    params,
+    seconds,
+    *,
+    x0=None,
+    plant_params=None,
+    stop_at=None,
+    obstacle_x=None,
+    period=0.1,
+):
     """A minimal loop (the real one is controller.closed_loop): returns states, results."""
     plant = HybridPlant(plant_params or params)
     s = ref.initial_state(params) if x0 is None else np.array(x0, float)
@@ -64,8 +75,14 @@ def drive(ctl, ref, params, seconds, *, x0=None, plant_params=None, stop_at=None
 def test_vectorised_jacobians_equal_the_plants(params):
     plant = HybridPlant(params)
     rng = np.random.default_rng(SEED)
-    X = np.column_stack([rng.normal(0, 20, 30), rng.normal(0, 20, 30), rng.uniform(-4, 4, 30),
-                         rng.uniform(0, 15, 30)])
+    X = np.column_stack(
+        [
+            rng.normal(0, 20, 30),
+            rng.normal(0, 20, 30),
+            rng.uniform(-4, 4, 30),
+            rng.uniform(0, 15, 30),
+        ]
+    )
     U = np.column_stack([rng.uniform(-7, 7, 30), rng.uniform(0, 1, 30), rng.uniform(0, 1, 30)])
     zones = np.array([plant.zone_by_speed(v) for v in X[:, 3]])
     A, B = jacobians_batch(plant, X, U, zones)
@@ -85,7 +102,7 @@ def test_qp_pattern_is_built_once_and_updated_in_place(params):
         x = x + np.array([0.3, 0.0, 0.0, 0.0])
         r = ctl.step(x, ref, 0.1 * i)
         assert r.status == "solved"
-    assert ctl.qp.solver is solver                    # one OSQP object, never rebuilt
+    assert ctl.qp.solver is solver  # one OSQP object, never rebuilt
     assert (ctl.layout.P.nnz, ctl.layout.A.nnz) == nnz
     # horizon 10 s at 0.2 s; the same at 0.1 s has twice the stages
     assert ctl.N == 50 and MpcController(params, MpcConfig(dt_s=0.1)).N == 100
@@ -104,12 +121,13 @@ def test_terminal_cost_is_the_dare_solution(params):
         c = ctl.config
         for v, d in ((3.0, 0.0), (8.0, 0.1), (15.0, -0.2)):
             P3 = ctl.cost.lqr_terminal(v, d, ctl.plant)
-            sw = (d - plant.offset_rad) / plant.scale              # road-wheel angle d
+            sw = (d - plant.offset_rad) / plant.scale  # road-wheel angle d
             A, B = plant.jacobians(np.array([0.0, 0.0, -d, v]), np.array([sw, 0.0, 0.0]), 1)
             Ac = A[np.ix_(rows, rows)]
-            Bc = np.column_stack([B[rows, 0], [0.0, 0.0, 1.0]])     # steering, acceleration
-            Ad, Bd, *_ = scipy.signal.cont2discrete((Ac, Bc, np.eye(3), np.zeros((3, 2))),
-                                                    dt_s, method="zoh")
+            Bc = np.column_stack([B[rows, 0], [0.0, 0.0, 1.0]])  # steering, acceleration
+            Ad, Bd, *_ = scipy.signal.cont2discrete(
+                (Ac, Bc, np.eye(3), np.zeros((3, 2))), dt_s, method="zoh"
+            )
             Q = np.diag([c.w_lateral, c.w_heading, c.w_speed]) * dt_s
             R = np.diag([c.r_terminal_steer, c.r_terminal_accel]) * dt_s
             ref = scipy.linalg.solve_discrete_are(Ad, Bd, Q, R)
@@ -126,24 +144,25 @@ def test_config_follows_the_report(params):
     p = copy.deepcopy(params)
     for z, nmse in zip(p.zones, (50.8, 71.0, 33.8)):
         z.nmse_pct = nmse
-    assert preferred_zone(p) == 2       # the lowest NMSE wins
+    assert preferred_zone(p) == 2  # the lowest NMSE wins
     assert MpcController(p).floor_mps == p.zones[2].v_min_mps
 
 
 def test_one_pedal_per_stage_and_hysteresis():
     logic = PedalModeLogic(ModeConfig(min_dwell_s=1.0, accel_hysteresis_mps2=0.15))
-    assert logic.first(0.0, 0.3, 0.0) == PedalMode.BRAKE      # idle creep: hold needs brake
-    assert logic.first(0.4, 0.3, 0.1) == PedalMode.BRAKE      # inside the band: keep
-    assert logic.first(0.5, 0.3, 0.5) == PedalMode.BRAKE      # dwell not over
-    assert logic.first(0.5, 0.3, 1.2) == PedalMode.THROTTLE   # dwell over, beyond the band
+    assert logic.first(0.0, 0.3, 0.0) == PedalMode.BRAKE  # idle creep: hold needs brake
+    assert logic.first(0.4, 0.3, 0.1) == PedalMode.BRAKE  # inside the band: keep
+    assert logic.first(0.5, 0.3, 0.5) == PedalMode.BRAKE  # dwell not over
+    assert logic.first(0.5, 0.3, 1.2) == PedalMode.THROTTLE  # dwell over, beyond the band
     assert logic.first(0.5, 0.3, 1.3, exhausted=True) == PedalMode.THROTTLE
-    assert logic.first(-1.0, 0.3, 1.4) == PedalMode.BRAKE     # urgent braking skips the dwell
+    assert logic.first(-1.0, 0.3, 1.4) == PedalMode.BRAKE  # urgent braking skips the dwell
     logic2 = PedalModeLogic(ModeConfig())
     logic2.first(1.0, 0.0, 0.0)
     # the throttle is not yet released
     assert logic2.first(-0.5, 0.0, 5.0, exhausted=False) == PedalMode.THROTTLE
-    sched = logic.schedule(PedalMode.BRAKE, np.array([0, 0, 1, 1, 1, 1, 1, 1]), np.zeros(8),
-                           0.2, since_switch_s=0.0)
+    sched = logic.schedule(
+        PedalMode.BRAKE, np.array([0, 0, 1, 1, 1, 1, 1, 1]), np.zeros(8), 0.2, since_switch_s=0.0
+    )
     assert list(sched[:5]) == [1, 1, 1, 1, 1] and sched[-1] == PedalMode.THROTTLE
 
 
@@ -161,7 +180,7 @@ def test_standstill_hold_uses_the_brake_and_no_qp(params):
     out = drive(ctl, ref, params, 3.0)
     assert all(r.status == "hold" for _, _, r in out[1:])
     assert all(r.command.accel_pedal == 0 and r.command.brake_pedal > 0 for _, _, r in out[1:])
-    assert max(s[3] for _, s, _ in out) == 0.0                  # idle creep held
+    assert max(s[3] for _, s, _ in out) == 0.0  # idle creep held
 
 
 def test_stop_command_and_obstacle_override_the_floor(params):
@@ -180,8 +199,9 @@ def test_solver_failure_shifts_the_plan_then_stops(params):
     assert out[-1][2].status == "solved"
     # force every later solve to fail: one iteration, warm or cold, and no capped iterate
     # close enough to use
-    ctl.qp.config = replace(ctl.config, max_iter=1, max_iter_cold=1, capped_prim_tol=0.0,
-                            capped_dual_tol=0.0)
+    ctl.qp.config = replace(
+        ctl.config, max_iter=1, max_iter_cold=1, capped_prim_tol=0.0, capped_dual_tol=0.0
+    )
     later = drive_from(ctl, ref, params, out[-1][1], t0=2.1, seconds=12.0)
     st = [r.status for _, _, r in later]
     assert st[0] == "shifted_plan" and "maximum iterations" in later[0][2].reason
@@ -192,9 +212,9 @@ def test_solver_failure_shifts_the_plan_then_stops(params):
     stops = [r.command for _, _, r in later[first_stop:]]
     assert all(c.accel_pedal == 0.0 for c in stops)
     bp = [c.brake_pedal for c in stops]
-    assert bp[-1] > 0 and np.all(np.diff(bp) >= -1e-12)                   # a brake ramp
+    assert bp[-1] > 0 and np.all(np.diff(bp) >= -1e-12)  # a brake ramp
     assert len({round(c.steering_wheel_angle_rad, 9) for c in stops}) == 1  # steering held
-    assert later[-1][1][3] < out[-1][1][3]                                 # slowing down
+    assert later[-1][1][3] < out[-1][1][3]  # slowing down
     assert all(not r.ok for _, _, r in later)
 
 
@@ -285,10 +305,19 @@ def test_smoothness_terms_keep_one_qp_pattern_and_damp_estimate_noise(params):
     rng = np.random.default_rng(SEED)
     noise = rng.normal(size=(100, 4)) * [0.01, 0.01, 0.001, 0.02]
     moves = {}
-    for name, cfg in (("smooth", MpcConfig()),
-                      ("off", MpcConfig(w_steer_rate_change=0.0, w_pedal_rate_change=0.0,
-                                        w_steer_sharpness=0.0, w_steer_replan=0.0,
-                                        w_pedal_replan=0.0))):
+    for name, cfg in (
+        ("smooth", MpcConfig()),
+        (
+            "off",
+            MpcConfig(
+                w_steer_rate_change=0.0,
+                w_pedal_rate_change=0.0,
+                w_steer_sharpness=0.0,
+                w_steer_replan=0.0,
+                w_pedal_replan=0.0,
+            ),
+        ),
+    ):
         ctl = MpcController(params, cfg)
         s = ref.initial_state(params)
         s[3] = 1.0

@@ -2,6 +2,7 @@
 when close, else the previous plan shifted and the next solve continuing from the iterate),
 and the plan rewritten for new model values so that it means the same road-wheel angle and
 accelerations."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -34,7 +35,7 @@ def test_a_capped_solve_is_used_when_close_and_otherwise_shifts_the_plan_then_re
     ctl.qp.config = replace(ctl.config, max_iter=5, capped_prim_tol=0.0, capped_dual_tol=0.0)
     later = drive_from(ctl, ref, params, out[-1][1], t0=3.1, seconds=0.5)
     assert later[0][2].status == "shifted_plan" and "maximum iterations" in later[0][2].reason
-    assert ctl.qp.iterate is not None                          # the next solve starts there
+    assert ctl.qp.iterate is not None  # the next solve starts there
     # the cap with the shipped tolerances: capped iterates are used, marked as such
     ctl.qp.config = replace(ctl.config, max_iter=5)
     more = drive_from(ctl, ref, params, later[-1][1], t0=3.6, seconds=2.0)
@@ -47,7 +48,7 @@ def test_a_capped_solve_is_used_when_close_and_otherwise_shifts_the_plan_then_re
 def test_a_cold_start_keeps_its_own_cap(params):
     ctl = MpcController(params, MpcConfig(max_iter=1))
     r = ctl.step(straight(5.0).initial_state(params), straight(5.0), 0.0)
-    assert r.status == "solved" and r.iterations > 3      # the cold start was not capped
+    assert r.status == "solved" and r.iterations > 3  # the cold start was not capped
 
 
 def test_the_plan_rewritten_for_new_values_means_the_same_angle_and_accelerations(params):
@@ -57,22 +58,32 @@ def test_the_plan_rewritten_for_new_values_means_the_same_angle_and_acceleration
     plan = ctl._plan
     pl = HybridPlant(params)
     z = plan.zones
-    model = LearnedModel(offset_rad=0.005, scale=0.095,
-                         zone_offset_mps2=tuple(o + 0.05 for o in pl.z_offset),
-                         zone_scale_mps2=tuple(0.8 * s for s in pl.z_scale),
-                         zone_brake_mps2=tuple(1.2 * b for b in pl.z_brake),
-                         steer_delay_s=0.0, long_delay_s=0.0, steer_lag_s=0.0, long_lag_s=0.0)
+    model = LearnedModel(
+        offset_rad=0.005,
+        scale=0.095,
+        zone_offset_mps2=tuple(o + 0.05 for o in pl.z_offset),
+        zone_scale_mps2=tuple(0.8 * s for s in pl.z_scale),
+        zone_brake_mps2=tuple(1.2 * b for b in pl.z_brake),
+        steer_delay_s=0.0,
+        long_delay_s=0.0,
+        steer_lag_s=0.0,
+        long_lag_s=0.0,
+    )
     U0, U1 = plan.inputs, plan_in_new_model(plan, pl, model)
-    np.testing.assert_allclose(0.005 + 0.095 * U1[:, 0], pl.offset_rad + pl.scale * U0[:, 0],
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        0.005 + 0.095 * U1[:, 0], pl.offset_rad + pl.scale * U0[:, 0], atol=1e-12
+    )
     acc0 = pl.z_offset[z] + pl.z_scale[z] * U0[:, 1] - pl.z_brake[z] * U0[:, 2]
-    acc1 = (np.array(model.zone_offset_mps2)[z] + np.array(model.zone_scale_mps2)[z] * U1[:, 1]
-            - np.array(model.zone_brake_mps2)[z] * U1[:, 2])
-    free = np.where(plan.modes == 0, U1[:, 1], U1[:, 2])     # the stage's free pedal
-    inside = (free > 0) & (free < 1)                          # pressed, not clipped
+    acc1 = (
+        np.array(model.zone_offset_mps2)[z]
+        + np.array(model.zone_scale_mps2)[z] * U1[:, 1]
+        - np.array(model.zone_brake_mps2)[z] * U1[:, 2]
+    )
+    free = np.where(plan.modes == 0, U1[:, 1], U1[:, 2])  # the stage's free pedal
+    inside = (free > 0) & (free < 1)  # pressed, not clipped
     assert inside.sum() > 10
     np.testing.assert_allclose(acc1[inside], acc0[inside], atol=1e-9)
-    assert ((U1[:, 1:] > 0) == (U0[:, 1:] > 0)).all()          # the same pedals pressed
+    assert ((U1[:, 1:] > 0) == (U0[:, 1:] > 0)).all()  # the same pedals pressed
     # the controller does it on a hand-over, and the next step solves from there
     want = plan_in_new_model(plan, ctl.plant, model)
     ctl.use_model(model)

@@ -8,6 +8,7 @@ its derivative, that nothing changes without extensions and that truth plants ne
 (opt-in), the QP's A_d pattern, the exact lag, and on short seeded closed loops that the MPC
 given an effect tracks a truth plant with that effect better than the MPC without it.
 """
+
 from __future__ import annotations
 
 import copy
@@ -23,8 +24,17 @@ from hmpc.controller.mpc.constraints import linearise
 from hmpc.controller.mpc.delay import _lag_through
 from hmpc.controller.mpc.qp import APAT
 from hmpc.models.params import load_params, parse_params
-from hmpc.models.plant import (IAP, IBP, ISW, IV, HybridPlant, derivative_batch,
-                               first_order_lag, jacobians_batch, plant_extensions)
+from hmpc.models.plant import (
+    IAP,
+    IBP,
+    ISW,
+    IV,
+    HybridPlant,
+    derivative_batch,
+    first_order_lag,
+    jacobians_batch,
+    plant_extensions,
+)
 from hmpc.models.sim import effects as fx
 from hmpc.models.sim import effects_extra as fx2
 from hmpc.models.reference import Reference
@@ -53,22 +63,40 @@ ALL_PHYSICS = {
 
 
 def random_rows(n: int, rng) -> tuple[np.ndarray, np.ndarray]:
-    X = np.column_stack([rng.uniform(-50, 50, n), rng.uniform(-50, 50, n),
-                         rng.uniform(-math.pi, math.pi, n), rng.uniform(0.2, 15.0, n)])
+    X = np.column_stack(
+        [
+            rng.uniform(-50, 50, n),
+            rng.uniform(-50, 50, n),
+            rng.uniform(-math.pi, math.pi, n),
+            rng.uniform(0.2, 15.0, n),
+        ]
+    )
     U = np.column_stack([rng.uniform(-6, 6, n), rng.uniform(0, 0.6, n), rng.uniform(0, 0.6, n)])
     # half the rows with the throttle released (the creep acts), away from its 0.01 switch
     U[: n // 2, IAP] = 0.0
     return X, U
 
 
-@pytest.mark.parametrize("ids", [tuple(ALL_PHYSICS), ("aero_drag",), ("idle_creep",),
-                                 ("steering_nonlinearity",), ("understeer",)])
+@pytest.mark.parametrize(
+    "ids",
+    [
+        tuple(ALL_PHYSICS),
+        ("aero_drag",),
+        ("idle_creep",),
+        ("steering_nonlinearity",),
+        ("understeer",),
+    ],
+)
 def test_jacobians_match_finite_differences(ids):
     plant = HybridPlant(with_ext(report(), {k: ALL_PHYSICS[k] for k in ids}), extensions=True)
     # the plant carries exactly the physics asked for (each id's coefficient, nothing else)
-    fields = {"aero_drag": "drag_per_m", "rolling_resistance": "rolling_per_s",
-              "idle_creep": "creep_accel_mps2", "steering_nonlinearity": "cubic_per_rad2",
-              "understeer": "understeer_rad_per_mps2"}
+    fields = {
+        "aero_drag": "drag_per_m",
+        "rolling_resistance": "rolling_per_s",
+        "idle_creep": "creep_accel_mps2",
+        "steering_nonlinearity": "cubic_per_rad2",
+        "understeer": "understeer_rad_per_mps2",
+    }
     assert {k for k, f in fields.items() if getattr(plant.ext, f)} == set(ids)
     rng = np.random.default_rng(SEED)
     X, U = random_rows(40, rng)
@@ -79,14 +107,16 @@ def test_jacobians_match_finite_differences(ids):
     for j in range(4):
         dX = np.zeros_like(X)
         dX[:, j] = h
-        fd = (derivative_batch(plant, X + dX, U, zones)
-              - derivative_batch(plant, X - dX, U, zones)) / (2 * h)
+        fd = (
+            derivative_batch(plant, X + dX, U, zones) - derivative_batch(plant, X - dX, U, zones)
+        ) / (2 * h)
         np.testing.assert_allclose(A[:, :, j], fd, rtol=1e-5, atol=1e-6, err_msg=f"state {j}")
     for j in (ISW, IBP):  # the accelerator pedal's creep switch has no derivative
         dU = np.zeros_like(U)
         dU[:, j] = h
-        fd = (derivative_batch(plant, X, U + dU, zones)
-              - derivative_batch(plant, X, U - dU, zones)) / (2 * h)
+        fd = (
+            derivative_batch(plant, X, U + dU, zones) - derivative_batch(plant, X, U - dU, zones)
+        ) / (2 * h)
         np.testing.assert_allclose(B[:, :, j], fd, rtol=1e-5, atol=1e-6, err_msg=f"input {j}")
 
 
@@ -102,7 +132,7 @@ def test_extensions_change_the_derivative_as_the_catalogue_says():
     creep = np.array([0.0, 0.6 * (1 - 1.0 / 2.0)])
     np.testing.assert_allclose(f1[:, IV] - f0[:, IV], -2e-3 * v * v - 8e-3 * v + creep)
     sw = 2.0
-    d7 = p.steering.offset_rad + p.steering.scale * (sw + 0.004 * sw ** 3)
+    d7 = p.steering.offset_rad + p.steering.scale * (sw + 0.004 * sw**3)
     b = p.vehicle.wheelbase_m
     delta = d7 * b / (b + 0.004 * v * v)
     np.testing.assert_allclose(f1[:, 2], v * np.sin(delta) / b)
@@ -134,11 +164,27 @@ def test_without_extensions_the_plant_is_the_reports_and_truth_plants_never_add_
 
 def test_base_coefficients_are_used_and_a_command_fit_adds_no_longitudinal_term():
     p = report()
-    zs = [{"name": z.name, "offset_mps2": z.offset_mps2 - 0.1, "scale_mps2": z.scale_mps2 + 0.2,
-           "brake_scale_mps2": -z.brake_scale_mps2} for z in p.zones]
-    q = with_ext(p, {"aero_drag": {"longitudinal": {"coeff_per_m": 1e-3, "base": {"zones": zs}}},
-                     "understeer": {"steering": {"gradient_rad_per_mps2": 0.003,
-                                                 "base": {"offset_rad": 0.01, "scale": 0.07}}}})
+    zs = [
+        {
+            "name": z.name,
+            "offset_mps2": z.offset_mps2 - 0.1,
+            "scale_mps2": z.scale_mps2 + 0.2,
+            "brake_scale_mps2": -z.brake_scale_mps2,
+        }
+        for z in p.zones
+    ]
+    q = with_ext(
+        p,
+        {
+            "aero_drag": {"longitudinal": {"coeff_per_m": 1e-3, "base": {"zones": zs}}},
+            "understeer": {
+                "steering": {
+                    "gradient_rad_per_mps2": 0.003,
+                    "base": {"offset_rad": 0.01, "scale": 0.07},
+                }
+            },
+        },
+    )
     pl = HybridPlant(q, extensions=True)
     np.testing.assert_allclose(pl.z_offset, [z["offset_mps2"] for z in zs])
     np.testing.assert_allclose(pl.z_scale, [z["scale_mps2"] for z in zs])
@@ -146,16 +192,23 @@ def test_base_coefficients_are_used_and_a_command_fit_adds_no_longitudinal_term(
     np.testing.assert_allclose(pl.z_brake, [z.brake_scale_mps2 for z in p.zones])
     assert (pl.offset_rad, pl.scale) == (0.01, 0.07)
     cmd = [{"name": z.name, "offset_mps2": 0.0, "accel_cmd_gain": 1.0} for z in p.zones]
-    r = with_ext(p, {"aero_drag": {"longitudinal": {"coeff_per_m": 1e-3, "base": {"zones": cmd}}},
-                     "actuator_lag": {"longitudinal": {"tau_s": 0.25}}})
+    r = with_ext(
+        p,
+        {
+            "aero_drag": {"longitudinal": {"coeff_per_m": 1e-3, "base": {"zones": cmd}}},
+            "actuator_lag": {"longitudinal": {"tau_s": 0.25}},
+        },
+    )
     ext, _, zones = plant_extensions(r)
     assert ext.drag_per_m == 0.0 and zones is None and ext.lag_long_s == 0.25
 
 
 def test_a_parameter_file_with_extensions_round_trips_into_the_plant():
     d = report().to_dict()
-    d["extensions"] = {"idle_creep": {"longitudinal": {"accel_mps2": 0.5, "creep_speed_mps": 2.5}},
-                       "actuator_lag": {"steering": {"tau_s": 0.3}}}
+    d["extensions"] = {
+        "idle_creep": {"longitudinal": {"accel_mps2": 0.5, "creep_speed_mps": 2.5}},
+        "actuator_lag": {"steering": {"tau_s": 0.3}},
+    }
     ext, _, _ = plant_extensions(parse_params(d, require_model=True))
     assert (ext.creep_accel_mps2, ext.creep_speed_mps, ext.lag_steer_s) == (0.5, 2.5, 0.3)
 
@@ -186,30 +239,59 @@ def test_the_lag_is_exact_through_piecewise_constant_commands():
 # ------------------------------------------------------------------- closed loops
 def truncated(ref: Reference, t_end_s: float) -> Reference:
     n = int(np.searchsorted(ref.time_s, ref.time_s[0] + t_end_s)) + 1
-    return Reference(ref.time_s[:n], ref.x_m[:n], ref.y_m[:n], ref.heading_rad[:n],
-                     ref.speed_mps[:n], name=f"{ref.name}[:{t_end_s:g}s]")
+    return Reference(
+        ref.time_s[:n],
+        ref.x_m[:n],
+        ref.y_m[:n],
+        ref.heading_rad[:n],
+        ref.speed_mps[:n],
+        name=f"{ref.name}[:{t_end_s:g}s]",
+    )
 
 
 def track(model, truth, effects, ref, seed: int = 1) -> dict:
-    res = run_closed_loop(MpcController(model), ref, model, plant_params=truth,
-                          control_period_s=0.1, seed=seed, effects=effects)
+    res = run_closed_loop(
+        MpcController(model),
+        ref,
+        model,
+        plant_params=truth,
+        control_period_s=0.1,
+        seed=seed,
+        effects=effects,
+    )
     assert res.metrics["failures"] == 0
     return res.metrics
 
 
 CLOSED_LOOPS = {  # effect in the truth, the same physics as the model's extension, scenario
-    "steering_lag": (lambda: [fx.SteeringLag(0.3)],
-                     {"actuator_lag": {"steering": {"tau_s": 0.3}}}, "figure8", 40.0,
-                     "lateral_error_rms_m"),
-    "rack_cubic": (lambda: [fx.SteeringCubic(0.004)],
-                   {"steering_nonlinearity": {"steering": {"cubic_per_rad2": 0.004}}}, "figure8",
-                   40.0, "lateral_error_rms_m"),
-    "aero_drag": (lambda: [fx.AeroDrag(4e-3)],
-                  {"aero_drag": {"longitudinal": {"coeff_per_m": 4e-3}}}, "ramps", 40.0,
-                  "speed_error_rms_mps"),
-    "idle_creep": (lambda: [fx2.IdleCreep(0.6, 2.0)],
-                   {"idle_creep": {"longitudinal": {"accel_mps2": 0.6, "creep_speed_mps": 2.0}}},
-                   "idle_hold", 40.0, "speed_error_rms_mps"),
+    "steering_lag": (
+        lambda: [fx.SteeringLag(0.3)],
+        {"actuator_lag": {"steering": {"tau_s": 0.3}}},
+        "figure8",
+        40.0,
+        "lateral_error_rms_m",
+    ),
+    "rack_cubic": (
+        lambda: [fx.SteeringCubic(0.004)],
+        {"steering_nonlinearity": {"steering": {"cubic_per_rad2": 0.004}}},
+        "figure8",
+        40.0,
+        "lateral_error_rms_m",
+    ),
+    "aero_drag": (
+        lambda: [fx.AeroDrag(4e-3)],
+        {"aero_drag": {"longitudinal": {"coeff_per_m": 4e-3}}},
+        "ramps",
+        40.0,
+        "speed_error_rms_mps",
+    ),
+    "idle_creep": (
+        lambda: [fx2.IdleCreep(0.6, 2.0)],
+        {"idle_creep": {"longitudinal": {"accel_mps2": 0.6, "creep_speed_mps": 2.0}}},
+        "idle_hold",
+        40.0,
+        "speed_error_rms_mps",
+    ),
 }
 
 

@@ -5,6 +5,7 @@ They run every control step, so they are written for speed; each test below hold
 (a loop, a per-block interpolation, NumPy's own routine) and checks the fast one against it
 on seeded random data that reaches every branch.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -45,18 +46,21 @@ def test_warm_start_shift_is_the_blockwise_interpolation(n_stages):
     rng = np.random.default_rng(SEED)
     y = rng.normal(size=lay.m)
     s = rng.normal(size=3 * n_stages)
-    for sh in [0.0, 0.5, 0.4999999999999982, 1.0, 2.75, -0.3, n_stages + 3.0] + \
-            list(rng.uniform(0, 3, 20)):
+    for sh in [0.0, 0.5, 0.4999999999999982, 1.0, 2.75, -0.3, n_stages + 3.0] + list(
+        rng.uniform(0, 3, 20)
+    ):
         for _ in range(2):  # the second call takes the cached interpolation
             assert np.array_equal(lay.dual_shift(y, sh), _shifted_blockwise(y, sh, lay.row_blocks))
-            assert np.array_equal(lay.slack_shift(s, sh),
-                                  _shifted_blockwise(s, sh, [(slice(0, len(s)), 3)]))
+            assert np.array_equal(
+                lay.slack_shift(s, sh), _shifted_blockwise(s, sh, [(slice(0, len(s)), 3)])
+            )
 
 
 def test_linspace6_is_numpys():
     rng = np.random.default_rng(SEED)
-    cases = [(5.0, 5.0), (0.0, 1e-320), (-3.0, 2.0)] + \
-        [(a, a + d) for a, d in zip(rng.uniform(0, 5000, 500), rng.uniform(0, 3, 500))]
+    cases = [(5.0, 5.0), (0.0, 1e-320), (-3.0, 2.0)] + [
+        (a, a + d) for a, d in zip(rng.uniform(0, 5000, 500), rng.uniform(0, 3, 500))
+    ]
     for a, b in cases:
         assert np.array_equal(_linspace6(a, b), np.linspace(a, b, 6)), (a, b)
 
@@ -88,8 +92,11 @@ def test_pedal_schedule_is_the_plain_loop():
         n = int(rng.integers(2, 60))
         scale = [0.05, 0.3, 1.5][trial % 3]  # quiet (no switch: the fast path) to busy
         a = rng.normal(0, scale, n)
-        coast = rng.choice([0.0, 0.3, -0.2], n) if trial % 5 == 0 else \
-            np.full(n, rng.choice([0.0, 0.3, -0.2]))
+        coast = (
+            rng.choice([0.0, 0.3, -0.2], n)
+            if trial % 5 == 0
+            else np.full(n, rng.choice([0.0, 0.3, -0.2]))
+        )
         pedals = None if trial % 4 == 0 else rng.choice([0.0, 0.003, 0.2], (n, 2))
         first = [PedalMode.THROTTLE, PedalMode.BRAKE, PedalMode.HOLD][trial % 3]
         since = float(rng.uniform(0, 2))
@@ -98,8 +105,10 @@ def test_pedal_schedule_is_the_plain_loop():
         assert got.dtype == np.int8 and np.array_equal(got, want), trial
         switched += bool(np.any(want != want[0]))
         h = logic.config.accel_hysteresis_mps2
-        fast += bool((first == PedalMode.BRAKE and not np.any(a[1:] > coast[1:] + h))
-                     or (first == PedalMode.THROTTLE and not np.any(a[1:] < coast[1:] - h)))
+        fast += bool(
+            (first == PedalMode.BRAKE and not np.any(a[1:] > coast[1:] + h))
+            or (first == PedalMode.THROTTLE and not np.any(a[1:] < coast[1:] - h))
+        )
     assert fast > 40 and switched > 100  # both the fast path and the loop were exercised
 
 
@@ -111,8 +120,9 @@ def test_pedal_bounds_table_is_the_per_stage_formula(params):
     rng = np.random.default_rng(SEED)
     modes = rng.choice([PedalMode.THROTTLE, PedalMode.BRAKE], N).astype(np.int8)
     zones = rng.integers(0, pl.n_zones, N)
-    ulo, uhi, _srlo, _srhi = ctl.constraints.input_bounds(modes, zones, ctl.delay.fixed,
-                                                          ctl._last_cmd)
+    ulo, uhi, _srlo, _srhi = ctl.constraints.input_bounds(
+        modes, zones, ctl.delay.fixed, ctl._last_cmd
+    )
     thr = modes == PedalMode.THROTTLE
     off = pl.z_offset[zones]
     sc, br = np.maximum(pl.z_scale[zones], 1e-6), np.maximum(pl.z_brake[zones], 1e-6)

@@ -1,4 +1,5 @@
 """The CasADi NMPC (controller/nmpc.py) checks the OSQP fast path on the same problem."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -40,10 +41,12 @@ def test_nmpc_and_mpc_agree_on_a_simple_case(params):
     late = ra["time"] >= 1.0  # after the first second (the cold starts differ most)
     dsw = np.abs(ra["steering_cmd"] - rb["steering_cmd"])[late].max()
     dap = np.abs(ra["accel_pedal_cmd"] - rb["accel_pedal_cmd"])[late].max()
-    print(f"\nMPC vs NMPC: max |dv| {dv:.4f} m/s, max |d lateral| {dlat:.4f} m, after 1 s max "
-          f"|d sw| {dsw:.4f} rad, |d accel pedal| {dap:.4f}; "
-          f"NMPC solve p50 {b.metrics['solve_time_ms']['p50']:.1f} ms, MPC "
-          f"{a.metrics['solve_time_ms']['p50']:.2f} ms")
+    print(
+        f"\nMPC vs NMPC: max |dv| {dv:.4f} m/s, max |d lateral| {dlat:.4f} m, after 1 s max "
+        f"|d sw| {dsw:.4f} rad, |d accel pedal| {dap:.4f}; "
+        f"NMPC solve p50 {b.metrics['solve_time_ms']['p50']:.1f} ms, MPC "
+        f"{a.metrics['solve_time_ms']['p50']:.2f} ms"
+    )
     assert a.metrics["failures"] == 0 and b.metrics["failures"] == 0
     assert a.metrics["internal_errors"] == 0 and b.metrics["internal_errors"] == 0
     # with the shared input cost (the same smoothness terms in both) measured max |dv| 0.0004 m/s,
@@ -70,18 +73,26 @@ def test_nmpc_failure_is_a_status_and_a_safe_command(params):
 def _first(ref: Reference, seconds: float) -> Reference:
     """The first ``seconds`` of a scenario (the NMPC is slow: short closed loops)."""
     n = int(np.searchsorted(ref.time_s, ref.time_s[0] + seconds)) + 1
-    return Reference(ref.time_s[:n], ref.x_m[:n], ref.y_m[:n], ref.heading_rad[:n],
-                     ref.speed_mps[:n], name=f"{ref.name}[:{seconds:g}s]")
+    return Reference(
+        ref.time_s[:n],
+        ref.x_m[:n],
+        ref.y_m[:n],
+        ref.heading_rad[:n],
+        ref.speed_mps[:n],
+        name=f"{ref.name}[:{seconds:g}s]",
+    )
 
 
 def _smooth_figures(m):
-    return (f"rev>=1deg {m['steering_reversals_per_min']['1deg']:.1f}/min, >=5deg "
-            f"{m['steering_reversals_per_min']['5deg']:.1f}/min, steering rate RMS "
-            f"{m['steering_rate_rms_radps']:.3f} rad/s, brake rate RMS "
-            f"{m['brake_pedal_rate_rms_ps']:.3f}/s, speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
-            f"lateral RMS {m['lateral_error_rms_m']:.3f} m, pedal switches "
-            f"{m['pedal_switches_per_min']:.1f}/min, failures {m['failures']}, solve p50 "
-            f"{m['solve_time_ms']['p50']:.0f} ms")
+    return (
+        f"rev>=1deg {m['steering_reversals_per_min']['1deg']:.1f}/min, >=5deg "
+        f"{m['steering_reversals_per_min']['5deg']:.1f}/min, steering rate RMS "
+        f"{m['steering_rate_rms_radps']:.3f} rad/s, brake rate RMS "
+        f"{m['brake_pedal_rate_rms_ps']:.3f}/s, speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
+        f"lateral RMS {m['lateral_error_rms_m']:.3f} m, pedal switches "
+        f"{m['pedal_switches_per_min']:.1f}/min, failures {m['failures']}, solve p50 "
+        f"{m['solve_time_ms']['p50']:.0f} ms"
+    )
 
 
 @pytest.mark.parametrize("which", ["report_2008", "random_913"])

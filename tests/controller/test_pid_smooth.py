@@ -8,6 +8,7 @@ the figure measured with this PidConfig and the margin; a PID without the input 
 the output rate limits exceeds them several times over on report_2008 idle_hold. Rates are
 per control update.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -38,12 +39,14 @@ def _straight(v_of_t, seconds=10.0, dt=0.02):
 
 
 def _figures(m):
-    return (f"rev>=1deg {m['steering_reversals_per_min']['1deg']:.1f}/min, >=5deg "
-            f"{m['steering_reversals_per_min']['5deg']:.1f}/min, steering rate RMS "
-            f"{m['steering_rate_rms_radps']:.3f} rad/s, brake rate RMS "
-            f"{m['brake_pedal_rate_rms_ps']:.3f}/s, speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
-            f"lateral RMS {m['lateral_error_rms_m']:.3f} m, pedal switches "
-            f"{m['pedal_switches_per_min']:.1f}/min, failures {m['failures']}")
+    return (
+        f"rev>=1deg {m['steering_reversals_per_min']['1deg']:.1f}/min, >=5deg "
+        f"{m['steering_reversals_per_min']['5deg']:.1f}/min, steering rate RMS "
+        f"{m['steering_rate_rms_radps']:.3f} rad/s, brake rate RMS "
+        f"{m['brake_pedal_rate_rms_ps']:.3f}/s, speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
+        f"lateral RMS {m['lateral_error_rms_m']:.3f} m, pedal switches "
+        f"{m['pedal_switches_per_min']:.1f}/min, failures {m['failures']}"
+    )
 
 
 def test_idle_hold_through_the_estimator_is_smooth(params):
@@ -115,6 +118,7 @@ def test_speed_noise_is_filtered(params):
             c = ctl.step(x, ref, 0.1 * k).command
             us.append(c.accel_pedal - c.brake_pedal)
         return float(np.sqrt(np.mean(np.diff(us[10:]) ** 2)))
+
     filtered = pedal_rms_rate(PidConfig())
     raw = pedal_rms_rate(PidConfig(speed_filter_tau_s=0.0, pedal_rate_max_ps=1e9))
     print(f"\npedal change RMS per step: filtered {filtered:.4f}, raw {raw:.4f}")
@@ -127,8 +131,10 @@ def test_steering_output_respects_its_rate_limit(params):
     cfg = PidConfig()
     ref = _straight(lambda t: np.full_like(t, 3.0))
     ctl = PidController(params, cfg)
-    sws = [ctl.step(np.array([0.3 * k, 2.0, 0.0, 3.0]), ref, 0.1 * k).command
-           .steering_wheel_angle_rad for k in range(20)]
+    sws = [
+        ctl.step(np.array([0.3 * k, 2.0, 0.0, 3.0]), ref, 0.1 * k).command.steering_wheel_angle_rad
+        for k in range(20)
+    ]
     steps = np.abs(np.diff(sws))
     assert steps.max() <= cfg.steering_rate_max_radps * 0.1 + 1e-9
     assert abs(sws[-1]) > 0.5  # it does steer back towards the path

@@ -12,6 +12,7 @@ Bounds, measured (mpc, parameters identified from the minute): reference mode sp
 0.29 m/s^2) over 51 s engaged, hmpc's steering-wheel angle command against the measured angle
 +0.78, 0 limit violations.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -37,7 +38,7 @@ from _data import PARAMS_DIR, bundled
 CAN = bundled("rav4-comma2k19/can.log.gz")
 NAV = bundled("rav4-comma2k19/nav.csv.gz")
 ACTUATION = PARAMS_DIR / "toyota_rav4_2017.actuation.yaml"
-ALLOW = "--accept-unidentifiable"   # the minute's steering is flagged not identifiable
+ALLOW = "--accept-unidentifiable"  # the minute's steering is flagged not identifiable
 
 
 @pytest.fixture(scope="module")
@@ -47,34 +48,67 @@ def identified(tmp_path_factory, comma_ingest):
     d = tmp_path_factory.mktemp("replay")
     rec, params = d / "rec.csv", d / "params.yaml"
     comma_ingest.recording.save(rec)
-    assert main(["identify", str(rec), "--vehicle", str(PARAMS_DIR / "toyota_rav4_2017.yaml"),
-                 "--out", str(params)]) == 0
+    assert (
+        main(
+            [
+                "identify",
+                str(rec),
+                "--vehicle",
+                str(PARAMS_DIR / "toyota_rav4_2017.yaml"),
+                "--out",
+                str(params),
+            ]
+        )
+        == 0
+    )
     return rec, params
 
 
 def test_reference_replay_comma_minute(identified, tmp_path):
     rec, params = identified
     out, plots = tmp_path / "ref.json", tmp_path / "plots"
-    assert main(["replay", str(rec), "--params", str(params), ALLOW, "--json", str(out),
-                 "--plots", str(plots)]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                str(rec),
+                "--params",
+                str(params),
+                ALLOW,
+                "--json",
+                str(out),
+                "--plots",
+                str(plots),
+            ]
+        )
+        == 0
+    )
     r = json.loads(out.read_text())
     assert r["mode"] == "reference" and r["controller"] == "mpc"
     k, car = r["kpis"]["controller"], r["kpis"]["car"]
-    for v in (k["speed_error_rms_mps"], k["lateral_error_rms_m"], k["pedal_switches_per_min"],
-              k["zone_transitions_per_min"], car["pedal_switches_per_min"]):
+    for v in (
+        k["speed_error_rms_mps"],
+        k["lateral_error_rms_m"],
+        k["pedal_switches_per_min"],
+        k["zone_transitions_per_min"],
+        car["pedal_switches_per_min"],
+    ):
         assert np.isfinite(v)
     assert k["failures"] == 0 and k["internal_errors"] == 0
-    assert k["speed_error_rms_mps"] < 0.4          # measured 0.168
-    assert k["lateral_error_rms_m"] < 0.05         # measured 0.008
-    assert car["zone_transitions_per_min"] == 0    # 8-20 m/s: the high zone throughout
+    assert k["speed_error_rms_mps"] < 0.4  # measured 0.168
+    assert k["lateral_error_rms_m"] < 0.05  # measured 0.008
+    assert car["zone_transitions_per_min"] == 0  # 8-20 m/s: the high zone throughout
     d = r["differences"]
-    assert d["speed_mps"]["correlation"] > 0.95   # measured 0.998
-    assert d["speed_mps"]["samples"] == 3000       # 60 s at 50 Hz
+    assert d["speed_mps"]["correlation"] > 0.95  # measured 0.998
+    assert d["speed_mps"]["samples"] == 3000  # 60 s at 50 Hz
     assert len(r["windows"]["speed_mps"]) == 3
     ws = r["windows"]["speed_mps"]
     assert all(a["rms"] >= b["rms"] for a, b in zip(ws, ws[1:]))
-    assert all(ws[i]["t1_s"] <= ws[j]["t0_s"] or ws[j]["t1_s"] <= ws[i]["t0_s"]
-               for i in range(3) for j in range(i + 1, 3))
+    assert all(
+        ws[i]["t1_s"] <= ws[j]["t0_s"] or ws[j]["t1_s"] <= ws[i]["t0_s"]
+        for i in range(3)
+        for j in range(i + 1, 3)
+    )
     assert r["compared"]
     for f in r["plots"]:
         assert (tmp_path / "plots").exists() and Path(f).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -84,17 +118,42 @@ def test_log_replay_against_openpilot(identified, tmp_path):
     """The whole minute through the drive loop; the CLI's JSON."""
     _, params = identified
     out, plots, dump = tmp_path / "log.json", tmp_path / "plots", tmp_path / "run.log"
-    assert main(["replay", str(CAN), "--mode", "log", "--actuation", str(ACTUATION), "--nav",
-                 str(NAV), "--params", str(params), ALLOW, "--json", str(out), "--plots",
-                 str(plots), "--candump", str(dump)]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                str(CAN),
+                "--mode",
+                "log",
+                "--actuation",
+                str(ACTUATION),
+                "--nav",
+                str(NAV),
+                "--params",
+                str(params),
+                ALLOW,
+                "--json",
+                str(out),
+                "--plots",
+                str(plots),
+                "--candump",
+                str(dump),
+            ]
+        )
+        == 0
+    )
     r = json.loads(out.read_text())
     assert r["mode"] == "log"
     # the hash is the documented digest of the frames the run sent (the profile's command
     # messages in its candump, as python-can reads it): id, data, timestamp to 4 decimals
     ids = {c.message.frame_id for c in load_profile(ACTUATION).commands.values()}
     sent = [m for m in can.LogReader(str(dump)) if m.arbitration_id in ids]
-    digest = hashlib.sha256(b"".join(f"{m.arbitration_id:08x} {bytes(m.data).hex()} "
-                                     f"{m.timestamp:.4f}\n".encode() for m in sent))
+    digest = hashlib.sha256(
+        b"".join(
+            f"{m.arbitration_id:08x} {bytes(m.data).hex()} {m.timestamp:.4f}\n".encode()
+            for m in sent
+        )
+    )
     assert r["hash"]["timestamp_decimals"] == 4 and r["hash"]["frames"] == len(sent) > 5000
     assert r["hash"]["sha256"] == digest.hexdigest()
     acc = r["differences"]["ACC_CONTROL.ACCEL_CMD"]
@@ -104,13 +163,13 @@ def test_log_replay_against_openpilot(identified, tmp_path):
     for name in ("ACC_CONTROL.ACCEL_CMD", "STEERING_LKA.STEER_TORQUE_CMD"):
         assert 45 < r["engaged_s"][name]["both"] <= 51.5
     # the MPC tracks the speed openpilot's requests produced: its request follows openpilot's
-    assert acc["correlation"] > 0.5                # measured +0.86
-    assert acc["rms_difference"] < 0.6             # measured 0.29 m/s^2
+    assert acc["correlation"] > 0.5  # measured +0.86
+    assert acc["rms_difference"] < 0.6  # measured 0.29 m/s^2
     # hmpc's angle command follows the angle openpilot steered
-    assert sw["correlation"] > 0.3                 # measured +0.78
+    assert sw["correlation"] > 0.3  # measured +0.78
     # every frame within the panda's Toyota limits (re-checked from the loop's candump)
     assert r["limit_violations"] == 0
-    assert lka["hmpc_abs_max"] <= 1500             # panda TOYOTA_MAX_TORQUE
+    assert lka["hmpc_abs_max"] <= 1500  # panda TOYOTA_MAX_TORQUE
     assert lka["samples"] > 4000
     assert r["kpis"]["failures"] == 0
     assert Path(r["plots"][0]).read_bytes()[:4] == b"\x89PNG"
@@ -166,31 +225,33 @@ def test_replay_bus_serves_the_log_on_the_simulated_clock():
         got = 1
         while bus.recv(timeout=0.0) is not None:
             got += 1
-        assert got == due                      # nothing from the future without waiting
+        assert got == due  # nothing from the future without waiting
         t = clock.time()
-        m = bus.recv(timeout=0.05)             # waits for the next frame, not the whole timeout
+        m = bus.recv(timeout=0.05)  # waits for the next frame, not the whole timeout
         assert m is not None and clock.time() == m.timestamp and t < m.timestamp < t + 0.05
         bus.send(can.Message(arbitration_id=0x343, data=bytes(8), is_extended_id=False))
         assert src.sent[-1].timestamp == clock.time()
         while bus.recv(timeout=0.0) is not None or src.next_time() is not None:
             clock.sleep(0.01)
         t = clock.time()
-        assert bus.recv(timeout=0.5) is None and clock.time() == t + 0.5   # exhausted: times out
+        assert bus.recv(timeout=0.5) is None and clock.time() == t + 0.5  # exhausted: times out
 
 
 def _write_candump(path, frames) -> None:
     with open(path, "w") as fh:
         for i in range(len(frames)):
-            data = bytes(frames.data[i, :frames.dlc[i]]).hex().upper()
-            fh.write(f"({frames.t_s[i]:.6f}) can{int(frames.bus[i])} "
-                     f"{int(frames.arb_id[i]):03X}#{data}\n")
+            data = bytes(frames.data[i, : frames.dlc[i]]).hex().upper()
+            fh.write(
+                f"({frames.t_s[i]:.6f}) can{int(frames.bus[i])} "
+                f"{int(frames.arb_id[i]):03X}#{data}\n"
+            )
 
 
 def _one_line_error(capsys, argv) -> str:
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err
-    lines = [ln for ln in err.splitlines() if "error:" in ln]   # warnings may precede it
+    lines = [ln for ln in err.splitlines() if "error:" in ln]  # warnings may precede it
     assert len(lines) == 1
     return lines[0]
 
@@ -205,14 +266,18 @@ def test_bad_input(identified, tmp_path, capsys):
     frames = read_log(CAN, Problems())
     # a log without the wheel speeds the loop needs as feedback
     no_ws = tmp_path / "no_wheel_speeds.log"
-    _write_candump(no_ws, frames.take(np.flatnonzero((frames.arb_id != 0xAA)
-                                                     & (frames.t_s < frames.t_s[0] + 12))))
-    line = _one_line_error(capsys, ["replay", str(no_ws), "--mode", "log", "--actuation",
-                                    str(ACTUATION), *base])
+    _write_candump(
+        no_ws,
+        frames.take(np.flatnonzero((frames.arb_id != 0xAA) & (frames.t_s < frames.t_s[0] + 12))),
+    )
+    line = _one_line_error(
+        capsys, ["replay", str(no_ws), "--mode", "log", "--actuation", str(ACTUATION), *base]
+    )
     assert "WHEEL_SPEEDS" in line and "no_wheel_speeds.log" in line
     # a log in which the car never accepts commands (openpilot engages at 9.0 s)
     early = tmp_path / "before_engagement.log"
     _write_candump(early, frames.take(np.flatnonzero(frames.t_s < frames.t_s[0] + 8)))
-    line = _one_line_error(capsys, ["replay", str(early), "--mode", "log", "--actuation",
-                                    str(ACTUATION), *base])
+    line = _one_line_error(
+        capsys, ["replay", str(early), "--mode", "log", "--actuation", str(ACTUATION), *base]
+    )
     assert "never accepts commands" in line and "PCM_CRUISE.CRUISE_ACTIVE" in line

@@ -6,6 +6,7 @@ set the tuning never saw: ``models.sim.simulator.random_params(9)``), seeded, at
 sensor noise and under the robustness conditions (3x noise, GNSS at 10 Hz with 100 ms latency,
 a 2 s GNSS outage). Run with ``-n 2``.
 """
+
 from __future__ import annotations
 
 import math
@@ -56,8 +57,9 @@ def test_small_wiggles_do_not_count_but_their_sum_does():
 def test_known_zigzag_counts():
     # extrema 0, +2, -1, +4, -4, +1: swings 2, 3, 5, 8, 5
     knots = [0.0, 2.0, -1.0, 4.0, -4.0, 1.0]
-    sig = np.concatenate([np.linspace(a, b, 7)[:-1] for a, b in zip(knots, knots[1:])]
-                         + [[knots[-1]]])
+    sig = np.concatenate(
+        [np.linspace(a, b, 7)[:-1] for a, b in zip(knots, knots[1:])] + [[knots[-1]]]
+    )
     assert steering_reversals(sig, 1.0) == 4
     assert steering_reversals(sig, 3.0) == 3
     assert steering_reversals(sig, 5.0) == 2
@@ -71,7 +73,7 @@ def test_rates_and_smoothness_keys():
     # one sample per control update (0.1 s), as smoothness_of is given them
     t = np.arange(0.0, 60.0 + 1e-9, 0.1)
     sw = np.radians(2.0) * np.sign(np.sin(2 * np.pi * t / 4.0 + 0.1))  # +-2 deg square, 4 s
-    ap = 0.1 * t / 60.0                    # 0.1 / 60 per s, constant
+    ap = 0.1 * t / 60.0  # 0.1 / 60 per s, constant
     bp = np.zeros_like(t)
     m = smoothness_of(t, sw, ap, bp)
     assert m["steering_reversals_per_min"]["1deg"] == pytest.approx(29.0)  # 30 edges, first sets
@@ -91,6 +93,7 @@ def test_rates_and_smoothness_keys():
 class _Scripted:
     """A controller whose commands are a function of time: at update k the steering wheel is
     at +-STEP/2 alternately (a change of STEP every update) and the brake holds 0.3."""
+
     name = "scripted"
     STEP = 0.04  # [rad] per update
 
@@ -135,8 +138,12 @@ def _run(params_name: str, scenario: str, robust: bool = False):
     ref = make_scenario(scenario, params)
     if robust:  # 3x noise, GNSS at 10 Hz 100 ms late, a 2 s outage mid-run
         mid = 0.5 * ref.duration_s
-        sensors = SensorConfig(noise_scale=3.0, gnss_rate_hz=10.0, gnss_latency_s=0.1,
-                               gnss_outages=((mid - 1.0, mid + 1.0),))
+        sensors = SensorConfig(
+            noise_scale=3.0,
+            gnss_rate_hz=10.0,
+            gnss_latency_s=0.1,
+            gnss_outages=((mid - 1.0, mid + 1.0),),
+        )
     else:
         sensors = SensorConfig()
     res = run_closed_loop(MpcController(params), ref, params, seed=0, sensors=sensors)
@@ -147,12 +154,14 @@ def _run(params_name: str, scenario: str, robust: bool = False):
 
 def _fig(m) -> str:
     rv = m["steering_reversals_per_min"]
-    return (f"rev>=1deg {rv['1deg']:.1f}/min rev>=5deg {rv['5deg']:.1f}/min, steering rate "
-            f"{m['steering_rate_rms_radps']:.3f} rad/s, brake rate "
-            f"{m['brake_pedal_rate_rms_ps']:.3f} /s, speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
-            "lateral RMS "
-            f"{m['lateral_error_rms_m']:.3f} m, pedal switches {m['pedal_switches_per_min']:.1f}"
-            f"/min, failures {m['failures']}")
+    return (
+        f"rev>=1deg {rv['1deg']:.1f}/min rev>=5deg {rv['5deg']:.1f}/min, steering rate "
+        f"{m['steering_rate_rms_radps']:.3f} rad/s, brake rate "
+        f"{m['brake_pedal_rate_rms_ps']:.3f} /s, speed RMS {m['speed_error_rms_mps']:.3f} m/s, "
+        "lateral RMS "
+        f"{m['lateral_error_rms_m']:.3f} m, pedal switches {m['pedal_switches_per_min']:.1f}"
+        f"/min, failures {m['failures']}"
+    )
 
 
 @pytest.mark.parametrize("params_name", ["report", "unseen"])
@@ -177,8 +186,9 @@ def test_idle_hold_is_smooth(params_name):
 
 
 @pytest.mark.parametrize("params_name", ["report", "unseen"])
-@pytest.mark.parametrize("scenario,max_reversals", [("ramp_sequence", 12.0), ("arcs", 30.0),
-                                                    ("figure8", 30.0)])
+@pytest.mark.parametrize(
+    "scenario,max_reversals", [("ramp_sequence", 12.0), ("arcs", 30.0), ("figure8", 30.0)]
+)
 def test_moving_scenarios_are_smooth_and_track(params_name, scenario, max_reversals):
     """The acceptance, default noise. Measured reversals >= 1 deg per min (report /
     unseen): ramp_sequence 5.8 / 1.9, arcs 5.5 / 6.4, figure8 13.4 / 13.4; speed RMS
@@ -191,9 +201,11 @@ def test_moving_scenarios_are_smooth_and_track(params_name, scenario, max_revers
     assert m["lateral_error_rms_m"] <= 0.3
 
 
-@pytest.mark.parametrize("params_name,scenario", [
-    ("report", s) for s in ("arcs", "circles", "figure8", "ramps", "ramp_sequence", "idle_hold")
-] + [("unseen", s) for s in ("figure8", "idle_hold")])
+@pytest.mark.parametrize(
+    "params_name,scenario",
+    [("report", s) for s in ("arcs", "circles", "figure8", "ramps", "ramp_sequence", "idle_hold")]
+    + [("unseen", s) for s in ("figure8", "idle_hold")],
+)
 def test_robust_to_3x_noise_slow_late_gnss_and_an_outage(params_name, scenario):
     """Robustness: 3x noise, GNSS at 10 Hz 100 ms late, no fix for 2 s mid-run.
     Every scenario stays stable (no failure, tracking inside the closed loop's limits). Measured

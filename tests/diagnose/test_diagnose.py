@@ -4,6 +4,7 @@ a clean recording without a finding that improves the held-out error by more tha
 mass change halfway (outside the catalogue) reported as unexplained in its second half.
 Seeds are fixed (seed 1, truth parameters random_params(1)); recordings are the report's six
 experiments in a row (8-11 minutes at 50 Hz)."""
+
 from __future__ import annotations
 
 import json
@@ -41,8 +42,9 @@ def test_each_catalogue_effect_is_the_top_finding(case):
     dg = diagnose(rec, info["params"].vehicle)
     assert dg.findings, f"{case}: nothing found; hypotheses: {dg.hypotheses}"
     top = dg.findings[0]
-    assert (top["effect"], top["subsystem"]) == (info["effect"], info["subsystem"]), \
-        [(f["effect"], f["subsystem"], round(f["gain"], 3)) for f in dg.findings]
+    assert (top["effect"], top["subsystem"]) == (info["effect"], info["subsystem"]), [
+        (f["effect"], f["subsystem"], round(f["gain"], 3)) for f in dg.findings
+    ]
     name, value = info["parameter"]
     got = top["parameters"][name]
     assert _truth_close(name, value, got), f"{name}: truth {value}, diagnosed {got}"
@@ -50,8 +52,9 @@ def test_each_catalogue_effect_is_the_top_finding(case):
     assert lo <= got <= hi
     assert top["heldout_rmse_after"] < top["heldout_rmse_before"]
     assert top["windows"], "a finding says where it helps"
-    assert not any(u["channel"] == top["channel"] and u["share_of_error"] > 0.5
-                   for u in dg.unexplained)
+    assert not any(
+        u["channel"] == top["channel"] and u["share_of_error"] > 0.5 for u in dg.unexplained
+    )
     if case == "actuator_delay_longitudinal":
         # a known answer for the joint dead time + lag fit: a pure pedal dead time under rich
         # pedal excitation is told from a lag (the lag alone is rejected, the dead time carries
@@ -78,7 +81,7 @@ def test_mass_change_is_unexplained_in_its_second_half():
     assert dg.unexplained, f"findings: {[(f['effect'], f['gain']) for f in dg.findings]}"
     u = dg.unexplained[0]
     t_change, t_end = info["change_t_s"], float(rec.time[-1])
-    (t0, t1), = u["windows"]
+    ((t0, t1),) = u["windows"]
     assert abs(t0 - t_change) < 0.1 * (t_end - rec.time[0]), (t0, t_change)
     assert t1 > t_change + 0.8 * (t_end - t_change)
     assert u["share_of_error"] > 0.5
@@ -91,9 +94,12 @@ def delay_csv(tmp_path_factory):
     from hmpc.models.identify.pipeline import concat_recordings
     from hmpc.models.sim import effects as fx
     from hmpc.models.sim.simulator import random_params, run_experiment
+
     truth = random_params(3)
-    recs = [run_experiment(n, truth, seed=30 + i, effects=[fx.PedalDeadTime(0.3)]).recording
-            for i, n in enumerate(("ramp_sequence", "open_loop", "ramps"))]
+    recs = [
+        run_experiment(n, truth, seed=30 + i, effects=[fx.PedalDeadTime(0.3)]).recording
+        for i, n in enumerate(("ramp_sequence", "open_loop", "ramps"))
+    ]
     path = tmp_path_factory.mktemp("diag") / "rec.csv"
     concat_recordings(recs).to_csv(path)
     return path
@@ -101,14 +107,33 @@ def delay_csv(tmp_path_factory):
 
 def test_cli_contract_json_and_params_out(delay_csv, tmp_path):
     out, p2 = tmp_path / "d.json", tmp_path / "p2.yaml"
-    rc = cli.main(["diagnose", str(delay_csv), "--vehicle", REPORT,
-                   "--json", str(out), "--params-out", str(p2)])
+    rc = cli.main(
+        [
+            "diagnose",
+            str(delay_csv),
+            "--vehicle",
+            REPORT,
+            "--json",
+            str(out),
+            "--params-out",
+            str(p2),
+        ]
+    )
     assert rc == 0
     j = json.loads(out.read_text())
     assert set(j) >= {"findings", "unexplained"}
     f = j["findings"][0]
-    assert set(f) >= {"effect", "subsystem", "parameters", "intervals", "windows", "regime",
-                      "channel", "heldout_rmse_before", "heldout_rmse_after"}
+    assert set(f) >= {
+        "effect",
+        "subsystem",
+        "parameters",
+        "intervals",
+        "windows",
+        "regime",
+        "channel",
+        "heldout_rmse_before",
+        "heldout_rmse_after",
+    }
     assert (f["effect"], f["subsystem"]) == ("actuator_delay", "longitudinal")
     assert abs(f["parameters"]["delay_s"] - 0.3) < 0.06
     p = load_params(p2, require_model=True)  # the strict loader accepts what we wrote
@@ -127,20 +152,34 @@ def test_params_extensions_section_is_validated_against_the_catalogue(tmp_path):
     """An unknown catalogue id, subsystem or parameter is refused in one line naming the key
     (exit 2 through any command that loads the file)."""
     good = yaml.safe_load(Path(REPORT).read_text())
-    good["extensions"] = {"aero_drag": {"longitudinal": {
-        "coeff_per_m": 1.5e-3, "intervals": {"coeff_per_m": [1.2e-3, 1.8e-3]}}}}
+    good["extensions"] = {
+        "aero_drag": {
+            "longitudinal": {"coeff_per_m": 1.5e-3, "intervals": {"coeff_per_m": [1.2e-3, 1.8e-3]}}
+        }
+    }
     f = tmp_path / "p2.yaml"
     f.write_text(yaml.safe_dump(good))
     assert load_params(f).extensions["aero_drag"]["longitudinal"]["coeff_per_m"] == 1.5e-3
-    for bad, key in (({"aero_dragg": {"longitudinal": {}}}, "extensions.aero_dragg"),
-                     ({"aero_drag": {"steering": {}}}, "extensions.aero_drag.steering"),
-                     ({"aero_drag": {"longitudinal": {"coeff_m": 1.0}}},
-                      "extensions.aero_drag.longitudinal.coeff_m"),
-                     ({"actuator_lag": {"longitudinal": {"tau_s": 0.3, "on_top_of": "road_grade"}}},
-                      "extensions.actuator_lag.longitudinal.on_top_of"),
-                     ({"aero_drag": {"longitudinal": {"base": {"zones": [
-                         {"name": "high", "gain_mps2": 1.0}]}}}},
-                      "extensions.aero_drag.longitudinal.base.zones[0].gain_mps2")):
+    for bad, key in (
+        ({"aero_dragg": {"longitudinal": {}}}, "extensions.aero_dragg"),
+        ({"aero_drag": {"steering": {}}}, "extensions.aero_drag.steering"),
+        (
+            {"aero_drag": {"longitudinal": {"coeff_m": 1.0}}},
+            "extensions.aero_drag.longitudinal.coeff_m",
+        ),
+        (
+            {"actuator_lag": {"longitudinal": {"tau_s": 0.3, "on_top_of": "road_grade"}}},
+            "extensions.actuator_lag.longitudinal.on_top_of",
+        ),
+        (
+            {
+                "aero_drag": {
+                    "longitudinal": {"base": {"zones": [{"name": "high", "gain_mps2": 1.0}]}}
+                }
+            },
+            "extensions.aero_drag.longitudinal.base.zones[0].gain_mps2",
+        ),
+    ):
         good["extensions"] = bad
         f.write_text(yaml.safe_dump(good))
         with pytest.raises(ParamError, match=re.escape(f"key '{key}'")) as exc:
@@ -150,8 +189,9 @@ def test_params_extensions_section_is_validated_against_the_catalogue(tmp_path):
 
 def test_cli_given_params_are_replayed(delay_csv, tmp_path):
     out = tmp_path / "d.json"
-    rc = cli.main(["diagnose", str(delay_csv), "--vehicle", REPORT,
-                   "--params", REPORT, "--json", str(out)])
+    rc = cli.main(
+        ["diagnose", str(delay_csv), "--vehicle", REPORT, "--params", REPORT, "--json", str(out)]
+    )
     assert rc == 0
     assert json.loads(out.read_text())["findings"][0]["effect"] == "actuator_delay"
 
@@ -162,15 +202,16 @@ def test_bad_input_exits_2_with_one_line(tmp_path, capsys):
     rc = cli.main(["diagnose", str(bad), "--vehicle", REPORT])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "speed" in err[0] and "bad.csv" in err[0]
-    rc = cli.main(["diagnose", str(tmp_path / "missing.csv"), "--vehicle",
-                   REPORT])
+    rc = cli.main(["diagnose", str(tmp_path / "missing.csv"), "--vehicle", REPORT])
     assert rc == 2
 
 
 def test_too_little_moving_data_is_an_input_error():
     t = np.arange(0, 30, 0.02)
-    rec = Recording({"time": t, "speed": np.zeros_like(t), "accel_pedal": np.zeros_like(t)},
-                    meta={"path": "still.csv"})
+    rec = Recording(
+        {"time": t, "speed": np.zeros_like(t), "accel_pedal": np.zeros_like(t)},
+        meta={"path": "still.csv"},
+    )
     with pytest.raises(InputError, match="still.csv"):
         diagnose(rec, load_params(REPORT).vehicle)
 
@@ -182,17 +223,22 @@ def test_two_longitudinal_effects_stack_delay_then_drag():
     from hmpc.models.sim import effects as fx
     from hmpc.models.sim.simulator import random_params, run_experiment
     from hmpc.models.diagnose.testdata import LON_EXPERIMENTS
+
     truth = random_params(6)
-    recs = [run_experiment(n, truth, seed=60 + i,
-                           effects=[fx.PedalDeadTime(0.3), fx.AeroDrag(1.5e-3)]).recording
-            for i, n in enumerate(LON_EXPERIMENTS)]
+    recs = [
+        run_experiment(
+            n, truth, seed=60 + i, effects=[fx.PedalDeadTime(0.3), fx.AeroDrag(1.5e-3)]
+        ).recording
+        for i, n in enumerate(LON_EXPERIMENTS)
+    ]
     dg = diagnose(concat_recordings(recs), truth.vehicle)
     got = {f["effect"]: f for f in dg.findings if f["subsystem"] == "longitudinal"}
     assert set(got) == {"actuator_delay", "aero_drag"}, list(got)
     assert abs(got["actuator_delay"]["parameters"]["delay_s"] - 0.3) <= 0.06
     assert abs(got["aero_drag"]["parameters"]["coeff_per_m"] - 1.5e-3) <= 0.3e-3
-    assert got["aero_drag"]["on_top_of"] == {"actuator_delay": {
-        "delay_s": got["actuator_delay"]["parameters"]["delay_s"]}}
+    assert got["aero_drag"]["on_top_of"] == {
+        "actuator_delay": {"delay_s": got["actuator_delay"]["parameters"]["delay_s"]}
+    }
 
 
 def test_noise_floor_of_a_held_quantised_channel_is_its_step_not_zero():
@@ -201,6 +247,7 @@ def test_noise_floor_of_a_held_quantised_channel_is_its_step_not_zero():
     0.021 for white noise of 0.01 rounded to 0.01: the changes that remain are the larger
     ones, so it errs high, within 2x, which only raises the bar for a window to count)."""
     from hmpc.models.diagnose.locate import noise_floor
+
     rng = np.random.default_rng(3)
     x = np.round(rng.normal(0.0, 0.01, 500) / 0.01) * 0.01
     held = np.repeat(x, 4)
@@ -209,27 +256,46 @@ def test_noise_floor_of_a_held_quantised_channel_is_its_step_not_zero():
 
 
 def _dyn_cands(after_delay: float, after_lag: float) -> list:
-    return [{"effect": e, "subsystem": "longitudinal", "channel": "speed", "_ok": True,
-             "why": "accepted", "parameters": {k: 0.3}, "heldout_rmse_before": 0.273,
-             "heldout_rmse_after": a, "delta_bic": -10.0}
-            for e, k, a in (("actuator_delay", "delay_s", after_delay),
-                            ("actuator_lag", "tau_s", after_lag))]
+    return [
+        {
+            "effect": e,
+            "subsystem": "longitudinal",
+            "channel": "speed",
+            "_ok": True,
+            "why": "accepted",
+            "parameters": {k: 0.3},
+            "heldout_rmse_before": 0.273,
+            "heldout_rmse_after": a,
+            "delta_bic": -10.0,
+        }
+        for e, k, a in (
+            ("actuator_delay", "delay_s", after_delay),
+            ("actuator_lag", "tau_s", after_lag),
+        )
+    ]
 
 
 def _response(lr_dead: float, lr_lag: float) -> dict:
-    return {"lr_dead_time_only": lr_dead, "lr_lag_only": lr_lag,
-            "split": "the joint fit's split verdict"}
+    return {
+        "lr_dead_time_only": lr_dead,
+        "lr_lag_only": lr_lag,
+        "split": "the joint fit's split verdict",
+    }
 
 
-@pytest.mark.parametrize("lr_dead,lr_lag,after_lag,named", [
-    (0.7, 0.1, 0.2517, "actuator_delay"),   # either alone fits (the comma minute): dead time
-    (8.4, 0.0, 0.2517, "actuator_lag"),     # the joint fit says lag (VerifiedCAN)
-    (0.0, 9.0, 0.2517, "actuator_delay"),   # the joint fit says dead time
-    (9.0, 9.0, 0.2517, "actuator_lag"),     # the joint fit needs both: the replay decides
-    (0.7, 0.1, 0.2400, "actuator_lag"),     # the lag replays better beyond the resolution
-])
+@pytest.mark.parametrize(
+    "lr_dead,lr_lag,after_lag,named",
+    [
+        (0.7, 0.1, 0.2517, "actuator_delay"),  # either alone fits (the comma minute): dead time
+        (8.4, 0.0, 0.2517, "actuator_lag"),  # the joint fit says lag (VerifiedCAN)
+        (0.0, 9.0, 0.2517, "actuator_delay"),  # the joint fit says dead time
+        (9.0, 9.0, 0.2517, "actuator_lag"),  # the joint fit needs both: the replay decides
+        (0.7, 0.1, 0.2400, "actuator_lag"),  # the lag replays better beyond the resolution
+    ],
+)
 def test_dead_time_or_lag_within_the_resolution_is_decided_by_the_joint_fit(
-        lr_dead, lr_lag, after_lag, named):
+    lr_dead, lr_lag, after_lag, named
+):
     """Of a dead time and a lag whose replays differ by less than the speed resolution
     (0.005 m/s), the joint fit names the one that alone fits as well as both; when either does,
     the dead time (the more phase lag for the same effective delay); beyond the resolution

@@ -20,6 +20,7 @@ and these tests hold hmpc to the truth there:
 So a half-second response would read as about half a second on a minute like comma's; the
 delay hmpc reads there is the car's, not a bias of the method.
 """
+
 from __future__ import annotations
 
 import statistics

@@ -17,6 +17,7 @@ the error by 15 %) and on every 2 and 10 minutes.
 
 Seeds are fixed (in the test ids); each recording takes a few seconds.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -39,8 +40,9 @@ DURATION_S = 60.0
 CLEAN = [(0.5, 0.0, 3), (0.5, 0.0, 6), (0.25, 0.03, 0), (0.25, 0.03, 6)]
 
 
-@pytest.mark.parametrize("dead_s,grade_rad,seed", CLEAN,
-                         ids=[f"d{d}-grade{g}-seed{s}" for d, g, s in CLEAN])
+@pytest.mark.parametrize(
+    "dead_s,grade_rad,seed", CLEAN, ids=[f"d{d}-grade{g}-seed{s}" for d, g, s in CLEAN]
+)
 def test_clean_acc_minute_reports_no_change(dead_s, grade_rad, seed):
     sc = at.scenario(dead_s, 0.0, seed=seed, duration_s=DURATION_S, grade_amp_rad=grade_rad)
     rec = Recording(at.record(sc), meta={"path": f"acc_truth d={dead_s} seed {seed}"})
@@ -59,7 +61,7 @@ def test_heavier_second_half_is_still_found_on_one_minute():
     dg = diagnose(rec, parse_params(ct.geometry()).vehicle)
     assert dg.unexplained, [(f["effect"], round(f["gain"], 3)) for f in dg.findings]
     u = dg.unexplained[0]
-    (t0, t1), = u["windows"]
+    ((t0, t1),) = u["windows"]
     assert abs(t0 - t_change) <= 0.1 * DURATION_S, u["windows"]
     assert t1 > t_change + 0.8 * (DURATION_S - t_change), u["windows"]
     assert u["share_of_error"] > 0.5

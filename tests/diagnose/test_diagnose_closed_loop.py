@@ -7,6 +7,7 @@ and its lag handling), and tracking improves, never worsens, as far as the MPC o
 model with the effect (``ideal``) tracks. The MPC is fed as a car is (simulated sensors through
 the EKF, ``run_closed_loop(effects=)``). Seed 1; ``tools/bench_diagnose.py --closed-loop`` runs
 every case."""
+
 from __future__ import annotations
 
 import pytest
@@ -16,13 +17,21 @@ from hmpc.tools.bench_diagnose import closed_loop
 
 @pytest.fixture(scope="module")
 def rows():
-    got = closed_loop(1, cases=["actuator_delay_longitudinal", "actuator_delay_steering",
-                                "actuator_lag", "aero_drag"])
+    got = closed_loop(
+        1,
+        cases=[
+            "actuator_delay_longitudinal",
+            "actuator_delay_steering",
+            "actuator_lag",
+            "aero_drag",
+        ],
+    )
     return {r["case"]: r for r in got}
 
 
-@pytest.mark.parametrize("case", ["actuator_delay_longitudinal", "actuator_delay_steering",
-                                  "actuator_lag"])
+@pytest.mark.parametrize(
+    "case", ["actuator_delay_longitudinal", "actuator_delay_steering", "actuator_lag"]
+)
 def test_a_diagnosed_dead_time_or_lag_improves_mpc_tracking(rows, case):
     r = rows[case]
     key = r["metric"]

@@ -16,6 +16,7 @@ parameter file loads, and every finding is checked against an independent sensor
 - CAT Vehicle ``sensor_time_offset``: against the lag that best aligns the by-wire speed with
   the GNSS speed (interpolated cross-match, numpy).
 """
+
 from __future__ import annotations
 
 import json
@@ -30,10 +31,16 @@ from hmpc.models.params import load_params
 from hmpc.tools import cli
 
 SETS = {
-    "catvehicle": (DATA_DIR / "catvehicle-bagpy", PARAMS_DIR / "catvehicle.topics.yaml",
-                   PARAMS_DIR / "catvehicle.yaml"),
-    "f1tenth": (DATA_DIR / "f1tenth-frictionmaps",
-                PARAMS_DIR / "f1tenth_frictionmaps.topics.yaml", PARAMS_DIR / "f1tenth.yaml"),
+    "catvehicle": (
+        DATA_DIR / "catvehicle-bagpy",
+        PARAMS_DIR / "catvehicle.topics.yaml",
+        PARAMS_DIR / "catvehicle.yaml",
+    ),
+    "f1tenth": (
+        DATA_DIR / "f1tenth-frictionmaps",
+        PARAMS_DIR / "f1tenth_frictionmaps.topics.yaml",
+        PARAMS_DIR / "f1tenth.yaml",
+    ),
 }
 
 
@@ -45,8 +52,20 @@ def _run(which: str, tmp_path, capsys):
     rc = cli.main(["ingest", str(src), "--topics", str(topics), "--out", str(csv)])
     out = capsys.readouterr()
     assert rc == 0 and "Traceback" not in out.err, out.err
-    rc = cli.main(["diagnose", str(csv), "--vehicle", str(geometry), "--json", str(js),
-                   "--report", str(tmp_path / "rep"), "--params-out", str(tmp_path / "p.yaml")])
+    rc = cli.main(
+        [
+            "diagnose",
+            str(csv),
+            "--vehicle",
+            str(geometry),
+            "--json",
+            str(js),
+            "--report",
+            str(tmp_path / "rep"),
+            "--params-out",
+            str(tmp_path / "p.yaml"),
+        ]
+    )
     out = capsys.readouterr()
     assert rc == 0 and "Traceback" not in out.err, out.err
     load_params(tmp_path / "p.yaml")
@@ -97,7 +116,7 @@ def _first_order_tau(ch) -> float:
     dt = float(np.median(np.diff(t)))
     ok = np.isfinite(v) & np.isfinite(c)
     L = int(10.0 / dt)
-    starts = [i for i in range(0, len(t) - L, L) if ok[i:i + L].all()]
+    starts = [i for i in range(0, len(t) - L, L) if ok[i : i + L].all()]
     best = (np.inf, None)
     for tau in np.arange(0.1, 3.0, 0.05):
         e = 0.0
@@ -123,8 +142,9 @@ def test_f1tenth_runs_on_its_speed_command_and_each_finding_holds(tmp_path, caps
     # per fitted zone against a first-order lag fitted independently, within a factor of two
     tau = _first_order_tau(ch)
     resp = j["channels"]["speed"]["speed_cmd_response"]
-    assert resp and all(z["tau_s"] is not None and 0.5 * tau <= z["tau_s"] <= 2.0 * tau
-                        for z in resp.values()), (tau, resp)
+    assert resp and all(
+        z["tau_s"] is not None and 0.5 * tau <= z["tau_s"] <= 2.0 * tau for z in resp.values()
+    ), (tau, resp)
 
 
 def test_catvehicle_runs_on_its_speed_command_and_each_finding_holds(tmp_path, capsys):

@@ -1,6 +1,7 @@
 """The extra concealed effects of the diagnosis benchmark (models.sim.effects_extra) do what
 they say on the ground-truth simulator (noise-free, seeded); the longitudinal fit times its
 inputs as the replay does (zero-order hold)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -50,8 +51,11 @@ def _zoh_recording(dt: float = 0.02, dur_s: float = 300.0):
     the throttle's integral: a quarter period behind it)."""
     t = np.arange(0.0, dur_s, dt)
     offset, gain = -0.3, 2.6
-    ap = (-offset / gain + 0.10 * np.sin(2 * np.pi * t / 20.0)
-          + 0.05 * np.sin(2 * np.pi * t / 7.0 + 1.0))
+    ap = (
+        -offset / gain
+        + 0.10 * np.sin(2 * np.pi * t / 20.0)
+        + 0.05 * np.sin(2 * np.pi * t / 7.0 + 1.0)
+    )
     a = offset + gain * ap
     v = 9.0 + np.concatenate([[0.0], np.cumsum(a[:-1]) * dt])
     return {"time": t, "speed": v, "accel_pedal": ap, "brake_pedal": np.zeros_like(t)}, gain
@@ -64,13 +68,15 @@ def test_fit_inputs_are_causal_like_the_replay():
     sum including u[k]) made the throttle's rate, correlated with the speed, a v-slope here of
     -0.0024 1/s (independent recordings: an apparent rolling resistance of -0.001 1/s)."""
     from hmpc.models.diagnose import longitudinal as lon
+
     ch, gain = _zoh_recording()
     d = lon.prepare(ch)
-    assert d.vs.min() > 5.5 and d.vs.max() < 20.0        # one zone (high) throughout
-    assert abs(d.input_shift_s) < 0.1 * d.dt             # recorded as it acts: no re-timing
+    assert d.vs.min() > 5.5 and d.vs.max() < 20.0  # one zone (high) throughout
+    assert abs(d.input_shift_s) < 0.1 * d.dt  # recorded as it acts: no re-timing
     assert abs(lon.unconstrained_ext(d, "rolling_resistance")) < 5e-5
     m = lon.fit(d, lon.LonSpec(), d.ok)
     assert m.C[2, 1] == pytest.approx(gain, rel=1e-3)
     x = np.arange(6) * 0.5
-    assert np.allclose(lon.causal_integral(x, 0.5),
-                       np.concatenate([[0.0], np.cumsum(x[:-1])]) * 0.5)
+    assert np.allclose(
+        lon.causal_integral(x, 0.5), np.concatenate([[0.0], np.cumsum(x[:-1])]) * 0.5
+    )

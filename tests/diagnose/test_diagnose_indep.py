@@ -24,6 +24,7 @@ effect, truth sets alternating, plus truth set C for the two fixes it exposed (a
 alarm: idle creep 11 %; road grade: an unexplained last 150 s), and rolling resistance on A
 seed 5 (the former -22.7 %).
 """
+
 from __future__ import annotations
 
 import pytest
@@ -36,10 +37,19 @@ from indep import diagnose_matrix as dm
 
 #: case -> truth set (A and B alternate; road grade on C: the low-speed grade fix)
 EFFECT_CASES = {
-    "pedal_delay": "A", "pedal_lag": "B", "steer_delay": "A", "steer_lag": "B",
-    "rack_cubic": "B", "understeer_ks": "A", "understeer_st": "B", "aero_drag": "A",
-    "rolling_resistance": "B", "road_grade": "C", "idle_creep": "B",
-    "wheel_radius_error": "A", "sensor_time_offset": "B",
+    "pedal_delay": "A",
+    "pedal_lag": "B",
+    "steer_delay": "A",
+    "steer_lag": "B",
+    "rack_cubic": "B",
+    "understeer_ks": "A",
+    "understeer_st": "B",
+    "aero_drag": "A",
+    "rolling_resistance": "B",
+    "road_grade": "C",
+    "idle_creep": "B",
+    "wheel_radius_error": "A",
+    "sensor_time_offset": "B",
 }
 
 
@@ -50,8 +60,9 @@ def _diagnose(case: str, truth: str, seed: int | None = None):
 
 
 def _summary(dg):
-    return [(f["effect"], f["subsystem"], round(f["gain"], 3), f["parameters"])
-            for f in dg.findings]
+    return [
+        (f["effect"], f["subsystem"], round(f["gain"], 3), f["parameters"]) for f in dg.findings
+    ]
 
 
 #: catalogue ids whose evidence is two sensors of one quantity, not the generator's vehicle
@@ -66,12 +77,16 @@ POWERTRAIN_IDS = {"gears", "unobserved_braking", "actuator_saturation"}
 
 def test_every_catalogue_effect_has_a_case():
     from hmpc.models.catalogue import CATALOGUE
+
     named = {dm.CASES[c][0] for c in EFFECT_CASES}
     assert named == set(CATALOGUE) - SENSOR_PAIR_IDS - POWERTRAIN_IDS
     # both subsystems where the catalogue has both
     assert {(dm.CASES[c][0], dm.CASES[c][1]) for c in EFFECT_CASES} >= {
-        ("actuator_delay", "steering"), ("actuator_delay", "longitudinal"),
-        ("actuator_lag", "steering"), ("actuator_lag", "longitudinal")}
+        ("actuator_delay", "steering"),
+        ("actuator_delay", "longitudinal"),
+        ("actuator_lag", "steering"),
+        ("actuator_lag", "longitudinal"),
+    }
 
 
 #: rolling resistance on A seed 5: -2.5 % with the causal integral (longitudinal.fit_inputs)
@@ -80,8 +95,9 @@ def test_every_catalogue_effect_has_a_case():
 ROLLING_A5 = pytest.param("rolling_resistance", "A", 5, id="rolling_resistance-A-seed5")
 
 
-@pytest.mark.parametrize("case,truth,seed",
-                         [(c, t, None) for c, t in EFFECT_CASES.items()] + [ROLLING_A5])
+@pytest.mark.parametrize(
+    "case,truth,seed", [(c, t, None) for c, t in EFFECT_CASES.items()] + [ROLLING_A5]
+)
 def test_concealed_effect_is_the_top_finding(case, truth, seed):
     expect, subsystem, pname, pval, _, _ = dm.CASES[case]
     dg = _diagnose(case, truth, seed)
@@ -114,5 +130,6 @@ def test_heavier_second_half_is_unexplained_not_named():
     assert starts and min(starts) >= t_change - 15.0, u["windows"]
     assert max(w[1] for w in u["windows"]) > t_change + 60.0, u["windows"]
     # a gain change is not a catalogue effect: nothing longitudinal may claim it strongly
-    assert all(f["gain"] <= 0.10 for f in dg.findings if f["subsystem"] == "longitudinal"), \
+    assert all(f["gain"] <= 0.10 for f in dg.findings if f["subsystem"] == "longitudinal"), (
         _summary(dg)
+    )

@@ -11,6 +11,7 @@
   not drive); understeer's separability is "not testable" on a straight line; the steering
   thresholds scale with the vehicle and the dropped samples are counted by reason.
 """
+
 from __future__ import annotations
 
 import json
@@ -50,16 +51,28 @@ def test_short_slalom_without_pedals_diagnoses_its_lateral_part(tmp_path, capsys
         csv = tmp_path / f"slalom{dur:g}.csv"
         rec.to_csv(csv)
         js, p2, html = tmp_path / f"d{dur:g}.json", tmp_path / f"p{dur:g}.yaml", tmp_path / "r"
-        rc, out = _cli(["diagnose", csv, "--vehicle", REPORT_PARAMS, "--json", js,
-                        "--params-out", p2, "--report", html], capsys)
+        rc, out = _cli(
+            [
+                "diagnose",
+                csv,
+                "--vehicle",
+                REPORT_PARAMS,
+                "--json",
+                js,
+                "--params-out",
+                p2,
+                "--report",
+                html,
+            ],
+            capsys,
+        )
         assert rc == 0, out.err
         j = json.loads(js.read_text())
         assert "steering" not in j["not_diagnosed"]
         assert j["channels"]["heading"]["heldout_rmse_baseline"] > 0.0
         assert (html / "index.html").exists()
         p = load_params(p2)
-        assert p.steering is not None and p.steering.scale == pytest.approx(_slalom.SCALE,
-                                                                            rel=0.05)
+        assert p.steering is not None and p.steering.scale == pytest.approx(_slalom.SCALE, rel=0.05)
         why = j["not_diagnosed"]["longitudinal"]
         if pedals:
             assert "too little moving data" in why and "needs 20 s" in why
@@ -72,11 +85,23 @@ def test_short_slalom_without_pedals_diagnoses_its_lateral_part(tmp_path, capsys
 
 def test_no_part_supported_exits_2_in_one_line_and_writes_nothing(tmp_path, capsys):
     t = np.arange(0, 30, 0.02)
-    Recording({"time": t, "speed": np.zeros_like(t), "accel_pedal": np.zeros_like(t)},
-              meta={}).to_csv(tmp_path / "still.csv")
+    Recording(
+        {"time": t, "speed": np.zeros_like(t), "accel_pedal": np.zeros_like(t)}, meta={}
+    ).to_csv(tmp_path / "still.csv")
     js, p2 = tmp_path / "d.json", tmp_path / "p.yaml"
-    rc, out = _cli(["diagnose", tmp_path / "still.csv", "--vehicle", REPORT_PARAMS,
-                    "--json", js, "--params-out", p2], capsys)
+    rc, out = _cli(
+        [
+            "diagnose",
+            tmp_path / "still.csv",
+            "--vehicle",
+            REPORT_PARAMS,
+            "--json",
+            js,
+            "--params-out",
+            p2,
+        ],
+        capsys,
+    )
     err = out.err.strip().splitlines()
     assert rc == 2 and "nothing to diagnose" in err[-1] and "still.csv" in err[-1]
     assert "longitudinal: too little moving data" in err[-1] and "steering:" in err[-1]
@@ -90,8 +115,17 @@ def test_steering_dead_time_writes_a_parameter_file_hmpc_loads(tmp_path, capsys)
     rec.to_csv(tmp_path / "rec.csv")
     out = tmp_path / "out"
     out.mkdir()
-    rc, res = _cli(["diagnose", tmp_path / "rec.csv", "--vehicle", REPORT_PARAMS,
-                    "--params-out", out / "p2.yaml"], capsys)
+    rc, res = _cli(
+        [
+            "diagnose",
+            tmp_path / "rec.csv",
+            "--vehicle",
+            REPORT_PARAMS,
+            "--params-out",
+            out / "p2.yaml",
+        ],
+        capsys,
+    )
     assert rc == 0, res.err
     assert sorted(x.name for x in out.iterdir()) == ["p2.yaml"]
     p = load_params(out / "p2.yaml", require_model=True)
@@ -104,6 +138,7 @@ def test_params_text_refuses_what_the_loader_refuses():
     """The file is checked with the loader's rules before anything is written: an extension
     the catalogue does not know is refused naming the key (exit 2), never written."""
     from hmpc.tools.cmd_diagnose import params_text
+
     p = load_params(REPORT_PARAMS)
     p.steering.dead_time_s = np.float64(0.15)
     assert "dead_time_s: 0.15" in params_text(p, "p2.yaml")
@@ -123,8 +158,19 @@ def test_given_status_flags_stay_in_the_written_file(tmp_path, capsys):
     gp = tmp_path / "given.yaml"
     gp.write_text(yaml.safe_dump(given))
     _slalom.drive(duration_s=60.0, pedals=True).to_csv(tmp_path / "rec.csv")
-    rc, res = _cli(["diagnose", tmp_path / "rec.csv", "--vehicle", REPORT_PARAMS,
-                    "--params", gp, "--params-out", tmp_path / "p2.yaml"], capsys)
+    rc, res = _cli(
+        [
+            "diagnose",
+            tmp_path / "rec.csv",
+            "--vehicle",
+            REPORT_PARAMS,
+            "--params",
+            gp,
+            "--params-out",
+            tmp_path / "p2.yaml",
+        ],
+        capsys,
+    )
     assert rc == 0, res.err
     p = load_params(tmp_path / "p2.yaml", require_model=True)
     assert p.steering.identifiable is False and "too little steering" in p.steering.note
@@ -140,8 +186,9 @@ def test_verdict_names_a_model_that_does_not_describe_the_vehicle():
     good = diagnose(rec, VEHICLE)
     assert good.verdict["model_describes_vehicle"] is True
     rng = np.random.default_rng(5)
-    rec.channels["accel_pedal"] = np.repeat(rng.uniform(0.0, 0.5, len(rec) // 100 + 1),
-                                            100)[:len(rec)]
+    rec.channels["accel_pedal"] = np.repeat(rng.uniform(0.0, 0.5, len(rec) // 100 + 1), 100)[
+        : len(rec)
+    ]
     bad = diagnose(rec, VEHICLE)
     v = bad.verdict
     assert v["model_describes_vehicle"] is False
@@ -149,8 +196,10 @@ def test_verdict_names_a_model_that_does_not_describe_the_vehicle():
     assert sp["misses"] and sp["factor"] >= 10 and sp["skill"] < 0.5
     assert v["text"].startswith("this model does not describe this vehicle: speed error")
     assert bad.to_json()["verdict"]["channels"]["speed"]["factor"] == pytest.approx(
-        sp["rmse"] / sp["noise_floor"])
+        sp["rmse"] / sp["noise_floor"]
+    )
     from hmpc.tools.cmd_diagnose import summary_lines
+
     assert summary_lines(bad)[0] == f"verdict: {v['text']}"
 
 
@@ -182,6 +231,8 @@ def test_steering_thresholds_scale_with_the_vehicle_and_drops_are_counted():
     assert ss["dropped"]["channel missing (NaN)"] == 250
     assert ss["angle_fit"] + sum(ss["dropped"].values()) == ss["total"]
     from hmpc.tools.cmd_diagnose import summary_lines
-    assert any(line.startswith("  steering samples:") and "channel missing (NaN): 250" in line
-               for line in summary_lines(dg))
 
+    assert any(
+        line.startswith("  steering samples:") and "channel missing (NaN): 250" in line
+        for line in summary_lines(dg)
+    )

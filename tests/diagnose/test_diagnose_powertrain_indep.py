@@ -15,6 +15,7 @@ only, in its own terms: torques, ratios, forces), 300 s at 50 Hz:
   ``actuator_saturation`` at the truth's limit; without the limit nothing is named and the
   speed loop's time constant is the truth's.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -57,8 +58,9 @@ def test_gearbox_is_named_gears_with_the_truths_ratios_and_gains(gearbox, tmp_pa
     assert top["gain"] >= 0.5 and top["heldout_rmse_after"] < top["heldout_rmse_before"]
     g = top["gears"]
     car = sc.car
-    truth_ratio = [60.0 * car.ratio(i) / (2 * np.pi * car.wheel_radius_m)
-                   for i in range(len(pt.GEAR_RATIOS))]
+    truth_ratio = [
+        60.0 * car.ratio(i) / (2 * np.pi * car.wheel_radius_m) for i in range(len(pt.GEAR_RATIOS))
+    ]
     assert len(g["ratios_rpm_per_mps"]) == len(truth_ratio)
     assert np.allclose(g["ratios_rpm_per_mps"], truth_ratio, rtol=0.02)
     # accelerator gain per gear within 10 % of the truth's torque path

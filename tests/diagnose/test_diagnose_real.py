@@ -13,6 +13,7 @@ are in docs/results.md ("Diagnosis") and are printed by the tests (pytest -s). T
 not what sets the delay: on an independent generator of this very setting (request in closed
 loop on the wheel speeds, the ECU's own loop against the grade, one minute long) a true half
 second reads as half a second (tests/diagnose/test_diagnose_acc_indep.py)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -47,8 +48,10 @@ def test_acc_request_response_is_named_with_interval_and_heldout_gain(comma):
     key = RESPONSE[f["effect"]]
     val = f["parameters"][key]
     lo, hi = f["intervals"][key]
-    print(f"comma: {f['effect']} {key} {val:.3f} [{lo:.3f}, {hi:.3f}] s, held-out speed "
-          f"{f['heldout_rmse_before']:.3f} -> {f['heldout_rmse_after']:.3f} m/s")
+    print(
+        f"comma: {f['effect']} {key} {val:.3f} [{lo:.3f}, {hi:.3f}] s, held-out speed "
+        f"{f['heldout_rmse_before']:.3f} -> {f['heldout_rmse_after']:.3f} m/s"
+    )
     assert lo <= val <= hi and hi - lo < 0.6
     # an ACC powertrain answers in tenths of a second, not instantly and not after a second
     assert 0.15 <= val <= 0.5
@@ -57,8 +60,7 @@ def test_acc_request_response_is_named_with_interval_and_heldout_gain(comma):
     # the other description (dead time for a lag, lag for a dead time) stays on record with
     # its own stacked fit, interval and gain
     other = next(e for e in RESPONSE if e != f["effect"])
-    h = next(h for h in dg.hypotheses if h["effect"] == other
-             and h["subsystem"] == "longitudinal")
+    h = next(h for h in dg.hypotheses if h["effect"] == other and h["subsystem"] == "longitudinal")
     st = h.get("stacked") or h
     olo, ohi = st["intervals"][RESPONSE[other]]
     assert olo <= st["parameters"][RESPONSE[other]] <= ohi
@@ -74,10 +76,12 @@ def test_dead_time_and_lag_fitted_together_fix_the_total_delay_not_its_split(com
     f = next(f for f in dg.findings if f["effect"] in RESPONSE)
     val = f["parameters"][RESPONSE[f["effect"]]]
     lo, hi = r["intervals"]["effective_delay_s"]
-    print(f"comma joint: d {r['dead_time_s']:.2f} {r['intervals']['dead_time_s']} tau "
-          f"{r['tau_s']:.2f} {r['intervals']['tau_s']} d+tau {r['effective_delay_s']:.2f} "
-          f"[{lo:.2f}, {hi:.2f}] s, held-out {r['heldout_rmse_before']:.3f} -> "
-          f"{r['heldout_rmse_mps']:.3f} m/s")
+    print(
+        f"comma joint: d {r['dead_time_s']:.2f} {r['intervals']['dead_time_s']} tau "
+        f"{r['tau_s']:.2f} {r['intervals']['tau_s']} d+tau {r['effective_delay_s']:.2f} "
+        f"[{lo:.2f}, {hi:.2f}] s, held-out {r['heldout_rmse_before']:.3f} -> "
+        f"{r['heldout_rmse_mps']:.3f} m/s"
+    )
     assert r["on_top_of"] == "road_grade" and r["input"].startswith("accel_cmd")
     assert lo <= r["effective_delay_s"] <= hi and lo <= val <= hi
     assert 0.2 <= r["effective_delay_s"] <= 0.5 and hi - lo < 0.7
@@ -85,8 +89,11 @@ def test_dead_time_and_lag_fitted_together_fix_the_total_delay_not_its_split(com
     # d and tau trade: each alone fits about as well as both, so neither split is named
     assert not r["separable"] and max(r["lr_dead_time_only"], r["lr_lag_only"]) < 3.84
     assert r["intervals"]["dead_time_s"][0] == 0.0 and r["intervals"]["tau_s"][0] == 0.0
-    assert any(n.startswith("response of the acceleration to accel_cmd") and
-               "cannot tell a dead time from a lag" in n for n in dg.notes)
+    assert any(
+        n.startswith("response of the acceleration to accel_cmd")
+        and "cannot tell a dead time from a lag" in n
+        for n in dg.notes
+    )
 
 
 def test_grade_is_compensated_by_the_acc_over_seconds(comma):
@@ -130,6 +137,7 @@ def test_wheel_radius_and_separability_verdict(comma, tmp_path):
     assert sep["excitation"]["lat_accel_p97_5_mps2"] < 1.0
     assert sep["verdict"].startswith("understeer against the steering ratio: not testable")
     from hmpc.models.diagnose.report import write_report
+
     html = Path(write_report(dg, tmp_path)).read_text(encoding="utf-8")
     assert "understeer against the steering ratio: not testable on this recording" in html
     assert "cannot tell a dead time from a lag" in html
@@ -160,6 +168,7 @@ def test_the_split_verdict_says_what_the_likelihood_ratios_say():
     """The joint dead-time + lag fit's wording (VerifiedCAN: dead time alone 9.6, lag alone
     0.0 -> a lag; the comma minute: 0.7 and 0.1 -> cannot tell)."""
     from hmpc.models.diagnose.stacking import _split_verdict
+
     assert "the response is a lag" in _split_verdict(9.6, 0.0)
     assert "the response is a dead time" in _split_verdict(0.2, 12.0)
     both = _split_verdict(0.7, 0.1)

@@ -10,6 +10,7 @@ physics that reconciles them, with the fit that makes both agree:
   from the GNSS positions; identify and diagnose with --params-out and --report on both bundled
   ROS recordings end without a traceback and write files hmpc loads.
 """
+
 from __future__ import annotations
 
 import math
@@ -34,8 +35,9 @@ def _found(dg) -> dict:
 
 @pytest.mark.parametrize("yaw_deg", [90.0, -25.0])
 def test_turned_imu_is_named_sensor_mounting(yaw_deg):
-    dg = diagnose(_slalom.drive(duration_s=60.0, imu_yaw_rad=math.radians(yaw_deg),
-                                pedals=True), VEHICLE)
+    dg = diagnose(
+        _slalom.drive(duration_s=60.0, imu_yaw_rad=math.radians(yaw_deg), pedals=True), VEHICLE
+    )
     f = _found(dg)
     assert set(f) & SENSOR_IDS == {"sensor_mounting"}
     m = f["sensor_mounting"]
@@ -62,43 +64,58 @@ def test_a_smoother_accelerometer_is_no_lag():
     from the speed's derivative in bandwidth: a zero-phase smoother fits it better than a lag,
     so no accelerometer_lag is named, and a note says what differs (the VerifiedCAN drive's
     KINEMATICS.ACCEL_X is such a case, where a lag alone would gain 8 %)."""
-    dg = diagnose(_slalom.drive(duration_s=60.0, accel_smooth_s=0.2, speed_ripple_mps=0.3,
-                                pedals=True), VEHICLE)
+    dg = diagnose(
+        _slalom.drive(duration_s=60.0, accel_smooth_s=0.2, speed_ripple_mps=0.3, pedals=True),
+        VEHICLE,
+    )
     assert "accelerometer_lag" not in _found(dg)
     zp = dg.channels["accel_vs_speed"]["zero_phase_smoother"]
     assert zp["sse_per_sample"] < zp["lag_sse_per_sample"]
     assert zp["tau_s"] == pytest.approx(0.2, abs=0.1)
-    assert any(n.startswith("accel_x and the speed's derivative differ in bandwidth")
-               for n in dg.notes)
+    assert any(
+        n.startswith("accel_x and the speed's derivative differ in bandwidth") for n in dg.notes
+    )
 
 
-@pytest.mark.parametrize("kw, key, truth", [({"side_ratio": 0.004}, "side_ratio", 0.004),
-                                            ({"track_scale": 0.93}, "track_scale", 0.93)])
+@pytest.mark.parametrize(
+    "kw, key, truth",
+    [({"side_ratio": 0.004}, "side_ratio", 0.004), ({"track_scale": 0.93}, "track_scale", 0.93)],
+)
 def test_wheel_speed_difference_against_yaw_rate_is_wheel_speed_scale(kw, key, truth):
     dg = diagnose(_slalom.drive(duration_s=60.0, pedals=True, **kw), VEHICLE)
     f = _found(dg)
     assert set(f) & SENSOR_IDS == {"wheel_speed_scale"}
     w = f["wheel_speed_scale"]
     assert w["subsystem"] == "steering" and key in w["beyond_interval"]
-    assert w["parameters"][key] == pytest.approx(truth,
-                                                 abs=0.1 * abs(truth - (key == "track_scale")))
+    assert w["parameters"][key] == pytest.approx(
+        truth, abs=0.1 * abs(truth - (key == "track_scale"))
+    )
     assert dg.channels["yaw_rate_vs_wheels"]["track_scale_tested"]
 
 
 def test_clean_car_names_no_sensor_physics():
     dg = diagnose(_slalom.drive(duration_s=60.0, pedals=True), VEHICLE)
     assert not set(_found(dg)) & SENSOR_IDS
-    tested = {h["effect"] for h in dg.hypotheses if h.get("channel") in
-              ("accel_vs_speed", "yaw_rate_vs_wheels")}
+    tested = {
+        h["effect"]
+        for h in dg.hypotheses
+        if h.get("channel") in ("accel_vs_speed", "yaw_rate_vs_wheels")
+    }
     assert tested == SENSOR_IDS
 
 
 # ---- the bundled ROS recordings ----------------------------------------------------------
 
-CAT = (DATA_DIR / "catvehicle-bagpy", PARAMS_DIR / "catvehicle.topics.yaml",
-       PARAMS_DIR / "catvehicle.yaml")
-F1 = (DATA_DIR / "f1tenth-frictionmaps", PARAMS_DIR / "f1tenth_frictionmaps.topics.yaml",
-      PARAMS_DIR / "f1tenth.yaml")
+CAT = (
+    DATA_DIR / "catvehicle-bagpy",
+    PARAMS_DIR / "catvehicle.topics.yaml",
+    PARAMS_DIR / "catvehicle.yaml",
+)
+F1 = (
+    DATA_DIR / "f1tenth-frictionmaps",
+    PARAMS_DIR / "f1tenth_frictionmaps.topics.yaml",
+    PARAMS_DIR / "f1tenth.yaml",
+)
 
 
 @pytest.fixture(scope="module")
@@ -126,6 +143,7 @@ def test_f1tenth_imu_mounting_is_named_not_the_tyre_radius(ds5):
     print(f"F1TENTH DS5 IMU turned {yaw_deg:.1f} deg [{lo:.1f}, {hi:.1f}]")
     assert 80.0 <= lo and hi <= 100.0
     from hmpc.models.identify.stats import savgol_derivative
+
     a = savgol_derivative(rec["speed"], 0.02, 0.5)
     ay = savgol_derivative(rec["accel_y"], 0.02, 0.5, deriv=0)
     ok = np.isfinite(a) & np.isfinite(ay) & (np.abs(rec["speed"]) > 0.5)
@@ -143,8 +161,9 @@ def test_catvehicle_clock_offset_agrees_with_the_gnss_positions(cat):
     t, v = rec.time, rec["speed"]
     k = 12  # centred differences over 0.5 s
     sp = np.full(len(t), np.nan)
-    sp[k:-k] = np.hypot(rec["x"][2 * k:] - rec["x"][:-2 * k],
-                        rec["y"][2 * k:] - rec["y"][:-2 * k]) / (t[2 * k:] - t[:-2 * k])
+    sp[k:-k] = np.hypot(
+        rec["x"][2 * k :] - rec["x"][: -2 * k], rec["y"][2 * k :] - rec["y"][: -2 * k]
+    ) / (t[2 * k :] - t[: -2 * k])
     lags = np.arange(-15, 16)
     ok = np.isfinite(v) & np.isfinite(sp)
     score = []
@@ -152,21 +171,49 @@ def test_catvehicle_clock_offset_agrees_with_the_gnss_positions(cat):
         m = ok & np.roll(ok, j)
         score.append(np.corrcoef(v[m], np.roll(sp, j)[m])[0, 1])
     c = float(lags[int(np.argmax(score))] * (t[1] - t[0]))
-    print(f"CAT: offset {f['parameters']['offset_s']:+.3f} s [{lo:+.3f}, {hi:+.3f}], from GNSS "
-          f"positions {c:+.3f} s")
+    print(
+        f"CAT: offset {f['parameters']['offset_s']:+.3f} s [{lo:+.3f}, {hi:+.3f}], from GNSS "
+        f"positions {c:+.3f} s"
+    )
     assert lo - 0.02 <= c <= hi + 0.02
     assert dg.not_diagnosed.get("steering", "").startswith("no steering_wheel_angle")
 
 
 @pytest.mark.parametrize("which", ["f1tenth", "catvehicle"])
-def test_identify_and_diagnose_on_the_ros_recordings_write_what_hmpc_loads(which, tmp_path,
-                                                                           capsys):
+def test_identify_and_diagnose_on_the_ros_recordings_write_what_hmpc_loads(which, tmp_path, capsys):
     src, topics, geometry = F1 if which == "f1tenth" else CAT
-    for argv, out in ((["identify", src, "--topics", topics, "--vehicle", geometry,
-                        "--out", tmp_path / "id.yaml"], tmp_path / "id.yaml"),
-                      (["diagnose", src, "--topics", topics, "--vehicle", geometry,
-                        "--params-out", tmp_path / "dg.yaml", "--report", tmp_path / "html",
-                        "--json", tmp_path / "dg.json"], tmp_path / "dg.yaml")):
+    for argv, out in (
+        (
+            [
+                "identify",
+                src,
+                "--topics",
+                topics,
+                "--vehicle",
+                geometry,
+                "--out",
+                tmp_path / "id.yaml",
+            ],
+            tmp_path / "id.yaml",
+        ),
+        (
+            [
+                "diagnose",
+                src,
+                "--topics",
+                topics,
+                "--vehicle",
+                geometry,
+                "--params-out",
+                tmp_path / "dg.yaml",
+                "--report",
+                tmp_path / "html",
+                "--json",
+                tmp_path / "dg.json",
+            ],
+            tmp_path / "dg.yaml",
+        ),
+    ):
         rc = cli.main([str(a) for a in argv])
         res = capsys.readouterr()
         assert "Traceback" not in res.err and rc in (0, 2), res.err
@@ -184,10 +231,12 @@ def test_verifiedcan_accelerometer_differs_in_bandwidth_not_in_time(vcan_log, vc
     accelerometer reads a smoother signal, not a later one), so the drive's findings stay what
     they were (the ACC request's actuator_lag alone) and a note names the difference."""
     from hmpc.models.logs.ingest import ingest_files
+
     rec = ingest_files(vcan_log, vcan_dbc, PARAMS_DIR / "toyota_rav4_2019.signals.yaml").recording
     dg = diagnose(rec, load_params(PARAMS_DIR / "toyota_rav4_2019.yaml").vehicle)
     assert [f["effect"] for f in dg.findings] == ["actuator_lag"]
     zp = dg.channels["accel_vs_speed"]["zero_phase_smoother"]
     assert zp["sse_per_sample"] < zp["lag_sse_per_sample"] < zp["baseline_sse_per_sample"]
-    assert any(n.startswith("accel_x and the speed's derivative differ in bandwidth")
-               for n in dg.notes)
+    assert any(
+        n.startswith("accel_x and the speed's derivative differ in bandwidth") for n in dg.notes
+    )

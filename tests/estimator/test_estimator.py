@@ -4,6 +4,7 @@ Truth: seeded open-loop drives of the hybrid plant (models.sim.live_sensors.rand
 independently, CommonRoad's kinematic single-track model. Sensors: models.sim.live_sensors
 (rates, latency, noise, outages, jumps). Seeds are fixed and printed in failure messages.
 """
+
 from __future__ import annotations
 
 import math
@@ -22,14 +23,25 @@ P = load_params(REPORT_PARAMS)
 #: the truth's hidden process noise, equal to the estimator's defaults (a consistency test needs
 #: a truth that follows the filter's process model)
 _CFG = EstimatorConfig()
-WALKS = dict(speed_walk_mps_rts=_CFG.speed_walk_mps_rts,
-             heading_walk_rad_rts=_CFG.heading_walk_rad_rts,
-             position_walk_m_rts=_CFG.position_walk_m_rts,
-             delta_offset_walk_rad_rts=_CFG.delta_offset_walk_rad_rts)
+WALKS = dict(
+    speed_walk_mps_rts=_CFG.speed_walk_mps_rts,
+    heading_walk_rad_rts=_CFG.heading_walk_rad_rts,
+    position_walk_m_rts=_CFG.position_walk_m_rts,
+    delta_offset_walk_rad_rts=_CFG.delta_offset_walk_rad_rts,
+)
 
 
-def run_filter(truth: TruthTrajectory, scfg: SensorConfig, ecfg: EstimatorConfig, seed: int, *,
-               params: Params = P, tick_s: float = 0.02, compensate: bool = True, drop=None):
+def run_filter(
+    truth: TruthTrajectory,
+    scfg: SensorConfig,
+    ecfg: EstimatorConfig,
+    seed: int,
+    *,
+    params: Params = P,
+    tick_s: float = 0.02,
+    compensate: bool = True,
+    drop=None,
+):
     """Feed the sensors' messages to the estimator as they arrive, predict every ``tick_s``.
 
     ``compensate=False`` stamps every GNSS fix with its arrival time (a filter that ignores
@@ -42,14 +54,25 @@ def run_filter(truth: TruthTrajectory, scfg: SensorConfig, ecfg: EstimatorConfig
     every = max(int(round(tick_s / dt)), 1)
     ts, errs, covs = [], [], []
     for i, t in enumerate(truth.t_s):
-        for m in sens.observe(t, truth.states[i], truth.steering_wheel_angle_rad[i],
-                              truth.accel_mps2[i], truth.delta_rad[i]):
+        for m in sens.observe(
+            t,
+            truth.states[i],
+            truth.steering_wheel_angle_rad[i],
+            truth.accel_mps2[i],
+            truth.delta_rad[i],
+        ):
             if drop is not None and drop(m):
                 continue
             if m.kind == "gnss" and not compensate:
                 v = m.values
-                est.update_gnss(m.t_arrival_s, m.t_arrival_s, v["x_m"], v["y_m"],
-                                v["heading_rad"], v["speed_mps"])
+                est.update_gnss(
+                    m.t_arrival_s,
+                    m.t_arrival_s,
+                    v["x_m"],
+                    v["y_m"],
+                    v["heading_rad"],
+                    v["speed_mps"],
+                )
             else:
                 est.feed(m, t)
         if i % every == 0:
@@ -89,8 +112,9 @@ def test_nees_within_chi_square_bounds_over_seeded_runs():
     k = len(seeds)
     lo, hi = chi2.ppf(0.005, 4 * k) / k, chi2.ppf(0.995, 4 * k) / k
     inside = np.mean((anees >= lo) & (anees <= hi))
-    assert inside >= 0.95, \
+    assert inside >= 0.95, (
         f"seeds {seeds}: ANEES inside [{lo:.2f}, {hi:.2f}] at {inside:.1%} of ticks"
+    )
     assert 3.2 <= anees.mean() <= 4.8, f"seeds {seeds}: mean NEES {anees.mean():.2f}, expected 4"
 
 
@@ -121,8 +145,9 @@ def test_latency_compensation_beats_the_uncompensated_filter():
     rms_c = float(np.sqrt(np.mean(_pos_err(e_c[keep]) ** 2)))
     rms_u = float(np.sqrt(np.mean(_pos_err(e_u[keep]) ** 2)))
     assert est_c.stats["gnss"]["replays"] > 300
-    assert rms_c < 0.5 * rms_u, \
+    assert rms_c < 0.5 * rms_u, (
         f"seed {seed}: compensated {rms_c:.3f} m, uncompensated {rms_u:.3f} m"
+    )
     assert rms_c < 0.05, f"seed {seed}: compensated position RMS {rms_c:.3f} m"
 
 
@@ -155,8 +180,9 @@ def test_gnss_outage_grows_bounded_and_recovers():
     assert pos[during].max() < 0.3, f"seed {seed}: {pos[during].max():.3f} m in the outage"
     rms_before = np.sqrt(np.mean(pos[before] ** 2))
     rms_after = np.sqrt(np.mean(pos[after] ** 2))
-    assert rms_after < 1.5 * rms_before + 0.005, \
+    assert rms_after < 1.5 * rms_before + 0.005, (
         f"seed {seed}: {rms_after:.3f} m after vs {rms_before:.3f} m before the outage"
+    )
 
 
 def test_can_dropout_of_one_second_is_survived():
@@ -165,10 +191,13 @@ def test_can_dropout_of_one_second_is_survived():
     seed = 42
     scfg = SensorConfig()
     tr = random_drive(P, 20.0, seed, **WALKS)
+
     def can_gap(m):
         return m.kind == "can" and 10.0 <= m.t_meas_s < 11.0
-    ts, errs, covs, est, _ = run_filter(tr, scfg, EstimatorConfig.matching(scfg), seed,
-                                        drop=can_gap)
+
+    ts, errs, covs, est, _ = run_filter(
+        tr, scfg, EstimatorConfig.matching(scfg), seed, drop=can_gap
+    )
     during = (ts >= 10.0) & (ts < 11.0)
     assert np.all(np.abs(errs[during, 3]) < 4.0 * np.sqrt(covs[during, 3, 3]) + 0.01)
     assert np.max(_pos_err(errs[ts >= 5.0])) < 0.15
@@ -218,6 +247,7 @@ def test_buffers_are_reused_not_reallocated():
 
     class Watch(Estimator):
         pass
+
     sens = LiveSensors(P, scfg, seed)
     est = Watch(P, EstimatorConfig.matching(scfg, history_events=64))
     names = ("_x", "_P", "_F", "_tmp", "_ph1", "_ev", "_ev_x", "_ev_P", "_ev_t", "_ev_aux")
@@ -235,9 +265,12 @@ def test_buffers_are_reused_not_reallocated():
 def _commonroad_truth(seed: int, duration_s: float, dt_s: float = 0.01):
     """CommonRoad's kinematic single-track model (rear-axle reference, TUM) driven by a seeded
     steering rate and acceleration; converted to the eq. 1 point (front axle) and speed."""
-    vm = pytest.importorskip("vehiclemodels.vehicle_dynamics_ks",
-                             reason="commonroad-vehicle-models not installed (test extra)")
+    vm = pytest.importorskip(
+        "vehiclemodels.vehicle_dynamics_ks",
+        reason="commonroad-vehicle-models not installed (test extra)",
+    )
     from vehiclemodels.parameters_vehicle2 import parameters_vehicle2
+
     p = parameters_vehicle2()
     wheelbase = p.a + p.b
     rng = np.random.default_rng(seed)
@@ -261,8 +294,14 @@ def _commonroad_truth(seed: int, duration_s: float, dt_s: float = 0.01):
         k4 = np.array(vm.vehicle_dynamics_ks(x + dt_s * k3, u, p))
         x = x + dt_s / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
     delta, v_rear, psi = rear[:, 2], rear[:, 3], rear[:, 4]
-    front = np.column_stack([rear[:, 0] + wheelbase * np.cos(psi),
-                             rear[:, 1] + wheelbase * np.sin(psi), psi, v_rear / np.cos(delta)])
+    front = np.column_stack(
+        [
+            rear[:, 0] + wheelbase * np.cos(psi),
+            rear[:, 1] + wheelbase * np.sin(psi),
+            psi,
+            v_rear / np.cos(delta),
+        ]
+    )
     return wheelbase, np.arange(n) * dt_s, front, delta, np.gradient(front[:, 3], dt_s)
 
 
@@ -275,9 +314,11 @@ def test_against_commonroad_kinematic_single_track():
     seed = 71
     wheelbase, t, front, delta, accel = _commonroad_truth(seed, 40.0)
     ratio = 16.0
-    params = Params(Vehicle(wheelbase_m=wheelbase, track_front_m=1.5),
-                    Steering(offset_rad=0.0, scale=1.0 / ratio),
-                    [Zone("all", 0.0, 50.0, 0.0, 2.0, 5.0)])
+    params = Params(
+        Vehicle(wheelbase_m=wheelbase, track_front_m=1.5),
+        Steering(offset_rad=0.0, scale=1.0 / ratio),
+        [Zone("all", 0.0, 50.0, 0.0, 2.0, 5.0)],
+    )
     sw = np.deg2rad(np.round(np.rad2deg(delta * ratio) * 10.0) / 10.0)
     tr = TruthTrajectory(t, front, sw, delta, accel, np.column_stack([sw, np.zeros((len(t), 2))]))
     scfg = SensorConfig()
@@ -285,7 +326,7 @@ def test_against_commonroad_kinematic_single_track():
     ts, errs, covs, est, _ = run_filter(tr, scfg, ecfg, seed, params=params)
     keep = ts >= 5.0
     pos = _pos_err(errs[keep])
-    rms = float(np.sqrt(np.mean(pos ** 2)))
+    rms = float(np.sqrt(np.mean(pos**2)))
     assert rms < 0.03, f"seed {seed}: position RMS {rms:.3f} m"
     assert np.sqrt(np.mean(errs[keep, 3] ** 2)) < 0.05
     assert np.degrees(np.sqrt(np.mean(errs[keep, 2] ** 2))) < 0.3
@@ -307,10 +348,14 @@ def test_config_rejects_bad_numbers():
 @pytest.fixture(scope="module")
 def comma_recording(comma_ingest):
     from _data import PARAMS_DIR
+
     geometry = load_params(PARAMS_DIR / "toyota_rav4_2017.yaml").vehicle
     # the maker's steering ratio and a flat eq. 8: the IMU's acceleration drives the speed
-    params = Params(geometry, Steering(0.0, 1.0 / geometry.steering_ratio),
-                    [Zone("all", 0.0, 50.0, 0.0, 2.0, 5.0)])
+    params = Params(
+        geometry,
+        Steering(0.0, 1.0 / geometry.steering_ratio),
+        [Zone("all", 0.0, 50.0, 0.0, 2.0, 5.0)],
+    )
     return comma_ingest, params
 
 
@@ -320,6 +365,7 @@ def test_comma_minute_estimate_follows_the_raw_channels(comma_recording, latency
     within centimetres of them, and finds the wheel-speed scale that ingest measured against
     GNSS (wheel mean / GNSS speed = 0.992)."""
     from hmpc.controller.estimator import IKWS, IPSI, estimate_recording
+
     res, params = comma_recording
     rec = res.recording
     run = estimate_recording(rec, params, gnss_latency_s=latency_s)
@@ -331,11 +377,15 @@ def test_comma_minute_estimate_follows_the_raw_channels(comma_recording, latency
     ok = (run.t_s >= gt[0] + 2.0) & (run.t_s <= gt[-1])
     dx = run.state[ok, 0] - np.interp(run.t_s[ok], gt, gx)
     dy = run.state[ok, 1] - np.interp(run.t_s[ok], gt, rec.raw["y"][1])
-    assert np.sqrt(np.mean(dx ** 2 + dy ** 2)) < 0.05
+    assert np.sqrt(np.mean(dx**2 + dy**2)) < 0.05
     ht, hv = rec.raw["heading"]
-    dh = np.remainder(run.state[ok, IPSI] - np.interp(run.t_s[ok], ht, np.unwrap(hv)) + np.pi,
-                      2 * np.pi) - np.pi
-    assert np.degrees(np.sqrt(np.mean(dh ** 2))) < 0.1
+    dh = (
+        np.remainder(
+            run.state[ok, IPSI] - np.interp(run.t_s[ok], ht, np.unwrap(hv)) + np.pi, 2 * np.pi
+        )
+        - np.pi
+    )
+    assert np.degrees(np.sqrt(np.mean(dh**2))) < 0.1
     ratio = res.summary["speed_vs_gps"]["ratio_mean"]
     assert abs(run.state[-1, IKWS] - ratio) < 0.003, (run.state[-1, IKWS], ratio)
 
@@ -344,8 +394,9 @@ def test_three_times_the_noise_with_latency_and_outage_stays_bounded():
     """The robustness set-up: 3x noise, GNSS at 10 Hz with 100 ms latency, a 2 s
     outage. The filter (told the noise) keeps every error within 4 sigma and centimetres."""
     seed = 81
-    scfg = SensorConfig(noise_scale=3.0, gnss_rate_hz=10.0, gnss_latency_s=0.1,
-                        gnss_outages=((12.0, 14.0),))
+    scfg = SensorConfig(
+        noise_scale=3.0, gnss_rate_hz=10.0, gnss_latency_s=0.1, gnss_outages=((12.0, 14.0),)
+    )
     tr = random_drive(P, 20.0, seed, **WALKS)
     ts, errs, covs, est, _ = run_filter(tr, scfg, EstimatorConfig.matching(scfg), seed)
     keep = ts >= 5.0
@@ -383,14 +434,17 @@ def test_predict_rejects_non_finite_input():
 # ---------------------------------------------------------------------- the live sensors
 def test_live_sensors_rates_latency_and_seeding():
     from hmpc.models.sim.live_sensors import measure_trajectory
+
     tr = random_drive(P, 10.0, 3)
     scfg = SensorConfig(gnss_rate_hz=10.0, gnss_latency_s=0.1, gnss_outages=((4.0, 6.0),))
     args = (P, tr.t_s, tr.states, tr.steering_wheel_angle_rad, tr.accel_mps2, tr.delta_rad)
     a = measure_trajectory(*args, config=scfg, seed=5)
     b = measure_trajectory(*args, config=scfg, seed=5)
     c = measure_trajectory(*args, config=scfg, seed=6)
+
     def key(ms):
         return [(m.kind, m.t_meas_s, m.values) for m in ms]
+
     assert key(a) == key(b)
     assert [m.values for m in a] != [m.values for m in c]
     by = {k: [m for m in a if m.kind == k] for k in ("can", "imu", "gnss")}
@@ -415,8 +469,10 @@ def test_rewind_equals_the_fix_received_on_time():
     scfg = SensorConfig(gnss_rate_hz=10.0, gnss_latency_s=0.15)
     tr = random_drive(P, 8.0, seed)
     sens = LiveSensors(P, scfg, seed)
-    late, on_time = Estimator(P, EstimatorConfig.matching(scfg)), \
-        Estimator(P, EstimatorConfig.matching(scfg))
+    late, on_time = (
+        Estimator(P, EstimatorConfig.matching(scfg)),
+        Estimator(P, EstimatorConfig.matching(scfg)),
+    )
     for est in (late, on_time):  # started alike (the first fix would arrive late for one)
         est.reset(0.0, tr.states[0])
     events = []  # (time, order, what) for the on-time filter
@@ -437,21 +493,24 @@ def test_rewind_equals_the_fix_received_on_time():
     assert late.time_s == pytest.approx(on_time.time_s)
     # the same operations in the same order: equal to rounding (bit-equal when measured)
     np.testing.assert_allclose(late.full_state(), on_time.full_state(), rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(late.full_covariance(), on_time.full_covariance(), rtol=1e-9,
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        late.full_covariance(), on_time.full_covariance(), rtol=1e-9, atol=1e-15
+    )
 
 
 def test_sensor_feedback_drives_a_closed_loop_like_loop():
     """SensorFeedback as a closed loop would use it: truth every 20 ms plant step, estimate and
     command every 100 ms; the estimate follows the truth from the first fix on."""
     from hmpc.controller.closed_loop import SensorFeedback
+
     seed = 111
     tr = random_drive(P, 10.0, seed, dt_s=0.02)
     fb = SensorFeedback(P, SensorConfig(gnss_rate_hz=10.0, gnss_latency_s=0.1), seed=seed)
     errs, nones = [], 0
     for i, t in enumerate(tr.t_s):
-        fb.observe(t, tr.states[i], tr.steering_wheel_angle_rad[i], tr.accel_mps2[i],
-                   tr.delta_rad[i])
+        fb.observe(
+            t, tr.states[i], tr.steering_wheel_angle_rad[i], tr.accel_mps2[i], tr.delta_rad[i]
+        )
         if i % 5 == 0:
             est = fb.estimate(t)
             if est is None:
@@ -468,8 +527,9 @@ def test_sensor_feedback_drives_a_closed_loop_like_loop():
 def test_non_finite_values_are_dropouts_and_bad_times_are_errors():
     est = Estimator(P)
     est.reset(0.0, (0.0, 0.0, 0.0, 5.0))
-    est.update_can(0.01, wheel_speeds_mps=(math.nan, 5.0, 5.0, 5.0),
-                   steering_wheel_angle_rad=math.inf)
+    est.update_can(
+        0.01, wheel_speeds_mps=(math.nan, 5.0, 5.0, 5.0), steering_wheel_angle_rad=math.inf
+    )
     est.update_imu(0.02, yaw_rate_radps=math.nan, accel_x_mps2=None)
     assert not est.update_gnss(0.03, 0.03, x_m=math.nan, y_m=1.0)
     est.predict(0.04, (0.0, 0.0, 0.0))

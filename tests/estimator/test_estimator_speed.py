@@ -4,6 +4,7 @@ The prediction writes eq. 1/7/8 out on Python floats and eq. 1's Jacobian straig
 the updates use BLAS/LAPACK in place. Each is checked here against ``models.plant`` (the one
 place the physics lives) or the textbook Kalman form, on seeded random states (seeds fixed).
 """
+
 from __future__ import annotations
 
 import math
@@ -24,8 +25,15 @@ P = load_params(REPORT_PARAMS)
 def _random_filter(rng, est: Estimator) -> None:
     """A random but valid state and covariance (speeds across every zone and standstill)."""
     v = float(rng.choice([0.0, rng.uniform(0.0, 0.3), rng.uniform(0.0, 25.0)]))
-    x = [rng.normal(0, 50), rng.normal(0, 50), rng.uniform(-math.pi, math.pi), v,
-         rng.normal(0, 0.01), rng.normal(0, 0.002), 1.0 + rng.normal(0, 0.02)]
+    x = [
+        rng.normal(0, 50),
+        rng.normal(0, 50),
+        rng.uniform(-math.pi, math.pi),
+        v,
+        rng.normal(0, 0.01),
+        rng.normal(0, 0.002),
+        1.0 + rng.normal(0, 0.02),
+    ]
     est.reset(0.0, x)
     A = rng.normal(size=(NXE, NXE)) * 0.05
     M = A @ A.T + np.diag(est._init_var)
@@ -78,11 +86,20 @@ def test_prediction_covariance_is_F_P_F_plus_Q(seed):
         F = np.eye(NXE)
         F[:4, :4] += A * dt  # eq. 8's speed row has no state in it (zone aside)
         F[:3, 4] = B[:3, 0] * dt / plant.scale
-        q = np.array([cfg.position_walk_m_rts, cfg.position_walk_m_rts,
-                      cfg.heading_walk_rad_rts,
-                      cfg.speed_walk_imu_mps_rts if imu else cfg.speed_walk_mps_rts,
-                      cfg.delta_offset_walk_rad_rts, cfg.gyro_bias_walk_radps_rts,
-                      cfg.wheel_scale_walk_rts]) ** 2
+        q = (
+            np.array(
+                [
+                    cfg.position_walk_m_rts,
+                    cfg.position_walk_m_rts,
+                    cfg.heading_walk_rad_rts,
+                    cfg.speed_walk_imu_mps_rts if imu else cfg.speed_walk_mps_rts,
+                    cfg.delta_offset_walk_rad_rts,
+                    cfg.gyro_bias_walk_radps_rts,
+                    cfg.wheel_scale_walk_rts,
+                ]
+            )
+            ** 2
+        )
         expect = F @ P0 @ F.T + np.diag(q * dt)
         est._propagate(dt, sw, imu)
         np.testing.assert_allclose(est._P, expect, rtol=1e-12, atol=1e-18)
@@ -94,13 +111,17 @@ def test_zone_band_cache_agrees_with_the_plant_rule():
     plant = HybridPlant(P)
     vmin, vmax, h = plant._v_min_list, plant._v_max_list, plant.hysteresis_mps
     bands = _zone_bands(vmin, vmax, h)
-    edges = sorted({e + d for e in vmin + vmax for e in (e, e - h, e + h)
-                    for d in (-1e-9, 0.0, 1e-9)})
+    edges = sorted(
+        {e + d for e in vmin + vmax for e in (e, e - h, e + h) for d in (-1e-9, 0.0, 1e-9)}
+    )
     speeds = edges + list(np.linspace(-1.0, 40.0, 400)) + [math.nan, math.inf]
     for cur in [None] + list(range(len(vmax))):
         for v in speeds:
-            fast = cur if cur is not None and bands[cur][0] <= v <= bands[cur][1] else \
-                zone_with_hysteresis(v, cur, vmin, vmax, h, clamp=True)
+            fast = (
+                cur
+                if cur is not None and bands[cur][0] <= v <= bands[cur][1]
+                else zone_with_hysteresis(v, cur, vmin, vmax, h, clamp=True)
+            )
             assert fast == zone_with_hysteresis(v, cur, vmin, vmax, h, clamp=True), (cur, v)
 
 
@@ -117,7 +138,7 @@ def test_updates_equal_the_textbook_kalman_update(seed):
             h = est._h_wyaw
             h[:] = 0.0
             h[[3, 4, 6]] = rng.normal(size=3)
-            H, y, R = h[None, :].copy(), np.array([rng.normal(0, 0.05)]), np.array([[0.02 ** 2]])
+            H, y, R = h[None, :].copy(), np.array([rng.normal(0, 0.05)]), np.array([[0.02**2]])
             ok = est._update1(h, float(y[0]), float(R[0, 0]), "wheel_yaw_rate")
             gate = est._gate[1]
         else:

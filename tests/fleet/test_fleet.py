@@ -3,6 +3,7 @@ unchanged over its drives, vehicle B whose pedal gains fall 20 % from its third 
 finishes every drive, a rerun skips them all, the report pools A's steering scale near the
 truth, finds no drift on A and B's step at B3; a scheduler with two workers started as separate
 processes gives the same table; a corrupt drive fails alone."""
+
 import hashlib
 import json
 import os
@@ -36,18 +37,44 @@ def fleet(tmp_path_factory):
     d = tmp_path_factory.mktemp("fleet")
     manifest = write_fleet(d / "drives", VEHICLES, DRIVES_PER_VEHICLE, duration_s=DRIVE_S)
     store = d / "store"
-    rc = cli.main(["fleet", "run", str(manifest), "--out", str(store), "--workers", "2",
-                   "--steps", STEPS, "--json", str(d / "run1.json")])
+    rc = cli.main(
+        [
+            "fleet",
+            "run",
+            str(manifest),
+            "--out",
+            str(store),
+            "--workers",
+            "2",
+            "--steps",
+            STEPS,
+            "--json",
+            str(d / "run1.json"),
+        ]
+    )
     assert rc == 0
-    return {"dir": d, "manifest": manifest, "store": store,
-            "run1": json.loads((d / "run1.json").read_text())}
+    return {
+        "dir": d,
+        "manifest": manifest,
+        "store": store,
+        "run1": json.loads((d / "run1.json").read_text()),
+    }
 
 
 @pytest.fixture(scope="module")
 def report(fleet):
     d = fleet["dir"]
-    rc = cli.main(["fleet", "report", str(fleet["store"]), "--json", str(d / "report.json"),
-                   "--html", str(d / "html")])
+    rc = cli.main(
+        [
+            "fleet",
+            "report",
+            str(fleet["store"]),
+            "--json",
+            str(d / "report.json"),
+            "--html",
+            str(d / "html"),
+        ]
+    )
     assert rc == 0
     return json.loads((d / "report.json").read_text())
 
@@ -63,8 +90,9 @@ def test_every_drive_finishes_and_its_folder_holds_each_output(fleet):
         assert status["exit"] == 0 and status["error"] is None
         assert status["steps"] == ["ingest", "identify"]
         rec = fleet["manifest"].parent / f"{did}.parquet"
-        assert status["inputs"]["recording"]["sha256"] == hashlib.sha256(
-            rec.read_bytes()).hexdigest()
+        assert (
+            status["inputs"]["recording"]["sha256"] == hashlib.sha256(rec.read_bytes()).hexdigest()
+        )
         assert status["hmpc_version"] and status["timings_s"]["identify"] > 0
         assert load_params(folder / "params.yaml", require_model=True).steering.scale > 0
         assert (folder / "recording.parquet").stat().st_size > 0
@@ -74,8 +102,21 @@ def test_every_drive_finishes_and_its_folder_holds_each_output(fleet):
 def test_a_rerun_skips_every_finished_drive_and_rewrites_nothing(fleet, tmp_path):
     status = fleet["store"] / "drives" / "A1" / "status.json"
     before = status.stat().st_mtime_ns
-    rc = cli.main(["fleet", "run", str(fleet["manifest"]), "--out", str(fleet["store"]),
-                   "--workers", "2", "--steps", STEPS, "--json", str(tmp_path / "run2.json")])
+    rc = cli.main(
+        [
+            "fleet",
+            "run",
+            str(fleet["manifest"]),
+            "--out",
+            str(fleet["store"]),
+            "--workers",
+            "2",
+            "--steps",
+            STEPS,
+            "--json",
+            str(tmp_path / "run2.json"),
+        ]
+    )
     run2 = json.loads((tmp_path / "run2.json").read_text())
     assert rc == 0 and run2["done"] == [] and run2["failed"] == []
     assert sorted(run2["skipped"]) == sorted(fleet["run1"]["done"])
@@ -118,18 +159,32 @@ def test_html_report_has_a_figure_per_vehicle_and_links_to_the_drives(report, fl
     assert all((html_dir / link).resolve().exists() for link in links)
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="no chromium on this machine "
-                    "(apt-get install chromium); the HTML test above still runs")
+@pytest.mark.skipif(
+    CHROMIUM is None,
+    reason="no chromium on this machine (apt-get install chromium); the HTML test above still runs",
+)
 def test_html_report_renders_in_headless_chromium(report, fleet, tmp_path):
     import numpy as np
     from matplotlib.image import imread
 
     shot = tmp_path / "shot.png"
     url = (fleet["dir"] / "html" / "index.html").resolve().as_uri()
-    subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu",
-                    "--hide-scrollbars", f"--user-data-dir={tmp_path / 'profile'}",
-                    "--window-size=1200,1600", f"--screenshot={shot}", url],
-                   check=True, capture_output=True, timeout=120)
+    subprocess.run(
+        [
+            CHROMIUM,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--hide-scrollbars",
+            f"--user-data-dir={tmp_path / 'profile'}",
+            "--window-size=1200,1600",
+            f"--screenshot={shot}",
+            url,
+        ],
+        check=True,
+        capture_output=True,
+        timeout=120,
+    )
     img = imread(shot)
     assert img.shape[0] >= 1000 and float(np.std(img[..., :3])) > 0.05
 
@@ -139,17 +194,35 @@ def _table_hash(store) -> str:
 
 
 def _pooled(report_json: dict) -> dict:
-    return {(vid, k): e["pooled"] for vid, v in report_json["vehicles"].items()
-            for k, e in v["parameters"].items()}
+    return {
+        (vid, k): e["pooled"]
+        for vid, v in report_json["vehicles"].items()
+        for k, e in v["parameters"].items()
+    }
 
 
 def test_a_scheduler_with_two_worker_processes_gives_the_same_results(fleet, report, tmp_path):
     dask = [sys.executable, "-m", "dask"]
     sched_file = tmp_path / "scheduler.json"
     env = {**os.environ, "DASK_DISTRIBUTED__WORKER__DAEMON": "False"}
-    procs = [subprocess.Popen(dask + ["scheduler", "--host", "127.0.0.1", "--port", "0",
-                                      "--no-dashboard", "--scheduler-file", str(sched_file)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)]
+    procs = [
+        subprocess.Popen(
+            dask
+            + [
+                "scheduler",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                "0",
+                "--no-dashboard",
+                "--scheduler-file",
+                str(sched_file),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=env,
+        )
+    ]
     try:
         for _ in range(600):
             if sched_file.exists() and sched_file.stat().st_size:
@@ -157,18 +230,46 @@ def test_a_scheduler_with_two_worker_processes_gives_the_same_results(fleet, rep
             time.sleep(0.1)
         address = json.loads(sched_file.read_text())["address"]
         for _ in range(2):
-            procs.append(subprocess.Popen(
-                dask + ["worker", "--scheduler-file", str(sched_file), "--nthreads", "1",
-                        "--no-dashboard", "--host", "127.0.0.1"],
-                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env))
+            procs.append(
+                subprocess.Popen(
+                    dask
+                    + [
+                        "worker",
+                        "--scheduler-file",
+                        str(sched_file),
+                        "--nthreads",
+                        "1",
+                        "--no-dashboard",
+                        "--host",
+                        "127.0.0.1",
+                    ],
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.DEVNULL,
+                    env=env,
+                )
+            )
         store = tmp_path / "store"
-        rc = cli.main(["fleet", "run", str(fleet["manifest"]), "--out", str(store),
-                       "--scheduler", address, "--steps", STEPS,
-                       "--json", str(tmp_path / "run.json")])
+        rc = cli.main(
+            [
+                "fleet",
+                "run",
+                str(fleet["manifest"]),
+                "--out",
+                str(store),
+                "--scheduler",
+                address,
+                "--steps",
+                STEPS,
+                "--json",
+                str(tmp_path / "run.json"),
+            ]
+        )
         run = json.loads((tmp_path / "run.json").read_text())
         assert rc == 0 and len(run["done"]) == 2 * DRIVES_PER_VEHICLE
-        workers = {json.loads((store / "drives" / d / "status.json").read_text())["worker"]
-                   for d in run["done"]}
+        workers = {
+            json.loads((store / "drives" / d / "status.json").read_text())["worker"]
+            for d in run["done"]
+        }
         assert all(str(os.getpid()) != w.rsplit(":", 1)[1] for w in workers)
     finally:
         for p in procs:
@@ -197,15 +298,28 @@ def test_a_corrupt_drive_fails_alone_and_the_rest_finish(fleet, tmp_path, capsys
     dbc = bundled("dbc/toyota_rav4_2017.dbc.gz")
     sig = PARAMS_DIR / "toyota_rav4_2017.signals.yaml"
     m = tmp_path / "m.csv"
-    m.write_text("vehicle_id,drive_id,start_time,geometry,recording,log,dbc,signals\n"
-                 f"A,A1,2026-01-05T08:00:00Z,{src / 'A.geometry.yaml'},{src / 'A1.parquet'},,,\n"
-                 f"R,R1,2026-01-05T09:00:00Z,{PARAMS_DIR / 'toyota_rav4_2017.yaml'},,{log},"
-                 f"{dbc},{sig}\n"
-                 f"A,A9,2026-01-06T08:00:00Z,{src / 'A.geometry.yaml'},"
-                 f"{tmp_path / 'gone.csv'},,,\n")
+    m.write_text(
+        "vehicle_id,drive_id,start_time,geometry,recording,log,dbc,signals\n"
+        f"A,A1,2026-01-05T08:00:00Z,{src / 'A.geometry.yaml'},{src / 'A1.parquet'},,,\n"
+        f"R,R1,2026-01-05T09:00:00Z,{PARAMS_DIR / 'toyota_rav4_2017.yaml'},,{log},"
+        f"{dbc},{sig}\n"
+        f"A,A9,2026-01-06T08:00:00Z,{src / 'A.geometry.yaml'},"
+        f"{tmp_path / 'gone.csv'},,,\n"
+    )
     store = tmp_path / "store"
-    rc = cli.main(["fleet", "run", str(m), "--out", str(store), "--workers", "2",
-                   "--json", str(tmp_path / "run.json")])
+    rc = cli.main(
+        [
+            "fleet",
+            "run",
+            str(m),
+            "--out",
+            str(store),
+            "--workers",
+            "2",
+            "--json",
+            str(tmp_path / "run.json"),
+        ]
+    )
     out = capsys.readouterr().out
     run = json.loads((tmp_path / "run.json").read_text())
     assert rc == 1 and run["done"] == ["A1"]
@@ -220,8 +334,20 @@ def test_a_corrupt_drive_fails_alone_and_the_rest_finish(fleet, tmp_path, capsys
     load_params(good / "params.yaml", require_model=True)
     for did in ("R1", "A9"):  # a failed drive keeps only its status
         assert [p.name for p in (store / "drives" / did).iterdir()] == ["status.json"]
-    assert cli.main(["fleet", "report", str(store), "--json", str(tmp_path / "r.json"),
-                     "--html", str(tmp_path / "html")]) == 0
+    assert (
+        cli.main(
+            [
+                "fleet",
+                "report",
+                str(store),
+                "--json",
+                str(tmp_path / "r.json"),
+                "--html",
+                str(tmp_path / "html"),
+            ]
+        )
+        == 0
+    )
     rep = json.loads((tmp_path / "r.json").read_text())
     assert {f["drive_id"] for f in rep["failed"]} == {"R1", "A9"}
     html = (tmp_path / "html" / "index.html").read_text()
@@ -234,10 +360,25 @@ def test_ctrl_c_leaves_every_finished_drive_usable_and_a_rerun_does_the_rest(fle
     """SIGINT to the whole process group (what Ctrl-C in a terminal sends) once the first
     drive is in the store."""
     store = tmp_path / "store"
-    cmd = [sys.executable, "-m", "hmpc", "fleet", "run", str(fleet["manifest"]), "--out",
-           str(store), "--workers", "2", "--steps", STEPS, "--json", str(tmp_path / "run.json")]
-    p = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True)
+    cmd = [
+        sys.executable,
+        "-m",
+        "hmpc",
+        "fleet",
+        "run",
+        str(fleet["manifest"]),
+        "--out",
+        str(store),
+        "--workers",
+        "2",
+        "--steps",
+        STEPS,
+        "--json",
+        str(tmp_path / "run.json"),
+    ]
+    p = subprocess.Popen(
+        cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     try:
         for _ in range(6000):
             if any((store / "drives").glob("*/status.json")) or p.poll() is not None:
@@ -258,8 +399,21 @@ def test_ctrl_c_leaves_every_finished_drive_usable_and_a_rerun_does_the_rest(fle
         assert status["exit"] == 0, status
         load_params(store / "drives" / did / "params.yaml", require_model=True)
     assert sorted(run["done"]) == finished
-    rc = cli.main(["fleet", "run", str(fleet["manifest"]), "--out", str(store), "--workers",
-                   "2", "--steps", STEPS, "--json", str(tmp_path / "run2.json")])
+    rc = cli.main(
+        [
+            "fleet",
+            "run",
+            str(fleet["manifest"]),
+            "--out",
+            str(store),
+            "--workers",
+            "2",
+            "--steps",
+            STEPS,
+            "--json",
+            str(tmp_path / "run2.json"),
+        ]
+    )
     run2 = json.loads((tmp_path / "run2.json").read_text())
     assert rc == 0 and sorted(run2["skipped"]) == finished
     assert len(run2["done"]) == 2 * DRIVES_PER_VEHICLE - len(finished)

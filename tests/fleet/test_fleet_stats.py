@@ -1,6 +1,7 @@
 """The fleet report's statistics and the manifest: pooling against an independent
 DerSimonian-Laird computation, drift found where it was planted and not where there is none
 (seeded false-alarm rates), and bad manifests refused in one line naming the file and line."""
+
 import math
 
 import numpy as np
@@ -15,12 +16,12 @@ from hmpc.tools import cli
 def _dl_reference(y, se):
     """DerSimonian and Laird (1986), written out term by term as the paper gives it."""
     k = len(y)
-    w = [1 / s ** 2 for s in se]
+    w = [1 / s**2 for s in se]
     sw = sum(w)
     ybar = sum(wi * yi for wi, yi in zip(w, y)) / sw
     q = sum(wi * (yi - ybar) ** 2 for wi, yi in zip(w, y))
     tau2 = max(0.0, (q - (k - 1)) / (sw - sum(wi * wi for wi in w) / sw))
-    ws = [1 / (s ** 2 + tau2) for s in se]
+    ws = [1 / (s**2 + tau2) for s in se]
     m = sum(wi * yi for wi, yi in zip(ws, y)) / sum(ws)
     return m, 1 / math.sqrt(sum(ws)), tau2
 
@@ -33,7 +34,7 @@ def test_pool_is_dersimonian_laird_and_widens_when_drives_disagree():
     assert ci[1] - ci[0] == pytest.approx(2 * Z95 * se_ref, rel=1e-12)
     assert tau2 > 0  # these drives disagree beyond their intervals
     # fixed-effect interval would be narrower: the between-drive term widened it
-    fixed_se = 1 / math.sqrt(sum(1 / s ** 2 for s in se))
+    fixed_se = 1 / math.sqrt(sum(1 / s**2 for s in se))
     assert (ci[1] - ci[0]) / 2 > Z95 * fixed_se * 1.5
     # agreeing drives: tau^2 = 0 and the plain inverse-variance mean
     m2, ci2, t2 = pool([2.0, 2.0, 2.0], [0.1, 0.2, 0.1])
@@ -88,19 +89,31 @@ def _manifest(tmp_path, text):
     return p
 
 
-@pytest.mark.parametrize("text, needle", [
-    ("vehicle_id,drive_id,start_time,geometry,recording,colour\n", "line 1: unknown column"),
-    ("vehicle_id,drive_id,geometry,recording\n", "line 1: missing column(s) start_time"),
-    ("vehicle_id,drive_id,start_time,geometry,recording\n"
-     "A,A1,2026-01-05T08:00:00Z,g.yaml,r.csv\nA,A1,2026-01-06T08:00:00Z,g.yaml,r2.csv\n",
-     "line 3: drive_id 'A1' repeats line 2"),
-    ("vehicle_id,drive_id,start_time,geometry,recording\nA,A1,yesterday,g.yaml,r.csv\n",
-     "line 2: start_time 'yesterday' is not ISO 8601"),
-    ("vehicle_id,drive_id,start_time,geometry,recording,log,dbc,signals\n"
-     "A,A1,2026-01-05T08:00:00Z,g.yaml,,can.log,,s.yaml\n", "the raw log lacks dbc"),
-    ("vehicle_id,drive_id,start_time,geometry,recording\nA/..,A1,2026-01-05T08:00:00Z,g,r\n",
-     "vehicle_id 'A/..' must be letters"),
-])
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("vehicle_id,drive_id,start_time,geometry,recording,colour\n", "line 1: unknown column"),
+        ("vehicle_id,drive_id,geometry,recording\n", "line 1: missing column(s) start_time"),
+        (
+            "vehicle_id,drive_id,start_time,geometry,recording\n"
+            "A,A1,2026-01-05T08:00:00Z,g.yaml,r.csv\nA,A1,2026-01-06T08:00:00Z,g.yaml,r2.csv\n",
+            "line 3: drive_id 'A1' repeats line 2",
+        ),
+        (
+            "vehicle_id,drive_id,start_time,geometry,recording\nA,A1,yesterday,g.yaml,r.csv\n",
+            "line 2: start_time 'yesterday' is not ISO 8601",
+        ),
+        (
+            "vehicle_id,drive_id,start_time,geometry,recording,log,dbc,signals\n"
+            "A,A1,2026-01-05T08:00:00Z,g.yaml,,can.log,,s.yaml\n",
+            "the raw log lacks dbc",
+        ),
+        (
+            "vehicle_id,drive_id,start_time,geometry,recording\nA/..,A1,2026-01-05T08:00:00Z,g,r\n",
+            "vehicle_id 'A/..' must be letters",
+        ),
+    ],
+)
 def test_a_bad_manifest_is_refused_naming_file_and_line(tmp_path, capsys, text, needle):
     m = _manifest(tmp_path, text)
     with pytest.raises(InputError) as e:
@@ -113,8 +126,11 @@ def test_a_bad_manifest_is_refused_naming_file_and_line(tmp_path, capsys, text, 
 
 
 def test_manifest_paths_are_relative_to_its_folder_and_times_utc(tmp_path):
-    m = _manifest(tmp_path, "vehicle_id,drive_id,start_time,geometry,recording\n"
-                            "A,A1,2026-01-05T09:00:00+01:00,g.yaml,sub/r.parquet\n")
+    m = _manifest(
+        tmp_path,
+        "vehicle_id,drive_id,start_time,geometry,recording\n"
+        "A,A1,2026-01-05T09:00:00+01:00,g.yaml,sub/r.parquet\n",
+    )
     (d,) = read_manifest(m)
     assert d.start_time == "2026-01-05T08:00:00Z"
     assert d.files["recording"] == str((tmp_path / "sub" / "r.parquet").resolve())
@@ -125,12 +141,22 @@ def test_vehicles_of_one_model_compared_and_the_one_that_differs_named():
     from hmpc.models.fleet.report import _compare
 
     def veh(value, half_width):
-        return {"parameters": {"steering.scale": {
-            "pooled": value, "ci95": [value - half_width, value + half_width],
-            "drift": None}}}
+        return {
+            "parameters": {
+                "steering.scale": {
+                    "pooled": value,
+                    "ci95": [value - half_width, value + half_width],
+                    "drift": None,
+                }
+            }
+        }
 
-    vehicles = {"V1": veh(0.0800, 0.0002), "V2": veh(0.0801, 0.0002),
-                "V3": veh(0.0799, 0.0002), "V4": veh(0.0850, 0.0002)}
+    vehicles = {
+        "V1": veh(0.0800, 0.0002),
+        "V2": veh(0.0801, 0.0002),
+        "V3": veh(0.0799, 0.0002),
+        "V4": veh(0.0850, 0.0002),
+    }
     out = _compare(sorted(vehicles), vehicles)["steering.scale"]
     assert out["differs"] == ["V4"]
     assert set(out["vehicles"]) == set(vehicles) and out["between_vehicle_sd"] > 0.001
@@ -143,12 +169,16 @@ def test_vehicles_of_one_model_compared_and_the_one_that_differs_named():
 def test_a_finished_drive_is_skipped_only_for_the_same_inputs_version_and_steps():
     from hmpc.models.fleet.store import finished
 
-    status = {"exit": 0, "inputs_sha256": "abc", "hmpc_version": "1.0",
-              "steps": ["ingest", "identify"]}
+    status = {
+        "exit": 0,
+        "inputs_sha256": "abc",
+        "hmpc_version": "1.0",
+        "steps": ["ingest", "identify"],
+    }
     assert finished(status, "abc", "1.0", ("identify",))
     assert finished(status, "abc", "1.0", ("ingest", "identify"))
     assert not finished(status, "abc", "1.0", ("ingest", "identify", "diagnose"))
-    assert not finished(status, "abd", "1.0", ("identify",))      # an input changed
-    assert not finished(status, "abc", "1.1", ("identify",))      # another hmpc
+    assert not finished(status, "abd", "1.0", ("identify",))  # an input changed
+    assert not finished(status, "abc", "1.1", ("identify",))  # another hmpc
     assert not finished({**status, "exit": 2}, "abc", "1.0", ("identify",))  # it failed
-    assert not finished(None, "abc", "1.0", ("identify",))        # never run
+    assert not finished(None, "abc", "1.0", ("identify",))  # never run

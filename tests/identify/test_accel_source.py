@@ -13,6 +13,7 @@ Figures measured when written (seed 22): clean, wheel_speeds chosen (score 0.000
 every zone scale within 2.3 % of the truth; GNSS latency, wheel_speeds chosen (0.146 against
 gps_speed 0.201) and the GNSS source's own dead time 0.31 s.
 """
+
 from __future__ import annotations
 
 import json
@@ -97,7 +98,8 @@ def test_a_wrong_tyre_radius_moves_the_choice_off_the_wheel_speeds(channels, veh
 
 
 def test_gnss_latency_moves_the_choice_off_the_gnss_speed_and_shows_as_its_dead_time(
-        channels, vehicle):
+    channels, vehicle
+):
     res = _identify(_gnss_late(channels), vehicle)
     sel = res.report["selection"]
     sc = sel["scores"]
@@ -105,7 +107,7 @@ def test_gnss_latency_moves_the_choice_off_the_gnss_speed_and_shows_as_its_dead_
     assert sel["chosen"] != "gps_speed"
     assert sc["gps_speed"]["score_mps2"] > sc[sel["chosen"]]["score_mps2"]
     assert sc["gps_speed"]["dead_time_s"] == pytest.approx(0.3, abs=0.03)
-    assert res.dead_time_s < 2 / 50.0   # the pedals themselves have no dead time
+    assert res.dead_time_s < 2 / 50.0  # the pedals themselves have no dead time
     _within_truth(res)
 
 
@@ -146,8 +148,12 @@ def test_the_choice_and_every_score_reach_the_json_the_file_and_the_summary(tmp_
     rec = ct.write_recording(_gnss_late(ct.record(sc)), tmp_path / "r.csv")
     geo = ct.write_geometry(tmp_path / "g.yaml")
     out, js = tmp_path / "p.yaml", tmp_path / "r.json"
-    assert cli.main(["identify", str(rec), "--vehicle", str(geo), "--out", str(out),
-                     "--json", str(js)]) == 0
+    assert (
+        cli.main(
+            ["identify", str(rec), "--vehicle", str(geo), "--out", str(out), "--json", str(js)]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     sel = json.loads(js.read_text())["longitudinal"]["selection"]
     assert sel["chosen"] != "gps_speed"

@@ -1,5 +1,6 @@
 """Fast Orthogonal Search (models.identify.fos): finds the true terms among distractors, and its
 coefficients are ordinary least squares on the terms it selected."""
+
 import numpy as np
 import pytest
 
@@ -13,10 +14,16 @@ def _system(seed, n=4000, noise=0.1):
     rng = np.random.default_rng(seed)
     base = rng.normal(size=(n, 10))
     names = ["1"] + [f"p{i}" for i in range(1, 10)] + ["p3*p5", "p7^2", "p3_alias", "p1*p2"]
-    P = np.column_stack([np.ones(n), base[:, 1:],
-                         base[:, 3] * base[:, 5], base[:, 7] ** 2,
-                         0.8 * base[:, 3] + 0.6 * base[:, 9] + 0.05 * rng.normal(size=n),
-                         base[:, 1] * base[:, 2]])
+    P = np.column_stack(
+        [
+            np.ones(n),
+            base[:, 1:],
+            base[:, 3] * base[:, 5],
+            base[:, 7] ** 2,
+            0.8 * base[:, 3] + 0.6 * base[:, 9] + 0.05 * rng.normal(size=n),
+            base[:, 1] * base[:, 2],
+        ]
+    )
     y = 0.7 + 2.0 * P[:, 3] - 1.5 * P[:, 7] + 0.4 * P[:, names.index("p3*p5")]
     y = y + noise * rng.normal(size=n)
     return P, y, names
@@ -56,13 +63,13 @@ def test_fos_coefficients_equal_least_squares_on_the_selected_terms():
 def test_error_reductions_account_for_the_training_mse():
     P, y, names = _system(SEED, noise=0.3)
     res = fos(P, y, names, holdout=None, max_terms=5, min_reduction=0.0, noise_threshold=False)
-    y2 = float(np.mean(y ** 2))
+    y2 = float(np.mean(y**2))
     path = res.train_mse_path
     assert path[0] == pytest.approx(y2)
-    assert np.all(np.diff(path) <= 1e-12)                      # never increases
+    assert np.all(np.diff(path) <= 1e-12)  # never increases
     assert path[0] - path[-1] == pytest.approx(res.error_reduction.sum(), rel=1e-9)
     resid = y - res.predict(P)
-    assert path[-1] == pytest.approx(np.mean(resid ** 2), rel=1e-9)  # implicit = explicit
+    assert path[-1] == pytest.approx(np.mean(resid**2), rel=1e-9)  # implicit = explicit
 
 
 def test_pure_noise_selects_nothing_beyond_the_forced_constant():
@@ -78,8 +85,15 @@ def test_pure_noise_selects_nothing_beyond_the_forced_constant():
 def test_linearly_dependent_candidate_is_never_selected_twice():
     P, y, names = _system(SEED)
     P2 = np.column_stack([P, 3.0 * P[:, 3]])
-    res = fos(P2, y, names + ["3*p3"], holdout=None, max_terms=P2.shape[1], min_reduction=0.0,
-              noise_threshold=False)
+    res = fos(
+        P2,
+        y,
+        names + ["3*p3"],
+        holdout=None,
+        max_terms=P2.shape[1],
+        min_reduction=0.0,
+        noise_threshold=False,
+    )
     assert not {"p3", "3*p3"} <= set(res.terms)
     assert "linearly dependent" in res.stop_reason
 

@@ -13,6 +13,7 @@ happened to do:
 - the parts that did not need the removed channel come out as from the full recording;
 - exit 2 with one line naming a channel only when nothing at all can be identified.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -29,8 +30,18 @@ from hmpc.tools.cli import main
 WHEEL_SPEEDS = ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")
 #: every navigation and inertial channel (GNSS/INS position and attitude, IMU or CAN gyro and
 #: accelerometers): what is left is the car's wheel speeds, pedals and steering-wheel angle
-INERTIAL_AND_NAV = ("x", "y", "z", "heading", "pitch", "roll", "gps_speed", "yaw_rate", "accel_x",
-                    "accel_y")
+INERTIAL_AND_NAV = (
+    "x",
+    "y",
+    "z",
+    "heading",
+    "pitch",
+    "roll",
+    "gps_speed",
+    "yaw_rate",
+    "accel_x",
+    "accel_y",
+)
 #: group -> columns dropped from the canonical recording ("ins" is an ingest without the INS
 #: files for the comma minute; the VerifiedCAN drive has no INS, so it equals the full drive)
 GROUPS = {
@@ -44,24 +55,32 @@ GROUPS = {
     "ins": (),
     "inertial_and_nav": INERTIAL_AND_NAV,
 }
-GEOMETRY = {"comma": PARAMS_DIR / "toyota_rav4_2017.yaml",
-            "vcan": PARAMS_DIR / "toyota_rav4_2019.yaml"}
+GEOMETRY = {
+    "comma": PARAMS_DIR / "toyota_rav4_2017.yaml",
+    "vcan": PARAMS_DIR / "toyota_rav4_2019.yaml",
+}
 
 
 def _parts_missing(p: dict) -> dict:
     """The parts (steering, longitudinal) a file names as not identified; zone values copied
     from another zone (``longitudinal.zones.<zone>.<key>``, the real logs have no idle or low
     zone data) are named there too but leave the part identified."""
-    return {k: v for k, v in (p.get("not_identified") or {}).items()
-            if k in ("steering", "longitudinal")}
+    return {
+        k: v
+        for k, v in (p.get("not_identified") or {}).items()
+        if k in ("steering", "longitudinal")
+    }
 
 
 @pytest.fixture(scope="session")
 def canonical(comma_ingest, comma_can_ingest, vcan_ingest):
     """The canonical recordings (conftest's shared ingests): full, and the comma minute from
     CAN alone."""
-    return {"comma": comma_ingest.recording, "comma_can_only": comma_can_ingest.recording,
-            "vcan": vcan_ingest.recording}
+    return {
+        "comma": comma_ingest.recording,
+        "comma_can_only": comma_can_ingest.recording,
+        "vcan": vcan_ingest.recording,
+    }
 
 
 @pytest.fixture(scope="session")
@@ -76,21 +95,39 @@ def run_identify(canonical, tmp_path_factory):
         if key in cache:
             return cache[key]
         rec = canonical[base or name]
-        ch = {k: v for k, v in rec.channels.items()
-              if k not in drop and (keep is None or k == "time" or k in keep)}
+        ch = {
+            k: v
+            for k, v in rec.channels.items()
+            if k not in drop and (keep is None or k == "time" or k in keep)
+        }
         tag = f"{base or name}_{len(cache)}"
         csv, out, js = (folder / f"{tag}.csv", folder / f"{tag}.yaml", folder / f"{tag}.json")
         Recording(ch, {}, dict(rec.meta)).save(csv)
         err, out_text = io.StringIO(), io.StringIO()
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out_text):
-            rc = main(["identify", str(csv), "--vehicle", str(GEOMETRY[name]), "--out", str(out),
-                       "--json", str(js)])
-        res = {"rc": rc, "err": [ln for ln in err.getvalue().splitlines() if "error" in ln],
-               "stdout": out_text.getvalue(),
-               "csv": csv, "params": yaml.safe_load(out.read_text()) if rc == 0 else None,
-               "json": json.loads(js.read_text()) if rc == 0 else None}
+            rc = main(
+                [
+                    "identify",
+                    str(csv),
+                    "--vehicle",
+                    str(GEOMETRY[name]),
+                    "--out",
+                    str(out),
+                    "--json",
+                    str(js),
+                ]
+            )
+        res = {
+            "rc": rc,
+            "err": [ln for ln in err.getvalue().splitlines() if "error" in ln],
+            "stdout": out_text.getvalue(),
+            "csv": csv,
+            "params": yaml.safe_load(out.read_text()) if rc == 0 else None,
+            "json": json.loads(js.read_text()) if rc == 0 else None,
+        }
         cache[key] = res
         return res
+
     return run
 
 
@@ -186,8 +223,7 @@ def test_without_the_accelerator_pedal_the_acc_request_is_the_input(run_identify
 
 
 @pytest.mark.parametrize("name", RECORDINGS)
-def test_without_the_brake_the_accelerator_zones_remain_and_the_brake_is_named(run_identify,
-                                                                               name):
+def test_without_the_brake_the_accelerator_zones_remain_and_the_brake_is_named(run_identify, name):
     """The brake is (nearly) never pressed on either drive: the accelerator terms come out as
     with it; the parameter file says the brake term was not identified, naming 'brake_pedal'
     (in every zone's note), and no zone claims a brake interval."""
@@ -291,8 +327,10 @@ def test_without_any_inertial_or_nav_channel_the_wheel_speeds_suffice(run_identi
 def test_a_steering_only_recording_gives_the_steering_map(run_identify, name):
     """steering_wheel_angle, the four wheel speeds and yaw rate: the steering map, no zones,
     and longitudinal named as not identified with the pedal channel."""
-    res, full = run_identify(name, keep=("steering_wheel_angle", *WHEEL_SPEEDS, "yaw_rate")), \
-        run_identify(name)
+    res, full = (
+        run_identify(name, keep=("steering_wheel_angle", *WHEEL_SPEEDS, "yaw_rate")),
+        run_identify(name),
+    )
     assert res["rc"] == 0, res["err"]
     p = res["params"]
     assert "longitudinal" not in p and "accel_pedal" in p["not_identified"]["longitudinal"]
@@ -306,25 +344,30 @@ def test_nothing_identifiable_is_exit_2_naming_the_channel(run_identify, name):
     """No steering-wheel angle and no accelerator pedal (nor a command standing in for either):
     neither eq. 7 nor eq. 8 has its input; exit 2 with one line naming a missing input
     channel."""
-    res = run_identify(name, drop=("steering_wheel_angle", "steering_cmd",
-                                   *GROUPS["longitudinal_inputs"]))
+    res = run_identify(
+        name, drop=("steering_wheel_angle", "steering_cmd", *GROUPS["longitudinal_inputs"])
+    )
     assert res["rc"] == 2
     assert len(res["err"]) == 1, res["err"]
     assert "steering_wheel_angle" in res["err"][0] or "accel_pedal" in res["err"][0]
     assert str(res["csv"]) in res["err"][0]
 
 
-@pytest.mark.parametrize("name,group,method,channel", [
-    ("comma", "yaw_rate", "yaw_rate", "yaw_rate"),
-    ("vcan", "yaw_rate", "yaw_rate", "yaw_rate"),
-    ("comma", "wheel_speeds", "wheel_speed_difference", "wheel_speed"),
-    ("vcan", "wheel_speeds", "wheel_speed_difference", "wheel_speed"),
-    ("comma", "position_heading", "position_replay", "x"),
-    ("vcan", "position_heading", "position_replay", "x"),
-    ("comma", "ins", "position_replay", "x"),
-])
-def test_a_skipped_steering_method_is_named_with_its_channel(run_identify, name, group, method,
-                                                             channel):
+@pytest.mark.parametrize(
+    "name,group,method,channel",
+    [
+        ("comma", "yaw_rate", "yaw_rate", "yaw_rate"),
+        ("vcan", "yaw_rate", "yaw_rate", "yaw_rate"),
+        ("comma", "wheel_speeds", "wheel_speed_difference", "wheel_speed"),
+        ("vcan", "wheel_speeds", "wheel_speed_difference", "wheel_speed"),
+        ("comma", "position_heading", "position_replay", "x"),
+        ("vcan", "position_heading", "position_replay", "x"),
+        ("comma", "ins", "position_replay", "x"),
+    ],
+)
+def test_a_skipped_steering_method_is_named_with_its_channel(
+    run_identify, name, group, method, channel
+):
     res = _case(run_identify, name, group)
     assert res["rc"] == 0, res["err"]
     skipped = _skipped(res)

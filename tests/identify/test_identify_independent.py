@@ -12,6 +12,7 @@ Cases that the identification fails are marked ``xfail(strict=True)`` with their
 so that they turn into failures ("XPASS(strict)") the day identification is fixed: remove the
 mark then.
 """
+
 from __future__ import annotations
 
 import json
@@ -35,6 +36,7 @@ ZONE_SCALE_TOL = 0.05
 ZONE_OFFSET_TOL_MPS2 = 0.05
 DEAD_TIME_MAX_SAMPLES = 2
 
+
 @pytest.fixture(scope="module")
 def identified(tmp_path_factory):
     """``get(truth, ref, model='ks', **scenario)`` -> (scenario, exit code, Params, JSON)."""
@@ -45,17 +47,28 @@ def identified(tmp_path_factory):
         key = (truth, str(ref), model, lever_arm, tuple(sorted(kw.items())))
         if key not in cache:
             sc = ct.scenario(truth, ref_point=ref, model=model, **kw)
-            stem = f"{truth}_{model}_{ref}" + ("_arm" if lever_arm else "") + "".join(
-                f"_{k}-{'-'.join(sorted(v)) if isinstance(v, frozenset) else v}"
-                for k, v in sorted(kw.items()))
+            stem = (
+                f"{truth}_{model}_{ref}"
+                + ("_arm" if lever_arm else "")
+                + "".join(
+                    f"_{k}-{'-'.join(sorted(v)) if isinstance(v, frozenset) else v}"
+                    for k, v in sorted(kw.items())
+                )
+            )
             rec = ct.write_recording(ct.record(sc), base / f"{stem}.csv")
-            geo = ct.write_geometry(base / f"{stem}.geometry.yaml",
-                                    ref_point=ref if lever_arm else None)
+            geo = ct.write_geometry(
+                base / f"{stem}.geometry.yaml", ref_point=ref if lever_arm else None
+            )
             out, js = base / f"{stem}.params.yaml", base / f"{stem}.json"
-            rc = cli.main(["identify", str(rec), "--vehicle", str(geo), "--out", str(out),
-                           "--json", str(js)])
-            cache[key] = (sc, rc, load_params(out) if rc == 0 else None,
-                          json.loads(js.read_text()) if rc == 0 else None)
+            rc = cli.main(
+                ["identify", str(rec), "--vehicle", str(geo), "--out", str(out), "--json", str(js)]
+            )
+            cache[key] = (
+                sc,
+                rc,
+                load_params(out) if rc == 0 else None,
+                json.loads(js.read_text()) if rc == 0 else None,
+            )
         return cache[key]
 
     return get
@@ -67,10 +80,12 @@ def _case(truth, ref, model="ks", marks=()):
 
 #: KS: three truth sets x three reference points; ST: positions at the front axle (its
 #: steering figures include 1-2 % of understeer: tyre slip is physics the report's map lacks)
-STEER_CASES = [_case(t, r) for t in "ABC" for r in ct.REF_POINTS] + \
-              [_case(t, "front", "st") for t in "ABC"]
-ALL_CASES = [_case(t, r) for t in "ABC" for r in ct.REF_POINTS] + \
-            [_case(t, "front", "st") for t in "ABC"]
+STEER_CASES = [_case(t, r) for t in "ABC" for r in ct.REF_POINTS] + [
+    _case(t, "front", "st") for t in "ABC"
+]
+ALL_CASES = [_case(t, r) for t in "ABC" for r in ct.REF_POINTS] + [
+    _case(t, "front", "st") for t in "ABC"
+]
 #: ST cases use a gentler lateral acceleration (tyres nearer their linear range)
 ST_KW = {"lat_accel_mps2": 1.5}
 
@@ -85,9 +100,11 @@ def _get(identified, truth, ref, model):
 def test_steering_map_in_the_file_is_within_tolerance(identified, truth, ref, model):
     sc, p, rep = _get(identified, truth, ref, model)
     tr = sc.truth
-    msg = (f"seed {sc.seed}: file {p.steering.offset_rad:+.5f} + {p.steering.scale:.5f} sw "
-           f"[{p.steering.method}], truth {tr.steer_offset_rad:+.5f} + {tr.steer_scale:.5f} sw; "
-           "fits " + ", ".join(f"{k} {f['scale']:.5f}" for k, f in rep['steering']['fits'].items()))
+    msg = (
+        f"seed {sc.seed}: file {p.steering.offset_rad:+.5f} + {p.steering.scale:.5f} sw "
+        f"[{p.steering.method}], truth {tr.steer_offset_rad:+.5f} + {tr.steer_scale:.5f} sw; "
+        "fits " + ", ".join(f"{k} {f['scale']:.5f}" for k, f in rep["steering"]["fits"].items())
+    )
     assert abs(p.steering.offset_rad - tr.steer_offset_rad) <= STEER_OFFSET_TOL_RAD, msg
     assert abs(p.steering.scale / tr.steer_scale - 1.0) <= STEER_SCALE_TOL, msg
 
@@ -97,9 +114,11 @@ def test_every_zone_within_tolerance(identified, truth, ref, model):
     sc, p, _ = _get(identified, truth, ref, model)
     assert [z.name for z in p.zones] == [z.name for z in sc.truth.zones]
     for z, t in zip(p.zones, sc.truth.zones):
-        msg = (f"seed {sc.seed}, zone {z.name}: file {z.offset_mps2:+.3f} + {z.scale_mps2:.3f} ap "
-               f"- {z.brake_scale_mps2:.3f} bp, truth {t.offset_mps2:+.3f} + {t.scale_mps2:.3f} "
-               f"ap - {t.brake_scale_mps2:.3f} bp")
+        msg = (
+            f"seed {sc.seed}, zone {z.name}: file {z.offset_mps2:+.3f} + {z.scale_mps2:.3f} ap "
+            f"- {z.brake_scale_mps2:.3f} bp, truth {t.offset_mps2:+.3f} + {t.scale_mps2:.3f} "
+            f"ap - {t.brake_scale_mps2:.3f} bp"
+        )
         assert abs(z.offset_mps2 - t.offset_mps2) <= ZONE_OFFSET_TOL_MPS2, msg
         assert abs(z.scale_mps2 / t.scale_mps2 - 1.0) <= ZONE_SCALE_TOL, msg
         assert abs(z.brake_scale_mps2 / t.brake_scale_mps2 - 1.0) <= ZONE_SCALE_TOL, msg
@@ -117,11 +136,15 @@ def test_no_dead_time_is_reported_where_there_is_none(identified, truth, ref, mo
 
 # ------------------------------------------ recordings that lack channels, other rates
 
+
 def _lacking(omit, ref="front", rate=50.0, steering=True, zones=True, marks=()):
-    name = "-".join((["no-" + "-".join(sorted(omit))] if omit else []) +
-                    ([f"{rate:g}Hz"] if rate != 50.0 or not omit else []))
-    return pytest.param(frozenset(omit), ref, rate, steering, zones, marks=marks,
-                        id=f"{name}-{ref}")
+    name = "-".join(
+        (["no-" + "-".join(sorted(omit))] if omit else [])
+        + ([f"{rate:g}Hz"] if rate != 50.0 or not omit else [])
+    )
+    return pytest.param(
+        frozenset(omit), ref, rate, steering, zones, marks=marks, id=f"{name}-{ref}"
+    )
 
 
 LACKING_CASES = [
@@ -141,8 +164,9 @@ LACKING_CASES = [
 
 
 @pytest.mark.parametrize("omit,ref,rate,steering,zones", LACKING_CASES)
-def test_recordings_lacking_channels_or_at_other_rates(identified, omit, ref, rate, steering,
-                                                       zones):
+def test_recordings_lacking_channels_or_at_other_rates(
+    identified, omit, ref, rate, steering, zones
+):
     """Truth set A: what the recording supports is identified within the tolerances."""
     kw = {"rate_hz": rate} if rate != 50.0 else {}
     if omit:
@@ -152,8 +176,9 @@ def test_recordings_lacking_channels_or_at_other_rates(identified, omit, ref, ra
     tr = sc.truth
     if steering:
         assert abs(p.steering.offset_rad - tr.steer_offset_rad) <= STEER_OFFSET_TOL_RAD
-        assert abs(p.steering.scale / tr.steer_scale - 1.0) <= STEER_SCALE_TOL, \
+        assert abs(p.steering.scale / tr.steer_scale - 1.0) <= STEER_SCALE_TOL, (
             f"{p.steering.scale:.5f} [{p.steering.method}] against {tr.steer_scale}"
+        )
         steer = rep["steering"]["dead_time"]
         assert (not steer["used"]) or p.steering.dead_time_s < DEAD_TIME_MAX_SAMPLES / rate
     if zones:
@@ -184,8 +209,10 @@ def test_steering_without_wheel_speeds_uses_yaw_rate_and_speed(identified, truth
     assert "Not run: wheel_speed_difference (no channel 'wheel_speed_fl'" in p.steering.note
     assert st["speed_source"] == "speed"
     for name, f in st["fits"].items():
-        print(f"{truth} {name}: offset {f['offset_rad'] - sc.truth.steer_offset_rad:+.5f} rad, "
-              f"scale {100 * (f['scale'] / sc.truth.steer_scale - 1):+.3f} %")
+        print(
+            f"{truth} {name}: offset {f['offset_rad'] - sc.truth.steer_offset_rad:+.5f} rad, "
+            f"scale {100 * (f['scale'] / sc.truth.steer_scale - 1):+.3f} %"
+        )
     yaw = st["fits"]["yaw_rate"]
     assert abs(yaw["offset_rad"] - sc.truth.steer_offset_rad) <= STEER_OFFSET_TOL_RAD
     assert abs(yaw["scale"] / sc.truth.steer_scale - 1.0) <= STEER_SCALE_TOL
@@ -207,12 +234,14 @@ def test_gps_speed_at_an_unknown_point_is_placed_by_the_yaw_fit(identified):
 
 
 def test_gps_speed_with_the_geometry_lever_arm_needs_no_estimate(identified):
-    sc, rc, p, rep = identified("A", "front", lever_arm=True,
-                                omit=frozenset({"wheel_speeds", "speed"}))
+    sc, rc, p, rep = identified(
+        "A", "front", lever_arm=True, omit=frozenset({"wheel_speeds", "speed"})
+    )
     assert rc == 0
     yaw = rep["steering"]["fits"]["yaw_rate"]
-    assert "speed_point_k" not in yaw and "nav_lever_arm_m" in rep["steering"]["selection"][
-        "speeds"]
+    assert (
+        "speed_point_k" not in yaw and "nav_lever_arm_m" in rep["steering"]["selection"]["speeds"]
+    )
     assert abs(yaw["scale"] / sc.truth.steer_scale - 1.0) <= STEER_SCALE_TOL
     assert abs(yaw["offset_rad"] - sc.truth.steer_offset_rad) <= STEER_OFFSET_TOL_RAD
 
@@ -226,8 +255,9 @@ def test_a_steering_only_recording_gives_the_steering_map(tmp_path):
     rec = ct.write_recording(ch, tmp_path / "slalom.csv")
     geo = ct.write_geometry(tmp_path / "g.yaml")
     out, js = tmp_path / "p.yaml", tmp_path / "p.json"
-    rc = cli.main(["identify", str(rec), "--vehicle", str(geo), "--out", str(out),
-                   "--json", str(js)])
+    rc = cli.main(
+        ["identify", str(rec), "--vehicle", str(geo), "--out", str(out), "--json", str(js)]
+    )
     assert rc == 0
     p = load_params(out)
     assert abs(p.steering.offset_rad - sc.truth.steer_offset_rad) <= STEER_OFFSET_TOL_RAD
@@ -268,12 +298,14 @@ def test_the_geometry_file_with_a_lever_arm_loads(tmp_path):
     assert again == pytest.approx([ct.vehicle_params().b, 0.0])
 
 
-@pytest.mark.parametrize("bad", [[1.0], [1.0, 2.0, 3.0], [1.0, ".nan"], ["a", 0.0], 1.0,
-                                 [True, 0.0]])
+@pytest.mark.parametrize(
+    "bad", [[1.0], [1.0, 2.0, 3.0], [1.0, ".nan"], ["a", 0.0], 1.0, [True, 0.0]]
+)
 def test_a_malformed_lever_arm_is_refused_naming_the_key(tmp_path, bad):
     g = yaml.safe_load(ct.write_geometry(tmp_path / "g.yaml").read_text())
-    g["vehicle"]["nav_lever_arm_m"] = [float("nan") if v == ".nan" else v for v in bad] \
-        if isinstance(bad, list) else bad
+    g["vehicle"]["nav_lever_arm_m"] = (
+        [float("nan") if v == ".nan" else v for v in bad] if isinstance(bad, list) else bad
+    )
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(g))
     with pytest.raises(ParamError, match="nav_lever_arm_m"):
         load_params(tmp_path / "bad.yaml")
@@ -327,8 +359,9 @@ def test_front_axle_speed_follows_the_zone_law(ks_run):
     dv = np.diff(run.v_front) / ct.SIM_DT_S
     a = run.accel_truth[:-1]
     moving = (run.v_front[:-1] > 0.3) & (run.v_front[1:] > 0.3)
-    same_zone = np.array([sc.truth.zone_index(v) for v in run.v_front[:-1]]) == \
-        np.array([sc.truth.zone_index(v) for v in run.v_front[1:]])
+    same_zone = np.array([sc.truth.zone_index(v) for v in run.v_front[:-1]]) == np.array(
+        [sc.truth.zone_index(v) for v in run.v_front[1:]]
+    )
     m = moving & same_zone
     assert m.sum() > 10000
     assert np.max(np.abs(dv[m] - a[m])) < 1e-6
@@ -370,8 +403,13 @@ def test_recording_is_canonical_and_groups_are_left_out(tmp_path, rate):
     rec = Recording.load(path)  # strict: unknown columns would be refused
     assert rec.rate_hz == pytest.approx(rate, rel=1e-6)
     assert "brake_pedal" not in rec and "x" not in rec and "heading" not in rec
-    assert {"steering_wheel_angle", "wheel_speed_rr", "accel_pedal", "yaw_rate", "gps_speed"} \
-        <= set(rec.channels)
+    assert {
+        "steering_wheel_angle",
+        "wheel_speed_rr",
+        "accel_pedal",
+        "yaw_rate",
+        "gps_speed",
+    } <= set(rec.channels)
     # CAN quantisation: wheel speeds on 0.01 km/h steps, steering on 0.1 deg steps
     ws_kph = rec["wheel_speed_fl"] * 3.6 / 0.01
     assert np.allclose(ws_kph, np.round(ws_kph), atol=1e-6)

@@ -4,6 +4,7 @@ evidence; --help says which channels each part needs; figures leave out what the
 lacks and stay readable on a long straight; nothing is claimed about understeer on a
 recording that does not excite it.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -36,11 +37,23 @@ def straight_line(seed: int = 2) -> Recording:
     x = np.cumsum(v * np.cos(heading)) * 0.02
     y = np.cumsum(v * np.sin(heading)) * 0.02
     fl, fr, rl, rr = wheel_speeds(v, delta, 2.65, 1.6, 1.6)
-    return Recording({"time": t, "steering_wheel_angle": sw, "wheel_speed_fl": fl,
-                      "wheel_speed_fr": fr, "wheel_speed_rl": rl, "wheel_speed_rr": rr,
-                      "yaw_rate": yaw + rng.normal(0, 0.001, len(t)), "x": x, "y": y,
-                      "heading": heading, "speed": 0.5 * (rl + rr)}, {},
-                     {"path": "straight.csv"})
+    return Recording(
+        {
+            "time": t,
+            "steering_wheel_angle": sw,
+            "wheel_speed_fl": fl,
+            "wheel_speed_fr": fr,
+            "wheel_speed_rl": rl,
+            "wheel_speed_rr": rr,
+            "yaw_rate": yaw + rng.normal(0, 0.001, len(t)),
+            "x": x,
+            "y": y,
+            "heading": heading,
+            "speed": 0.5 * (rl + rr),
+        },
+        {},
+        {"path": "straight.csv"},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -88,8 +101,15 @@ def test_help_says_what_a_recording_must_hold(capsys):
     out = capsys.readouterr().out
     assert ei.value.code == 0
     assert "docs/conventions.md" in out
-    for ch in ("steering_wheel_angle", "wheel_speed_fl", "yaw_rate", "accel_pedal",
-               "brake_pedal", "x, y, heading", "--steering-threshold"):
+    for ch in (
+        "steering_wheel_angle",
+        "wheel_speed_fl",
+        "yaw_rate",
+        "accel_pedal",
+        "brake_pedal",
+        "x, y, heading",
+        "--steering-threshold",
+    ):
         assert ch in out, ch
 
 
@@ -104,8 +124,9 @@ def test_the_terminal_leads_with_the_model(tmp_path, capsys):
     assert lines[0].startswith("steering (eq. 7): road-wheel angle = ") and " deg + " in lines[0]
     assert lines[0].endswith("identifiable")
     zone_lines = [ln for ln in lines if "* accel_pedal - " in ln]
-    assert len(zone_lines) == 3 and all(ln.strip().startswith(n) for ln, n in
-                                        zip(zone_lines, ("idle", "low", "high")))
+    assert len(zone_lines) == 3 and all(
+        ln.strip().startswith(n) for ln, n in zip(zone_lines, ("idle", "low", "high"))
+    )
     assert all("* brake_pedal [m/s^2]" in ln for ln in zone_lines)
     first_ni = next(i for i, ln in enumerate(lines) if ln.startswith("not identified:"))
     evidence = lines.index("evidence:")

@@ -8,6 +8,7 @@ check that smoothing windows, dead-time grids and interval widths are set in sec
 samples. A parameter the 50 Hz recording did not fit from data (a zone without samples, an
 untrusted replay) has no interval to hold the others to, and is skipped with that reason.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -25,15 +26,28 @@ RATES_HZ = (10.0, 100.0)
 def _args(name: str) -> list[str]:
     if name == "comma":
         d = "rav4-comma2k19/"
-        return [str(bundled(d + "can.log.gz")), "--dbc",
-                str(bundled("dbc/toyota_rav4_2017.dbc.gz")),
-                "--signals", str(PARAMS_DIR / "toyota_rav4_2017.signals.yaml"),
-                "--nav", str(bundled(d + "nav.csv.gz")), "--imu", str(bundled(d + "imu.csv.gz")),
-                "--vehicle", str(PARAMS_DIR / "toyota_rav4_2017.yaml")]
-    return [str(bundled("rav4-2019-verifiedcan/drive.csv.gz")),
-            "--dbc", str(bundled("dbc/toyota_rav4_2019_tss2.dbc.gz")),
-            "--signals", str(PARAMS_DIR / "toyota_rav4_2019.signals.yaml"),
-            "--vehicle", str(PARAMS_DIR / "toyota_rav4_2019.yaml")]
+        return [
+            str(bundled(d + "can.log.gz")),
+            "--dbc",
+            str(bundled("dbc/toyota_rav4_2017.dbc.gz")),
+            "--signals",
+            str(PARAMS_DIR / "toyota_rav4_2017.signals.yaml"),
+            "--nav",
+            str(bundled(d + "nav.csv.gz")),
+            "--imu",
+            str(bundled(d + "imu.csv.gz")),
+            "--vehicle",
+            str(PARAMS_DIR / "toyota_rav4_2017.yaml"),
+        ]
+    return [
+        str(bundled("rav4-2019-verifiedcan/drive.csv.gz")),
+        "--dbc",
+        str(bundled("dbc/toyota_rav4_2019_tss2.dbc.gz")),
+        "--signals",
+        str(PARAMS_DIR / "toyota_rav4_2019.signals.yaml"),
+        "--vehicle",
+        str(PARAMS_DIR / "toyota_rav4_2019.yaml"),
+    ]
 
 
 @pytest.fixture(scope="session")
@@ -47,11 +61,22 @@ def identified(tmp_path_factory):
             out, js = folder / f"{name}_{rate_hz:g}.yaml", folder / f"{name}_{rate_hz:g}.json"
             err = io.StringIO()
             with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-                rc = main(["identify", *_args(name), "--rate", f"{rate_hz:g}", "--out", str(out),
-                           "--json", str(js)])
+                rc = main(
+                    [
+                        "identify",
+                        *_args(name),
+                        "--rate",
+                        f"{rate_hz:g}",
+                        "--out",
+                        str(out),
+                        "--json",
+                        str(js),
+                    ]
+                )
             assert rc == 0, err.getvalue()[-2000:]
             cache[(name, rate_hz)] = json.loads(js.read_text())
         return cache[(name, rate_hz)]
+
     return get
 
 
@@ -128,10 +153,9 @@ def test_the_recording_rate_is_the_one_asked_for(identified, name, rate_hz):
     assert identified(name, rate_hz)["provenance"]["rate_hz"] == pytest.approx(rate_hz, rel=1e-3)
 
 
-@pytest.mark.parametrize("name,rate_hz", [
-    ("comma", 10.0), ("comma", 100.0), ("vcan", 100.0),
-    ("vcan", 10.0),
-])
+@pytest.mark.parametrize(
+    "name,rate_hz", [("comma", 10.0), ("comma", 100.0), ("vcan", 100.0), ("vcan", 10.0)]
+)
 def test_a_zone_is_fitted_at_every_rate_when_it_is_at_50hz(identified, name, rate_hz):
     """The same seconds of driving support the same zones whatever the sample rate."""
     z50 = identified(name, 50.0)["params"]["longitudinal"]["zones"]

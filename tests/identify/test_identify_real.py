@@ -3,6 +3,7 @@ RAV4 drive (raw CAN only, no GNSS). Properties, not hard-coded results: there is
 here, so each interval is checked against an independent figure (the other sensor's fit, the
 maker's steering ratio, the physics of understeer); honest identifiability verdicts; NMSE%.
 The figures docs/results.md quotes are pinned in test_docs_figures.py."""
+
 import math
 
 import pytest
@@ -31,9 +32,11 @@ def _finite(*xs):
 def test_comma_minute_steering_gain_with_interval_and_honest_verdict(comma):
     st = comma.params.steering
     rep = comma.report["steering"]
-    print(f"comma steering [{st.method}]: scale {st.scale:.4f} [{st.scale_ci95[0]:.4f}, "
-          f"{st.scale_ci95[1]:.4f}], offset {st.offset_rad:+.5f} [{st.offset_ci95_rad[0]:+.5f}, "
-          f"{st.offset_ci95_rad[1]:+.5f}] rad, dead time {st.dead_time_s:.3f} s\n  {st.note}")
+    print(
+        f"comma steering [{st.method}]: scale {st.scale:.4f} [{st.scale_ci95[0]:.4f}, "
+        f"{st.scale_ci95[1]:.4f}], offset {st.offset_rad:+.5f} [{st.offset_ci95_rad[0]:+.5f}, "
+        f"{st.offset_ci95_rad[1]:+.5f}] rad, dead time {st.dead_time_s:.3f} s\n  {st.note}"
+    )
     assert _finite(st.scale, st.offset_rad, *st.scale_ci95, *st.offset_ci95_rad)
     assert st.scale > 0  # left steering turns left
     # Independent checks of the interval (no truth on real data):
@@ -69,9 +72,11 @@ def test_comma_minute_steering_gain_with_interval_and_honest_verdict(comma):
 def test_comma_minute_high_zone_model_with_nmse(comma):
     zones = {z.name: z for z in comma.params.zones}
     high = zones["high"]
-    print(f"comma high zone: a = {high.offset_mps2:+.3f} + {high.scale_mps2:.3f} accel - "
-          f"{high.brake_scale_mps2:.3f} brake, NMSE {high.nmse_pct:.1f}%, speed RMSE "
-          f"{high.speed_rmse_mps:.3f} m/s; {high.note}")
+    print(
+        f"comma high zone: a = {high.offset_mps2:+.3f} + {high.scale_mps2:.3f} accel - "
+        f"{high.brake_scale_mps2:.3f} brake, NMSE {high.nmse_pct:.1f}%, speed RMSE "
+        f"{high.speed_rmse_mps:.3f} m/s; {high.note}"
+    )
     assert high.samples > 1000
     assert _finite(high.offset_mps2, high.scale_mps2, high.nmse_pct, high.speed_rmse_mps)
     assert 0.0 < high.nmse_pct <= 100.0 + 1e-6
@@ -92,9 +97,11 @@ def test_comma_minute_high_zone_model_with_nmse(comma):
 def test_verifiedcan_drive_reports_all_three_zones_with_nmse(vcan):
     lon = vcan.report["longitudinal"]
     for z in vcan.params.zones:
-        print(f"verifiedcan {z.name}: a = {z.offset_mps2:+.3f} + {z.scale_mps2:.3f} accel - "
-              f"{z.brake_scale_mps2:.3f} brake, NMSE {z.nmse_pct}%, speed RMSE "
-              f"{z.speed_rmse_mps} m/s, {int(z.samples)} samples; {z.note}")
+        print(
+            f"verifiedcan {z.name}: a = {z.offset_mps2:+.3f} + {z.scale_mps2:.3f} accel - "
+            f"{z.brake_scale_mps2:.3f} brake, NMSE {z.nmse_pct}%, speed RMSE "
+            f"{z.speed_rmse_mps} m/s, {int(z.samples)} samples; {z.note}"
+        )
         assert z.samples > 0, z.name
         assert _finite(z.nmse_pct, z.speed_rmse_mps), z.name
         # a pedal model cannot explain ACC driving: measured NMSE 100, 100, 94.9%
@@ -134,7 +141,8 @@ def _front_speed(rec):
 
 
 def test_comma_minute_zones_without_data_are_named_not_identified_with_their_source(
-        comma, comma_can_ingest):
+    comma, comma_can_ingest
+):
     """The minute never drops below 5 m/s (checked on the recording itself), so the idle and
     low zones have no samples: every value written for them is named under not_identified,
     in the JSON's top level and the longitudinal report, with the zone it was copied from (or
@@ -157,12 +165,16 @@ def test_comma_minute_zones_without_data_are_named_not_identified_with_their_sou
             else:
                 assert key == "brake_scale_mps2"  # no zone saw the brake pressed
         assert "copied from zone 'high'" in top[f"longitudinal.zones.{name}.offset_mps2"]
-    assert not [k for k, why in top.items() if k.startswith("longitudinal.zones.high.")
-                and "copied from" in why]
+    assert not [
+        k
+        for k, why in top.items()
+        if k.startswith("longitudinal.zones.high.") and "copied from" in why
+    ]
     # the file written names them too once models.params loads such keys
     if any(k.startswith("longitudinal.zones.") for k in comma.params.not_identified):
-        assert comma.params.not_identified == {k: w for k, w in top.items()
-                                               if k in comma.params.not_identified}
+        assert comma.params.not_identified == {
+            k: w for k, w in top.items() if k in comma.params.not_identified
+        }
         assert set(comma.params.not_identified) == set(top)
 
 
@@ -171,6 +183,7 @@ def test_comma_minute_source_tie_is_called_a_tie_with_the_rule_that_broke_it(com
     every tied source with a signed score that tells them apart, and the rule (order of
     preference) that broke it; the chosen source is the first of that order among them."""
     from hmpc.models.identify.longitudinal import SOURCE_ORDER
+
     sel = comma.report["longitudinal"]["selection"]
     tied = sel["not_worse_than_best"]
     assert len(tied) >= 2  # measured: wheel_speeds, gps_speed, accel_x all within noise

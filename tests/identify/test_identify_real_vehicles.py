@@ -15,6 +15,7 @@ value checked against an independent sensor or a physical bound.
 
 Tests on ../shared/data skip when it is absent.
 """
+
 from __future__ import annotations
 
 import json
@@ -35,10 +36,16 @@ SHARED = REPO_DIR.parent / "shared" / "data"
 #: (recording folder or prefix, topic map, vehicle file); the DS2 entry needs ../shared/data
 SETS = {
     "catvehicle": (DATA_DIR / "catvehicle-bagpy", "catvehicle.topics.yaml", "catvehicle.yaml"),
-    "f1tenth_ds5": (DATA_DIR / "f1tenth-frictionmaps", "f1tenth_frictionmaps.topics.yaml",
-                    "f1tenth.yaml"),
-    "f1tenth_ds2": (SHARED / "f1tenth-frictionmaps" / "DS2_", "f1tenth_frictionmaps.topics.yaml",
-                    "f1tenth.yaml"),
+    "f1tenth_ds5": (
+        DATA_DIR / "f1tenth-frictionmaps",
+        "f1tenth_frictionmaps.topics.yaml",
+        "f1tenth.yaml",
+    ),
+    "f1tenth_ds2": (
+        SHARED / "f1tenth-frictionmaps" / "DS2_",
+        "f1tenth_frictionmaps.topics.yaml",
+        "f1tenth.yaml",
+    ),
 }
 #: [s] physical bound of a dead time between a command and the speed or yaw response: the
 #: search range of identify, and beyond any by-wire kit's or hobby servo's latency
@@ -52,8 +59,13 @@ V_MIN_MPS = 0.6
 
 
 def _run(*argv) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "hmpc", *map(str, argv)], capture_output=True,
-                          text=True, cwd=REPO_DIR, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "hmpc", *map(str, argv)],
+        capture_output=True,
+        text=True,
+        cwd=REPO_DIR,
+        timeout=600,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -72,10 +84,15 @@ def identified(tmp_path_factory):
         rec, par, js = out / "rec.csv", out / "params.yaml", out / "identify.json"
         ing = _run("ingest", src, "--topics", PARAMS_DIR / topics, "--out", rec)
         assert ing.returncode == 0, ing.stderr
-        idf = _run("identify", rec, "--vehicle", PARAMS_DIR / vehicle, "--out", par,
-                   "--json", js)
-        cache[name] = {"ingest": ing, "identify": idf, "rec": rec, "params": par, "json": js,
-                       "vehicle": PARAMS_DIR / vehicle}
+        idf = _run("identify", rec, "--vehicle", PARAMS_DIR / vehicle, "--out", par, "--json", js)
+        cache[name] = {
+            "ingest": ing,
+            "identify": idf,
+            "rec": rec,
+            "params": par,
+            "json": js,
+            "vehicle": PARAMS_DIR / vehicle,
+        }
         return cache[name]
 
     return get
@@ -89,7 +106,7 @@ def _smooth(x: np.ndarray, dt_s: float) -> np.ndarray:
 def _delayed(x: np.ndarray, tau_s: float, dt_s: float) -> np.ndarray:
     lag = int(round(tau_s / dt_s))
     out = np.full(len(x), np.nan)
-    out[lag:] = x[:len(x) - lag]
+    out[lag:] = x[: len(x) - lag]
     return out
 
 
@@ -98,7 +115,9 @@ def _speed_from_positions(rec: Recording) -> np.ndarray:
     t, x, y = rec.time, np.asarray(rec["x"], float), np.asarray(rec["y"], float)
     k = max(1, int(round(SMOOTH_S * rec.rate_hz / 2)))
     out = np.full(len(t), np.nan)
-    out[k:-k] = np.hypot(x[2 * k:] - x[:-2 * k], y[2 * k:] - y[:-2 * k]) / (t[2 * k:] - t[:-2 * k])
+    out[k:-k] = np.hypot(x[2 * k :] - x[: -2 * k], y[2 * k :] - y[: -2 * k]) / (
+        t[2 * k :] - t[: -2 * k]
+    )
     return out
 
 
@@ -131,10 +150,11 @@ def _closed_loop_errors(rec: Recording, params, reference: np.ndarray, segment_s
 
 
 def _rms(e: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(e ** 2)))
+    return float(np.sqrt(np.mean(e**2)))
 
 
 # ---------------------------------------------------------------- both cars: the contract
+
 
 @pytest.mark.parametrize("name", list(SETS))
 def test_identify_exits_0_and_writes_a_loadable_command_model(identified, name):
@@ -146,7 +166,7 @@ def test_identify_exits_0_and_writes_a_loadable_command_model(identified, name):
     assert p.command_input == "speed_cmd" and not p.zones
     assert [z.name for z in p.command_zones] == ["idle", "low", "high"]
     for z in p.command_zones:
-        assert z.speed_cmd_gain_ps >= 0.0          # the loader refuses a negative gain
+        assert z.speed_cmd_gain_ps >= 0.0  # the loader refuses a negative gain
         # a zone value not determined by its own data is named and its zone flagged
         named = [k for k in p.not_identified if k.startswith(f"longitudinal.zones.{z.name}.")]
         assert not named or z.identifiable is False
@@ -159,8 +179,15 @@ def test_identify_exits_0_and_writes_a_loadable_command_model(identified, name):
 @pytest.mark.parametrize("name", ["catvehicle", "f1tenth_ds5"])
 def test_simulate_refuses_a_command_model_in_one_line(identified, name):
     r = identified(name)
-    sim = _run("simulate", "--params", r["params"], "--scenario", "straight", "--out",
-               r["params"].with_name("sim.csv"))
+    sim = _run(
+        "simulate",
+        "--params",
+        r["params"],
+        "--scenario",
+        "straight",
+        "--out",
+        r["params"].with_name("sim.csv"),
+    )
     assert sim.returncode == 2
     assert "Traceback" not in sim.stderr
     lines = sim.stderr.strip().splitlines()
@@ -168,6 +195,7 @@ def test_simulate_refuses_a_command_model_in_one_line(identified, name):
 
 
 # ---------------------------------------------------------------- the CAT Vehicle
+
 
 def test_catvehicle_steering_not_identified_with_reason(identified):
     r = identified("catvehicle")
@@ -187,8 +215,8 @@ def test_catvehicle_brake_channel_is_a_holding_brake(identified):
     launch = int(np.flatnonzero(fin & (v > 0.5))[0])
     standing = fin & (v < 0.05) & (np.arange(len(v)) < launch)
     driving = fin & (v > 2.0)
-    assert np.median(b[standing]) > 0.1            # held (15-22 % of the byte's range)
-    assert np.median(b[driving]) < 0.01            # released while it drives
+    assert np.median(b[standing]) > 0.1  # held (15-22 % of the byte's range)
+    assert np.median(b[driving]) < 0.01  # released while it drives
 
 
 def test_catvehicle_speed_response_follows_gnss(identified):
@@ -198,7 +226,7 @@ def test_catvehicle_speed_response_follows_gnss(identified):
     r = identified("catvehicle")
     rec, p = Recording.load(r["rec"]), load_params(r["params"])
     model, as_cmd, held = _closed_loop_errors(rec, p, np.asarray(rec["gps_speed"], float))
-    assert len(model) * (1.0 / rec.rate_hz) > 20.0     # the run moves ~28 s
+    assert len(model) * (1.0 / rec.rate_hz) > 20.0  # the run moves ~28 s
     assert _rms(model) < 0.8 * _rms(as_cmd)
     assert _rms(model) < 0.5 * _rms(held)
     # the launch zone (the only one the run exercises long enough) has a time constant
@@ -213,8 +241,9 @@ def test_catvehicle_gains_from_gnss_agree_with_those_from_the_kit_speed(identifi
     the other fit's interval."""
     r = identified("catvehicle")
     out = tmp_path / "gnss.yaml"
-    idf = _run("identify", r["rec"], "--vehicle", r["vehicle"], "--accel-source", "gps_speed",
-               "--out", out)
+    idf = _run(
+        "identify", r["rec"], "--vehicle", r["vehicle"], "--accel-source", "gps_speed", "--out", out
+    )
     assert idf.returncode == 0, idf.stderr
     kit, gnss = load_params(r["params"]), load_params(out)
     assert gnss.accel_source_chosen == "gps_speed"
@@ -226,10 +255,11 @@ def test_catvehicle_gains_from_gnss_agree_with_those_from_the_kit_speed(identifi
                 continue
             determined += 1
             assert ci[0] <= x.speed_cmd_gain_ps <= ci[1], (a.name, x, y)
-    assert determined >= 2      # the launch zone, both ways
+    assert determined >= 2  # the launch zone, both ways
 
 
 # ---------------------------------------------------------------- the F1TENTH car
+
 
 @pytest.mark.parametrize("name", ["f1tenth_ds5", "f1tenth_ds2"])
 def test_f1tenth_steering_map_from_the_command(identified, name):
@@ -261,11 +291,17 @@ def test_f1tenth_steering_scale_against_particle_filter_heading(identified, name
     hu[fin] = np.unwrap(h[fin])
     rate_pf = _smooth(np.gradient(hu, dt), dt)
     v = _smooth(np.asarray(rec["speed"], float), dt)
-    cmd = _smooth(_delayed(np.asarray(rec["steering_cmd"], float), p.steering.dead_time_s or 0.0,
-                           dt), dt)
+    cmd = _smooth(
+        _delayed(np.asarray(rec["steering_cmd"], float), p.steering.dead_time_s or 0.0, dt), dt
+    )
     accel = np.gradient(v, dt)
-    m = (np.isfinite(rate_pf) & np.isfinite(v) & np.isfinite(cmd) & (v > V_MIN_MPS)
-         & (np.abs(np.nan_to_num(accel)) < 3.0))
+    m = (
+        np.isfinite(rate_pf)
+        & np.isfinite(v)
+        & np.isfinite(cmd)
+        & (v > V_MIN_MPS)
+        & (np.abs(np.nan_to_num(accel)) < 3.0)
+    )
     assert m.sum() * dt > 30.0
 
     def rms(scale: float) -> float:
@@ -277,7 +313,7 @@ def test_f1tenth_steering_scale_against_particle_filter_heading(identified, name
     # 10 %: the same sample selection cannot be reproduced exactly here, and the car's
     # response is not linear in the command (large commands turn it less per radian)
     assert rms(p.steering.scale) <= 1.10 * best
-    assert rms(p.steering.scale) < 0.8 * rms(0.0)    # the map explains the turning at all
+    assert rms(p.steering.scale) < 0.8 * rms(0.0)  # the map explains the turning at all
 
 
 @pytest.mark.parametrize("name", ["f1tenth_ds5", "f1tenth_ds2"])

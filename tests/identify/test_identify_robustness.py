@@ -7,6 +7,7 @@ channels removed or their sign convention reversed, as a by-wire kit or a ROS ca
 them: no yaw rate and no wheel speeds (only the position replay), a pedal that reads 1 when
 released (or is not a pedal: a speed command), a steering sensor or gyro of the opposite sign.
 """
+
 from __future__ import annotations
 
 import json
@@ -53,8 +54,7 @@ def test_only_an_untrusted_replay_is_not_identified_not_a_crash(arcs, tmp_path, 
     reference point not separable (forced here by a zero lever-arm tolerance) it is never
     chosen. Steering is not identified with the reason; the pedals still give eq. 8."""
     rec = _variant(arcs, drop=("yaw_rate",) + WHEEL_SPEEDS)
-    rc, cap, out = _identify(tmp_path, capsys, rec, "--steering-threshold",
-                             "max_lever_arm_ci_m=0")
+    rc, cap, out = _identify(tmp_path, capsys, rec, "--steering-threshold", "max_lever_arm_ci_m=0")
     assert rc == 0, cap.err
     assert "Traceback" not in cap.err
     p = load_params(out)
@@ -66,8 +66,7 @@ def test_only_an_untrusted_replay_is_not_identified_not_a_crash(arcs, tmp_path, 
 
 def test_neither_part_is_exit_2_in_one_line(arcs, tmp_path, capsys):
     rec = _variant(arcs, drop=("yaw_rate", "accel_pedal", "brake_pedal") + WHEEL_SPEEDS)
-    rc, cap, out = _identify(tmp_path, capsys, rec, "--steering-threshold",
-                             "max_lever_arm_ci_m=0")
+    rc, cap, out = _identify(tmp_path, capsys, rec, "--steering-threshold", "max_lever_arm_ci_m=0")
     errors = [ln for ln in cap.err.splitlines() if "error:" in ln]
     assert rc == 2 and len(errors) == 1 and "Traceback" not in cap.err, cap.err
     err = errors[0]
@@ -103,8 +102,9 @@ def test_a_negative_gain_in_one_zone_is_copied_and_named(arcs, tmp_path, capsys)
     """The pedal reversed above 5 m/s only: the high zone's gain is set aside with the reason
     and copied from the low zone, which stays as identified."""
     v = arcs["speed"]
-    rec = _variant(arcs, accel_pedal=lambda ch: np.where(v > 5.0, 1.0 - ch["accel_pedal"],
-                                                         ch["accel_pedal"]))
+    rec = _variant(
+        arcs, accel_pedal=lambda ch: np.where(v > 5.0, 1.0 - ch["accel_pedal"], ch["accel_pedal"])
+    )
     rc, cap, out = _identify(tmp_path, capsys, rec)
     assert rc == 0, cap.err
     p = load_params(out, require_model=True)

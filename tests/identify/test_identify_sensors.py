@@ -11,6 +11,7 @@ yaw rate is untouched. What identify must do follows from that physics (catalogu
 yaw-rate fit (the one that does not depend on the track), or flag the map NOT identifiable.
 On the clean slalom nothing changes.
 """
+
 from __future__ import annotations
 
 import json
@@ -19,8 +20,13 @@ import numpy as np
 import pytest
 import yaml
 
-from hmpc.models.identify.steering import (MapFit, SteeringIdConfig, disagreement,
-                                           identify_steering, sensor_comparison)
+from hmpc.models.identify.steering import (
+    MapFit,
+    SteeringIdConfig,
+    disagreement,
+    identify_steering,
+    sensor_comparison,
+)
 from hmpc.models.logs.recording import Recording
 from hmpc.models.params import Vehicle, load_params
 from hmpc.models.sim.sensors import wheel_speeds
@@ -49,9 +55,16 @@ def slalom(track_factor: float = 1.0, side_ratio: float = 1.0, seed: int = SEED)
     fr = fr * side_ratio
     q = 0.01 / 3.6
     ws = [np.round((w + rng.normal(0.0, 0.005, len(t))) / q) * q for w in (fl, fr, rl, rr)]
-    ch = {"time": t, "steering_wheel_angle": sw, "wheel_speed_fl": ws[0],
-          "wheel_speed_fr": ws[1], "wheel_speed_rl": ws[2], "wheel_speed_rr": ws[3],
-          "yaw_rate": yaw, "speed": 0.25 * sum(ws)}
+    ch = {
+        "time": t,
+        "steering_wheel_angle": sw,
+        "wheel_speed_fl": ws[0],
+        "wheel_speed_fr": ws[1],
+        "wheel_speed_rl": ws[2],
+        "wheel_speed_rr": ws[3],
+        "yaw_rate": yaw,
+        "speed": 0.25 * sum(ws),
+    }
     return Recording(ch, {}, {"path": "slalom.csv"})
 
 
@@ -124,9 +137,12 @@ def test_the_reported_case_is_a_disagreement():
     """The numbers a user reported from a real slalom: wheel-speed scale 0.052 [0.048, 0.056],
     yaw-rate 0.063 [0.056, 0.071], ratio 0.82. The intervals touch, but the difference is
     beyond its own interval: a disagreement, reconciled by wheel_speed_scale."""
-    fits = {"wheel_speed_difference": _fit("wheel_speed_difference", 0.0082, (0.0072, 0.0092),
-                                           0.052, (0.048, 0.056)),
-            "yaw_rate": _fit("yaw_rate", 0.0100, (0.0080, 0.0120), 0.063, (0.056, 0.071))}
+    fits = {
+        "wheel_speed_difference": _fit(
+            "wheel_speed_difference", 0.0082, (0.0072, 0.0092), 0.052, (0.048, 0.056)
+        ),
+        "yaw_rate": _fit("yaw_rate", 0.0100, (0.0080, 0.0120), 0.063, (0.056, 0.071)),
+    }
     sens = sensor_comparison(fits, B_M, T_M, SteeringIdConfig())
     assert sens["scale_disagrees"] and sens["verdict"] == "reconciled"
     assert sens["scale_ratio_ci95"][1] < 1.0
@@ -134,9 +150,12 @@ def test_the_reported_case_is_a_disagreement():
 
 
 def test_a_material_difference_within_the_noise_is_unresolved():
-    fits = {"wheel_speed_difference": _fit("wheel_speed_difference", 0.009, (0.008, 0.010),
-                                           0.054, (0.050, 0.058)),
-            "yaw_rate": _fit("yaw_rate", 0.010, (0.008, 0.012), 0.060, (0.050, 0.070))}
+    fits = {
+        "wheel_speed_difference": _fit(
+            "wheel_speed_difference", 0.009, (0.008, 0.010), 0.054, (0.050, 0.058)
+        ),
+        "yaw_rate": _fit("yaw_rate", 0.010, (0.008, 0.012), 0.060, (0.050, 0.070)),
+    }
     sens = sensor_comparison(fits, B_M, T_M, SteeringIdConfig())
     assert sens["verdict"] == "unresolved" and not sens["scale_disagrees"] and sens["material"]
 
@@ -148,8 +167,9 @@ def test_the_cli_says_so_in_the_terminal_the_json_and_the_parameter_file(tmp_pat
     geo = tmp_path / "g.yaml"
     geo.write_text(yaml.safe_dump({"vehicle": {"wheelbase_m": B_M, "track_front_m": T_M}}))
     out, js = tmp_path / "p.yaml", tmp_path / "r.json"
-    rc = cli.main(["identify", str(rec), "--vehicle", str(geo), "--out", str(out),
-                   "--json", str(js)])
+    rc = cli.main(
+        ["identify", str(rec), "--vehicle", str(geo), "--out", str(out), "--json", str(js)]
+    )
     cap = capsys.readouterr()
     assert rc == 0, cap.err
     assert "SENSORS DISAGREE" in cap.out and "reconciled_by: wheel_speed_scale" in cap.out
@@ -172,9 +192,19 @@ def fast_slalom(track_factor: float) -> Recording:
     delta = OFFSET_RAD + SCALE * sw
     yaw = v * np.sin(delta) / B_M + 0.003 + rng.normal(0.0, 0.003, len(t))
     ws = wheel_speeds(v, delta, B_M, T_M * track_factor, T_M * track_factor)
-    return Recording({"time": t, "steering_wheel_angle": sw, "wheel_speed_fl": ws[0],
-                      "wheel_speed_fr": ws[1], "wheel_speed_rl": ws[2], "wheel_speed_rr": ws[3],
-                      "yaw_rate": yaw}, {}, {"path": "fast_slalom.csv"})
+    return Recording(
+        {
+            "time": t,
+            "steering_wheel_angle": sw,
+            "wheel_speed_fl": ws[0],
+            "wheel_speed_fr": ws[1],
+            "wheel_speed_rl": ws[2],
+            "wheel_speed_rr": ws[3],
+            "yaw_rate": yaw,
+        },
+        {},
+        {"path": "fast_slalom.csv"},
+    )
 
 
 @pytest.mark.parametrize("track_factor,verdict", [(1.0, "agree"), (0.82, "reconciled")])

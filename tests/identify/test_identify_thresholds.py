@@ -7,6 +7,7 @@ wheel" is the servo's road-wheel angle, so the scale is ~1) slaloming at 0.8-2.5
 by hand from the kinematic bicycle: the passenger car's 1.5 m/s and 1.5 rad/s would drop most
 of it for no physical reason.
 """
+
 from __future__ import annotations
 
 import json
@@ -38,9 +39,19 @@ def model_car_slalom(seed: int = 1) -> Recording:
     b, tr = SMALL.wheelbase_m, SMALL.track_front_m
     yaw = v * np.sin(delta) / b + rng.normal(0.0, 0.01, len(t))
     ws = [w + rng.normal(0.0, 0.005, len(t)) for w in wheel_speeds(v, delta, b, tr, tr)]
-    return Recording({"time": t, "steering_wheel_angle": sw, "wheel_speed_fl": ws[0],
-                      "wheel_speed_fr": ws[1], "wheel_speed_rl": ws[2], "wheel_speed_rr": ws[3],
-                      "yaw_rate": yaw}, {}, {"path": "model_car.csv"})
+    return Recording(
+        {
+            "time": t,
+            "steering_wheel_angle": sw,
+            "wheel_speed_fl": ws[0],
+            "wheel_speed_fr": ws[1],
+            "wheel_speed_rl": ws[2],
+            "wheel_speed_rr": ws[3],
+            "yaw_rate": yaw,
+        },
+        {},
+        {"path": "model_car.csv"},
+    )
 
 
 def test_thresholds_scale_with_a_smaller_wheelbase_only():
@@ -66,14 +77,15 @@ def test_a_model_car_keeps_its_samples_and_the_drops_are_counted():
     # the passenger car's thresholds drop most of the drive (measured 37% kept, 79% with
     # the scaled ones: the rest is lateral acceleration beyond 4 m/s^2 and its guard)
     passenger = identify_steering(rec, SMALL, SteeringIdConfig())
-    kept, kept_passenger = (r.report["samples"]["trustworthy"] / len(rec)
-                            for r in (res, passenger))
+    kept, kept_passenger = (r.report["samples"]["trustworthy"] / len(rec) for r in (res, passenger))
     assert kept > 0.75 and kept_passenger < 0.5, (kept, kept_passenger)
     assert abs(res.scale / SCALE - 1) < 0.02 and abs(res.offset_rad - OFFSET_RAD) < 0.005
     # every sample not trusted is counted under one reason, with its threshold
     dropped = {d["reason"]: d for d in passenger.report["samples"]["dropped"]}
-    assert sum(d["samples"] for d in dropped.values()) == len(rec) - passenger.report[
-        "samples"]["trustworthy"]
+    assert (
+        sum(d["samples"] for d in dropped.values())
+        == len(rec) - passenger.report["samples"]["trustworthy"]
+    )
     assert dropped["slow"]["threshold"] == 1.5 and "slower than 1.5 m/s" in dropped["slow"]["text"]
     assert sum(d["samples"] for d in smp["dropped"]) == len(rec) - smp["trustworthy"]
     assert res.report["thresholds_size_factor"] == pytest.approx(0.33 / 2.65)
@@ -93,9 +105,22 @@ def test_the_cli_sets_a_threshold_and_prints_the_drops(tmp_path, capsys):
     geo = tmp_path / "g.yaml"
     geo.write_text(yaml.safe_dump({"vehicle": {"wheelbase_m": 0.33, "track_front_m": 0.28}}))
     out, js = tmp_path / "p.yaml", tmp_path / "r.json"
-    rc = cli.main(["identify", str(path), "--vehicle", str(geo), "--out", str(out),
-                   "--json", str(js), "--steering-threshold", "v_min_mps=1.0",
-                   "--steering-threshold", "cv_folds=4"])
+    rc = cli.main(
+        [
+            "identify",
+            str(path),
+            "--vehicle",
+            str(geo),
+            "--out",
+            str(out),
+            "--json",
+            str(js),
+            "--steering-threshold",
+            "v_min_mps=1.0",
+            "--steering-threshold",
+            "cv_folds=4",
+        ]
+    )
     cap = capsys.readouterr()
     assert rc == 0, cap.err
     rep = json.loads(js.read_text())["steering"]
@@ -104,7 +129,17 @@ def test_the_cli_sets_a_threshold_and_prints_the_drops(tmp_path, capsys):
     slow = next(d for d in rep["samples"]["dropped"] if d["reason"] == "slow")
     assert f"{slow['samples']} slower than 1 m/s" in cap.out
     with pytest.raises(SystemExit) as ei:  # argparse: usage and one error line, exit 2
-        cli.main(["identify", str(path), "--vehicle", str(geo), "--out", str(out),
-                  "--steering-threshold", "v_min=1.0"])
+        cli.main(
+            [
+                "identify",
+                str(path),
+                "--vehicle",
+                str(geo),
+                "--out",
+                str(out),
+                "--steering-threshold",
+                "v_min=1.0",
+            ]
+        )
     err = capsys.readouterr().err
     assert ei.value.code == 2 and "v_min_mps" in err and "Traceback" not in err

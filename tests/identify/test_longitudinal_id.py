@@ -1,12 +1,17 @@
 """Zone models (eq. 8 + brake): zone assignment, standstill and boundaries, the matched
 smoothing, dead time, FOS term choice, unexercised inputs and speeds above the last zone."""
+
 import numpy as np
 import pytest
 
 from hmpc.models.sim.effects import parse_effect
 from hmpc.models.identify.pipeline import concat_recordings
-from hmpc.models.identify.longitudinal import (LongitudinalIdConfig, assign_zones,
-                                               identify_longitudinal, speed_rmse)
+from hmpc.models.identify.longitudinal import (
+    LongitudinalIdConfig,
+    assign_zones,
+    identify_longitudinal,
+    speed_rmse,
+)
 from hmpc.models.params import load_params
 from hmpc.models.sim.simulator import simulate_experiment
 from hmpc.models.identify.stats import apply_kernel, matched_kernels
@@ -60,8 +65,9 @@ def test_speed_rmse_is_zero_for_the_true_model_and_restarts_runs():
 
 
 def test_noise_free_recordings_give_the_truth_exactly(truth):
-    rec = concat_recordings([simulate_experiment(n, truth, seed=SEED, noise="none")
-                             for n in LONG_EXPS])
+    rec = concat_recordings(
+        [simulate_experiment(n, truth, seed=SEED, noise="none") for n in LONG_EXPS]
+    )
     res = identify_longitudinal(rec, truth.vehicle)
     for z, t in zip(res.zones, truth.zones):
         assert z.offset_mps2 == pytest.approx(t.offset_mps2, abs=0.005), z.name
@@ -73,7 +79,7 @@ def test_noise_free_recordings_give_the_truth_exactly(truth):
 
 
 def test_speeds_above_the_last_zone_are_counted_not_dropped(truth):
-    rec = simulate_experiment("ramps", truth, seed=SEED)   # ramps reach 8 m/s
+    rec = simulate_experiment("ramps", truth, seed=SEED)  # ramps reach 8 m/s
     cfg = LongitudinalIdConfig(zones=(("idle", 0.0, 2.0), ("low", 2.0, 5.0)))
     res = identify_longitudinal(rec, truth.vehicle, cfg)
     above = res.report["above_last_zone"]
@@ -85,11 +91,13 @@ def test_speeds_above_the_last_zone_are_counted_not_dropped(truth):
 
 def test_pedal_dead_time_and_drag_are_found(truth):
     fx = [parse_effect("pedal_dead_time:delay_s=0.3"), parse_effect("aero_drag:coeff_per_m=0.0005")]
-    rec = concat_recordings([simulate_experiment(n, truth, seed=SEED, effects=fx)
-                             for n in LONG_EXPS])
+    rec = concat_recordings(
+        [simulate_experiment(n, truth, seed=SEED, effects=fx) for n in LONG_EXPS]
+    )
     res = identify_longitudinal(rec, truth.vehicle)
-    print("dead time", res.dead_time_s, [(z["name"], z["fos"]["terms"])
-                                         for z in res.report["zones"]])
+    print(
+        "dead time", res.dead_time_s, [(z["name"], z["fos"]["terms"]) for z in res.report["zones"]]
+    )
     assert res.dead_time_s == pytest.approx(0.3, abs=0.03)
     # its held-out 95% interval holds the truth and not zero
     lo, hi = res.report["dead_time_ci95_s"]
@@ -128,8 +136,9 @@ def test_bad_zones_and_missing_pedal_are_input_errors(truth):
 
     rec = simulate_experiment("ramps", truth, seed=SEED)
     with pytest.raises(InputError, match="contiguous"):
-        identify_longitudinal(rec, truth.vehicle,
-                              LongitudinalIdConfig(zones=(("a", 0.0, 2.0), ("b", 3.0, 5.0))))
+        identify_longitudinal(
+            rec, truth.vehicle, LongitudinalIdConfig(zones=(("a", 0.0, 2.0), ("b", 3.0, 5.0)))
+        )
     del rec.channels["accel_pedal"]
     with pytest.raises(InputError, match="accel_pedal"):
         identify_longitudinal(rec, truth.vehicle)
@@ -186,19 +195,23 @@ def test_coasting_without_a_brake_channel_does_not_claim_unobserved_braking(trut
 
 def dilate_mask(mask, n):
     from hmpc.models.identify.stats import dilate
+
     return dilate(mask, n, n)
 
 
 def test_heldout_sse_equals_refitting_without_each_fold():
     """stats.heldout_sse from per-fold sums = an explicit refit per fold (seeded data)."""
-    from hmpc.models.identify.stats import (contiguous_fold_ids, heldout_sse,
-                                            not_worse_than_best)
+    from hmpc.models.identify.stats import contiguous_fold_ids, heldout_sse, not_worse_than_best
 
     rng = np.random.default_rng(5)
     n, k = 600, 5
     X = np.column_stack([np.ones(n), rng.normal(size=n), rng.normal(size=n)])
-    Y = np.column_stack([X @ [0.3, 1.2, -0.7] + 0.1 * rng.normal(size=n),
-                         X @ [0.3, 1.3, -0.7] + 0.1 * rng.normal(size=n)])
+    Y = np.column_stack(
+        [
+            X @ [0.3, 1.2, -0.7] + 0.1 * rng.normal(size=n),
+            X @ [0.3, 1.3, -0.7] + 0.1 * rng.normal(size=n),
+        ]
+    )
     fold = contiguous_fold_ids(n, k)
     sse, cnt = heldout_sse(X, Y, fold, k, fit_col=0)
     for g in range(k):

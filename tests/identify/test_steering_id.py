@@ -1,5 +1,6 @@
 """Steering identification pieces: the eq. 2-6 inversion, the dead time, intervals that survive
 correlated residuals, and the identifiability verdict."""
+
 import numpy as np
 import pytest
 from scipy.signal import lfilter
@@ -10,8 +11,12 @@ from hmpc.models.params import load_params
 from hmpc.models.sim.sensors import wheel_speeds
 from hmpc.models.sim.simulator import simulate_experiment
 from hmpc.models.identify.stats import ols_hac, quantisation_step
-from hmpc.models.identify.steering import (identify_steering, road_wheel_angle_from_front,
-                                road_wheel_angle_from_yaw, xcorr_dead_time)
+from hmpc.models.identify.steering import (
+    identify_steering,
+    road_wheel_angle_from_front,
+    road_wheel_angle_from_yaw,
+    xcorr_dead_time,
+)
 from _data import PARAMS_DIR
 
 SEED = 5
@@ -33,8 +38,9 @@ def test_front_wheel_inversion_is_exact_to_full_lock():
         np.testing.assert_allclose(v_est, v, rtol=1e-9)
         # (b): yaw rate of eq. 1 with the rear-axle speed gives the same angle
         r = v * np.sin(delta) / b
-        np.testing.assert_allclose(road_wheel_angle_from_yaw(r, 0.5 * (rl + rr), b), delta,
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            road_wheel_angle_from_yaw(r, 0.5 * (rl + rr), b), delta, atol=1e-12
+        )
     # eq. 5 alone (omega = (fr - fl) / T, delta = b omega / v) is several percent off at lock:
     fl, fr, _, _ = wheel_speeds(np.array([3.0]), np.array([0.6]), b, T, T)
     naive = b * (fr - fl) / T / 3.0
@@ -70,19 +76,24 @@ def test_blockwise_hac_interval_covers_where_the_naive_one_does_not():
         res = y - X @ r.coef
         se = np.sqrt(res @ res / (n - 2) * np.linalg.inv(X.T @ X)[1, 1])
         cover_naive += abs(r.coef[1] - 2.0) <= 1.96 * se
-    print(f"coverage over {runs} seeded runs: HAC {cover_hac / runs:.2f}, naive "
-          f"{cover_naive / runs:.2f}")
+    print(
+        f"coverage over {runs} seeded runs: HAC {cover_hac / runs:.2f}, naive "
+        f"{cover_naive / runs:.2f}"
+    )
     assert cover_hac / runs >= 0.8
     assert cover_naive / runs <= 0.3
 
 
 def test_steering_dead_time_is_recovered(truth):
     fx = [parse_effect("steering_dead_time:delay_s=0.2")]
-    rec = concat_recordings([simulate_experiment(n, truth, seed=SEED, effects=fx)
-                             for n in ("arcs", "figure8")])
+    rec = concat_recordings(
+        [simulate_experiment(n, truth, seed=SEED, effects=fx) for n in ("arcs", "figure8")]
+    )
     res = identify_steering(rec, truth.vehicle)
-    print(f"dead time {res.dead_time_s:.3f} s (truth 0.2 s), offset {res.offset_rad:+.5f}, "
-          f"scale {res.scale:.5f}")
+    print(
+        f"dead time {res.dead_time_s:.3f} s (truth 0.2 s), offset {res.offset_rad:+.5f}, "
+        f"scale {res.scale:.5f}"
+    )
     # measured: dead time 0.195 s, offset error -0.00008 rad, scale error -0.095%; bounds
     # 0.01 s (half a 50 Hz sample), 0.0003 rad and 0.3% (margin 2-4x; acceptance 0.002 rad, 2%)
     assert res.dead_time_s == pytest.approx(0.2, abs=0.01)
@@ -108,8 +119,7 @@ def test_little_steering_is_reported_not_identifiable(truth):
 
 
 def test_wide_steering_is_identifiable_and_replay_refines(truth):
-    rec = concat_recordings([simulate_experiment(n, truth, seed=SEED)
-                             for n in ("arcs", "circles")])
+    rec = concat_recordings([simulate_experiment(n, truth, seed=SEED) for n in ("arcs", "circles")])
     res = identify_steering(rec, truth.vehicle)
     assert res.identifiable, res.note
     assert res.method == "position_replay"
@@ -128,12 +138,14 @@ WHEELS = ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr"
 @pytest.fixture(scope="module")
 def wide(truth):
     """Wide steering at several speeds (hmpc's simulator, seeded)."""
-    return concat_recordings([simulate_experiment(n, truth, seed=SEED)
-                              for n in ("arcs", "circles")])
+    return concat_recordings(
+        [simulate_experiment(n, truth, seed=SEED) for n in ("arcs", "circles")]
+    )
 
 
 def _without(rec, *names):
     from hmpc.models.logs.recording import Recording
+
     return Recording({k: v for k, v in rec.channels.items() if k not in names}, {}, dict(rec.meta))
 
 
@@ -193,7 +205,8 @@ def test_yaw_rate_only_reasons_are_computed_from_its_data(truth):
     assert res.method == "yaw_rate", res.report["selection"]  # the replay is untrusted here
     bias = checks["offset_gyro_bias_correlation"]
     assert bias["value"] == pytest.approx(
-        abs(res.fits["yaw_rate"].extra["offset_bias_correlation"]))
+        abs(res.fits["yaw_rate"].extra["offset_bias_correlation"])
+    )
     assert checks["steering_range_rad"]["passed"] is False
     assert checks["steering_range_rad"]["value"] <= hi - lo + 1e-12
 
@@ -217,14 +230,18 @@ def _delay_data(lag, seed):
     rng = np.random.default_rng(seed)
     n = 6000
     sw = np.convolve(rng.normal(size=n + 400), np.ones(100) / 10, mode="same")[200:-200]
-    meas = 0.01 + 0.08 * np.concatenate([np.full(lag, sw[0]), sw[:n - lag]]) \
+    meas = (
+        0.01
+        + 0.08 * np.concatenate([np.full(lag, sw[0]), sw[: n - lag]])
         + 0.002 * rng.normal(size=n)
+    )
     return sw, meas
 
 
 @pytest.mark.parametrize("lag", [0, 5])
 def test_dead_time_cv_uses_a_delay_only_when_it_predicts_better(lag):
     from hmpc.models.identify.steering import SteeringIdConfig, dead_time_cv
+
     dt = 0.02
     for seed in range(5):
         sw, meas = _delay_data(lag, seed)
@@ -240,15 +257,26 @@ def test_dead_time_cv_uses_a_delay_only_when_it_predicts_better(lag):
 # ---- each identifiability reason is computed from the data it describes
 def _fit(**kw):
     from hmpc.models.identify.steering import MapFit
-    base = dict(method="wheel_speed_difference", offset_rad=0.01, scale=0.08,
-                offset_ci95_rad=(0.0099, 0.0101), scale_ci95=(0.0799, 0.0801), corr=0.1,
-                samples=5000, rms_error=1e-4, rms_unit="rad", ci_method="test")
+
+    base = dict(
+        method="wheel_speed_difference",
+        offset_rad=0.01,
+        scale=0.08,
+        offset_ci95_rad=(0.0099, 0.0101),
+        scale_ci95=(0.0799, 0.0801),
+        corr=0.1,
+        samples=5000,
+        rms_error=1e-4,
+        rms_unit="rad",
+        ci_method="test",
+    )
     base.update(kw)
     return MapFit(**base)
 
 
 def _verdict(sw, v, fit=None):
     from hmpc.models.identify.steering import SteeringIdConfig, identifiability
+
     return identifiability(fit or _fit(), np.asarray(sw), np.asarray(v), 0.02, SteeringIdConfig())
 
 
@@ -266,6 +294,7 @@ def test_slow_steering_that_is_too_short_is_not_called_fast():
 
 def test_fast_steering_is_called_fast_with_its_speeds():
     from hmpc.models.identify.steering import SteeringIdConfig
+
     cfg = SteeringIdConfig()
     n = 4 * int(cfg.min_trustworthy_s / 0.02)
     res = _verdict(np.linspace(-3.0, 3.0, n), np.full(n, cfg.kinematic_speed_mps + 5.0))
@@ -340,8 +369,16 @@ def test_rounded_yaw_rate_interval_covers_the_offset_the_blocks_alone_miss():
             st.quantisation_step = real
         hit_blocks += blk.offset_ci95_rad[0] <= off <= blk.offset_ci95_rad[1]
     spread = np.percentile(err, 95)
-    print("coverage with rounding", hit, "blocks only", hit_blocks, "median half-width",
-          np.median(width), "95th percentile of the error", spread)
+    print(
+        "coverage with rounding",
+        hit,
+        "blocks only",
+        hit_blocks,
+        "median half-width",
+        np.median(width),
+        "95th percentile of the error",
+        spread,
+    )
     assert hit >= 54
     assert hit_blocks < hit
     # honest, not absurd: the typical half-width is of the size of the errors it covers

@@ -58,6 +58,7 @@ with fixed-step RK4 at 200 Hz (:data:`SIM_DT_S`) with the delayed request held o
 (the dead time and the lag are exact: ``d`` is a multiple of the step). Seeded with numpy's
 ``default_rng``, deterministic; about 2 s per 600 s recording.
 """
+
 from __future__ import annotations
 
 import math
@@ -70,9 +71,24 @@ from indep import commonroad_truth as ct
 from indep.commonroad_truth import _quantise
 
 #: Column order of the recordings made here (CONVENTIONS names).
-COLUMNS = ("time", "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
-           "wheel_speed_rr", "speed", "yaw_rate", "accel_x", "x", "y", "z", "heading", "pitch",
-           "gps_speed", "accel_cmd")
+COLUMNS = (
+    "time",
+    "steering_wheel_angle",
+    "wheel_speed_fl",
+    "wheel_speed_fr",
+    "wheel_speed_rl",
+    "wheel_speed_rr",
+    "speed",
+    "yaw_rate",
+    "accel_x",
+    "x",
+    "y",
+    "z",
+    "heading",
+    "pitch",
+    "gps_speed",
+    "accel_cmd",
+)
 
 #: [s] integration step (200 Hz; the 50 Hz grid and the 20 Hz INS fall on steps).
 SIM_DT_S = 0.005
@@ -201,11 +217,11 @@ def plan_profile(sc: Scenario, t_s: np.ndarray, rng: np.random.Generator):
     """v_plan [m/s] and a_plan [m/s^2] at the times ``t_s``: holds of 1-6 s and raised-cosine
     ramps to random targets in [v_min, v_max] (a ramp of dv over T peaks at pi dv / (2 T))."""
     v0 = float(rng.uniform(sc.v_min_mps + 2.0, sc.v_max_mps - 2.0))
-    knots = [(0.0, v0, 0.0, 0.0)]   # (start, v_start, duration, dv) of each ramp
+    knots = [(0.0, v0, 0.0, 0.0)]  # (start, v_start, duration, dv) of each ramp
     t, v = 0.0, v0
     t_end = float(t_s[-1]) + 1.0
     while t < t_end:
-        t += float(rng.uniform(1.0, 6.0))                      # hold
+        t += float(rng.uniform(1.0, 6.0))  # hold
         while True:
             v_new = float(rng.uniform(sc.v_min_mps, sc.v_max_mps))
             if abs(v_new - v) >= 1.5:
@@ -236,8 +252,7 @@ def steering_profile(sc: Scenario, t_s: np.ndarray, rng: np.random.Generator) ->
     sw *= sc.sw_amp_rad / w.sum()
     fj = rng.uniform(0.2, 0.6, 2)
     pj = rng.uniform(0.0, 2.0 * np.pi, 2)
-    sw += math.radians(0.075) * np.sin(2 * np.pi * fj[:, None] * t_s[None, :]
-                                       + pj[:, None]).sum(0)
+    sw += math.radians(0.075) * np.sin(2 * np.pi * fj[:, None] * t_s[None, :] + pj[:, None]).sum(0)
     return sw
 
 
@@ -247,21 +262,21 @@ class Run:
     """True states per simulation step (SIM_DT_S) and the sensor samples taken in the loop."""
 
     t: np.ndarray
-    v: np.ndarray            # speed along the road at the rear-axle centre [m/s]
-    s: np.ndarray            # distance travelled [m]
-    x: np.ndarray            # ENU position of the rear-axle centre [m]
+    v: np.ndarray  # speed along the road at the rear-axle centre [m/s]
+    s: np.ndarray  # distance travelled [m]
+    x: np.ndarray  # ENU position of the rear-axle centre [m]
     y: np.ndarray
-    psi: np.ndarray          # heading from east, CCW [rad]
-    vdot: np.ndarray         # dv/dt at the step [m/s^2]
-    delta: np.ndarray        # road-wheel angle [rad]
-    sw: np.ndarray           # steering-wheel angle [rad]
-    r_sent: np.ndarray       # request as sent (held) [m/s^2]
-    r_eff: np.ndarray        # request as the powertrain acts on it [m/s^2]
-    integ: np.ndarray        # ECU integrator [m/s^2]
+    psi: np.ndarray  # heading from east, CCW [rad]
+    vdot: np.ndarray  # dv/dt at the step [m/s^2]
+    delta: np.ndarray  # road-wheel angle [rad]
+    sw: np.ndarray  # steering-wheel angle [rad]
+    r_sent: np.ndarray  # request as sent (held) [m/s^2]
+    r_eff: np.ndarray  # request as the powertrain acts on it [m/s^2]
+    integ: np.ndarray  # ECU integrator [m/s^2]
     v_plan: np.ndarray
     a_plan: np.ndarray
-    wheel_t: np.ndarray      # 83 Hz wheel-speed sample times [s]
-    wheel_q: np.ndarray      # (n, 4) quantised wheel speeds fl, fr, rl, rr [m/s]
+    wheel_t: np.ndarray  # 83 Hz wheel-speed sample times [s]
+    wheel_q: np.ndarray  # (n, 4) quantised wheel speeds fl, fr, rl, rr [m/s]
     road: Road
 
 
@@ -272,11 +287,11 @@ def _wheel_speeds(v: float, delta: float) -> tuple[float, float, float, float]:
     td = math.tan(delta)
     r = v * td / L
     out = []
-    for wy in (h, -h):      # front left, front right
+    for wy in (h, -h):  # front left, front right
         ang = math.atan2(L * td, L - wy * td)
         ux, uy = v - r * wy, r * L
         out.append(ux * math.cos(ang) + uy * math.sin(ang))
-    out += [v - r * h, v + r * h]   # rear left, rear right
+    out += [v - r * h, v + r * h]  # rear left, rear right
     return tuple(out)
 
 
@@ -308,9 +323,17 @@ def simulate(sc: Scenario) -> Run:
         r_eff = lag if tau > 0 else u
         th = road.grade_scalar(s)
         vdot = K * (r_eff + integ) + res_ecu(v) - res_true(v) - G_MPS2 * math.sin(th)
-        vh = v * math.cos(th)           # horizontal speed
-        return (vdot, v, vh * math.cos(psi), vh * math.sin(psi), v * math.tan(dl) / WHEELBASE_M,
-                (u - lag) / tau if tau > 0 else 0.0, (r_eff - a_f) / Tc, (vdot - a_f) / Tf)
+        vh = v * math.cos(th)  # horizontal speed
+        return (
+            vdot,
+            v,
+            vh * math.cos(psi),
+            vh * math.sin(psi),
+            v * math.tan(dl) / WHEELBASE_M,
+            (u - lag) / tau if tau > 0 else 0.0,
+            (r_eff - a_f) / Tc,
+            (vdot - a_f) / Tf,
+        )
 
     def rk4(X, u, dl):
         k1 = rhs(X, u, dl)
@@ -329,10 +352,10 @@ def simulate(sc: Scenario) -> Run:
     n_w = int(math.floor(t[-1] * wrate)) + 1
     wheel_t = np.arange(n_w) / wrate
     wheel_q = np.zeros((n_w, 4))
-    j_next = 0          # next wheel sample to take
-    tick = 0            # next controller tick (k / rate_hz)
+    j_next = 0  # next wheel sample to take
+    tick = 0  # next controller tick (k / rate_hz)
     r_held = 0.0
-    c_int = 0.0         # controller's integral of the speed error [m]
+    c_int = 0.0  # controller's integral of the speed error [m]
     r_hist = np.zeros(n)
     for i in range(n):
         ti = t[i]
@@ -355,15 +378,20 @@ def simulate(sc: Scenario) -> Run:
             v_meas = float(np.mean(wheel_q[max(j_seen, 0)]))
             e = v_plan[i] - v_meas
             c_new = c_int + e / ctl.rate_hz
-            c_new = float(np.clip(c_new, -ctl.integral_max_mps2 / ctl.ki_per_s2,
-                                  ctl.integral_max_mps2 / ctl.ki_per_s2))
+            c_new = float(
+                np.clip(
+                    c_new,
+                    -ctl.integral_max_mps2 / ctl.ki_per_s2,
+                    ctl.integral_max_mps2 / ctl.ki_per_s2,
+                )
+            )
             r_raw = a_plan[i] + ctl.kp_per_s * e + ctl.ki_per_s2 * c_new
             r_clip = min(max(r_raw, ctl.accel_min_mps2), ctl.accel_max_mps2)
             if r_clip == r_raw:
-                c_int = c_new       # freeze the integral while the request is clipped
+                c_int = c_new  # freeze the integral while the request is clipped
             dr = ctl.jerk_max_mps3 / ctl.rate_hz
             r_new = min(max(r_clip, r_held - dr), r_held + dr)
-            r_held = float(_quantise(r_new, ctl.step_mps2)) + 0.0   # no -0.0
+            r_held = float(_quantise(r_new, ctl.step_mps2)) + 0.0  # no -0.0
         r_hist[i] = r_held
         u = r_hist[i - k_dead] if i >= k_dead else 0.0
         V[i], S[i], PX[i], PY[i], PSI[i] = X[0], X[1], X[2], X[3], X[4]
@@ -373,8 +401,9 @@ def simulate(sc: Scenario) -> Run:
         VD[i] = rhs(X, u, delta[i])[0]
         if i < n - 1:
             X = rk4(X, u, float(delta[i]))
-    return Run(t, V, S, PX, PY, PSI, VD, delta, sw, RS, RE, IN, v_plan, a_plan,
-               wheel_t, wheel_q, road)
+    return Run(
+        t, V, S, PX, PY, PSI, VD, delta, sw, RS, RE, IN, v_plan, a_plan, wheel_t, wheel_q, road
+    )
 
 
 # ---------------------------------------------------------------------------------- record
@@ -415,8 +444,9 @@ def record(sc: Scenario, run: Run | None = None) -> dict[str, np.ndarray]:
         "x": run.x[ii] + sen.pos_noise_m * rng.standard_normal(q),
         "y": run.y[ii] + sen.pos_noise_m * rng.standard_normal(q),
         "z": z[ii] + sen.alt_noise_m * rng.standard_normal(q),
-        "heading": np.angle(np.exp(1j * (run.psi[ii]
-                                         + sen.heading_noise_rad * rng.standard_normal(q)))),
+        "heading": np.angle(
+            np.exp(1j * (run.psi[ii] + sen.heading_noise_rad * rng.standard_normal(q)))
+        ),
         "pitch": th[ii] + sen.pitch_noise_rad * rng.standard_normal(q),
         "gps_speed": run.v[ii] * np.cos(th[ii]) + sen.gps_speed_noise_mps * rng.standard_normal(q),
     }
@@ -433,17 +463,48 @@ def write_recording(channels: dict[str, np.ndarray], path: str | Path) -> Path:
 
 def geometry() -> dict:
     """The geometry mapping for hmpc (``vehicle:`` keys of models/params.py)."""
-    return {"vehicle": {"wheelbase_m": WHEELBASE_M, "track_front_m": TRACK_M,
-                        "track_rear_m": TRACK_M, "wheel_radius_m": 0.362, "mass_kg": 1656.0,
-                        "source": "tests/indep/acc_truth.py (a 2017 RAV4-like car)"}}
+    return {
+        "vehicle": {
+            "wheelbase_m": WHEELBASE_M,
+            "track_front_m": TRACK_M,
+            "track_rear_m": TRACK_M,
+            "wheel_radius_m": 0.362,
+            "mass_kg": 1656.0,
+            "source": "tests/indep/acc_truth.py (a 2017 RAV4-like car)",
+        }
+    }
 
 
-def scenario(dead_time_s: float, lag_s: float = 0.0, *, seed: int = 0, duration_s: float = 600.0,
-             grade_amp_rad: float = 0.03, **car_kw) -> Scenario:
+def scenario(
+    dead_time_s: float,
+    lag_s: float = 0.0,
+    *,
+    seed: int = 0,
+    duration_s: float = 600.0,
+    grade_amp_rad: float = 0.03,
+    **car_kw,
+) -> Scenario:
     """A scenario with the car's dead time and lag (other Car fields through ``car_kw``)."""
-    return Scenario(car=Car(dead_time_s=dead_time_s, lag_s=lag_s, **car_kw), seed=seed,
-                    duration_s=duration_s, grade_amp_rad=grade_amp_rad)
+    return Scenario(
+        car=Car(dead_time_s=dead_time_s, lag_s=lag_s, **car_kw),
+        seed=seed,
+        duration_s=duration_s,
+        grade_amp_rad=grade_amp_rad,
+    )
 
 
-__all__ = ["COLUMNS", "SIM_DT_S", "Car", "Controller", "Sensors", "Scenario", "Road", "Run",
-           "simulate", "record", "geometry", "scenario", "write_recording"]
+__all__ = [
+    "COLUMNS",
+    "SIM_DT_S",
+    "Car",
+    "Controller",
+    "Sensors",
+    "Scenario",
+    "Road",
+    "Run",
+    "simulate",
+    "record",
+    "geometry",
+    "scenario",
+    "write_recording",
+]

@@ -58,6 +58,7 @@ Generation is seeded and takes about 0.5 s per 240 s recording (fixed-step RK4 a
 the library's right-hand side; the tyre model sub-steps at low speed). Import it from the
 tests as ``from indep import commonroad_truth`` (tests/ is on sys.path; no __init__.py).
 """
+
 from __future__ import annotations
 
 import csv
@@ -83,9 +84,26 @@ GROUPS: dict[str, tuple[str, ...]] = {
 }
 
 #: Column order of a canonical recording (docs/conventions.md), for the channels made here.
-COLUMNS = ("time", "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
-           "wheel_speed_rr", "speed", "accel_pedal", "brake_pedal", "yaw_rate", "accel_x",
-           "accel_y", "x", "y", "z", "heading", "pitch", "gps_speed")
+COLUMNS = (
+    "time",
+    "steering_wheel_angle",
+    "wheel_speed_fl",
+    "wheel_speed_fr",
+    "wheel_speed_rl",
+    "wheel_speed_rr",
+    "speed",
+    "accel_pedal",
+    "brake_pedal",
+    "yaw_rate",
+    "accel_x",
+    "accel_y",
+    "x",
+    "y",
+    "z",
+    "heading",
+    "pitch",
+    "gps_speed",
+)
 
 #: [s] integration and driver step (100 Hz; the recording rates divide it).
 SIM_DT_S = 0.01
@@ -122,27 +140,34 @@ class Truth:
                 return i
         return len(self.zones) - 1
 
-    def accel_mps2(self, v_mps: float, accel_pedal: float, brake_pedal: float,
-                   zone: int | None = None) -> float:
+    def accel_mps2(
+        self, v_mps: float, accel_pedal: float, brake_pedal: float, zone: int | None = None
+    ) -> float:
         """The zone law at speed ``v_mps`` (or in zone index ``zone`` when given)."""
         z = self.zones[self.zone_index(v_mps) if zone is None else zone]
         return z.offset_mps2 + z.scale_mps2 * accel_pedal - z.brake_scale_mps2 * brake_pedal
 
 
 def _zones(idle, low, high) -> tuple[ZoneTruth, ...]:
-    return (ZoneTruth("idle", 0.0, 2.0, *idle), ZoneTruth("low", 2.0, 5.0, *low),
-            ZoneTruth("high", 5.0, 20.0, *high))
+    return (
+        ZoneTruth("idle", 0.0, 2.0, *idle),
+        ZoneTruth("low", 2.0, 5.0, *low),
+        ZoneTruth("high", 5.0, 20.0, *high),
+    )
 
 
 #: Three parameter sets in plausible ranges (steering ratio 11-17; idle creep positive, drag
 #: negative at speed; throttle 1-3 m/s^2 per unit pedal; brake 4.5-8 m/s^2 per unit pressure).
 TRUTHS: dict[str, Truth] = {
-    "A": Truth("A", 0.010, 0.0800, _zones((0.35, 1.20, 5.0), (-0.10, 2.00, 6.5),
-                                          (-0.30, 2.60, 7.5))),
-    "B": Truth("B", -0.015, 0.0650, _zones((0.25, 1.00, 4.5), (-0.05, 1.70, 6.0),
-                                           (-0.25, 2.21, 7.0))),
-    "C": Truth("C", 0.020, 0.0900, _zones((0.45, 1.50, 5.5), (-0.15, 2.30, 7.0),
-                                          (-0.40, 3.00, 8.0))),
+    "A": Truth(
+        "A", 0.010, 0.0800, _zones((0.35, 1.20, 5.0), (-0.10, 2.00, 6.5), (-0.30, 2.60, 7.5))
+    ),
+    "B": Truth(
+        "B", -0.015, 0.0650, _zones((0.25, 1.00, 4.5), (-0.05, 1.70, 6.0), (-0.25, 2.21, 7.0))
+    ),
+    "C": Truth(
+        "C", 0.020, 0.0900, _zones((0.45, 1.50, 5.5), (-0.15, 2.30, 7.0), (-0.40, 3.00, 8.0))
+    ),
 }
 
 
@@ -264,11 +289,19 @@ def _st_rhs(x, u, p, C_Sf, C_Sr):
     u1, u2 = u
     Ff, Fr = C_Sf * (g * lr - u2 * h), C_Sr * (g * lf + u2 * h)
     L = lr + lf
-    return [x[3] * math.cos(x[6] + x[4]), x[3] * math.sin(x[6] + x[4]), u1, u2, x[5],
-            -mu * m / (x[3] * I_z * L) * (lf ** 2 * Ff + lr ** 2 * Fr) * x[5]
-            + mu * m / (I_z * L) * (lr * Fr - lf * Ff) * x[6] + mu * m / (I_z * L) * lf * Ff * x[2],
-            (mu / (x[3] ** 2 * L) * (Fr * lr - Ff * lf) - 1) * x[5]
-            - mu / (x[3] * L) * (Fr + Ff) * x[6] + mu / (x[3] * L) * Ff * x[2]]
+    return [
+        x[3] * math.cos(x[6] + x[4]),
+        x[3] * math.sin(x[6] + x[4]),
+        u1,
+        u2,
+        x[5],
+        -mu * m / (x[3] * I_z * L) * (lf**2 * Ff + lr**2 * Fr) * x[5]
+        + mu * m / (I_z * L) * (lr * Fr - lf * Ff) * x[6]
+        + mu * m / (I_z * L) * lf * Ff * x[2],
+        (mu / (x[3] ** 2 * L) * (Fr * lr - Ff * lf) - 1) * x[5]
+        - mu / (x[3] * L) * (Fr + Ff) * x[6]
+        + mu / (x[3] * L) * Ff * x[2],
+    ]
 
 
 @dataclass(frozen=True)
@@ -321,10 +354,15 @@ def geometry(p=None, *, ref_point=None) -> dict:
     """The geometry file's mapping (``vehicle:`` keys of models/params.py); with ``ref_point``
     also ``nav_lever_arm_m`` (CONVENTIONS' optional key)."""
     p = p or vehicle_params()
-    veh = {"wheelbase_m": float(p.a + p.b), "track_front_m": float(p.T_f),
-           "track_rear_m": float(p.T_r), "wheel_radius_m": float(p.R_w), "mass_kg": float(p.m),
-           "cg_to_rear_axle_m": float(p.b),
-           "source": "CommonRoad vehicle models, parameter set 2 (BMW 320i)"}
+    veh = {
+        "wheelbase_m": float(p.a + p.b),
+        "track_front_m": float(p.T_f),
+        "track_rear_m": float(p.T_r),
+        "wheel_radius_m": float(p.R_w),
+        "mass_kg": float(p.m),
+        "cg_to_rear_axle_m": float(p.b),
+        "source": "CommonRoad vehicle models, parameter set 2 (BMW 320i)",
+    }
     if ref_point is not None:
         veh["nav_lever_arm_m"] = list(lever_arm_m(ref_point, p))
     return {"vehicle": veh}
@@ -336,12 +374,27 @@ def _speed_targets(rng: np.random.Generator, duration_s: float):
     high-zone cruising; the steering is active only in segments at 2.5-8 m/s."""
     segs = []
     t = 0.0
-    pattern = ["stop", "low", "low", "idle", "high", "low", "stop", "high", "high", "idle",
-               "low", "stop"]
+    pattern = [
+        "stop",
+        "low",
+        "low",
+        "idle",
+        "high",
+        "low",
+        "stop",
+        "high",
+        "high",
+        "idle",
+        "low",
+        "stop",
+    ]
     k = 0
     while t < duration_s:
-        kind = pattern[k % len(pattern)] if k < len(pattern) else rng.choice(
-            ["stop", "idle", "low", "low", "high", "high"])
+        kind = (
+            pattern[k % len(pattern)]
+            if k < len(pattern)
+            else rng.choice(["stop", "idle", "low", "low", "high", "high"])
+        )
         k += 1
         dur = float(rng.uniform(8.0, 14.0))
         if kind == "stop":
@@ -386,14 +439,16 @@ def _driver_profiles(sc: Scenario, n: int, rng: np.random.Generator):
     f0, ph0 = rng.uniform(0.045, 0.06), rng.uniform(0, 2 * np.pi)
     f = rng.uniform(0.012, 0.03, 4)
     ph = rng.uniform(0, 2 * np.pi, 4)
-    s = 1.3 * np.sin(2 * np.pi * f0 * t + ph0) \
-        + 0.1 * np.sin(2 * np.pi * f[:, None] * t[None, :] + ph[:, None]).sum(0)
+    s = 1.3 * np.sin(2 * np.pi * f0 * t + ph0) + 0.1 * np.sin(
+        2 * np.pi * f[:, None] * t[None, :] + ph[:, None]
+    ).sum(0)
     s = np.clip(s, -1.0, 1.0)
     s = np.convolve(s, np.ones(101) / 101, mode="same")  # round the clipped tops (1 s)
     L = VEH_L_M
     v_env = np.maximum(np.convolve(v_ref, np.ones(301) / 301, mode="same") + 0.5, 2.0)
-    env = np.minimum(sc.sw_max_rad, np.arctan(sc.lat_accel_mps2 * L / v_env ** 2)
-                     / abs(sc.truth.steer_scale))
+    env = np.minimum(
+        sc.sw_max_rad, np.arctan(sc.lat_accel_mps2 * L / v_env**2) / abs(sc.truth.steer_scale)
+    )
     sw_straight = -sc.truth.steer_offset_rad / sc.truth.steer_scale
     sw = sw_straight + gate * env * s
     # pedal dither: 0.2-1 Hz sines, +-0.03 (a foot is not a servo)
@@ -464,18 +519,18 @@ class Run:
     """The true states at the 100 Hz simulation steps (SI units; body axes ISO 8855)."""
 
     t: np.ndarray
-    state: np.ndarray          # model state per step
-    delta: np.ndarray          # road-wheel angle [rad]
-    delta_rate: np.ndarray     # [rad/s] over the step that starts here
-    sw: np.ndarray             # steering-wheel angle [rad]
+    state: np.ndarray  # model state per step
+    delta: np.ndarray  # road-wheel angle [rad]
+    delta_rate: np.ndarray  # [rad/s] over the step that starts here
+    sw: np.ndarray  # steering-wheel angle [rad]
     ap: np.ndarray
     bp: np.ndarray
-    v_front: np.ndarray        # front-axle-centre speed [m/s] (KS: exact eq. 1 speed)
-    accel_truth: np.ndarray    # zone law's acceleration [m/s^2] applied over the step
+    v_front: np.ndarray  # front-axle-centre speed [m/s] (KS: exact eq. 1 speed)
+    accel_truth: np.ndarray  # zone law's acceleration [m/s^2] applied over the step
     model: str
     accel_point: str = "front"
-    s: np.ndarray | None = None        # distance travelled [m] (rear axle / CoG)
-    ap_eff: np.ndarray | None = None   # pedals as the powertrain and brakes act on them
+    s: np.ndarray | None = None  # distance travelled [m] (rear axle / CoG)
+    ap_eff: np.ndarray | None = None  # pedals as the powertrain and brakes act on them
     bp_eff: np.ndarray | None = None
 
 
@@ -496,7 +551,7 @@ def _lag(x: np.ndarray, tau_s: float, dt: float) -> np.ndarray:
     out = np.empty_like(x)
     y = x[0]
     for i in range(len(x)):
-        out[i] = y          # the output during step i: what the lag has reached so far
+        out[i] = y  # the output during step i: what the lag has reached so far
         y = y + al * (x[i] - y)
     return out
 
@@ -525,9 +580,9 @@ def simulate(sc: Scenario) -> Run:
     k_delay = _steps("steer_delay_s", sc.steer_delay_s, dt)
     if k_delay < 0:
         raise ValueError(f"steer_delay_s must be non-negative, got {sc.steer_delay_s}")
-    sw_wheels = np.concatenate([np.full(k_delay, sw[0]), sw[:n - k_delay]]) if k_delay else sw
+    sw_wheels = np.concatenate([np.full(k_delay, sw[0]), sw[: n - k_delay]]) if k_delay else sw
     sw_wheels = _lag(sw_wheels, fx.steer_lag_s, dt)
-    sw_rack = sw_wheels + fx.rack_cubic_per_rad2 * sw_wheels ** 3
+    sw_rack = sw_wheels + fx.rack_cubic_per_rad2 * sw_wheels**3
     delta_map = tr.steer_offset_rad + tr.steer_scale * sw_rack
     d_rate_map = np.append(np.diff(delta_map) / dt, 0.0)
     if np.max(np.abs(d_rate_map)) > p.steering.v_max:
@@ -552,7 +607,7 @@ def simulate(sc: Scenario) -> Run:
     x[2] = delta_map[0]
     ap_a, bp_a, vF_a, acc_a, s_a, delta, d_rate = (np.zeros(n) for _ in range(7))
     ape_a, bpe_a = np.zeros(n), np.zeros(n)
-    pe = [0.0, 0.0]      # pedals as the powertrain and brakes see them (after delay, lag)
+    pe = [0.0, 0.0]  # pedals as the powertrain and brakes see them (after delay, lag)
     s_m = 0.0
 
     def law(v, ap, bp, zi, gf, s_now):
@@ -596,12 +651,14 @@ def simulate(sc: Scenario) -> Run:
         u1 = float(steer_eff(i + 1, x[3]) - delta[i]) / dt
         d_rate[i] = u1
         if sc.model == "ks" and sc.accel_point == "rear":
+
             def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf, s_now=s_now):
                 u2 = law(xs[3], ape, bpe, zi, gf, s_now)
                 if xs[3] <= 0.0 and u2 < 0.0:
                     u2 = 0.0
                 return vehicle_dynamics_ks(xs, [u1, u2], p)
         elif sc.model == "ks":
+
             def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf, s_now=s_now):
                 vf = xs[3] / math.cos(xs[2])
                 a = law(vf, ape, bpe, zi, gf, s_now)
@@ -610,11 +667,13 @@ def simulate(sc: Scenario) -> Run:
                     u2 = 0.0
                 return vehicle_dynamics_ks(xs, [u1, u2], p)
         else:
+
             def f(xs, ape=ape, bpe=bpe, u1=u1, zi=zi, gf=gf, s_now=s_now):
                 a = law(xs[3], ape, bpe, zi, gf, s_now)
                 if xs[3] <= 0.0 and a < 0.0:
                     a = 0.0
                 return _st_rhs(xs, [u1, a], p, C_Sf, C_Sr)
+
         nsub = 1
         if sc.model == "st" and 0.1 <= x[3] < 1.5:
             # the tyre terms' eigenvalues grow as ~ -215/v [1/s] (parameter set 2), and RK4 is
@@ -635,8 +694,22 @@ def simulate(sc: Scenario) -> Run:
     pos_limit = lon.a_max * lon.v_switch / np.maximum(X[:, 3], lon.v_switch)
     if np.any(acc_a > 0.9 * pos_limit) or np.any(acc_a < -0.9 * lon.a_max):
         raise ValueError("the zone law reaches the model's acceleration limits")
-    return Run(np.arange(n) * dt, X, delta, d_rate, sw, ap_a, bp_a, vF_a, acc_a, sc.model,
-               sc.accel_point, s_a, ape_a, bpe_a)
+    return Run(
+        np.arange(n) * dt,
+        X,
+        delta,
+        d_rate,
+        sw,
+        ap_a,
+        bp_a,
+        vF_a,
+        acc_a,
+        sc.model,
+        sc.accel_point,
+        s_a,
+        ape_a,
+        bpe_a,
+    )
 
 
 def _kinematics(run: Run, p, ref_xy):
@@ -681,16 +754,29 @@ def _kinematics(run: Run, p, ref_xy):
         apx, apy = c * awx + s * awy, -s * awx + c * awy
     # wheels: contact points from the rear-axle centre, Ackermann steer angles at the front
     tan_d = np.tan(delta)
-    wheels = {"fl": (L, p.T_f / 2), "fr": (L, -p.T_f / 2), "rl": (0.0, p.T_r / 2),
-              "rr": (0.0, -p.T_r / 2)}
+    wheels = {
+        "fl": (L, p.T_f / 2),
+        "fr": (L, -p.T_f / 2),
+        "rl": (0.0, p.T_r / 2),
+        "rr": (0.0, -p.T_r / 2),
+    }
     ws = {}
     for k, (wx, wy) in wheels.items():
         qx, qy = wx - o_x, wy - o_y
         ux, uy = vx0 - r * qy, vy0 + r * qx
         ang = np.arctan2(L * tan_d, L - wy * tan_d) if k[0] == "f" else np.zeros_like(tan_d)
         ws[k] = ux * np.cos(ang) + uy * np.sin(ang)
-    return {"x": xw, "y": yw, "heading": psi, "vx": vpx, "vy": vpy, "ax": apx, "ay": apy,
-            "yaw_rate": r, "wheels": ws}
+    return {
+        "x": xw,
+        "y": yw,
+        "heading": psi,
+        "vx": vpx,
+        "vy": vpy,
+        "ax": apx,
+        "ay": apy,
+        "yaw_rate": r,
+        "wheels": ws,
+    }
 
 
 def _quantise(x, step):
@@ -735,8 +821,9 @@ def record(sc: Scenario, run: Run | None = None) -> dict[str, np.ndarray]:
     ch["y"] = kin["y"][idx] + sen.pos_noise_m * rng.standard_normal(m)
     hd = kin["heading"][idx] + sen.heading_noise_rad * rng.standard_normal(m)
     ch["heading"] = np.angle(np.exp(1j * hd))  # wrapped to (-pi, pi]
-    ch["gps_speed"] = np.hypot(kin["vx"][idx], kin["vy"][idx]) \
-        + sen.gps_speed_noise_mps * rng.standard_normal(m)
+    ch["gps_speed"] = np.hypot(
+        kin["vx"][idx], kin["vy"][idx]
+    ) + sen.gps_speed_noise_mps * rng.standard_normal(m)
     if fx.grade_amp_rad and run.s is not None:
         # the road profile: altitude z(s) = int sin(theta) ds, pitch = theta (nose up uphill)
         th = fx.grade_rad(run.s)
@@ -750,8 +837,9 @@ def record(sc: Scenario, run: Run | None = None) -> dict[str, np.ndarray]:
     return ch
 
 
-def write_recording(channels: dict[str, np.ndarray], path: str | Path,
-                    columns: tuple[str, ...] = COLUMNS) -> Path:
+def write_recording(
+    channels: dict[str, np.ndarray], path: str | Path, columns: tuple[str, ...] = COLUMNS
+) -> Path:
     """Write a canonical recording CSV (CONVENTIONS column names in the order of ``columns``;
     absent = no column)."""
     path = Path(path)
@@ -759,8 +847,9 @@ def write_recording(channels: dict[str, np.ndarray], path: str | Path,
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(names)
-        cols = [[f"{v:.6f}" for v in channels["time"]]] + \
-               [[repr(float(v)) for v in channels[c]] for c in names[1:]]
+        cols = [[f"{v:.6f}" for v in channels["time"]]] + [
+            [repr(float(v)) for v in channels[c]] for c in names[1:]
+        ]
         w.writerows(zip(*cols))
     return path
 
@@ -785,11 +874,33 @@ def scenario(truth: str = "A", *, seed: int | None = None, **kw) -> Scenario:
     """A scenario for truth set ``truth`` ("A", "B", "C"); its seed defaults to one per set."""
     sens = {k: kw.pop(k) for k in list(kw) if k in Sensors.__dataclass_fields__}
     seeds = {"A": 11, "B": 22, "C": 33}
-    return Scenario(TRUTHS[truth], seed=seeds[truth] if seed is None else seed,
-                    sensors=Sensors(**{**sens, "omit": frozenset(sens.get("omit", ()))}), **kw)
+    return Scenario(
+        TRUTHS[truth],
+        seed=seeds[truth] if seed is None else seed,
+        sensors=Sensors(**{**sens, "omit": frozenset(sens.get("omit", ()))}),
+        **kw,
+    )
 
 
-__all__ = ["GROUPS", "TRUTHS", "Truth", "ZoneTruth", "Sensors", "Scenario", "REF_POINTS", "Effects",
-           "st_understeer_gradient", "st_C_Sf_for",
-           "simulate", "record", "write_recording", "write_geometry", "geometry", "make",
-           "scenario", "lever_arm_m", "vehicle_params", "SIM_DT_S"]
+__all__ = [
+    "GROUPS",
+    "TRUTHS",
+    "Truth",
+    "ZoneTruth",
+    "Sensors",
+    "Scenario",
+    "REF_POINTS",
+    "Effects",
+    "st_understeer_gradient",
+    "st_C_Sf_for",
+    "simulate",
+    "record",
+    "write_recording",
+    "write_geometry",
+    "geometry",
+    "make",
+    "scenario",
+    "lever_arm_m",
+    "vehicle_params",
+    "SIM_DT_S",
+]

@@ -29,6 +29,7 @@ With ``Scenario.driver_brakes`` False the driver never brakes (the car coasts do
 ``Scenario.record_rpm``. Integration: explicit Euler at 500 Hz (the driver and gearbox update
 at 50 Hz). Seeded with numpy's ``default_rng``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -162,8 +163,16 @@ def simulate(sc: Scenario) -> Run:
         coast = car.accel(v, g, 0.0, 0.0)
         p = b = 0.0
         if demand > 0.05 and vt[i] > 0.1:
-            p = float(np.clip(demand * car.mass_kg * car.wheel_radius_m
-                              / (car.torque_max_nm * car.ratio(g) * car.efficiency), 0.0, 1.0))
+            p = float(
+                np.clip(
+                    demand
+                    * car.mass_kg
+                    * car.wheel_radius_m
+                    / (car.torque_max_nm * car.ratio(g) * car.efficiency),
+                    0.0,
+                    1.0,
+                )
+            )
         elif demand < coast - 0.3 or vt[i] < 0.1:
             b = float(np.clip((coast - demand) * car.mass_kg / car.brake_force_max_n, 0.0, 1.0))
             if vt[i] < 0.1 and v < 0.5:
@@ -182,8 +191,11 @@ def record(sc: Scenario, run: Run | None = None) -> dict[str, np.ndarray]:
     run = run or simulate(sc)
     rng = np.random.default_rng(sc.seed + 1000)
     kmh = 0.01 / 3.6
-    ch = {"time": run.t_s, "speed": np.round(run.v_mps / kmh) * kmh,
-          "accel_pedal": run.pedal.copy()}
+    ch = {
+        "time": run.t_s,
+        "speed": np.round(run.v_mps / kmh) * kmh,
+        "accel_pedal": run.pedal.copy(),
+    }
     if sc.record_brake:
         ch["brake_pedal"] = run.brake.copy()
     if sc.record_rpm:
@@ -194,9 +206,16 @@ def record(sc: Scenario, run: Run | None = None) -> dict[str, np.ndarray]:
 def geometry() -> dict:
     """The geometry file's mapping (``vehicle:`` keys of models/params.py)."""
     car = Car()
-    return {"vehicle": {"wheelbase_m": 2.8, "track_front_m": 1.55, "track_rear_m": 1.55,
-                        "wheel_radius_m": car.wheel_radius_m, "mass_kg": car.mass_kg,
-                        "source": "tests/indep/powertrain_truth.py"}}
+    return {
+        "vehicle": {
+            "wheelbase_m": 2.8,
+            "track_front_m": 1.55,
+            "track_rear_m": 1.55,
+            "wheel_radius_m": car.wheel_radius_m,
+            "mass_kg": car.mass_kg,
+            "source": "tests/indep/powertrain_truth.py",
+        }
+    }
 
 
 def gearbox_scenario(seed: int = 0, duration_s: float = 300.0) -> Scenario:
@@ -209,6 +228,7 @@ def unrecorded_brake_scenario(seed: int = 0, duration_s: float = 300.0) -> Scena
 
 
 # ---- a by-wire car following a speed command ----------------------------------------------
+
 
 @dataclass
 class ByWireCar:
@@ -223,13 +243,15 @@ class ByWireCar:
     c_roll_mps2: float = 0.1
 
     def accel(self, v: float, cmd: float) -> float:
-        a = float(np.clip(self.k_p_per_s * (cmd - v), -self.accel_limit_mps2,
-                          self.accel_limit_mps2))
+        a = float(
+            np.clip(self.k_p_per_s * (cmd - v), -self.accel_limit_mps2, self.accel_limit_mps2)
+        )
         return a - (self.c_roll_mps2 if v > 0.01 else 0.0)
 
 
-def speed_command_record(car: ByWireCar, duration_s: float = 300.0, seed: int = 0
-                         ) -> dict[str, np.ndarray]:
+def speed_command_record(
+    car: ByWireCar, duration_s: float = 300.0, seed: int = 0
+) -> dict[str, np.ndarray]:
     """A teleoperated drive: the speed command jumps between random levels (0-12 m/s, held
     3-10 s, as a joystick gives), sampled at 50 Hz and held; the car integrated at 500 Hz;
     ``speed`` quantised to 0.01 km/h, ``speed_cmd`` to 0.01 m/s. No pedal channel."""

@@ -1,4 +1,5 @@
 """Clock alignment (known offsets injected and recovered) and resampling onto the grid."""
+
 import numpy as np
 import pytest
 
@@ -58,11 +59,18 @@ def test_offset_beyond_window_is_flagged():
 def comma_pair(comma_log, comma_dbc):
     p = Problems()
     frames = read_log(comma_log, p)
-    dec = decode_frames(frames, load_dbc(comma_dbc), p, names=["WHEEL_SPEEDS", "KINEMATICS"],
-                        buses=[0])
+    dec = decode_frames(
+        frames, load_dbc(comma_dbc), p, names=["WHEEL_SPEEDS", "KINEMATICS"], buses=[0]
+    )
     w = dec["WHEEL_SPEEDS"]
-    v_can = sum(w.signals[s] for s in ("WHEEL_SPEED_FL", "WHEEL_SPEED_FR", "WHEEL_SPEED_RL",
-                                        "WHEEL_SPEED_RR")) / 4 / 3.6
+    v_can = (
+        sum(
+            w.signals[s]
+            for s in ("WHEEL_SPEED_FL", "WHEEL_SPEED_FR", "WHEEL_SPEED_RL", "WHEEL_SPEED_RR")
+        )
+        / 4
+        / 3.6
+    )
     nav = read_nav(bundled("rav4-comma2k19/nav.csv.gz"), p)
     imu = read_imu_raw(bundled("rav4-comma2k19/imu.csv.gz"), p)
     return w.t_s, v_can, nav, imu
@@ -90,8 +98,13 @@ def test_imu_aligned_to_nav_by_yaw_rate(comma_pair, injected_s):
     """Same device: the IMU's yaw rate lines up with the INS heading rate at the injected offset."""
     _, _, nav, imu = comma_pair
     th, h = nav["heading"]
-    est = estimate_offset(th, np.gradient(np.unwrap(h), th), imu.t_s - injected_s,
-                          imu.yaw_rate_device(), what="yaw rate")
+    est = estimate_offset(
+        th,
+        np.gradient(np.unwrap(h), th),
+        imu.t_s - injected_s,
+        imu.yaw_rate_device(),
+        what="yaw rate",
+    )
     assert est.ok and est.peak > 0.9
     assert est.offset_s == pytest.approx(injected_s, abs=0.02)
 
@@ -135,12 +148,14 @@ def test_gaps_are_nan_not_interpolated():
 
 def test_hold_and_string_hold_previous_sample():
     t = np.array([0.0, 0.5, 1.0])
-    out, _ = resample(t, np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.2, 0.5, 0.7, 1.0, 1.2]),
-                      "hold")
+    out, _ = resample(
+        t, np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.2, 0.5, 0.7, 1.0, 1.2]), "hold"
+    )
     np.testing.assert_array_equal(out[:5], [0.0, 0.0, 1.0, 1.0, 0.0])
     assert np.isnan(out[5])
-    gear, _ = resample(t, np.array(["P", "R", "D"], dtype=object), np.array([-0.1, 0.1, 0.6, 1.0]),
-                       "string")
+    gear, _ = resample(
+        t, np.array(["P", "R", "D"], dtype=object), np.array([-0.1, 0.1, 0.6, 1.0]), "string"
+    )
     assert list(gear) == ["", "P", "R", "D"]
 
 

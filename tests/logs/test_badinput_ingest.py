@@ -3,6 +3,7 @@
 Fatal -> InputError/ParamError, exit 2 with one stderr line naming the file and line/channel/key.
 Recoverable -> exit 0, skipped rows counted and reported with their first line numbers.
 """
+
 import gzip
 import json
 import textwrap
@@ -67,20 +68,31 @@ def write(tmp_path, name, text):
 BAD_MAPS = {
     "message not in the DBC": (
         "channels:\n  speed: {message: WHEEL_SPEED_X, expr: WHEEL_SPEED_FL, unit: km/h}\n",
-        ":2: key 'channels.speed.message'", "WHEEL_SPEED_X"),
+        ":2: key 'channels.speed.message'",
+        "WHEEL_SPEED_X",
+    ),
     "signal not in the DBC": (
         "channels:\n  speed:\n    message: WHEEL_SPEEDS\n    expr: WHEEL_SPEED_FX / 2\n"
         "    unit: km/h\n",
-        ":4: key 'channels.speed.expr'", "WHEEL_SPEED_FX"),
+        ":4: key 'channels.speed.expr'",
+        "WHEEL_SPEED_FX",
+    ),
     "unknown key in an entry": (
         "channels:\n  speed:\n    message: WHEEL_SPEEDS\n    expr: WHEEL_SPEED_FL\n"
         "    units: km/h\n",
-        ":5: key 'channels.speed.units'", "unknown key"),
+        ":5: key 'channels.speed.units'",
+        "unknown key",
+    ),
     "unknown top-level key": (
-        "vehicle: x\nsignals:\n  speed: {}\n", ":2: key 'signals'", "unknown key"),
+        "vehicle: x\nsignals:\n  speed: {}\n",
+        ":2: key 'signals'",
+        "unknown key",
+    ),
     "unknown channel": (
         "channels:\n  velocity: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: km/h}\n",
-        ":2: key 'channels.velocity'", "unknown channel"),
+        ":2: key 'channels.velocity'",
+        "unknown channel",
+    ),
 }
 
 
@@ -91,8 +103,19 @@ def test_bad_signal_map(case, tmp_path, short_log, comma_dbc, capsys):
     with pytest.raises(ParamError) as ei:
         ingest_files(short_log["full"], comma_dbc, m)
     assert str(ei.value).startswith(f"{m}{where}") and word in str(ei.value)
-    rc, err = cli_run(["ingest", short_log["full"], "--dbc", comma_dbc, "--signals", m,
-                       "--out", tmp_path / "r.csv"], capsys)
+    rc, err = cli_run(
+        [
+            "ingest",
+            short_log["full"],
+            "--dbc",
+            comma_dbc,
+            "--signals",
+            m,
+            "--out",
+            tmp_path / "r.csv",
+        ],
+        capsys,
+    )
     assert rc == 2
     line = error_line(err)
     assert f"{m}{where}" in line and word in line and "Traceback" not in err
@@ -110,8 +133,9 @@ def test_bad_map_is_reported_before_a_bad_log(log_case, tmp_path, comma_dbc, cap
     with pytest.raises(ParamError) as ei:
         ingest_files(log, comma_dbc, m)
     assert str(ei.value).startswith(f"{m}:2: key 'channels.velocity'")
-    rc, err = cli_run(["ingest", log, "--dbc", comma_dbc, "--signals", m,
-                       "--out", tmp_path / "r.csv"], capsys)
+    rc, err = cli_run(
+        ["ingest", log, "--dbc", comma_dbc, "--signals", m, "--out", tmp_path / "r.csv"], capsys
+    )
     assert rc == 2 and f"{m}:2" in error_line(err) and "Traceback" not in err
     # with a good map the log's own error is the one reported
     with pytest.raises(InputError) as ei:
@@ -120,15 +144,30 @@ def test_bad_map_is_reported_before_a_bad_log(log_case, tmp_path, comma_dbc, cap
 
 
 def test_message_on_two_buses_needs_bus(tmp_path, short_log, comma_dbc, capsys):
-    m = write(tmp_path, "m.yaml", """\
+    m = write(
+        tmp_path,
+        "m.yaml",
+        """\
         channels:
           speed: {message: WHEEL_SPEEDS, expr: WHEEL_SPEED_FL, unit: km/h, required: true}
           brake_pedal: {message: BRAKE_MODULE, expr: BRAKE_PRESSED, unit: fraction}
-    """)
+    """,
+    )
     with pytest.raises(InputError, match="channel 'brake_pedal'.*buses 0, 1"):
         ingest_files(short_log["full"], comma_dbc, m)
-    rc, err = cli_run(["ingest", short_log["full"], "--dbc", comma_dbc, "--signals", m,
-                       "--out", tmp_path / "r.csv"], capsys)
+    rc, err = cli_run(
+        [
+            "ingest",
+            short_log["full"],
+            "--dbc",
+            comma_dbc,
+            "--signals",
+            m,
+            "--out",
+            tmp_path / "r.csv",
+        ],
+        capsys,
+    )
     assert rc == 2 and "channel 'brake_pedal'" in error_line(err)
 
 
@@ -140,8 +179,9 @@ def test_required_channel_absent_from_log(tmp_path, short_log, comma_dbc, capsys
         ingest_files(log, comma_dbc, m)
     msg = str(ei.value)
     assert msg.startswith(str(log)) and "channel 'wheel_speed_fl'" in msg and "WHEEL_SPEEDS" in msg
-    rc, err = cli_run(["ingest", log, "--dbc", comma_dbc, "--signals", m,
-                       "--out", tmp_path / "r.csv"], capsys)
+    rc, err = cli_run(
+        ["ingest", log, "--dbc", comma_dbc, "--signals", m, "--out", tmp_path / "r.csv"], capsys
+    )
     assert rc == 2
     line = error_line(err)
     assert str(log) in line and "channel 'wheel_speed_fl'" in line
@@ -152,25 +192,51 @@ def test_optional_channel_absent_is_listed_not_zero_filled(tmp_path, short_log, 
     res = ingest_files(short_log["no_gear"], comma_dbc, m)
     assert res.summary["channels_absent"] == ["gear"]
     assert "gear" not in res.recording
-    rc, _ = cli_run(["ingest", short_log["no_gear"], "--dbc", comma_dbc, "--signals", m,
-                     "--out", tmp_path / "r.csv"], capsys)
+    rc, _ = cli_run(
+        [
+            "ingest",
+            short_log["no_gear"],
+            "--dbc",
+            comma_dbc,
+            "--signals",
+            m,
+            "--out",
+            tmp_path / "r.csv",
+        ],
+        capsys,
+    )
     assert rc == 0
     assert "gear" not in (tmp_path / "r.csv").read_text().splitlines()[0].split(",")
 
 
 def test_expression_nan_is_recoverable(tmp_path, short_log, comma_dbc, capsys):
     # GAS_PEDAL reads 29 % in some frames of this stretch: 0/0 there, 1 elsewhere
-    m = write(tmp_path, "m.yaml", SMALL_MAP + "  accel_pedal: {message: GAS_PEDAL, "
-                                              "expr: (GAS_PEDAL - 29) / (GAS_PEDAL - 29), "
-                                              "unit: fraction, bus: 0}\n")
+    m = write(
+        tmp_path,
+        "m.yaml",
+        SMALL_MAP + "  accel_pedal: {message: GAS_PEDAL, "
+        "expr: (GAS_PEDAL - 29) / (GAS_PEDAL - 29), "
+        "unit: fraction, bus: 0}\n",
+    )
     p = Problems()
     res = ingest_files(short_log["full"], comma_dbc, m, problems=p)
     item = [i for i in p.to_list() if "expression" in i["kind"]][0]
     assert item["count"] > 0 and item["first"] and "accel_pedal" in item["detail"]
     t, v = res.recording.raw["accel_pedal"]
     assert (v == 1.0).all()
-    rc, err = cli_run(["ingest", short_log["full"], "--dbc", comma_dbc, "--signals", m,
-                       "--out", tmp_path / "r.csv"], capsys)
+    rc, err = cli_run(
+        [
+            "ingest",
+            short_log["full"],
+            "--dbc",
+            comma_dbc,
+            "--signals",
+            m,
+            "--out",
+            tmp_path / "r.csv",
+        ],
+        capsys,
+    )
     assert rc == 0 and "expression gave NaN" in err
 
 
@@ -188,8 +254,23 @@ def test_nan_inf_in_nav_is_recoverable(tmp_path, comma_log, comma_dbc, capsys):
     assert items[0]["count"] == 4 and items[0]["first"] == [4, 101, 102, 501]
     assert res.summary["channels"]["gps_speed"]["raw_samples"] == 1200 - 4
     js = tmp_path / "s.json"
-    rc, err = cli_run(["ingest", comma_log, "--dbc", comma_dbc, "--signals", MAP17, "--nav", nav,
-                       "--out", tmp_path / "r.csv", "--json", js], capsys)
+    rc, err = cli_run(
+        [
+            "ingest",
+            comma_log,
+            "--dbc",
+            comma_dbc,
+            "--signals",
+            MAP17,
+            "--nav",
+            nav,
+            "--out",
+            tmp_path / "r.csv",
+            "--json",
+            js,
+        ],
+        capsys,
+    )
     assert rc == 0
     assert "4 x row with NaN or inf (skipped)" in err and "4, 101, 102, 501" in err
     summary = json.loads(js.read_text())
@@ -198,14 +279,18 @@ def test_nan_inf_in_nav_is_recoverable(tmp_path, comma_log, comma_dbc, capsys):
 
 NAV_BAD = {
     "empty": (b"", "empty file"),
-    "header only": (b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,vel_down,roll_rad,pitch_rad,"
-                    b"heading_rad\n",
-                    "no nav CSV data rows"),
+    "header only": (
+        b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,vel_down,roll_rad,pitch_rad,heading_rad\n",
+        "no nav CSV data rows",
+    ),
     "garbage": (bytes(range(256)) * 8, "binary"),
     "missing column": (b"time,lat_deg,lon_deg\n1,37,-122\n", "no column 'alt_m'"),
-    "all rows bad": (b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,roll_rad,pitch_rad,"
-                     b"heading_rad\n"
-                     b"1,nan,1,1,1,1,1,1,1\n2,x,1,1,1,1,1,1,1\n", "no usable nav CSV row"),
+    "all rows bad": (
+        b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,roll_rad,pitch_rad,"
+        b"heading_rad\n"
+        b"1,nan,1,1,1,1,1,1,1\n2,x,1,1,1,1,1,1,1\n",
+        "no usable nav CSV row",
+    ),
 }
 
 
@@ -217,8 +302,21 @@ def test_unusable_nav_file(case, tmp_path, short_log, comma_dbc, capsys):
     m = write(tmp_path, "m.yaml", SMALL_MAP)
     with pytest.raises(InputError, match=needle):
         ingest_files(short_log["full"], comma_dbc, m, nav)
-    rc, err = cli_run(["ingest", short_log["full"], "--dbc", comma_dbc, "--signals", m,
-                       "--nav", nav, "--out", tmp_path / "r.csv"], capsys)
+    rc, err = cli_run(
+        [
+            "ingest",
+            short_log["full"],
+            "--dbc",
+            comma_dbc,
+            "--signals",
+            m,
+            "--nav",
+            nav,
+            "--out",
+            tmp_path / "r.csv",
+        ],
+        capsys,
+    )
     assert rc == 2
     line = error_line(err)
     assert str(nav) in line and needle in line and "Traceback" not in err
@@ -228,16 +326,44 @@ def test_unusable_imu_file(tmp_path, short_log, comma_dbc, capsys):
     imu = tmp_path / "imu.csv"
     imu.write_bytes(b"\x00\x01garbage" * 100)
     m = write(tmp_path, "m.yaml", SMALL_MAP)
-    rc, err = cli_run(["ingest", short_log["full"], "--dbc", comma_dbc, "--signals", m,
-                       "--imu", imu, "--out", tmp_path / "r.csv"], capsys)
+    rc, err = cli_run(
+        [
+            "ingest",
+            short_log["full"],
+            "--dbc",
+            comma_dbc,
+            "--signals",
+            m,
+            "--imu",
+            imu,
+            "--out",
+            tmp_path / "r.csv",
+        ],
+        capsys,
+    )
     assert rc == 2 and str(imu) in error_line(err)
 
 
 def test_bad_column_settings(tmp_path, short_log, comma_dbc, capsys):
     cols = write(tmp_path, "cols.yaml", "nav:\n  latitude: lat\n")
     m = write(tmp_path, "m.yaml", SMALL_MAP)
-    rc, err = cli_run(["ingest", short_log["full"], "--dbc", comma_dbc, "--signals", m,
-                       "--nav", NAV, "--columns", cols, "--out", tmp_path / "r.csv"], capsys)
+    rc, err = cli_run(
+        [
+            "ingest",
+            short_log["full"],
+            "--dbc",
+            comma_dbc,
+            "--signals",
+            m,
+            "--nav",
+            NAV,
+            "--columns",
+            cols,
+            "--out",
+            tmp_path / "r.csv",
+        ],
+        capsys,
+    )
     assert rc == 2 and "key 'nav.latitude'" in error_line(err)
 
 
@@ -254,13 +380,25 @@ def test_bad_options_and_outputs(tmp_path, short_log, comma_dbc, capsys):
     capsys.readouterr()
     rc, err = cli_run(base + ["--out", tmp_path / "no" / "such" / "dir" / "r.csv"], capsys)
     assert rc == 2 and "cannot write the recording" in error_line(err)
-    rc, err = cli_run(["ingest", tmp_path / "missing.log", "--dbc", comma_dbc, "--signals", m,
-                       "--out", tmp_path / "r.csv"], capsys)
+    rc, err = cli_run(
+        [
+            "ingest",
+            tmp_path / "missing.log",
+            "--dbc",
+            comma_dbc,
+            "--signals",
+            m,
+            "--out",
+            tmp_path / "r.csv",
+        ],
+        capsys,
+    )
     assert rc == 2 and "missing.log" in error_line(err)
     empty = tmp_path / "empty.log"
     empty.write_text("")
-    rc, err = cli_run(["ingest", empty, "--dbc", comma_dbc, "--signals", m,
-                       "--out", tmp_path / "r.csv"], capsys)
+    rc, err = cli_run(
+        ["ingest", empty, "--dbc", comma_dbc, "--signals", m, "--out", tmp_path / "r.csv"], capsys
+    )
     assert rc == 2 and "empty.log" in error_line(err)
     with pytest.raises(ValueError):
         ingest_files(short_log["full"], comma_dbc, m, rate_hz=0)
@@ -268,15 +406,29 @@ def test_bad_options_and_outputs(tmp_path, short_log, comma_dbc, capsys):
 
 def test_nav_from_another_day_is_fatal(tmp_path, short_log, comma_dbc, capsys):
     lines = gzip.open(NAV, "rt").read().splitlines()
-    shifted = [lines[0]] + [f"{float(ln.split(',', 1)[0]) + 86400:.6f},{ln.split(',', 1)[1]}"
-                            for ln in lines[1:]]
+    shifted = [lines[0]] + [
+        f"{float(ln.split(',', 1)[0]) + 86400:.6f},{ln.split(',', 1)[1]}" for ln in lines[1:]
+    ]
     nav = tmp_path / "nav_next_day.csv"
     nav.write_text("\n".join(shifted) + "\n")
     m = write(tmp_path, "m.yaml", SMALL_MAP)
     with pytest.raises(InputError, match="does not overlap the CAN log"):
         ingest_files(short_log["full"], comma_dbc, m, nav)
-    rc, err = cli_run(["ingest", short_log["full"], "--dbc", comma_dbc, "--signals", m,
-                       "--nav", nav, "--out", tmp_path / "r.csv"], capsys)
+    rc, err = cli_run(
+        [
+            "ingest",
+            short_log["full"],
+            "--dbc",
+            comma_dbc,
+            "--signals",
+            m,
+            "--nav",
+            nav,
+            "--out",
+            tmp_path / "r.csv",
+        ],
+        capsys,
+    )
     assert rc == 2 and str(nav) in error_line(err)
     # the right offset makes it usable again (and is reported as given)
     res = ingest_files(short_log["full"], comma_dbc, m, nav, clock_offset_s=-86400.0)

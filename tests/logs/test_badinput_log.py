@@ -3,14 +3,20 @@ skipped, counted and reported with their first line numbers (CLI exit 0); fatal 
 InputError naming the file and line/frame (CLI exit 2, one line on stderr, no traceback).
 Built from real lines of the comma minute and the real DBC.
 """
+
 import gzip
 import json
 
 import numpy as np
 import pytest
 
-from hmpc.models.logs.canlog import (KIND_BACKWARDS, KIND_DUPLICATE, KIND_JUMP, KIND_MALFORMED,
-                           read_log)
+from hmpc.models.logs.canlog import (
+    KIND_BACKWARDS,
+    KIND_DUPLICATE,
+    KIND_JUMP,
+    KIND_MALFORMED,
+    read_log,
+)
 from hmpc.models.logs.dbc import load_dbc
 from hmpc.models.logs.decode import KIND_LONG, KIND_SHORT, KIND_UNKNOWN_ID, decode_frames
 from hmpc.models.errors import InputError, Problems
@@ -55,14 +61,14 @@ def _one_line_error(err, *needles):
 # ----------------------------------------------------------------------------- recoverable
 def test_truncated_and_garbled_lines_are_skipped_and_counted(tmp_path, real_lines, capsys):
     lines = list(real_lines)
-    lines[10] = lines[10][:17]                          # cut inside the timestamp field
-    lines[20] = lines[20][:-1]                          # odd number of hex digits
-    lines[30] = lines[30].replace(b"#", b"#Z", 1)       # non-hex payload
-    lines[40] = lines[40].replace(b")", b"", 1)         # no closing parenthesis
+    lines[10] = lines[10][:17]  # cut inside the timestamp field
+    lines[20] = lines[20][:-1]  # odd number of hex digits
+    lines[30] = lines[30].replace(b"#", b"#Z", 1)  # non-hex payload
+    lines[40] = lines[40].replace(b")", b"", 1)  # no closing parenthesis
     lines[50] = lines[50].replace(b" can0 ", b" can0  ")  # two spaces
     lines[60] = b"(1533226488.4x4433) can0 260#08FFFB0000001884"  # garbled time
     lines[70] = lines[70] + b" extra"
-    lines[80] = b"(1533226488.434433) can0 1234#08"     # 4-digit id is extended; ok
+    lines[80] = b"(1533226488.434433) can0 1234#08"  # 4-digit id is extended; ok
     p = _log(tmp_path, lines)
     problems = Problems()
     ft = read_log(p, problems)
@@ -95,9 +101,9 @@ def test_payload_shorter_and_longer_than_dbc(tmp_path, real_lines, comma_dbc, ca
     short_at = [i for i, ln in enumerate(lines) if b" 2C1#" in ln][:3]
     long_at = [i for i, ln in enumerate(lines) if b" 025#" in ln][:2]
     for i in short_at:
-        lines[i] = lines[i][:-4]             # 6 bytes: a truncated payload, still valid hex
+        lines[i] = lines[i][:-4]  # 6 bytes: a truncated payload, still valid hex
     for i in long_at:
-        lines[i] = lines[i] + b"AB"          # 9 bytes: a classic frame cannot hold that
+        lines[i] = lines[i] + b"AB"  # 9 bytes: a classic frame cannot hold that
     problems = Problems()
     read_log(_log(tmp_path, lines), problems)
     assert _problem(problems, KIND_MALFORMED).first == [i + 1 for i in long_at]
@@ -118,12 +124,17 @@ def test_payload_shorter_and_longer_than_dbc(tmp_path, real_lines, comma_dbc, ca
     assert len(out["GAS_PEDAL"]) == n_gas - 3
     assert not set(out["GAS_PEDAL"].where) & {i + 1 for i in short_at}
     # the longer frames decode their first 8 bytes exactly as the unmodified frames would
-    ref = decode_frames(read_log(_log(tmp_path, list(real_lines), "ok.log"), Problems()), db,
-                        Problems(), names=["STEER_ANGLE_SENSOR"])["STEER_ANGLE_SENSOR"]
+    ref = decode_frames(
+        read_log(_log(tmp_path, list(real_lines), "ok.log"), Problems()),
+        db,
+        Problems(),
+        names=["STEER_ANGLE_SENSOR"],
+    )["STEER_ANGLE_SENSOR"]
     got = out["STEER_ANGLE_SENSOR"]
     assert np.array_equal(got.signals["STEER_ANGLE"], ref.signals["STEER_ANGLE"])
-    rc, out, err = _cli(capsys, tmp_path / "both.log", "--dbc", comma_dbc, "--json",
-                        tmp_path / "i.json")
+    rc, out, err = _cli(
+        capsys, tmp_path / "both.log", "--dbc", comma_dbc, "--json", tmp_path / "i.json"
+    )
     assert rc == 0
     info = json.loads((tmp_path / "i.json").read_text())["dbc"]
     every = Problems()
@@ -133,16 +144,19 @@ def test_payload_shorter_and_longer_than_dbc(tmp_path, real_lines, comma_dbc, ca
 
 
 def test_unknown_ids_are_counted_not_fatal(tmp_path, real_lines, comma_dbc, capsys):
-    lines = list(real_lines) + [b"(1533226489.000000) can0 7AB#0102030405060708",
-                                b"(1533226489.000100) can0 1ABCDEF0#01"]
+    lines = list(real_lines) + [
+        b"(1533226489.000000) can0 7AB#0102030405060708",
+        b"(1533226489.000100) can0 1ABCDEF0#01",
+    ]
     p = _log(tmp_path, lines)
     problems = Problems()
     ft = read_log(p, problems)
     decode_frames(ft, load_dbc(comma_dbc), problems)
     unk = _problem(problems, KIND_UNKNOWN_ID)
     known = {(m.frame_id, m.is_extended_frame) for m in load_dbc(comma_dbc).messages}
-    assert unk.count == sum((int(i), bool(e)) not in known
-                            for i, e in zip(ft.arb_id, ft.is_extended))
+    assert unk.count == sum(
+        (int(i), bool(e)) not in known for i, e in zip(ft.arb_id, ft.is_extended)
+    )
     distinct = {(int(i), bool(e)) for i, e in zip(ft.arb_id, ft.is_extended)} - known
     assert unk.detail.startswith(f"{len(distinct)} distinct id(s)")
     rc, out, err = _cli(capsys, p, "--dbc", comma_dbc)
@@ -171,8 +185,8 @@ def test_timestamps_backwards_are_resorted_and_reported(tmp_path, real_lines, ca
 def test_clock_jump_is_reported_and_frames_kept(tmp_path, real_lines, capsys):
     lines = list(real_lines)
     for i in range(200, N_LINES):  # shift the second half 5 s later
-        t = float(lines[i][1:lines[i].index(b")")])
-        lines[i] = b"(%.6f)" % (t + 5.0) + lines[i][lines[i].index(b")") + 1:]
+        t = float(lines[i][1 : lines[i].index(b")")])
+        lines[i] = b"(%.6f)" % (t + 5.0) + lines[i][lines[i].index(b")") + 1 :]
     p = _log(tmp_path, lines)
     problems = Problems()
     ft = read_log(p, problems, jump_s=1.0)
@@ -194,7 +208,7 @@ def test_clock_jump_is_reported_and_frames_kept(tmp_path, real_lines, capsys):
 
 def test_duplicate_frames_are_dropped_and_counted(tmp_path, real_lines):
     lines = list(real_lines)
-    lines.insert(51, lines[50])      # exact duplicate, adjacent
+    lines.insert(51, lines[50])  # exact duplicate, adjacent
     p = _log(tmp_path, lines)
     problems = Problems()
     ft = read_log(p, problems)
@@ -203,8 +217,9 @@ def test_duplicate_frames_are_dropped_and_counted(tmp_path, real_lines):
     assert len(ft) == len(lines) - 1
     # same time, same id, different payload: not a duplicate
     lines2 = list(real_lines)
-    lines2.insert(51, lines2[50][:-2] + b"00" if not lines2[50].endswith(b"00") else
-                  lines2[50][:-2] + b"11")
+    lines2.insert(
+        51, lines2[50][:-2] + b"00" if not lines2[50].endswith(b"00") else lines2[50][:-2] + b"11"
+    )
     assert not [q for q in _probs(tmp_path, lines2) if q.kind == KIND_DUPLICATE]
 
 
@@ -224,8 +239,9 @@ def test_binary_garbage_in_a_text_log(tmp_path, real_lines, capsys):
     problems = Problems()
     ft = read_log(p, problems)
     bad = _problem(problems, KIND_MALFORMED)
-    n_garbage_lines = garbage.count(b"\n") + 1 - sum(
-        1 for x in garbage.split(b"\n") if not x.rstrip(b"\r"))
+    n_garbage_lines = (
+        garbage.count(b"\n") + 1 - sum(1 for x in garbage.split(b"\n") if not x.rstrip(b"\r"))
+    )
     assert bad.count == n_garbage_lines and bad.first[0] == 101
     assert len(ft) == N_LINES
     rc, out, err = _cli(capsys, p)
@@ -235,10 +251,10 @@ def test_binary_garbage_in_a_text_log(tmp_path, real_lines, capsys):
 def test_libpanda_bad_lines(tmp_path, vcan_log):
     with gzip.open(vcan_log, "rb") as fh:
         lines = [fh.readline().rstrip(b"\n") for _ in range(60)]
-    lines[5] = lines[5].rsplit(b",", 1)[0] + b",7"   # MessageLength disagrees with payload
-    lines[6] = lines[6][:20]                          # truncated
-    lines[7] = lines[7].replace(b",0,", b",x,", 1)    # garbled bus
-    lines[8] = lines[8] + b",surplus"                 # wrong column count
+    lines[5] = lines[5].rsplit(b",", 1)[0] + b",7"  # MessageLength disagrees with payload
+    lines[6] = lines[6][:20]  # truncated
+    lines[7] = lines[7].replace(b",0,", b",x,", 1)  # garbled bus
+    lines[8] = lines[8] + b",surplus"  # wrong column count
     p = _log(tmp_path, lines, "drive.csv")
     problems = Problems()
     ft = read_log(p, problems)
@@ -249,8 +265,11 @@ def test_libpanda_bad_lines(tmp_path, vcan_log):
 
 # ----------------------------------------------------------------------------- fatal
 def test_empty_file_is_fatal(tmp_path, capsys):
-    for name, data in (("empty.log", b""), ("blank.csv", b"\n\n  \n"),
-                       ("empty.log.gz", gzip.compress(b""))):
+    for name, data in (
+        ("empty.log", b""),
+        ("blank.csv", b"\n\n  \n"),
+        ("empty.log.gz", gzip.compress(b"")),
+    ):
         p = tmp_path / name
         p.write_bytes(data)
         with pytest.raises(InputError, match="empty file") as exc:
@@ -301,7 +320,7 @@ def test_missing_file_and_corrupt_gzip_are_fatal(tmp_path, comma_log, capsys):
     assert rc == 2
     _one_line_error(err, "nope.log", "no such file")
     raw = bytearray(comma_log.read_bytes())
-    raw[5000:5400] = bytes(400)            # the deflate data overwritten: corrupt, not cut
+    raw[5000:5400] = bytes(400)  # the deflate data overwritten: corrupt, not cut
     bad = tmp_path / "corrupt.log.gz"
     bad.write_bytes(bytes(raw))
     rc, out, err = _cli(capsys, bad)
@@ -323,6 +342,7 @@ def test_corrupt_binary_log_names_the_frame(tmp_path, comma_log, capsys):
     import itertools
 
     import can
+
     msgs = list(itertools.islice(can.LogReader(str(comma_log)), 500))
     p = tmp_path / "real.blf"
     w = can.BLFWriter(str(p))
@@ -339,9 +359,11 @@ def test_corrupt_binary_log_names_the_frame(tmp_path, comma_log, capsys):
 
 def test_bad_dbc_is_fatal_naming_the_line(tmp_path, comma_log, capsys):
     dbc = tmp_path / "bad.dbc"
-    dbc.write_text('VERSION ""\n\nBO_ 705 GAS_PEDAL: 8 XXX\n'
-                   ' SG_ GAS : 7|8@0+ (0.5,0) [0|1] "" XXX\n'
-                   "this is not dbc\n")
+    dbc.write_text(
+        'VERSION ""\n\nBO_ 705 GAS_PEDAL: 8 XXX\n'
+        ' SG_ GAS : 7|8@0+ (0.5,0) [0|1] "" XXX\n'
+        "this is not dbc\n"
+    )
     with pytest.raises(InputError) as exc:
         load_dbc(dbc)
     assert exc.value.line == 5
@@ -356,18 +378,22 @@ def test_bad_dbc_is_fatal_naming_the_line(tmp_path, comma_log, capsys):
 def test_unknown_message_name_is_fatal(tmp_path, comma_log, comma_dbc):
     ft = read_log(comma_log, Problems())
     with pytest.raises(InputError) as exc:
-        decode_frames(ft, load_dbc(comma_dbc), Problems(), names=["NOT_A_MESSAGE"],
-                      dbc_path=str(comma_dbc))
+        decode_frames(
+            ft, load_dbc(comma_dbc), Problems(), names=["NOT_A_MESSAGE"], dbc_path=str(comma_dbc)
+        )
     assert "NOT_A_MESSAGE" in str(exc.value) and str(comma_dbc) in str(exc.value)
 
 
 def test_huge_newline_free_garbage_keeps_line_numbers(tmp_path, real_lines):
     from hmpc.models.logs.textblocks import MAX_LINE_BYTES
-    blob = bytes(np.random.default_rng(3).integers(0, 256, 3 * MAX_LINE_BYTES // 2,
-                                                   dtype=np.uint8)).replace(b"\n", b"x")
+
+    blob = bytes(
+        np.random.default_rng(3).integers(0, 256, 3 * MAX_LINE_BYTES // 2, dtype=np.uint8)
+    ).replace(b"\n", b"x")
     p = tmp_path / "blob.log"
-    p.write_bytes(b"\n".join(real_lines[:10]) + b"\n" + blob + b"\n"
-                  + b"\n".join(real_lines[10:20]) + b"\n")
+    p.write_bytes(
+        b"\n".join(real_lines[:10]) + b"\n" + blob + b"\n" + b"\n".join(real_lines[10:20]) + b"\n"
+    )
     problems = Problems()
     ft = read_log(p, problems, chunk_bytes=256 * 1024)
     assert len(ft) == 20

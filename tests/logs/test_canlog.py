@@ -7,6 +7,7 @@
 - asc/blf/trc/csv/candump (plain and gzip): real frames written with python-can's writers read
   back identically (payloads, ids, bus partition exactly; times to the format's resolution).
 """
+
 import csv
 import gzip
 import itertools
@@ -37,7 +38,7 @@ def test_candump_equals_python_can_frame_by_frame(comma_log):
     assert np.array_equal(ft.is_extended, [m.is_extended_id for m in msgs])
     assert np.array_equal(ft.dlc, [len(m.data) for m in msgs])
     assert np.array_equal(ft.bus, [int(m.channel[-1]) for m in msgs])  # can0 -> 0, can1 -> 1
-    assert all(ft.data[i, :ft.dlc[i]].tobytes() == bytes(m.data) for i, m in enumerate(msgs))
+    assert all(ft.data[i, : ft.dlc[i]].tobytes() == bytes(m.data) for i, m in enumerate(msgs))
     assert ft.data.shape[1] == 8  # width = longest payload in the file
     assert np.array_equal(ft.where, np.arange(1, len(msgs) + 1))
 
@@ -62,8 +63,10 @@ def test_libpanda_equals_csv_module(vcan_log):
     assert np.array_equal(ft.bus, [int(rows[i]["Bus"]) for i in order])
     assert np.array_equal(ft.arb_id, [int(rows[i]["MessageID"]) for i in order])
     assert np.array_equal(ft.dlc, [int(rows[i]["MessageLength"]) for i in order])
-    assert all(ft.data[k, :ft.dlc[k]].tobytes() == bytes.fromhex(rows[i]["Message"])
-               for k, i in enumerate(order))
+    assert all(
+        ft.data[k, : ft.dlc[k]].tobytes() == bytes.fromhex(rows[i]["Message"])
+        for k, i in enumerate(order)
+    )
     backwards = [p for p in problems if p.kind.startswith("timestamp earlier")]
     assert sum(p.count for p in backwards) == int(np.sum(np.diff(t) < 0))
 
@@ -71,20 +74,24 @@ def test_libpanda_equals_csv_module(vcan_log):
 def test_libpanda_column_order_from_header(tmp_path):
     """The sweep file's layout: an extra Buffer column in second place."""
     p = tmp_path / "sweep.csv"
-    p.write_text("Time,Buffer,Bus,MessageID,Message,MessageLength\n"
-                 "1583178870.7570062,000040520800d4e7000000000200009e,0,658,000000000200009e,8\n"
-                 "1583178870.759268,000000301800acc55d084400e0000113,1,384,5d084400e0000113,8\n")
+    p.write_text(
+        "Time,Buffer,Bus,MessageID,Message,MessageLength\n"
+        "1583178870.7570062,000040520800d4e7000000000200009e,0,658,000000000200009e,8\n"
+        "1583178870.759268,000000301800acc55d084400e0000113,1,384,5d084400e0000113,8\n"
+    )
     ft = read_log(p, Problems())
     assert list(ft.t_s) == [1583178870.7570062, 1583178870.759268]
     assert list(ft.bus) == [0, 1] and list(ft.arb_id) == [658, 384]
     assert ft.data[1].tobytes() == bytes.fromhex("5d084400e0000113")
 
 
-WRITERS = {"asc": (can.ASCWriter, 1e-3),   # ASC: trigger-block start has ms resolution
-           "blf": (can.BLFWriter, 1e-9),
-           "trc": (can.TRCWriter, 1e-6),
-           "csv": (can.CSVWriter, 0.0),
-           "log": (can.CanutilsLogWriter, 0.0)}
+WRITERS = {
+    "asc": (can.ASCWriter, 1e-3),  # ASC: trigger-block start has ms resolution
+    "blf": (can.BLFWriter, 1e-9),
+    "trc": (can.TRCWriter, 1e-6),
+    "csv": (can.CSVWriter, 0.0),
+    "log": (can.CanutilsLogWriter, 0.0),
+}
 
 
 @pytest.mark.parametrize("fmt", sorted(WRITERS))
@@ -112,7 +119,7 @@ def test_python_can_formats_read_back(comma_log, tmp_path, fmt, compress):
     assert np.array_equal(ft.arb_id, [m.arbitration_id for m in msgs])
     assert np.array_equal(ft.is_extended, [m.is_extended_id for m in msgs])
     assert np.array_equal(ft.dlc, [len(m.data) for m in msgs])
-    assert all(ft.data[i, :ft.dlc[i]].tobytes() == bytes(m.data) for i, m in enumerate(msgs))
+    assert all(ft.data[i, : ft.dlc[i]].tobytes() == bytes(m.data) for i, m in enumerate(msgs))
     t = np.array([m.timestamp for m in msgs])
     assert np.max(np.abs(ft.t_s - t)) <= tol_s + 1e-12 * np.max(t)
     orig_bus = np.array([m.channel for m in msgs])
@@ -125,13 +132,15 @@ def test_python_can_formats_read_back(comma_log, tmp_path, fmt, compress):
 
 def test_candump_variants_and_bus_names(tmp_path):
     p = tmp_path / "variants.log"
-    p.write_text("(1.000000) vcan0 123#DEADBEEF\n"
-                 "(1.000100) can1 12345678#0102 T\n"          # extended id, direction flag
-                 "(1.000200) can1 321##1" + "AB" * 12 + "\n"  # CAN FD, flags 1, 12 bytes
-                 "(1.000300) vcan0 7FF#\n"                     # empty payload
-                 "(1.000400) slcan 100#R\n"                    # remote frame: no payload
-                 "\n"
-                 "(1.000500) slcan 100#11\r\n")               # CRLF, name without a number
+    p.write_text(
+        "(1.000000) vcan0 123#DEADBEEF\n"
+        "(1.000100) can1 12345678#0102 T\n"  # extended id, direction flag
+        "(1.000200) can1 321##1" + "AB" * 12 + "\n"  # CAN FD, flags 1, 12 bytes
+        "(1.000300) vcan0 7FF#\n"  # empty payload
+        "(1.000400) slcan 100#R\n"  # remote frame: no payload
+        "\n"
+        "(1.000500) slcan 100#11\r\n"
+    )  # CRLF, name without a number
     problems = Problems()
     ft = read_log(p, problems)
     assert list(ft.arb_id) == [0x123, 0x12345678, 0x321, 0x7FF, 0x100]
@@ -140,13 +149,12 @@ def test_candump_variants_and_bus_names(tmp_path):
     assert ft.data.shape[1] == 12 and ft.data[2].tobytes() == b"\xab" * 12
     assert list(ft.bus) == [0, 1, 1, 0, 2]  # slcan: next free number
     assert list(ft.where) == [1, 2, 3, 4, 7]
-    assert [(q.kind, q.count, q.first) for q in problems] == [
-        (KIND_REMOTE, 1, [5])]
+    assert [(q.kind, q.count, q.first) for q in problems] == [(KIND_REMOTE, 1, [5])]
 
 
 def test_format_detection_by_content(tmp_path, comma_log):
     text = gzip.decompress(comma_log.read_bytes())[:20000]
-    text = text[:text.rindex(b"\n") + 1]
+    text = text[: text.rindex(b"\n") + 1]
     for name in ("frames.txt", "frames", "frames.can"):
         p = tmp_path / name
         p.write_bytes(text)

@@ -13,6 +13,7 @@ the general parser), frame for frame and problem for problem.
   duplicates, steps back, clock jumps, binary garbage) and both bundled logs give the same
   FrameTable (dtypes and widths included) and the same problems.
 """
+
 import gzip
 import io
 import random
@@ -64,9 +65,14 @@ def _good_line(r: random.Random, t: float) -> str:
 
 
 #: lines python-can's reader refuses (it raises), and hmpc reports as malformed
-BAD_LINES = ["garbage", "(1533226488.434433) can0", "(1533226488.434433) can0 12Z#00",
-             "(1533226488.434433) can0 123#0G", "(1533226488.434433) can0 123#00 extra words",
-             "1533226488.434433 can0"]
+BAD_LINES = [
+    "garbage",
+    "(1533226488.434433) can0",
+    "(1533226488.434433) can0 12Z#00",
+    "(1533226488.434433) can0 123#0G",
+    "(1533226488.434433) can0 123#00 extra words",
+    "1533226488.434433 can0",
+]
 
 
 def _generated(seed: int, n: int = 3000) -> list[str]:
@@ -119,18 +125,19 @@ def test_bulk_reader_equals_python_can_with_malformed_lines(tmp_path, gz, chunk_
     assert np.array_equal(ft.is_extended, [m.is_extended_id for _, m in want])
     assert np.array_equal(ft.dlc, [len(m.data) for _, m in want])
     assert np.array_equal(ft.bus, [int(m.channel[-1]) for _, m in want])
-    assert all(ft.data[k, :ft.dlc[k]].tobytes() == bytes(m.data) for k, (_, m) in enumerate(want))
+    assert all(ft.data[k, : ft.dlc[k]].tobytes() == bytes(m.data) for k, (_, m) in enumerate(want))
     bad = [p for p in problems if p.kind == KIND_MALFORMED]
     assert len(bad) == 1 and bad[0].count == len(refused)
-    assert bad[0].first == refused[:Problems.MAX_FIRST]
+    assert bad[0].first == refused[: Problems.MAX_FIRST]
     _same(path, **kw)
 
 
 def test_comma_minute_takes_the_bulk_path(comma_log, monkeypatch):
     general = []
     real = candump.parse_lines
-    monkeypatch.setattr(candump, "parse_lines",
-                        lambda buf, ls, *a: general.append(len(ls)) or real(buf, ls, *a))
+    monkeypatch.setattr(
+        candump, "parse_lines", lambda buf, ls, *a: general.append(len(ls)) or real(buf, ls, *a)
+    )
     ft = read_log(comma_log, Problems())
     assert len(ft) == 135468 and sum(general) == 0
     with gzip.open(comma_log, "rb") as fh:
@@ -141,15 +148,33 @@ def test_comma_minute_takes_the_bulk_path(comma_log, monkeypatch):
 # ----------------------------------------------------------------------------- reference reader
 def _random_line(r: random.Random, t: float, one_layout: bool) -> bytes:
     layouts = ["%010d.%06d", "%d.%06d", "%d.%03d", "%d", "%d.", "%05d.%09d", "%010d.%08d"]
-    lay = r.choice(["%010d.%06d", "%010d.%08d"]) if one_layout and r.random() < 0.97 \
-        else r.choice(layouts)  # 18 digits: past 2**53, the exact long-double division
+    lay = (
+        r.choice(["%010d.%06d", "%010d.%08d"])
+        if one_layout and r.random() < 0.97
+        else r.choice(layouts)
+    )  # 18 digits: past 2**53, the exact long-double division
     sec, frac = int(t), int((t % 1) * 1e6)
     if "%08" in lay:
         frac = frac * 100 + r.randrange(100)
     ts = (lay % (sec, frac % 1000 if "%03" in lay else frac)) if lay.count("%") == 2 else lay % sec
-    name = "can0" if one_layout and r.random() < 0.9 else r.choice(
-        ["can0", "can1", "vcan0", "can10", "slcan0", "x", "ab#c", "averyveryverylongname0",
-         "c\x01n0", "can\xff"])
+    name = (
+        "can0"
+        if one_layout and r.random() < 0.9
+        else r.choice(
+            [
+                "can0",
+                "can1",
+                "vcan0",
+                "can10",
+                "slcan0",
+                "x",
+                "ab#c",
+                "averyveryverylongname0",
+                "c\x01n0",
+                "can\xff",
+            ]
+        )
+    )
     roll = r.random()
     if roll < 0.6:
         ident = f"{r.randrange(0x800):03X}" if r.random() < 0.9 else f"{r.randrange(0x1000):03x}"
@@ -171,9 +196,9 @@ def _random_line(r: random.Random, t: float, one_layout: bool) -> bytes:
     out = line.encode("latin-1")
     if r.random() < 0.05:
         i = r.randrange(len(out))
-        out = out[:i] + bytes([r.choice(b"0aF#(). \x00\xff\r-")]) + out[i + 1:]
+        out = out[:i] + bytes([r.choice(b"0aF#(). \x00\xff\r-")]) + out[i + 1 :]
     if r.random() < 0.02:
-        out = out[:r.randrange(len(out) + 1)]
+        out = out[: r.randrange(len(out) + 1)]
     return out
 
 
@@ -230,9 +255,18 @@ def test_frame_sink_grows_widens_and_prefaults_without_touching_rows():
         dlc = rng.integers(0, width + 1, n).astype(np.uint8)
         data = rng.integers(0, 256, (n, width)).astype(np.uint8)
         data[np.arange(width) >= dlc[:, None]] = 0
-        parts.append(Chunk(rng.random(n) + k, None, rng.integers(0, 0x800, n).astype(np.uint32),
-                           rng.random(n) < 0.5, dlc, data, np.arange(n, dtype=np.int64) + 10 * k,
-                           {}))
+        parts.append(
+            Chunk(
+                rng.random(n) + k,
+                None,
+                rng.integers(0, 0x800, n).astype(np.uint32),
+                rng.random(n) < 0.5,
+                dlc,
+                data,
+                np.arange(n, dtype=np.int64) + 10 * k,
+                {},
+            )
+        )
     sink = textblocks.FrameSink(1024)
     with ThreadPoolExecutor(1) as pool:
         pool.submit(sink.prefault)
@@ -243,12 +277,13 @@ def test_frame_sink_grows_widens_and_prefaults_without_touching_rows():
     n = sum(len(ch.t) for ch in parts)
     assert len(ft) == n and ft.data.shape == (n, 64)
     assert np.array_equal(ft.t_s, np.concatenate([ch.t for ch in parts]))
-    assert np.array_equal(ft.bus, np.concatenate([np.full(len(ch.t), k) for k, ch in
-                                                  enumerate(parts)]))
+    assert np.array_equal(
+        ft.bus, np.concatenate([np.full(len(ch.t), k) for k, ch in enumerate(parts)])
+    )
     assert np.array_equal(ft.arb_id, np.concatenate([ch.arb_id for ch in parts]))
     assert np.array_equal(ft.is_extended, np.concatenate([ch.ext for ch in parts]))
     assert np.array_equal(ft.where, np.concatenate([ch.where for ch in parts]))
-    want = np.concatenate([np.pad(ch.data, ((0, 0), (0, 64 - ch.data.shape[1])))
-                           for ch in parts])
-    assert np.array_equal(ft.data, want) and np.array_equal(ft.dlc,
-                                                            np.concatenate([c.dlc for c in parts]))
+    want = np.concatenate([np.pad(ch.data, ((0, 0), (0, 64 - ch.data.shape[1]))) for ch in parts])
+    assert np.array_equal(ft.data, want) and np.array_equal(
+        ft.dlc, np.concatenate([c.dlc for c in parts])
+    )

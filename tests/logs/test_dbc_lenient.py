@@ -2,6 +2,7 @@
 ``--dbc-lenient`` the bad lines are skipped and reported one by one, and everything else decodes
 exactly as with the clean DBC. The ingest JSON names the log format it detected,
 whatever the file is called."""
+
 from __future__ import annotations
 
 import gzip
@@ -20,8 +21,10 @@ from hmpc.tools.cli import main
 COMMA = DATA_DIR / "rav4-comma2k19"
 DBC = DATA_DIR / "dbc/toyota_rav4_2017.dbc.gz"
 # what opendbc's generated DBCs hold that cantools cannot parse: a comment with no signal name
-BAD_LINES = ['CM_ SG_ 869 "a signal comment without the signal name";',
-             'CM_ SG_ 1553 "another one";']
+BAD_LINES = [
+    'CM_ SG_ 869 "a signal comment without the signal name";',
+    'CM_ SG_ 1553 "another one";',
+]
 
 
 @pytest.fixture(scope="module")
@@ -59,16 +62,43 @@ def test_ingest_with_the_flag_equals_the_clean_dbc_and_names_the_format(broken_d
     log = tmp_path / "capture.dat.gz"  # an unusual name: the format comes from the content
     shutil.copy(COMMA / "can.log.gz", log)
     sig = str(PARAMS_DIR / "toyota_rav4_2017.signals.yaml")
-    assert main(["ingest", str(log), "--dbc", str(path), "--signals", sig,
-                 "--out", str(tmp_path / "x.csv")]) == 2
+    assert (
+        main(
+            [
+                "ingest",
+                str(log),
+                "--dbc",
+                str(path),
+                "--signals",
+                sig,
+                "--out",
+                str(tmp_path / "x.csv"),
+            ]
+        )
+        == 2
+    )
     out = {}
     for name, dbc, extra in (("lenient", path, ["--dbc-lenient"]), ("clean", DBC, [])):
-        rc = main(["ingest", str(log), "--dbc", str(dbc), "--signals", sig, *extra,
-                   "--out", str(tmp_path / f"{name}.csv"), "--json",
-                   str(tmp_path / f"{name}.json")])
+        rc = main(
+            [
+                "ingest",
+                str(log),
+                "--dbc",
+                str(dbc),
+                "--signals",
+                sig,
+                *extra,
+                "--out",
+                str(tmp_path / f"{name}.csv"),
+                "--json",
+                str(tmp_path / f"{name}.json"),
+            ]
+        )
         assert rc == 0
-        out[name] = (Recording.load(tmp_path / f"{name}.csv"),
-                     json.loads((tmp_path / f"{name}.json").read_text()))
+        out[name] = (
+            Recording.load(tmp_path / f"{name}.csv"),
+            json.loads((tmp_path / f"{name}.json").read_text()),
+        )
     (rl, jl), (rc_, jc) = out["lenient"], out["clean"]
     assert jl["log_format"] == jc["log_format"] == "candump"
     for ch in ("steering_wheel_angle", "wheel_speed_fl", "speed", "accel_pedal"):

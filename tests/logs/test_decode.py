@@ -2,19 +2,20 @@
 seeded random payloads of a DBC written here that exercises every layout (Motorola/Intel, odd
 bit positions, signed, scale/offset, integer scaling, floats, extended ids, CAN FD, multiplexing).
 """
+
 import numpy as np
 import pytest
 import cantools
 
 from hmpc.models.logs.canlog import read_log
 from hmpc.models.logs.dbc import load_dbc
-from hmpc.models.logs.decode import (KIND_UNKNOWN_ID, decode_frames, decode_frames_cantools)
+from hmpc.models.logs.decode import KIND_UNKNOWN_ID, decode_frames, decode_frames_cantools
 from hmpc.models.errors import InputError, Problems
 from hmpc.models.logs.frames import FrameTable
 
 SEED = 20240611
 
-DBC = '''VERSION ""
+DBC = """VERSION ""
 BS_:
 BU_: ECU
 
@@ -60,7 +61,7 @@ BO_ 264 SHORT3: 3 ECU
 SIG_VALTYPE_ 2147487744 F32 : 1;
 SIG_VALTYPE_ 2147487744 F32BE : 1;
 SIG_VALTYPE_ 260 F64 : 2;
-'''
+"""
 
 
 @pytest.fixture(scope="module")
@@ -73,13 +74,17 @@ def _table(rows, path="synthetic"):
     width = max(8, max(len(r[4]) for r in rows))
     data = np.zeros((len(rows), width), np.uint8)
     for i, r in enumerate(rows):
-        data[i, :len(r[4])] = np.frombuffer(r[4], np.uint8)
-    return FrameTable(np.array([r[0] for r in rows], float),
-                      np.array([r[1] for r in rows], np.int16),
-                      np.array([r[2] for r in rows], np.uint32),
-                      np.array([r[3] for r in rows], bool),
-                      np.array([len(r[4]) for r in rows], np.uint8), data,
-                      np.arange(1, len(rows) + 1, dtype=np.int64), path)
+        data[i, : len(r[4])] = np.frombuffer(r[4], np.uint8)
+    return FrameTable(
+        np.array([r[0] for r in rows], float),
+        np.array([r[1] for r in rows], np.int16),
+        np.array([r[2] for r in rows], np.uint32),
+        np.array([r[3] for r in rows], bool),
+        np.array([len(r[4]) for r in rows], np.uint8),
+        data,
+        np.arange(1, len(rows) + 1, dtype=np.int64),
+        path,
+    )
 
 
 def _bits(x: np.ndarray) -> np.ndarray:
@@ -125,8 +130,9 @@ def test_motorola_and_intel_bit_numbering_by_hand(syn_db):
         assert out.signals[sig.name][0] == raw * sig.scale + sig.offset
 
 
-@pytest.mark.parametrize("name", ["BITS", "LE64", "INTSCALE", "EXTFLOAT", "DOUBLE", "MUXED",
-                                  "FD16", "FD64", "SHORT3"])
+@pytest.mark.parametrize(
+    "name", ["BITS", "LE64", "INTSCALE", "EXTFLOAT", "DOUBLE", "MUXED", "FD16", "FD64", "SHORT3"]
+)
 def test_random_payloads_bit_exact_against_cantools(syn_db, name):
     rng = np.random.default_rng(SEED)
     msg = syn_db.get_message_by_name(name)
@@ -150,8 +156,9 @@ def test_random_payloads_bit_exact_against_cantools(syn_db, name):
 def test_multiplexed_signals_absent_are_nan(syn_db):
     mux0 = bytes([0x00, 0x34, 0x12, 0, 0, 0, 0, 7])
     mux1 = bytes([0x01, 0x12, 0x30, 0, 0, 0, 0, 9])
-    got = decode_frames(_table([(0.0, 0, 261, False, mux0), (0.1, 0, 261, False, mux1)]),
-                        syn_db, Problems())["MUXED"]
+    got = decode_frames(
+        _table([(0.0, 0, 261, False, mux0), (0.1, 0, 261, False, mux1)]), syn_db, Problems()
+    )["MUXED"]
     assert got.signals["A"][0] == 0x1234 * 0.1 and np.isnan(got.signals["A"][1])
     assert np.isnan(got.signals["B"][0]) and got.signals["B"][1] == 0x123 - 3
     assert list(got.signals["C"]) == [7.0, 9.0]
@@ -166,12 +173,16 @@ def test_round_trip_encode_then_decode(syn_db):
         for i in range(200):
             raw = {}
             for s in msg.signals:
-                lo, hi = (-(1 << (s.length - 1)), (1 << (s.length - 1)) - 1) if s.is_signed \
+                lo, hi = (
+                    (-(1 << (s.length - 1)), (1 << (s.length - 1)) - 1)
+                    if s.is_signed
                     else (0, (1 << s.length) - 1)
+                )
                 raw[s.name] = int(rng.integers(lo, hi, endpoint=True))
             raws.append(raw)
-            rows.append((float(i), 1, msg.frame_id, False,
-                         msg.encode(raw, scaling=False, strict=False)))
+            rows.append(
+                (float(i), 1, msg.frame_id, False, msg.encode(raw, scaling=False, strict=False))
+            )
         got = decode_frames(_table(rows), syn_db, Problems(), buses=[1])[name]
         for s in msg.signals:
             want = np.array([r[s.name] * s.scale + s.offset for r in raws], float)
@@ -199,8 +210,13 @@ def test_cantools_path_gives_the_same_outputs(syn_db):
 
 def test_unknown_message_name_is_an_input_error(syn_db):
     with pytest.raises(InputError, match="NOPE"):
-        decode_frames(_table([(0.0, 0, 256, False, bytes(8))]), syn_db, Problems(),
-                      names=["NOPE"], dbc_path="x.dbc")
+        decode_frames(
+            _table([(0.0, 0, 256, False, bytes(8))]),
+            syn_db,
+            Problems(),
+            names=["NOPE"],
+            dbc_path="x.dbc",
+        )
 
 
 def _overlapping(msg) -> bool:
@@ -216,10 +232,12 @@ def _overlapping(msg) -> bool:
 
 def _single_signal_reference(msg, sig, payloads):
     """cantools decoding one signal alone (for messages whose signals overlap)."""
-    one = cantools.database.can.Message(frame_id=msg.frame_id, name=msg.name, length=msg.length,
-                                        signals=[sig], strict=False)
-    return np.array([one.decode(p[:msg.length], decode_choices=False)[sig.name] for p in payloads],
-                    float)
+    one = cantools.database.can.Message(
+        frame_id=msg.frame_id, name=msg.name, length=msg.length, signals=[sig], strict=False
+    )
+    return np.array(
+        [one.decode(p[: msg.length], decode_choices=False)[sig.name] for p in payloads], float
+    )
 
 
 @pytest.mark.parametrize("log,dbc", [("comma_log", "comma_dbc"), ("vcan_log", "vcan_dbc")])
@@ -234,7 +252,7 @@ def test_fast_path_equals_cantools_on_every_frame_of_the_real_logs(log, dbc, req
     for name, dm in got.items():
         msg = db.get_message_by_name(name)
         rows = [by_where[int(w)] for w in dm.where]
-        payloads = [frames.data[r, :frames.dlc[r]].tobytes() for r in rows]
+        payloads = [frames.data[r, : frames.dlc[r]].tobytes() for r in rows]
         assert np.array_equal(dm.t_s, frames.t_s[rows])
         if _overlapping(msg):
             # cantools' whole-message codec cannot unpack overlapping signals ("unpacking
@@ -245,8 +263,10 @@ def test_fast_path_equals_cantools_on_every_frame_of_the_real_logs(log, dbc, req
         else:
             ref = _reference(db, msg, payloads)
             for sig in msg.signals:
-                assert np.array_equal(_bits(dm.signals[sig.name]), _bits(ref[sig.name])), \
-                    (name, sig.name)
+                assert np.array_equal(_bits(dm.signals[sig.name]), _bits(ref[sig.name])), (
+                    name,
+                    sig.name,
+                )
         decoded += len(dm)
     # every frame with a DBC id (and enough payload) was decoded, the rest counted as unknown
     unknown = {p.kind: p.count for p in problems}.get(KIND_UNKNOWN_ID, 0)
@@ -256,8 +276,12 @@ def test_fast_path_equals_cantools_on_every_frame_of_the_real_logs(log, dbc, req
 
 
 def test_bus_selection_and_time_order(syn_db):
-    rows = [(0.0, 0, 256, False, bytes(8)), (0.1, 1, 256, False, bytes([2] + [0] * 7)),
-            (0.2, 0, 256, False, bytes([2] + [0] * 7)), (0.3, 1, 999, False, bytes(8))]
+    rows = [
+        (0.0, 0, 256, False, bytes(8)),
+        (0.1, 1, 256, False, bytes([2] + [0] * 7)),
+        (0.2, 0, 256, False, bytes([2] + [0] * 7)),
+        (0.3, 1, 999, False, bytes(8)),
+    ]
     problems = Problems()
     got = decode_frames(_table(rows), syn_db, problems, buses=[0], names=["BITS"])["BITS"]
     assert list(got.t_s) == [0.0, 0.2] and list(got.bus) == [0, 0] and list(got.where) == [1, 3]

@@ -1,5 +1,6 @@
 """``hmpc info``: figures checked against an independent count of the real comma minute
 (python-can's reader + plain Python), a gap cut into one id, and the CLI/JSON contract."""
+
 import collections
 import gzip
 import json
@@ -13,9 +14,27 @@ from hmpc.models.errors import Problems
 from hmpc.models.logs.info import format_info, log_info
 from hmpc.tools.cli import main
 
-KEYS = ["file", "format", "frames", "start_s", "end_s", "duration_s", "rate_hz", "buses", "ids",
-        "clock", "malformed_lines", "malformed_where", "remote_frames", "remote_where",
-        "error_frames", "error_where", "dbc", "problems", "information"]
+KEYS = [
+    "file",
+    "format",
+    "frames",
+    "start_s",
+    "end_s",
+    "duration_s",
+    "rate_hz",
+    "buses",
+    "ids",
+    "clock",
+    "malformed_lines",
+    "malformed_where",
+    "remote_frames",
+    "remote_where",
+    "error_frames",
+    "error_where",
+    "dbc",
+    "problems",
+    "information",
+]
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +77,7 @@ def test_counts_rates_and_gaps_against_python_can(comma_log, comma_dbc, pycan_ms
 def test_a_gap_cut_into_one_id_is_found(comma_log, tmp_path):
     with gzip.open(comma_log, "rb") as fh:
         lines = fh.read().split(b"\n")[:-1]
-    ts = [float(ln[1:ln.index(b")")]) for ln in lines]
+    ts = [float(ln[1 : ln.index(b")")]) for ln in lines]
     t0 = ts[0]
     # drop GAS_PEDAL (0x2C1) frames between 20 s and 22.5 s: a 2.5 s hole in a ~32 ms stream
     keep = [ln for ln, t in zip(lines, ts) if not (b" 2C1#" in ln and 20.0 <= t - t0 < 22.5)]

@@ -3,6 +3,7 @@
 Golden data from an independent source: comma's own decoding of the same frames
 (reference_decoded.csv, reference_steering.csv) and the INS's own NED velocities.
 """
+
 import gzip
 import hashlib
 import json
@@ -32,9 +33,24 @@ def run(comma_log, comma_dbc, tmp_path_factory):
     """The acceptance command, through the real CLI."""
     out = tmp_path_factory.mktemp("comma")
     rec_path, json_path = out / "rec.csv", out / "summary.json"
-    rc = cli.main(["ingest", str(comma_log), "--dbc", str(comma_dbc), "--signals", str(MAP17),
-                   "--nav", str(NAV), "--imu", str(IMU), "--out", str(rec_path),
-                   "--json", str(json_path)])
+    rc = cli.main(
+        [
+            "ingest",
+            str(comma_log),
+            "--dbc",
+            str(comma_dbc),
+            "--signals",
+            str(MAP17),
+            "--nav",
+            str(NAV),
+            "--imu",
+            str(IMU),
+            "--out",
+            str(rec_path),
+            "--json",
+            str(json_path),
+        ]
+    )
     assert rc == 0
     return Recording.load(rec_path), json.loads(json_path.read_text())
 
@@ -42,8 +58,15 @@ def run(comma_log, comma_dbc, tmp_path_factory):
 @pytest.fixture(scope="module")
 def lib(comma_log, comma_dbc):
     """The same through the library (raw samples), heading kept as the device measured it."""
-    return ingest_files(comma_log, comma_dbc, MAP17, NAV, IMU, mount_correction=False,
-                        prefer={"accel_x": "can", "yaw_rate": "can"})
+    return ingest_files(
+        comma_log,
+        comma_dbc,
+        MAP17,
+        NAV,
+        IMU,
+        mount_correction=False,
+        prefer={"accel_x": "can", "yaw_rate": "can"},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -60,10 +83,29 @@ def resolution(comma_dbc):
 
 def test_recording_file_is_canonical(run, comma_log, comma_dbc):
     rec, summary = run
-    for ch in ("steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl",
-               "wheel_speed_rr", "speed", "accel_pedal", "brake_pedal", "gear", "engine_rpm",
-               "yaw_rate", "accel_x", "accel_y", "x", "y", "z", "heading", "pitch", "roll",
-               "gps_speed", "accel_cmd"):
+    for ch in (
+        "steering_wheel_angle",
+        "wheel_speed_fl",
+        "wheel_speed_fr",
+        "wheel_speed_rl",
+        "wheel_speed_rr",
+        "speed",
+        "accel_pedal",
+        "brake_pedal",
+        "gear",
+        "engine_rpm",
+        "yaw_rate",
+        "accel_x",
+        "accel_y",
+        "x",
+        "y",
+        "z",
+        "heading",
+        "pitch",
+        "roll",
+        "gps_speed",
+        "accel_cmd",
+    ):
         assert ch in rec, ch
         assert summary["channels"][ch]["unit"]
     dt = np.diff(rec.time)

@@ -9,6 +9,7 @@
 
 Tests on the bundled copies always run; those on ../shared/data skip when it is absent.
 """
+
 from __future__ import annotations
 
 import json
@@ -30,8 +31,9 @@ CAT_MAP = PARAMS_DIR / "catvehicle.topics.yaml"
 F1_MAP = PARAMS_DIR / "f1tenth_frictionmaps.topics.yaml"
 CAT = DATA_DIR / "catvehicle-bagpy"
 F1 = DATA_DIR / "f1tenth-frictionmaps"
-needs_shared = pytest.mark.skipif(not SHARED.is_dir(),
-                                  reason="../shared/data is not beside this clone")
+needs_shared = pytest.mark.skipif(
+    not SHARED.is_dir(), reason="../shared/data is not beside this clone"
+)
 
 #: the window of the speed from positions [s]: long enough to average GNSS / particle-filter
 #: position noise, short next to the drives' speed changes
@@ -43,7 +45,9 @@ def speed_from_positions(rec: Recording, window_s: float = POSITION_WINDOW_S) ->
     t, x, y = rec.time, rec["x"], rec["y"]
     k = max(1, int(round(window_s * rec.rate_hz / 2)))
     out = np.full(len(t), np.nan)
-    out[k:-k] = np.hypot(x[2 * k:] - x[:-2 * k], y[2 * k:] - y[:-2 * k]) / (t[2 * k:] - t[:-2 * k])
+    out[k:-k] = np.hypot(x[2 * k :] - x[: -2 * k], y[2 * k :] - y[: -2 * k]) / (
+        t[2 * k :] - t[: -2 * k]
+    )
     return out
 
 
@@ -71,14 +75,36 @@ def test_geometry_files_and_topic_maps_load():
 
 
 def test_catvehicle_ingests_from_its_folder(tmp_path, capsys):
-    rc, out = run_ingest(["ingest", CAT, "--topics", CAT_MAP, "--out", tmp_path / "cat.csv",
-                          "--json", tmp_path / "cat.json"], capsys)
+    rc, out = run_ingest(
+        [
+            "ingest",
+            CAT,
+            "--topics",
+            CAT_MAP,
+            "--out",
+            tmp_path / "cat.csv",
+            "--json",
+            tmp_path / "cat.json",
+        ],
+        capsys,
+    )
     assert rc == 0, out.err
     rec = Recording.load(tmp_path / "cat.csv")
     s = json.loads((tmp_path / "cat.json").read_text())
     assert s["log_format"] == "csv export" and s["problems"]["total"] == 0
-    assert set(rec.channels) == {"time", "speed", "speed_cmd", "brake_pedal", "x", "y", "z",
-                                 "heading", "pitch", "roll", "gps_speed"}
+    assert set(rec.channels) == {
+        "time",
+        "speed",
+        "speed_cmd",
+        "brake_pedal",
+        "x",
+        "y",
+        "z",
+        "heading",
+        "pitch",
+        "roll",
+        "gps_speed",
+    }
     # left unmapped on purpose (see the map): never zero-filled
     for ch in ("accel_pedal", "steering_wheel_angle", "yaw_rate"):
         assert ch not in rec
@@ -86,14 +112,14 @@ def test_catvehicle_ingests_from_its_folder(tmp_path, capsys):
     # gps_odom's rows hold 14 of the header's 17 cells: information, not a problem
     info = s["information"]
     assert len(info) == 1 and info[0]["count"] == 560 and "angular.z" in info[0]["detail"]
-    assert len(s["sources"]["log"]["files"]) == 4   # the four topic files the map reads
+    assert len(s["sources"]["log"]["files"]) == 4  # the four topic files the map reads
     o = s["position_origin"]
     assert o["frame"] == "utm 12N" and o["topic"] == "/gps_odom"
-    assert o["lat_deg"] == pytest.approx(32.218, abs=0.001)    # Tucson, Arizona
+    assert o["lat_deg"] == pytest.approx(32.218, abs=0.001)  # Tucson, Arizona
     assert o["lon_deg"] == pytest.approx(-110.939, abs=0.001)
     assert math.degrees(o["convergence_rad"]) == pytest.approx(0.0326, abs=0.0005)
-    assert np.nanmax(rec["brake_pedal"]) == pytest.approx(0.2235, abs=1e-3)   # 22.35 %
-    assert np.nanmax(rec["speed"]) == pytest.approx(4.22, abs=0.02)   # raw samples: 4.228
+    assert np.nanmax(rec["brake_pedal"]) == pytest.approx(0.2235, abs=1e-3)  # 22.35 %
+    assert np.nanmax(rec["speed"]) == pytest.approx(4.22, abs=0.02)  # raw samples: 4.228
 
 
 def test_catvehicle_speed_agrees_with_gnss_positions(cat):
@@ -104,7 +130,7 @@ def test_catvehicle_speed_agrees_with_gnss_positions(cat):
     rec = cat.recording
     v, sp = rec["speed"], speed_from_positions(rec)
     m = np.isfinite(v) & np.isfinite(sp) & (v > 1.0)
-    assert m.sum() > 1000                     # about 23 s of the 28 s drive
+    assert m.sum() > 1000  # about 23 s of the 28 s drive
     assert np.median(sp[m] / v[m]) == pytest.approx(1.0, abs=0.02)
     assert np.sqrt(np.mean((sp[m] - v[m]) ** 2)) < 0.2
     assert np.corrcoef(sp[m], v[m])[0, 1] > 0.95
@@ -118,13 +144,34 @@ def test_catvehicle_speed_agrees_with_gnss_positions(cat):
 
 
 def test_f1tenth_ingests_from_its_folder(tmp_path, capsys):
-    rc, out = run_ingest(["ingest", F1, "--topics", F1_MAP, "--out", tmp_path / "ds5.csv",
-                          "--json", tmp_path / "ds5.json"], capsys)
+    rc, out = run_ingest(
+        [
+            "ingest",
+            F1,
+            "--topics",
+            F1_MAP,
+            "--out",
+            tmp_path / "ds5.csv",
+            "--json",
+            tmp_path / "ds5.json",
+        ],
+        capsys,
+    )
     assert rc == 0, out.err
     rec = Recording.load(tmp_path / "ds5.csv")
     s = json.loads((tmp_path / "ds5.json").read_text())
-    assert set(rec.channels) == {"time", "speed", "speed_cmd", "steering_cmd", "x", "y",
-                                 "heading", "yaw_rate", "accel_x", "accel_y"}
+    assert set(rec.channels) == {
+        "time",
+        "speed",
+        "speed_cmd",
+        "steering_cmd",
+        "x",
+        "y",
+        "heading",
+        "yaw_rate",
+        "accel_x",
+        "accel_y",
+    }
     assert "steering_wheel_angle" not in rec and "gps_speed" not in rec
     assert s["problems"]["total"] == 0 and 114 < s["duration_s"] < 117
     assert s["position_origin"]["frame"] == "local"
@@ -155,16 +202,19 @@ def test_f1tenth_wheel_odometry_agrees_with_particle_filter_positions(ds5):
 def test_f1tenth_source_layout_without_prefix(tmp_path):
     """The source's own layout: one folder per data set, files without a prefix, not gzip."""
     import gzip
+
     for f in F1.glob("DS5_*.csv.gz"):
-        (tmp_path / f.name[len("DS5_"):-len(".gz")]).write_bytes(gzip.decompress(f.read_bytes()))
+        (tmp_path / f.name[len("DS5_") : -len(".gz")]).write_bytes(gzip.decompress(f.read_bytes()))
     res = ingest_topics(tmp_path, F1_MAP)
     assert len(res.recording) == len(ingest_topics(F1, F1_MAP).recording)
 
 
 @needs_shared
 def test_shared_catvehicle_ingests_like_the_bundled_copy(cat, tmp_path, capsys):
-    rc, out = run_ingest(["ingest", SHARED / "catvehicle-bagpy", "--topics", CAT_MAP, "--out",
-                          tmp_path / "cat.csv"], capsys)
+    rc, out = run_ingest(
+        ["ingest", SHARED / "catvehicle-bagpy", "--topics", CAT_MAP, "--out", tmp_path / "cat.csv"],
+        capsys,
+    )
     assert rc == 0, out.err
     rec = Recording.load(tmp_path / "cat.csv")
     assert np.array_equal(rec["speed"], cat.recording["speed"], equal_nan=True)
@@ -174,8 +224,9 @@ def test_shared_catvehicle_ingests_like_the_bundled_copy(cat, tmp_path, capsys):
 @pytest.mark.parametrize("dataset", ["DS2", "DS5"])
 def test_shared_f1tenth_data_sets_by_prefix(dataset, tmp_path, capsys):
     folder = SHARED / "f1tenth-frictionmaps"
-    rc, out = run_ingest(["ingest", folder / f"{dataset}_", "--topics", F1_MAP, "--out",
-                          tmp_path / "r.csv"], capsys)
+    rc, out = run_ingest(
+        ["ingest", folder / f"{dataset}_", "--topics", F1_MAP, "--out", tmp_path / "r.csv"], capsys
+    )
     assert rc == 0, out.err
     rec = Recording.load(tmp_path / "r.csv")
     v, sp = np.abs(rec["speed"]), speed_from_positions(rec)
@@ -188,8 +239,17 @@ def test_shared_f1tenth_data_sets_by_prefix(dataset, tmp_path, capsys):
 
 @needs_shared
 def test_shared_f1tenth_folder_of_two_recordings_is_refused(tmp_path, capsys):
-    rc, out = run_ingest(["ingest", SHARED / "f1tenth-frictionmaps", "--topics", F1_MAP,
-                          "--out", tmp_path / "r.csv"], capsys)
+    rc, out = run_ingest(
+        [
+            "ingest",
+            SHARED / "f1tenth-frictionmaps",
+            "--topics",
+            F1_MAP,
+            "--out",
+            tmp_path / "r.csv",
+        ],
+        capsys,
+    )
     lines = [ln for ln in out.err.splitlines() if ": error: " in ln]
     assert rc == 2 and len(lines) == 1
     assert "DS2_, DS5_" in lines[0] and "f1tenth-frictionmaps" in lines[0]

@@ -1,4 +1,5 @@
 """Acceptance: `hmpc ingest` of the real VerifiedCAN 2019 RAV4 stop-and-go drive (CAN only)."""
+
 import json
 
 import numpy as np
@@ -15,8 +16,18 @@ MAP19 = PARAMS_DIR / "toyota_rav4_2019.signals.yaml"
 def run(vcan_log, vcan_dbc, tmp_path_factory):
     out = tmp_path_factory.mktemp("vcan")
     rec_path, json_path = out / "rec.csv", out / "summary.json"
-    argv = ["ingest", str(vcan_log), "--dbc", str(vcan_dbc), "--signals", str(MAP19),
-            "--out", str(rec_path), "--json", str(json_path)]
+    argv = [
+        "ingest",
+        str(vcan_log),
+        "--dbc",
+        str(vcan_dbc),
+        "--signals",
+        str(MAP19),
+        "--out",
+        str(rec_path),
+        "--json",
+        str(json_path),
+    ]
     return cli.main(argv), rec_path, json_path
 
 
@@ -38,8 +49,8 @@ def test_speeds_span_the_three_zones(run):
     _, rec_path, json_path = run
     rec = Recording.load(rec_path)
     v = rec["speed"]
-    assert np.nanmin(v) < 0.05          # standing still in the queue
-    assert 12.5 < np.nanmax(v) < 13.5   # "0-13 m/s"
+    assert np.nanmin(v) < 0.05  # standing still in the queue
+    assert 12.5 < np.nanmax(v) < 13.5  # "0-13 m/s"
     for lo, hi in ((0, 2), (2, 5), (5, 20)):  # idle, low and high zones all have data
         assert np.sum((v > lo) & (v <= hi)) > 100
     for w in ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr"):
@@ -75,8 +86,17 @@ def test_logger_dropouts_are_gaps_not_interpolated(run):
         assert gap["duration_s"] > summary["channels"]["wheel_speed_fl"]["gap_threshold_s"]
     # a larger threshold bridges them
     out = rec_path.parent / "rec_gap2.csv"
-    argv = ["ingest", summary["sources"]["log"]["path"], "--dbc",
-            summary["sources"]["dbc"]["path"], "--signals", str(MAP19), "--gap", "2.0",
-            "--out", str(out)]
+    argv = [
+        "ingest",
+        summary["sources"]["log"]["path"],
+        "--dbc",
+        summary["sources"]["dbc"]["path"],
+        "--signals",
+        str(MAP19),
+        "--gap",
+        "2.0",
+        "--out",
+        str(out),
+    ]
     assert cli.main(argv) == 0
     assert np.isfinite(Recording.load(out)["wheel_speed_fl"]).all()

@@ -1,4 +1,5 @@
 """GPS/INS and IMU readers: ENU conversion, heading convention, gravity removal, bad rows."""
+
 import gzip
 import math
 import os
@@ -9,8 +10,15 @@ import pytest
 from hypothesis import HealthCheck, given, seed, settings, strategies as st
 
 from hmpc.models.errors import InputError, ParamError, Problems
-from hmpc.models.logs.nav import (ImuColumns, NavColumns, imu_to_body, load_columns, read_imu,
-                        read_imu_raw, read_nav)
+from hmpc.models.logs.nav import (
+    ImuColumns,
+    NavColumns,
+    imu_to_body,
+    load_columns,
+    read_imu,
+    read_imu_raw,
+    read_nav,
+)
 from _data import bundled
 
 NAV = bundled("rav4-comma2k19/nav.csv.gz")
@@ -51,8 +59,10 @@ def test_enu_positions_follow_the_ned_velocities(nav):
     # track length against a flat-earth haversine of the same fixes (independent formula)
     lat, lon = np.radians(ref["lat_deg"]), np.radians(ref["lon_deg"])
     r_earth = 6371008.8
-    a = (np.sin(np.diff(lat) / 2) ** 2
-         + np.cos(lat[:-1]) * np.cos(lat[1:]) * np.sin(np.diff(lon) / 2) ** 2)
+    a = (
+        np.sin(np.diff(lat) / 2) ** 2
+        + np.cos(lat[:-1]) * np.cos(lat[1:]) * np.sin(np.diff(lon) / 2) ** 2
+    )
     hav = np.sum(2 * r_earth * np.arcsin(np.sqrt(a)))
     enu = np.sum(np.hypot(np.diff(nav["x"][1]), np.diff(nav["y"][1])))
     assert enu == pytest.approx(hav, rel=5e-3)
@@ -72,9 +82,23 @@ def test_heading_is_enu_ccw_from_east(nav):
 def test_local_xy_enu_attitude_in_degrees(tmp_path):
     p = tmp_path / "local.csv"
     p.write_text("t,e,n,hdg_deg,yr_dps\n0.0,0,0,90,10\n0.1,1,0,180,10\n0.2,2,0.5,-170,-5\n")
-    cols = NavColumns(time="t", lat=None, lon=None, alt=None, x="e", y="n", vel_north=None,
-                      vel_east=None, roll=None, pitch=None, heading="hdg_deg", yaw_rate="yr_dps",
-                      attitude_frame="enu", angle_unit="deg", yaw_rate_unit="deg/s")
+    cols = NavColumns(
+        time="t",
+        lat=None,
+        lon=None,
+        alt=None,
+        x="e",
+        y="n",
+        vel_north=None,
+        vel_east=None,
+        roll=None,
+        pitch=None,
+        heading="hdg_deg",
+        yaw_rate="yr_dps",
+        attitude_frame="enu",
+        angle_unit="deg",
+        yaw_rate_unit="deg/s",
+    )
     out = read_nav(p, Problems(), cols)
     np.testing.assert_allclose(out["heading"][1], np.radians([90, 180, -170]))
     np.testing.assert_allclose(out["yaw_rate"][1], np.radians([10, 10, -5]))
@@ -85,8 +109,17 @@ def test_local_xy_enu_attitude_in_degrees(tmp_path):
 def test_ned_yaw_rate_is_negated(tmp_path):
     p = tmp_path / "ned.csv"
     p.write_text("time,lat,lon,r\n0,37.0,-122.0,0.1\n1,37.0001,-122.0,0.2\n")
-    cols = NavColumns(lat="lat", lon="lon", alt=None, vel_north=None, vel_east=None, roll=None,
-                      pitch=None, heading=None, yaw_rate="r")
+    cols = NavColumns(
+        lat="lat",
+        lon="lon",
+        alt=None,
+        vel_north=None,
+        vel_east=None,
+        roll=None,
+        pitch=None,
+        heading=None,
+        yaw_rate="r",
+    )
     out = read_nav(p, Problems(), cols)
     np.testing.assert_allclose(out["yaw_rate"][1], [-0.1, -0.2])
     assert out["y"][1][1] == pytest.approx(11.1, abs=0.1)  # 0.0001 deg of latitude north
@@ -115,27 +148,48 @@ def test_unsorted_and_duplicate_times(tmp_path):
     p = tmp_path / "n.csv"
     p.write_text("time,x,y\n0.0,0,0\n0.2,2,0\n0.1,1,0\n0.2,5,5\n")
     probs = Problems()
-    out = read_nav(p, probs, NavColumns(lat=None, lon=None, alt=None, x="x", y="y",
-                                        vel_north=None, vel_east=None, roll=None, pitch=None,
-                                        heading=None))
+    out = read_nav(
+        p,
+        probs,
+        NavColumns(
+            lat=None,
+            lon=None,
+            alt=None,
+            x="x",
+            y="y",
+            vel_north=None,
+            vel_east=None,
+            roll=None,
+            pitch=None,
+            heading=None,
+        ),
+    )
     np.testing.assert_allclose(out["x"][0], [0.0, 0.1, 0.2])
     np.testing.assert_allclose(out["x"][1], [0, 1, 2])
     kinds = " ".join(i["kind"] for i in probs.to_list())
     assert "re-sorted" in kinds and "duplicate" in kinds
 
 
-@pytest.mark.parametrize("content,needle", [
-    (b"", "empty file"),
-    (b"\n\n", "empty file"),
-    (b"time,lat_deg\n", "no column 'lon_deg'"),
-    (b"\x89PNG\r\n\x1a\n\x00\x00\x00IHDR", "not a nav CSV"),
-    (b"\x00\x01\x02\n1,2,3\n", "binary"),
-    (b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,roll_rad,pitch_rad,heading_rad\n",
-     "no nav CSV data rows"),
-    (b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,roll_rad,pitch_rad,heading_rad\n"
-     b"1,nan,nan,nan,nan,nan,nan,nan,nan\nx,y\n", "no usable nav CSV row"),
-    (b"\xff\xfe\xfa garbage", "not UTF-8"),
-])
+@pytest.mark.parametrize(
+    "content,needle",
+    [
+        (b"", "empty file"),
+        (b"\n\n", "empty file"),
+        (b"time,lat_deg\n", "no column 'lon_deg'"),
+        (b"\x89PNG\r\n\x1a\n\x00\x00\x00IHDR", "not a nav CSV"),
+        (b"\x00\x01\x02\n1,2,3\n", "binary"),
+        (
+            b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,roll_rad,pitch_rad,heading_rad\n",
+            "no nav CSV data rows",
+        ),
+        (
+            b"time,lat_deg,lon_deg,alt_m,vel_north,vel_east,roll_rad,pitch_rad,heading_rad\n"
+            b"1,nan,nan,nan,nan,nan,nan,nan,nan\nx,y\n",
+            "no usable nav CSV row",
+        ),
+        (b"\xff\xfe\xfa garbage", "not UTF-8"),
+    ],
+)
 def test_unusable_nav_files_raise_inputerror(tmp_path, content, needle):
     p = tmp_path / "bad.csv"
     p.write_bytes(content)
@@ -209,14 +263,33 @@ def test_imu_flu_frame_and_units(tmp_path):
     frd = tmp_path / "frd.csv"
     flu = tmp_path / "flu.csv"
     head = "time,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z\n"
-    frd.write_text(head + "".join(f"{a},{b},{c},{d},{e},{f},{g}\n"
-                                  for a, b, c, d, e, f, g in zip(t, p_, q_, r_, fx, fy, fz)))
-    flu.write_text("ts,wx,wy,wz,ax,ay,az\n" + "".join(
-        f"{a},{math.degrees(b)},{-math.degrees(c)},{-math.degrees(d)},"
-        f"{e / 9.80665},{-f / 9.80665},{-g / 9.80665}\n"
-        for a, b, c, d, e, f, g in zip(t, p_, q_, r_, fx, fy, fz)))
-    cols = ImuColumns(time="ts", gyro_x="wx", gyro_y="wy", gyro_z="wz", accel_x="ax",
-                      accel_y="ay", accel_z="az", frame="flu", gyro_unit="deg/s", accel_unit="g")
+    frd.write_text(
+        head
+        + "".join(
+            f"{a},{b},{c},{d},{e},{f},{g}\n"
+            for a, b, c, d, e, f, g in zip(t, p_, q_, r_, fx, fy, fz)
+        )
+    )
+    flu.write_text(
+        "ts,wx,wy,wz,ax,ay,az\n"
+        + "".join(
+            f"{a},{math.degrees(b)},{-math.degrees(c)},{-math.degrees(d)},"
+            f"{e / 9.80665},{-f / 9.80665},{-g / 9.80665}\n"
+            for a, b, c, d, e, f, g in zip(t, p_, q_, r_, fx, fy, fz)
+        )
+    )
+    cols = ImuColumns(
+        time="ts",
+        gyro_x="wx",
+        gyro_y="wy",
+        gyro_z="wz",
+        accel_x="ax",
+        accel_y="ay",
+        accel_z="az",
+        frame="flu",
+        gyro_unit="deg/s",
+        accel_unit="g",
+    )
     a = read_imu(frd, Problems())
     b = read_imu(flu, Problems(), cols)
     for ch in ("yaw_rate", "accel_x", "accel_y"):
@@ -252,9 +325,16 @@ _NAV_LINES = gzip.open(NAV, "rt").read().splitlines()[:30]
 
 @seed(20240611)
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.lists(st.tuples(st.integers(0, 29), st.sampled_from(
-    ["truncate", "garbage", "drop_field", "nan", "empty", "swap", "bytes"]),
-    st.integers(0, 200)), max_size=12))
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(0, 29),
+            st.sampled_from(["truncate", "garbage", "drop_field", "nan", "empty", "swap", "bytes"]),
+            st.integers(0, 200),
+        ),
+        max_size=12,
+    )
+)
 def test_corrupted_nav_files_only_raise_inputerror(edits):
     """Random corruption of real nav lines: a result or InputError, nothing else escapes."""
     lines = list(_NAV_LINES)

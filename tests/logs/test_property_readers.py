@@ -4,6 +4,7 @@ frame or is counted among the skipped ones).
 
 Seeds: hypothesis runs derandomized (fixed seed), so failures reproduce.
 """
+
 import gzip
 import itertools
 
@@ -19,9 +20,12 @@ from hmpc.models.logs.decode import decode_frames
 from hmpc.models.errors import HmpcError, InputError, Problems
 from _data import bundled
 
-SETTINGS = settings(derandomize=True, max_examples=60, deadline=None,
-                    suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                           HealthCheck.too_slow])
+SETTINGS = settings(
+    derandomize=True,
+    max_examples=60,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 
 with gzip.open(bundled("rav4-comma2k19/can.log.gz"), "rb") as _fh:
     CANDUMP = [_fh.readline().rstrip(b"\n") for _ in range(300)]
@@ -36,17 +40,17 @@ def mutated(draw, line: bytes) -> bytes:
     how = draw(st.sampled_from(["cut", "delete", "insert", "replace", "random", "keep"]))
     n = len(line)
     if how == "cut":
-        return line[:draw(st.integers(0, n))]
+        return line[: draw(st.integers(0, n))]
     if how == "delete":
         i = draw(st.integers(0, n))
-        return line[:i] + line[i + draw(st.integers(1, 6)):]
+        return line[:i] + line[i + draw(st.integers(1, 6)) :]
     if how == "insert":
         i = draw(st.integers(0, n))
         return line[:i] + draw(st.binary(min_size=1, max_size=6)) + line[i:]
     if how == "replace":
         i = draw(st.integers(0, max(n - 1, 0)))
         chars = st.sampled_from(list(b"0123456789abcdefABCDEF#().,; -RTxZ\x00\xff\r"))
-        return line[:i] + bytes([draw(chars)]) + line[i + 1:]
+        return line[:i] + bytes([draw(chars)]) + line[i + 1 :]
     if how == "random":
         return draw(st.binary(max_size=80))
     return line
@@ -55,7 +59,7 @@ def mutated(draw, line: bytes) -> bytes:
 @st.composite
 def corrupted_log(draw, source):
     start = draw(st.integers(0, len(source) - 40))
-    lines = source[start:start + draw(st.integers(1, 40))]
+    lines = source[start : start + draw(st.integers(1, 40))]
     out = []
     for line in lines:
         out.append(draw(mutated(line)) if draw(st.booleans()) else line)
@@ -113,8 +117,10 @@ def test_libpanda_reader_survives_corruption(tmp_path_factory, lines):
 
 
 @SETTINGS
-@given(data=st.binary(max_size=2000), suffix=st.sampled_from(
-    [".log", ".csv", ".asc", ".trc", ".blf", ".txt", ".log.gz", ""]))
+@given(
+    data=st.binary(max_size=2000),
+    suffix=st.sampled_from([".log", ".csv", ".asc", ".trc", ".blf", ".txt", ".log.gz", ""]),
+)
 def test_random_bytes_to_every_reader(tmp_path_factory, data, suffix):
     p = tmp_path_factory.mktemp("rb") / f"random{suffix}"
     p.write_bytes(data)

@@ -1,4 +1,5 @@
 """Provenance hashes of a file and of a folder input (a bag folder, a CSV topic export)."""
+
 import hashlib
 
 from hmpc.models.logs.ingest import sha256_file
@@ -16,7 +17,8 @@ def test_a_folder_hashes_its_files_paths_and_contents(tmp_path):
     (tmp_path / "sub" / "a.csv").write_bytes(b"a")
     want = hashlib.sha256(
         f"b.csv {hashlib.sha256(b'b').hexdigest()}\n"
-        f"sub/a.csv {hashlib.sha256(b'a').hexdigest()}\n".encode()).hexdigest()
+        f"sub/a.csv {hashlib.sha256(b'a').hexdigest()}\n".encode()
+    ).hexdigest()
     first = sha256_file(tmp_path)
     assert first == want
     (tmp_path / "sub" / "a.csv").rename(tmp_path / "sub" / "c.csv")  # a rename changes it

@@ -1,6 +1,7 @@
 """The recording's CSV writer (columns to text in bulk) writes the very bytes ``csv.writer`` row
 by row does, with the cell rules of the canonical CSV: ``time`` as ``%.6f``, numbers as
 ``repr(float)``, NaN empty, strings as they are (quoted where csv quotes them)."""
+
 import csv
 import gzip
 import math
@@ -35,18 +36,36 @@ def _reference(channels: dict, path) -> None:
 
 def _channels(n: int, seed: int = 0) -> dict:
     rng = np.random.default_rng(seed)
-    specials = np.array([np.nan, 0.0, -0.0, np.inf, -np.inf, 1e16, 1e-5, 5e-324, 1e22, 0.1,
-                         123456789012345678.0, -1.5, 2.0 ** 60])
+    specials = np.array(
+        [
+            np.nan,
+            0.0,
+            -0.0,
+            np.inf,
+            -np.inf,
+            1e16,
+            1e-5,
+            5e-324,
+            1e22,
+            0.1,
+            123456789012345678.0,
+            -1.5,
+            2.0**60,
+        ]
+    )
     wild = rng.normal(size=n) * 10.0 ** rng.integers(-8, 20, n)
     pick = rng.random(n) < 0.2
     wild[pick] = rng.choice(specials, size=int(pick.sum()))
     held = np.repeat(rng.choice(specials, size=n // 7 + 1), 7)[:n]  # runs of one value
-    flip = np.where(np.arange(n) % 3 == 0, 0.0, -0.0)                # 0.0 and -0.0 alternate
-    return {"time": 1533226488.439005 + np.arange(n) / 50.0, "speed": wild,
-            "accel_pedal": held, "brake_pedal": flip,
-            "gear": np.array(["D", "", "P", 'q"uote', "a,b", "R"], dtype=object)[
-                rng.integers(0, 6, n)],
-            "extra_column": rng.normal(size=n)}
+    flip = np.where(np.arange(n) % 3 == 0, 0.0, -0.0)  # 0.0 and -0.0 alternate
+    return {
+        "time": 1533226488.439005 + np.arange(n) / 50.0,
+        "speed": wild,
+        "accel_pedal": held,
+        "brake_pedal": flip,
+        "gear": np.array(["D", "", "P", 'q"uote', "a,b", "R"], dtype=object)[rng.integers(0, 6, n)],
+        "extra_column": rng.normal(size=n),
+    }
 
 
 @pytest.mark.parametrize("n", [0, 1, 2, 7, 1000, 40_000])
@@ -61,8 +80,9 @@ def test_write_csv_gzip_and_a_single_column(tmp_path):
     ch = _channels(500, seed=3)
     write_csv(ch, tmp_path / "bulk.csv.gz")
     _reference(ch, tmp_path / "rows.csv.gz")
-    assert (gzip.decompress((tmp_path / "bulk.csv.gz").read_bytes())
-            == gzip.decompress((tmp_path / "rows.csv.gz").read_bytes()))
+    assert gzip.decompress((tmp_path / "bulk.csv.gz").read_bytes()) == gzip.decompress(
+        (tmp_path / "rows.csv.gz").read_bytes()
+    )
     for only in ({"time": ch["time"]}, {"gear": np.array(["", "D", ""], dtype=object)}):
         write_csv(only, tmp_path / "one.csv")
         _reference(only, tmp_path / "one_rows.csv")
@@ -79,8 +99,10 @@ def test_write_csv_split_across_a_child_process_writes_the_same_bytes(tmp_path, 
     _reference(ch, tmp_path / "rows.csv")
     assert (tmp_path / "split.csv").read_bytes() == (tmp_path / "rows.csv").read_bytes()
     write_csv(ch, tmp_path / "split.csv.gz", split_rows=2)
-    assert gzip.decompress((tmp_path / "split.csv.gz").read_bytes()) \
+    assert (
+        gzip.decompress((tmp_path / "split.csv.gz").read_bytes())
         == (tmp_path / "rows.csv").read_bytes()
+    )
 
 
 def test_write_csv_child_failure_falls_back_to_this_process(tmp_path, monkeypatch):

@@ -1,5 +1,6 @@
 """A gzip log cut short (copied while being written, a download cut off) is read up to the cut:
 the frames before it are kept, the cut is reported with where it is, and nothing is invented."""
+
 from __future__ import annotations
 
 import gzip
@@ -26,16 +27,16 @@ def test_a_cut_candump_log_keeps_every_frame_before_the_cut(tmp_path, comma_text
     full = read_log(whole, Problems())
     raw = whole.read_bytes()
     cut = tmp_path / "cut.log.gz"
-    cut.write_bytes(raw[:len(raw) // 2])
+    cut.write_bytes(raw[: len(raw) // 2])
     problems = Problems()
     part = read_log(cut, problems)
     # what the cut stream still holds, by an independent decompressor (zlib, stream mode)
-    held = zlib.decompressobj(16 + zlib.MAX_WBITS).decompress(raw[:len(raw) // 2])
-    complete_lines = held[:held.rfind(b"\n") + 1].count(b"\n")
-    assert complete_lines - 5 <= len(part) <= complete_lines   # every whole line a frame
+    held = zlib.decompressobj(16 + zlib.MAX_WBITS).decompress(raw[: len(raw) // 2])
+    complete_lines = held[: held.rfind(b"\n") + 1].count(b"\n")
+    assert complete_lines - 5 <= len(part) <= complete_lines  # every whole line a frame
     assert 0.3 * len(full) < len(part) < 0.7 * len(full)
-    np.testing.assert_array_equal(part.t_s, full.t_s[:len(part)])
-    np.testing.assert_array_equal(part.data, full.data[:len(part)])
+    np.testing.assert_array_equal(part.t_s, full.t_s[: len(part)])
+    np.testing.assert_array_equal(part.data, full.data[: len(part)])
     kinds = {p.kind: p for p in problems}
     assert KIND_TRUNCATED in kinds
     assert kinds[KIND_TRUNCATED].first == [complete_lines + 1]
@@ -48,7 +49,7 @@ def test_the_helper_reads_concatenated_members_and_flags_a_cut(tmp_path):
     assert read_bytes(two) == data
     raw = gzip.compress(data)
     cut = tmp_path / "cut.gz"
-    cut.write_bytes(raw[:len(raw) - 100])
+    cut.write_bytes(raw[: len(raw) - 100])
     with open_binary(cut) as fh:
         got = fh.read()
         assert fh.truncated and fh.text_bytes == len(got)

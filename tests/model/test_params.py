@@ -1,5 +1,6 @@
 """The strict parameter-file loader: the keys of docs/conventions.md load, typos and unit-less
 keys fail loudly, and every shipped file loads as written."""
+
 import pytest
 import yaml
 
@@ -11,13 +12,34 @@ from _data import PARAMS_DIR
 MINIMAL = {
     "vehicle": {"wheelbase_m": 2.65, "track_front_m": 1.6},
     "steering": {"offset_rad": 0.017, "scale": 0.08},
-    "longitudinal": {"zones": [
-        {"name": "idle", "v_min_mps": 0.0, "v_max_mps": 2.0, "offset_mps2": 0.3, "scale_mps2": 2.0,
-         "brake_scale_mps2": 4.0},
-        {"name": "low", "v_min_mps": 2.0, "v_max_mps": 5.0, "offset_mps2": -0.1, "scale_mps2": 2.5,
-         "brake_scale_mps2": 5.0},
-        {"name": "high", "v_min_mps": 5.0, "v_max_mps": 20.0, "offset_mps2": -0.2,
-         "scale_mps2": 3.0, "brake_scale_mps2": 6.0}]},
+    "longitudinal": {
+        "zones": [
+            {
+                "name": "idle",
+                "v_min_mps": 0.0,
+                "v_max_mps": 2.0,
+                "offset_mps2": 0.3,
+                "scale_mps2": 2.0,
+                "brake_scale_mps2": 4.0,
+            },
+            {
+                "name": "low",
+                "v_min_mps": 2.0,
+                "v_max_mps": 5.0,
+                "offset_mps2": -0.1,
+                "scale_mps2": 2.5,
+                "brake_scale_mps2": 5.0,
+            },
+            {
+                "name": "high",
+                "v_min_mps": 5.0,
+                "v_max_mps": 20.0,
+                "offset_mps2": -0.2,
+                "scale_mps2": 3.0,
+                "brake_scale_mps2": 6.0,
+            },
+        ]
+    },
 }
 
 
@@ -38,14 +60,17 @@ def test_geometry_only_file_is_not_a_model():
         parse_params({"vehicle": MINIMAL["vehicle"]}, "g.yaml", require_model=True)
 
 
-@pytest.mark.parametrize("section,key,value,match", [
-    ("vehicle", "wheelbase", 2.65, "no unit suffix.*wheelbase_m"),
-    ("vehicle", "wheelbse_m", 2.65, "unknown key.*wheelbase_m"),
-    ("steering", "ofset_rad", 0.0, "unknown key"),
-    ("steering", "offset", 0.0, "no unit suffix.*offset_rad"),
-    ("steering", "scale", "big", "finite number"),
-    ("steering", "scale", float("nan"), "finite number"),
-])
+@pytest.mark.parametrize(
+    "section,key,value,match",
+    [
+        ("vehicle", "wheelbase", 2.65, "no unit suffix.*wheelbase_m"),
+        ("vehicle", "wheelbse_m", 2.65, "unknown key.*wheelbase_m"),
+        ("steering", "ofset_rad", 0.0, "unknown key"),
+        ("steering", "offset", 0.0, "no unit suffix.*offset_rad"),
+        ("steering", "scale", "big", "finite number"),
+        ("steering", "scale", float("nan"), "finite number"),
+    ],
+)
 def test_bad_keys_are_rejected_by_name(section, key, value, match):
     data = yaml.safe_load(yaml.safe_dump(MINIMAL))
     data[section][key] = value
@@ -81,24 +106,39 @@ def test_unreadable_files(tmp_path):
 
 # signal maps (*.signals.yaml) are another format, checked by test_signalmap; topic maps
 # (*.topics.yaml) and actuation profiles (*.actuation.yaml) are checked below
-PARAM_FILES = sorted(p for p in PARAMS_DIR.glob("*.yaml")
-                     if not p.name.endswith((".signals.yaml", ".topics.yaml", ".actuation.yaml")))
+PARAM_FILES = sorted(
+    p
+    for p in PARAMS_DIR.glob("*.yaml")
+    if not p.name.endswith((".signals.yaml", ".topics.yaml", ".actuation.yaml"))
+)
 TOPIC_MAPS = sorted(PARAMS_DIR.glob("*.topics.yaml"))
 PROFILES = sorted(PARAMS_DIR.glob("*.actuation.yaml"))
 #: the files the CLI's examples, the docs and the other tests name: each glob finds at least these
 #: (an empty glob would otherwise turn the parametrised tests below into one silent skip)
-NAMED = {"parameter files": (PARAM_FILES, {"report_2008.yaml", "report_2008_weak_zones.yaml",
-                                           "toyota_rav4_2017.yaml", "toyota_rav4_2019.yaml",
-                                           "catvehicle.yaml", "f1tenth.yaml"}),
-         "topic maps": (TOPIC_MAPS, {"catvehicle.topics.yaml",
-                                     "f1tenth_frictionmaps.topics.yaml"}),
-         "actuation profiles": (PROFILES, {"toyota_rav4_2017.actuation.yaml",
-                                           "bywire.actuation.yaml"})}
+NAMED = {
+    "parameter files": (
+        PARAM_FILES,
+        {
+            "report_2008.yaml",
+            "report_2008_weak_zones.yaml",
+            "toyota_rav4_2017.yaml",
+            "toyota_rav4_2019.yaml",
+            "catvehicle.yaml",
+            "f1tenth.yaml",
+        },
+    ),
+    "topic maps": (TOPIC_MAPS, {"catvehicle.topics.yaml", "f1tenth_frictionmaps.topics.yaml"}),
+    "actuation profiles": (PROFILES, {"toyota_rav4_2017.actuation.yaml", "bywire.actuation.yaml"}),
+}
 #: values from the files' own sources, not from the files: the report's eq. 7 and zone
 #: boundaries (section IV-C, V), opendbc's wheelbase and steering ratio of each RAV4
 SOURCE_VALUES = {
-    "report_2008.yaml": {"wheelbase_m": 2.65, "scale": 0.08, "offset_rad": 0.017,
-                         "zones_mps": [(0.0, 2.0), (2.0, 5.0), (5.0, 20.0)]},
+    "report_2008.yaml": {
+        "wheelbase_m": 2.65,
+        "scale": 0.08,
+        "offset_rad": 0.017,
+        "zones_mps": [(0.0, 2.0), (2.0, 5.0), (5.0, 20.0)],
+    },
     "toyota_rav4_2017.yaml": {"wheelbase_m": 2.65, "steering_ratio": 16.88},
     "toyota_rav4_2019.yaml": {"wheelbase_m": 2.69, "steering_ratio": 14.3},
 }
@@ -145,24 +185,34 @@ def test_shipped_parameter_files_load_as_written(path):
 def test_shipped_topic_maps_load_as_written(path):
     """Each channel of the map reads the topic, field and unit the file names."""
     from hmpc.models.logs.topicmap import load_topic_map
+
     raw = yaml.safe_load(path.read_text(encoding="utf-8"))
     tm = load_topic_map(path)
     assert tm.vehicle == raw.get("vehicle")
     assert set(tm.channels) == set(raw["channels"]) and "speed" in tm.channels
     for name, spec in raw["channels"].items():
         ch = tm.channels[name]
-        assert (ch.channel, ch.topic, ch.field, ch.unit) == (name, spec["topic"], spec["field"],
-                                                             spec["unit"]), name
+        assert (ch.channel, ch.topic, ch.field, ch.unit) == (
+            name,
+            spec["topic"],
+            spec["field"],
+            spec["unit"],
+        ), name
 
 
 @pytest.mark.parametrize("path", PROFILES, ids=lambda p: p.name)
 def test_shipped_actuation_profiles_load_as_written(path):
     """Each command goes out in the message and at the rate the file names, on its bus."""
     from hmpc.controller.actuation.profiles import load_profile
+
     raw = yaml.safe_load(path.read_text(encoding="utf-8"))
     prof = load_profile(path)
     assert (prof.name, prof.bus, prof.steering, prof.limits) == (
-        raw["profile"], raw["bus"], raw["steering"], raw["limits"])
+        raw["profile"],
+        raw["bus"],
+        raw["steering"],
+        raw["limits"],
+    )
     assert set(prof.commands) == set(raw["commands"])
     for role, spec in raw["commands"].items():
         cmd = prof.commands[role]
@@ -174,6 +224,7 @@ def test_the_toyota_profile_sends_what_openpilot_sends():
     """Frame ids and rates of the bundled comma minute (opendbc's STEERING_LKA 0x2E4 at
     100 Hz, ACC_CONTROL 0x343 every third 100 Hz frame)."""
     from hmpc.controller.actuation.profiles import load_profile
+
     prof = load_profile(PARAMS_DIR / "toyota_rav4_2017.actuation.yaml")
     steer, accel = prof.commands["steer_torque"], prof.commands["accel"]
     assert (steer.message.frame_id, steer.rate_hz) == (0x2E4, 100)
@@ -191,14 +242,19 @@ def test_cli_reports_bad_params_in_one_line(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "typo.yaml" in err and "steering.scal" in err
 
 
-def test_a_part_that_was_not_identified_is_refused_by_simulate_naming_key_and_reason(tmp_path,
-                                                                                   capsys):
+def test_a_part_that_was_not_identified_is_refused_by_simulate_naming_key_and_reason(
+    tmp_path, capsys
+):
     """identify writes what it could identify and names the rest under not_identified:; a
     tool that needs the absent part refuses the file in one line naming the key."""
     import yaml as _yaml
+
     src = _yaml.safe_load((PARAMS_DIR / "report_2008.yaml").read_text())
-    part = {"vehicle": src["vehicle"], "steering": src["steering"],
-            "not_identified": {"longitudinal": "no accelerator pedal channel ('accel_pedal')"}}
+    part = {
+        "vehicle": src["vehicle"],
+        "steering": src["steering"],
+        "not_identified": {"longitudinal": "no accelerator pedal channel ('accel_pedal')"},
+    }
     f = tmp_path / "steering_only.yaml"
     f.write_text(_yaml.safe_dump(part))
     p = load_params(f)  # loads: a partial model is a valid file

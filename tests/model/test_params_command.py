@@ -1,6 +1,7 @@
 """The parameter-file keys of command-driven cars (docs/conventions.md, parameter files):
 ``steering.input``, ``longitudinal.input`` and the command zone gains, accepted, refused with the
 key named, and refused by tools that need the pedal model."""
+
 from __future__ import annotations
 
 import copy
@@ -13,13 +14,35 @@ from hmpc.models.params import dump_params, load_params, parse_params
 GOOD = {
     "vehicle": {"wheelbase_m": 0.33, "track_front_m": 0.28},
     "steering": {"offset_rad": 0.001, "scale": 0.9, "input": "steering_cmd"},
-    "longitudinal": {"input": "speed_cmd", "dead_time_s": 0.1, "zones": [
-        {"name": "idle", "v_min_mps": 0.0, "v_max_mps": 0.71, "offset_mps2": 0.1,
-         "speed_cmd_gain_ps": 1.5, "identifiable": False},
-        {"name": "low", "v_min_mps": 0.71, "v_max_mps": 1.8, "offset_mps2": 0.2,
-         "speed_cmd_gain_ps": 1.2, "speed_cmd_gain_ci95_ps": [0.9, 1.5]},
-        {"name": "high", "v_min_mps": 1.8, "v_max_mps": 7.1, "offset_mps2": 0.3,
-         "speed_cmd_gain_ps": 1.0}]},
+    "longitudinal": {
+        "input": "speed_cmd",
+        "dead_time_s": 0.1,
+        "zones": [
+            {
+                "name": "idle",
+                "v_min_mps": 0.0,
+                "v_max_mps": 0.71,
+                "offset_mps2": 0.1,
+                "speed_cmd_gain_ps": 1.5,
+                "identifiable": False,
+            },
+            {
+                "name": "low",
+                "v_min_mps": 0.71,
+                "v_max_mps": 1.8,
+                "offset_mps2": 0.2,
+                "speed_cmd_gain_ps": 1.2,
+                "speed_cmd_gain_ci95_ps": [0.9, 1.5],
+            },
+            {
+                "name": "high",
+                "v_min_mps": 1.8,
+                "v_max_mps": 7.1,
+                "offset_mps2": 0.3,
+                "speed_cmd_gain_ps": 1.0,
+            },
+        ],
+    },
     "not_identified": {"longitudinal.zones.idle.speed_cmd_gain_ps": "copied from zone 'low'"},
 }
 
@@ -46,19 +69,30 @@ def test_an_accel_cmd_model_loads():
     assert p.command_input == "accel_cmd" and p.command_zones[0].accel_cmd_gain == 1.5
 
 
-@pytest.mark.parametrize("edit, key", [
-    (lambda d: d["longitudinal"]["zones"][1].update(speed_cmd_gain_ps=-0.2),
-     "longitudinal.zones[1].speed_cmd_gain_ps"),
-    (lambda d: d["longitudinal"]["zones"][2].pop("speed_cmd_gain_ps"),
-     "longitudinal.zones[2].speed_cmd_gain_ps"),
-    (lambda d: d["longitudinal"]["zones"][0].update(accel_cmd_gain=1.0),
-     "longitudinal.zones[0].accel_cmd_gain"),
-    (lambda d: d["longitudinal"].pop("input"), "longitudinal.zones[0].speed_cmd_gain_ps"),
-    (lambda d: d["longitudinal"].update(input="throttle"), "longitudinal.input"),
-    (lambda d: d["steering"].update(input="steering_wheel"), "steering.input"),
-    (lambda d: d["longitudinal"]["zones"][0].update(speed_cmd_gain=1.0),
-     "longitudinal.zones[0].speed_cmd_gain"),
-])
+@pytest.mark.parametrize(
+    "edit, key",
+    [
+        (
+            lambda d: d["longitudinal"]["zones"][1].update(speed_cmd_gain_ps=-0.2),
+            "longitudinal.zones[1].speed_cmd_gain_ps",
+        ),
+        (
+            lambda d: d["longitudinal"]["zones"][2].pop("speed_cmd_gain_ps"),
+            "longitudinal.zones[2].speed_cmd_gain_ps",
+        ),
+        (
+            lambda d: d["longitudinal"]["zones"][0].update(accel_cmd_gain=1.0),
+            "longitudinal.zones[0].accel_cmd_gain",
+        ),
+        (lambda d: d["longitudinal"].pop("input"), "longitudinal.zones[0].speed_cmd_gain_ps"),
+        (lambda d: d["longitudinal"].update(input="throttle"), "longitudinal.input"),
+        (lambda d: d["steering"].update(input="steering_wheel"), "steering.input"),
+        (
+            lambda d: d["longitudinal"]["zones"][0].update(speed_cmd_gain=1.0),
+            "longitudinal.zones[0].speed_cmd_gain",
+        ),
+    ],
+)
 def test_a_broken_command_model_is_refused_naming_the_key(edit, key):
     d = copy.deepcopy(GOOD)
     edit(d)
@@ -70,7 +104,8 @@ def test_a_broken_command_model_is_refused_naming_the_key(edit, key):
 def test_the_missing_unit_is_named():
     d = copy.deepcopy(GOOD)
     d["longitudinal"]["zones"][0]["speed_cmd_gain"] = d["longitudinal"]["zones"][0].pop(
-        "speed_cmd_gain_ps")
+        "speed_cmd_gain_ps"
+    )
     with pytest.raises(ParamError, match="no unit suffix.*speed_cmd_gain_ps"):
         parse_params(d, "p.yaml")
 

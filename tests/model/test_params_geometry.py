@@ -1,6 +1,7 @@
 """The loader refuses a geometry no road vehicle has (a wheelbase in millimetres) in one line
 naming the file, the key and the likely unit; the writer never leaves a file the loader would
 refuse (checked before writing, written under a temporary name and renamed)."""
+
 import pytest
 import yaml
 
@@ -9,14 +10,31 @@ from hmpc.models.params import Params, Steering, Vehicle, dump_params, load_para
 from hmpc.tools import cli
 
 
-@pytest.mark.parametrize("vehicle,key,unit", [
-    ({"wheelbase_m": 2650, "track_front_m": 1.6}, "vehicle.wheelbase_m", "millimetres (2.65 m)"),
-    ({"wheelbase_m": 2.65, "track_front_m": 160}, "vehicle.track_front_m", "centimetres (1.6 m)"),
-    ({"wheelbase_m": 2.65, "track_front_m": 1.6, "track_rear_m": 1600}, "vehicle.track_rear_m",
-     "millimetres (1.6 m)"),
-    ({"wheelbase_m": 2.65, "track_front_m": 1.6, "wheel_radius_m": 362}, "vehicle.wheel_radius_m",
-     "millimetres (0.362 m)"),
-])
+@pytest.mark.parametrize(
+    "vehicle,key,unit",
+    [
+        (
+            {"wheelbase_m": 2650, "track_front_m": 1.6},
+            "vehicle.wheelbase_m",
+            "millimetres (2.65 m)",
+        ),
+        (
+            {"wheelbase_m": 2.65, "track_front_m": 160},
+            "vehicle.track_front_m",
+            "centimetres (1.6 m)",
+        ),
+        (
+            {"wheelbase_m": 2.65, "track_front_m": 1.6, "track_rear_m": 1600},
+            "vehicle.track_rear_m",
+            "millimetres (1.6 m)",
+        ),
+        (
+            {"wheelbase_m": 2.65, "track_front_m": 1.6, "wheel_radius_m": 362},
+            "vehicle.wheel_radius_m",
+            "millimetres (0.362 m)",
+        ),
+    ],
+)
 def test_implausible_lengths_name_the_key_and_the_likely_unit(vehicle, key, unit):
     with pytest.raises(ParamError) as ei:
         parse_params({"vehicle": vehicle}, "car.yaml")
@@ -31,11 +49,14 @@ def test_track_to_wheelbase_ratio_is_checked():
     assert ei.value.key == "vehicle.track_front_m"
 
 
-@pytest.mark.parametrize("vehicle", [
-    {"wheelbase_m": 0.33, "track_front_m": 0.28},   # a 1:10 model car (F1TENTH)
-    {"wheelbase_m": 2.65, "track_front_m": 1.6},    # the report's car
-    {"wheelbase_m": 6.5, "track_front_m": 2.05},    # a long bus
-])
+@pytest.mark.parametrize(
+    "vehicle",
+    [
+        {"wheelbase_m": 0.33, "track_front_m": 0.28},  # a 1:10 model car (F1TENTH)
+        {"wheelbase_m": 2.65, "track_front_m": 1.6},  # the report's car
+        {"wheelbase_m": 6.5, "track_front_m": 2.05},  # a long bus
+    ],
+)
 def test_real_vehicles_from_1_10_models_to_buses_load(vehicle):
     assert parse_params({"vehicle": vehicle}).vehicle.wheelbase_m == vehicle["wheelbase_m"]
 
@@ -56,10 +77,23 @@ def test_identify_refuses_a_geometry_in_millimetres_in_one_line(tmp_path, capsys
 def test_dump_refuses_what_the_loader_refuses_and_leaves_nothing(tmp_path):
     """A negative zone gain breaks a loader rule: nothing is written, no temporary file is
     left, and an existing file at the path is untouched."""
-    p = parse_params({"vehicle": {"wheelbase_m": 2.65, "track_front_m": 1.6},
-                      "longitudinal": {"zones": [{
-                          "name": "all", "v_min_mps": 0.0, "v_max_mps": 20.0, "offset_mps2": 0.0,
-                          "scale_mps2": 2.0, "brake_scale_mps2": 5.0}]}})
+    p = parse_params(
+        {
+            "vehicle": {"wheelbase_m": 2.65, "track_front_m": 1.6},
+            "longitudinal": {
+                "zones": [
+                    {
+                        "name": "all",
+                        "v_min_mps": 0.0,
+                        "v_max_mps": 20.0,
+                        "offset_mps2": 0.0,
+                        "scale_mps2": 2.0,
+                        "brake_scale_mps2": 5.0,
+                    }
+                ]
+            },
+        }
+    )
     p.zones[0].scale_mps2 = -15.8
     out = tmp_path / "p.yaml"
     with pytest.raises(ParamError, match="not written") as ei:
@@ -74,9 +108,13 @@ def test_dump_refuses_what_the_loader_refuses_and_leaves_nothing(tmp_path):
 
 def test_dump_refuses_a_nan_and_a_negative_steering_scale(tmp_path):
     veh = Vehicle(wheelbase_m=2.65, track_front_m=1.6)
-    for st, key in ((Steering(offset_rad=0.0, scale=0.05, rms_error_rad=float("nan")),
-                     "steering.rms_error_rad"),
-                    (Steering(offset_rad=0.0, scale=-0.05), "steering.scale")):
+    for st, key in (
+        (
+            Steering(offset_rad=0.0, scale=0.05, rms_error_rad=float("nan")),
+            "steering.rms_error_rad",
+        ),
+        (Steering(offset_rad=0.0, scale=-0.05), "steering.scale"),
+    ):
         with pytest.raises(ParamError) as ei:
             dump_params(Params(vehicle=veh, steering=st), tmp_path / "p.yaml")
         assert ei.value.key == key

@@ -2,6 +2,7 @@
 ``hmpc drive`` and the controller construction they share, in one line naming the key and the
 flag that accepts them (``--accept-unidentifiable``); with the flag they run and warn.
 """
+
 from __future__ import annotations
 
 import pytest
@@ -9,7 +10,8 @@ import yaml
 
 from _data import PARAMS_DIR, REPORT_PARAMS
 from hmpc.models.errors import ParamError
-from hmpc.models.params import check_identifiable, load_params
+from hmpc.models.params import load_params
+from hmpc.models.unidentifiable import check_identifiable
 from hmpc.tools.cli import main
 from hmpc.controller.build import make_controller
 from hmpc.controller.mpc import MpcController
@@ -23,11 +25,13 @@ def _flagged(tmp_path, *, steering: bool = False, zones: tuple[int, ...] = ()):
     """report_2008.yaml with the given parts flagged ``identifiable: false``."""
     data = yaml.safe_load(REPORT_PARAMS.read_text())
     if steering:
-        data["steering"].update(identifiable=False,
-                                note="NOT identifiable: the fits disagree beyond their intervals")
+        data["steering"].update(
+            identifiable=False, note="NOT identifiable: the fits disagree beyond their intervals"
+        )
     for i in zones:
-        data["longitudinal"]["zones"][i].update(identifiable=False,
-                                                note="NOT identifiable: pedal barely exercised")
+        data["longitudinal"]["zones"][i].update(
+            identifiable=False, note="NOT identifiable: pedal barely exercised"
+        )
     path = tmp_path / "flagged.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
@@ -39,13 +43,17 @@ def _one_line_err(capsys) -> str:
     return err[0]
 
 
-@pytest.mark.parametrize("steering,zones,keys", [
-    (True, (), ["steering"]),
-    (False, (1,), ["longitudinal.zones[1]"]),
-    (True, (0, 2), ["steering", "longitudinal.zones[0]", "longitudinal.zones[2]"]),
-])
-def test_simulate_refuses_flagged_values_naming_key_and_flag(tmp_path, capsys, steering, zones,
-                                                             keys):
+@pytest.mark.parametrize(
+    "steering,zones,keys",
+    [
+        (True, (), ["steering"]),
+        (False, (1,), ["longitudinal.zones[1]"]),
+        (True, (0, 2), ["steering", "longitudinal.zones[0]", "longitudinal.zones[2]"]),
+    ],
+)
+def test_simulate_refuses_flagged_values_naming_key_and_flag(
+    tmp_path, capsys, steering, zones, keys
+):
     f = _flagged(tmp_path, steering=steering, zones=zones)
     rc = main(["simulate", "--params", str(f), "--scenario", "idle_hold"])
     line = _one_line_err(capsys)
@@ -82,8 +90,17 @@ def test_simulate_with_the_flag_runs_and_warns_in_one_line(tmp_path, capsys):
 
 def test_plant_params_are_checked_too(tmp_path, capsys):
     f = _flagged(tmp_path, zones=(2,))
-    rc = main(["simulate", "--params", str(REPORT_PARAMS), "--plant-params", str(f),
-               "--scenario", "idle_hold"])
+    rc = main(
+        [
+            "simulate",
+            "--params",
+            str(REPORT_PARAMS),
+            "--plant-params",
+            str(f),
+            "--scenario",
+            "idle_hold",
+        ]
+    )
     line = _one_line_err(capsys)
     assert rc == 2 and "longitudinal.zones[2]" in line and FLAG in line
 
@@ -101,9 +118,22 @@ def test_controller_construction_refuses_unless_accepted(tmp_path, name):
 def test_drive_refuses_flagged_values_before_touching_the_bus(tmp_path, capsys):
     f = _flagged(tmp_path, zones=(0,))
     log = tmp_path / "run.log"
-    rc = main(["drive", "--params", str(f),
-               "--actuation", str(PARAMS_DIR / "bywire.actuation.yaml"), "--vehicle-sim",
-               "--scenario", "figure8", "--duration", "1", "--candump", str(log)])
+    rc = main(
+        [
+            "drive",
+            "--params",
+            str(f),
+            "--actuation",
+            str(PARAMS_DIR / "bywire.actuation.yaml"),
+            "--vehicle-sim",
+            "--scenario",
+            "figure8",
+            "--duration",
+            "1",
+            "--candump",
+            str(log),
+        ]
+    )
     line = _one_line_err(capsys)
     assert rc == 2 and "longitudinal.zones[0]" in line and FLAG in line and str(f) in line
     assert not log.exists()
@@ -113,9 +143,23 @@ def test_drive_refuses_flagged_values_before_touching_the_bus(tmp_path, capsys):
 def test_drive_with_the_flag_runs_and_warns(tmp_path, capsys):
     f = _flagged(tmp_path, steering=True)
     log = tmp_path / "run.log"
-    rc = main(["drive", "--params", str(f),
-               "--actuation", str(PARAMS_DIR / "bywire.actuation.yaml"), "--vehicle-sim",
-               "--scenario", "figure8", "--duration", "1", "--candump", str(log), FLAG])
+    rc = main(
+        [
+            "drive",
+            "--params",
+            str(f),
+            "--actuation",
+            str(PARAMS_DIR / "bywire.actuation.yaml"),
+            "--vehicle-sim",
+            "--scenario",
+            "figure8",
+            "--duration",
+            "1",
+            "--candump",
+            str(log),
+            FLAG,
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 0, err
     assert log.stat().st_size > 0
@@ -123,29 +167,53 @@ def test_drive_with_the_flag_runs_and_warns(tmp_path, capsys):
     assert len(warnings) == 1 and "'steering'" in warnings[0] and FLAG in warnings[0]
 
 
-def test_a_file_identified_from_the_real_comma_minute_is_refused_then_accepted(tmp_path,
-                                                                              capsys):
+def test_a_file_identified_from_the_real_comma_minute_is_refused_then_accepted(tmp_path, capsys):
     """End to end on real data: the comma minute's steering (a few degrees of highway
     steering) and zones (brake never pressed, no data below 5 m/s) come out flagged; simulate
     refuses the file naming them, and runs with the flag."""
     from _data import bundled
+
     d = "rav4-comma2k19/"
     out = tmp_path / "comma.yaml"
-    rc = main(["identify", str(bundled(d + "can.log.gz")),
-               "--dbc", str(bundled("dbc/toyota_rav4_2017.dbc.gz")),
-               "--signals", str(PARAMS_DIR / "toyota_rav4_2017.signals.yaml"),
-               "--nav", str(bundled(d + "nav.csv.gz")), "--imu", str(bundled(d + "imu.csv.gz")),
-               "--vehicle", str(PARAMS_DIR / "toyota_rav4_2017.yaml"), "--out", str(out)])
+    rc = main(
+        [
+            "identify",
+            str(bundled(d + "can.log.gz")),
+            "--dbc",
+            str(bundled("dbc/toyota_rav4_2017.dbc.gz")),
+            "--signals",
+            str(PARAMS_DIR / "toyota_rav4_2017.signals.yaml"),
+            "--nav",
+            str(bundled(d + "nav.csv.gz")),
+            "--imu",
+            str(bundled(d + "imu.csv.gz")),
+            "--vehicle",
+            str(PARAMS_DIR / "toyota_rav4_2017.yaml"),
+            "--out",
+            str(out),
+        ]
+    )
     assert rc == 0
     capsys.readouterr()
     p = load_params(out, require_model=True)
     flagged = ["steering"] * (p.steering.identifiable is False) + [
-        f"longitudinal.zones[{i}]" for i, z in enumerate(p.zones) if z.identifiable is False]
+        f"longitudinal.zones[{i}]" for i, z in enumerate(p.zones) if z.identifiable is False
+    ]
     assert flagged  # measured: steering and all three zones
     rc = main(["simulate", "--params", str(out), "--scenario", "idle_hold"])
     line = _one_line_err(capsys)
     assert rc == 2 and FLAG in line and all(k in line for k in flagged), line
-    rc = main(["simulate", "--experiment", "ramps", "--params", str(out),
-               "--out", str(tmp_path / "rec.csv"), FLAG])
+    rc = main(
+        [
+            "simulate",
+            "--experiment",
+            "ramps",
+            "--params",
+            str(out),
+            "--out",
+            str(tmp_path / "rec.csv"),
+            FLAG,
+        ]
+    )
     warnings = [ln for ln in capsys.readouterr().err.splitlines() if "warning" in ln]
     assert rc == 0 and len(warnings) == 1 and all(f"'{k}'" in warnings[0] for k in flagged)

@@ -3,6 +3,7 @@ Jacobian against finite differences, scalar against batch, numpy against CasADi,
 zone rule at its edges (boundaries, NaN, above the last zone, hysteresis).
 
 Seeds are fixed (SEED, printed in the assertion messages)."""
+
 from __future__ import annotations
 
 import math
@@ -12,11 +13,23 @@ import pytest
 
 from _data import REPORT_PARAMS
 from hmpc.models.params import load_params
-from hmpc.models.plant import (IV, HybridPlant, bicycle_jacobian, bicycle_rates,
-                               derivative_batch, jacobians_batch, road_wheel_angle,
-                               steering_wheel_angle_for, zone_accel)
-from hmpc.models.zones import (zone_of_speed, zone_with_hysteresis, zones_of_speed,
-                               zones_with_hysteresis)
+from hmpc.models.plant import (
+    IV,
+    HybridPlant,
+    bicycle_jacobian,
+    bicycle_rates,
+    derivative_batch,
+    jacobians_batch,
+    road_wheel_angle,
+    steering_wheel_angle_for,
+    zone_accel,
+)
+from hmpc.models.zones import (
+    zone_of_speed,
+    zone_with_hysteresis,
+    zones_of_speed,
+    zones_with_hysteresis,
+)
 
 SEED = 20251123
 V_MIN = [0.0, 2.0, 5.0]
@@ -30,8 +43,9 @@ def plant():
 
 def _random_rows(n: int, seed: int = SEED):
     rng = np.random.default_rng(seed)
-    X = np.column_stack([rng.normal(0, 20, n), rng.normal(0, 20, n), rng.uniform(-4, 4, n),
-                         rng.uniform(0, 20, n)])
+    X = np.column_stack(
+        [rng.normal(0, 20, n), rng.normal(0, 20, n), rng.uniform(-4, 4, n), rng.uniform(0, 20, n)]
+    )
     U = np.column_stack([rng.uniform(-7, 7, n), rng.uniform(0, 1, n), rng.uniform(0, 1, n)])
     return X, U
 
@@ -48,14 +62,18 @@ def test_jacobian_matches_central_differences(plant):
         for j in range(4):
             d = np.zeros(4)
             d[j] = h
-            fd = (plant.derivative(X[k] + d, U[k], zones[k])
-                  - plant.derivative(X[k] - d, U[k], zones[k])) / (2 * h)
+            fd = (
+                plant.derivative(X[k] + d, U[k], zones[k])
+                - plant.derivative(X[k] - d, U[k], zones[k])
+            ) / (2 * h)
             assert np.max(np.abs(A[k, :, j] - fd)) < 1e-7, (SEED, k, j)
         for j in range(3):
             d = np.zeros(3)
             d[j] = h
-            fd = (plant.derivative(X[k], U[k] + d, zones[k])
-                  - plant.derivative(X[k], U[k] - d, zones[k])) / (2 * h)
+            fd = (
+                plant.derivative(X[k], U[k] + d, zones[k])
+                - plant.derivative(X[k], U[k] - d, zones[k])
+            ) / (2 * h)
             assert np.max(np.abs(B[k, :, j] - fd)) < 1e-7, (SEED, k, j)
 
 
@@ -67,23 +85,43 @@ def test_scalar_and_batch_are_the_same_model(plant):
     F = derivative_batch(plant, X, U, zones)
     A, B = jacobians_batch(plant, X, U, zones)
     for k in range(len(X)):
-        psi, v, sw, ap, bp = float(X[k, 2]), float(X[k, 3]), float(U[k, 0]), float(U[k, 1]), \
-            float(U[k, 2])
+        psi, v, sw, ap, bp = (
+            float(X[k, 2]),
+            float(X[k, 3]),
+            float(U[k, 0]),
+            float(U[k, 1]),
+            float(U[k, 2]),
+        )
         delta = road_wheel_angle(sw, plant.offset_rad, plant.scale)
         rates = bicycle_rates(psi, v, delta, plant.wheelbase_m, ops=math)
         z = int(zones[k])
-        a = zone_accel(float(plant.z_offset[z]), float(plant.z_scale[z]),
-                       float(plant.z_brake[z]), ap, bp)
+        a = zone_accel(
+            float(plant.z_offset[z]), float(plant.z_scale[z]), float(plant.z_brake[z]), ap, bp
+        )
         assert np.allclose(F[k], [*rates, a], rtol=0, atol=1e-14), (SEED, k)
         assert np.allclose(plant.derivative(X[k], U[k], z), F[k], rtol=0, atol=1e-14)
         j = bicycle_jacobian(psi, v, delta, plant.wheelbase_m, plant.scale, ops=math)
-        assert np.allclose([A[k, 0, 2], A[k, 0, 3], A[k, 1, 2], A[k, 1, 3], A[k, 2, 3],
-                            B[k, 0, 0], B[k, 1, 0], B[k, 2, 0]], list(j), rtol=0, atol=1e-14)
+        assert np.allclose(
+            [
+                A[k, 0, 2],
+                A[k, 0, 3],
+                A[k, 1, 2],
+                A[k, 1, 3],
+                A[k, 2, 3],
+                B[k, 0, 0],
+                B[k, 1, 0],
+                B[k, 2, 0],
+            ],
+            list(j),
+            rtol=0,
+            atol=1e-14,
+        )
         Ak, Bk = plant.jacobians(X[k], U[k], z)
         assert np.array_equal(Ak, A[k]) and np.array_equal(Bk, B[k])
         # eq. 7 inverted is eq. 7's inverse
-        assert steering_wheel_angle_for(delta, plant.offset_rad, plant.scale) == \
-            pytest.approx(sw, abs=1e-12)
+        assert steering_wheel_angle_for(delta, plant.offset_rad, plant.scale) == pytest.approx(
+            sw, abs=1e-12
+        )
 
 
 def test_numpy_and_casadi_evaluate_the_same_function(plant):
@@ -100,14 +138,28 @@ def test_numpy_and_casadi_evaluate_the_same_function(plant):
         p, vv, s = float(X[k, 2]), float(X[k, 3]), float(U[k, 0])
         out_r, out_j = (np.asarray(o).ravel() for o in f(p, vv, s))
         d = road_wheel_angle(s, plant.offset_rad, plant.scale)
-        assert np.allclose(out_r, bicycle_rates(p, vv, d, plant.wheelbase_m), rtol=0,
-                           atol=1e-13), (SEED + 1, k)
-        assert np.allclose(out_j, list(bicycle_jacobian(p, vv, d, plant.wheelbase_m,
-                                                        plant.scale)), rtol=0, atol=1e-13)
+        assert np.allclose(out_r, bicycle_rates(p, vv, d, plant.wheelbase_m), rtol=0, atol=1e-13), (
+            SEED + 1,
+            k,
+        )
+        assert np.allclose(
+            out_j,
+            list(bicycle_jacobian(p, vv, d, plant.wheelbase_m, plant.scale)),
+            rtol=0,
+            atol=1e-13,
+        )
         J = np.asarray(g(p, vv, s))
         jj = bicycle_jacobian(p, vv, d, plant.wheelbase_m, plant.scale)
-        assert np.allclose(J, [[jj.dx_dpsi, jj.dx_dv, jj.dx_du], [jj.dy_dpsi, jj.dy_dv, jj.dy_du],
-                               [0.0, jj.dpsi_dv, jj.dpsi_du]], rtol=0, atol=1e-13)
+        assert np.allclose(
+            J,
+            [
+                [jj.dx_dpsi, jj.dx_dv, jj.dx_du],
+                [jj.dy_dpsi, jj.dy_dv, jj.dy_du],
+                [0.0, jj.dpsi_dv, jj.dpsi_du],
+            ],
+            rtol=0,
+            atol=1e-13,
+        )
 
 
 def test_plant_step_is_eq1_over_the_distance_travelled(plant):
@@ -129,13 +181,22 @@ def test_plant_step_is_eq1_over_the_distance_travelled(plant):
 
 
 # ------------------------------------------------------------------------- the zone rule
-@pytest.mark.parametrize("v, zone, clamped", [
-    (0.0, 0, 0), (-1.0, 0, 0), (-math.inf, 0, 0),    # the first zone takes 0 and below
-    (2.0, 0, 0), (math.nextafter(2.0, 3.0), 1, 1),   # exactly on a boundary: the lower zone
-    (5.0, 1, 1), (5.0 + 1e-12, 2, 2), (20.0, 2, 2),
-    (20.0 + 1e-9, -1, 2), (math.inf, -1, 2),          # above the last zone: none, or clamp
-    (math.nan, -1, 2),                                 # NaN: no zone (the plant: the last)
-])
+@pytest.mark.parametrize(
+    "v, zone, clamped",
+    [
+        (0.0, 0, 0),
+        (-1.0, 0, 0),
+        (-math.inf, 0, 0),  # the first zone takes 0 and below
+        (2.0, 0, 0),
+        (math.nextafter(2.0, 3.0), 1, 1),  # exactly on a boundary: the lower zone
+        (5.0, 1, 1),
+        (5.0 + 1e-12, 2, 2),
+        (20.0, 2, 2),
+        (20.0 + 1e-9, -1, 2),
+        (math.inf, -1, 2),  # above the last zone: none, or clamp
+        (math.nan, -1, 2),  # NaN: no zone (the plant: the last)
+    ],
+)
 def test_zone_rule_edges(v, zone, clamped):
     assert zone_of_speed(v, V_MAX) == zone
     assert zone_of_speed(v, V_MAX, clamp=True) == clamped
@@ -147,25 +208,27 @@ def test_zone_rule_vectorised_equals_scalar():
     rng = np.random.default_rng(SEED)
     v = np.concatenate([rng.uniform(-1, 25, 500), V_MAX, V_MIN, [np.nan, np.inf]])
     for clamp in (False, True):
-        assert zones_of_speed(v, V_MAX, clamp=clamp).tolist() == \
-            [zone_of_speed(float(x), V_MAX, clamp=clamp) for x in v]
+        assert zones_of_speed(v, V_MAX, clamp=clamp).tolist() == [
+            zone_of_speed(float(x), V_MAX, clamp=clamp) for x in v
+        ]
 
 
 def test_hysteresis_edges():
     h = 0.25
-    hy = lambda v, cur, clamp=False: zone_with_hysteresis(v, cur, V_MIN, V_MAX, h,  # noqa: E731
-                                                          clamp=clamp)
-    assert hy(2.25, 0) == 0 and hy(math.nextafter(2.25, 3.0), 0) == 1   # band edge inclusive
+
+    def hy(v, cur, clamp=False):
+        return zone_with_hysteresis(v, cur, V_MIN, V_MAX, h, clamp=clamp)
+
+    assert hy(2.25, 0) == 0 and hy(math.nextafter(2.25, 3.0), 0) == 1  # band edge inclusive
     assert hy(1.75, 1) == 1 and hy(math.nextafter(1.75, 0.0), 1) == 0
-    assert hy(-5.0, 0) == 0                              # the first zone has no lower edge
-    assert hy(20.1, 2) == -1 and hy(20.1, 2, clamp=True) == 2   # no band above the last zone
+    assert hy(-5.0, 0) == 0  # the first zone has no lower edge
+    assert hy(20.1, 2) == -1 and hy(20.1, 2, clamp=True) == 2  # no band above the last zone
     assert hy(1e6, 2, clamp=True) == 2
-    assert hy(math.nan, 1) == -1 and hy(math.nan, 1, clamp=True) == 2   # NaN leaves the band
+    assert hy(math.nan, 1) == -1 and hy(math.nan, 1, clamp=True) == 2  # NaN leaves the band
     assert hy(3.0, None) == 1 and hy(3.0, -1) == 1 and hy(3.0, 7) == 1  # no valid current
     # along a sequence: a speed hovering on a boundary keeps its zone; NaN resets
     v = np.array([1.9, 2.05, 1.98, 2.2, 2.3, 2.05, 1.9, 1.7, np.nan, 2.1])
-    assert zones_with_hysteresis(v, V_MIN, V_MAX, h).tolist() == \
-        [0, 0, 0, 0, 1, 1, 1, 0, -1, 1]
+    assert zones_with_hysteresis(v, V_MIN, V_MAX, h).tolist() == [0, 0, 0, 0, 1, 1, 1, 0, -1, 1]
     assert zones_with_hysteresis(v[:3], V_MIN, V_MAX, h, start=1).tolist() == [1, 1, 1]
 
 
@@ -190,8 +253,7 @@ def test_every_user_calls_the_one_zone_rule(plant):
     assert assign_zones(v, zones, h).tolist() == zones_with_hysteresis(v, vmin, vmax, h).tolist()
     ctl = MpcController(params)
     vb = np.clip(np.cumsum(rng.normal(0, 0.4, ctl.N + 1)) + 3.0, 0.0, None)
-    expect = [1] + zones_with_hysteresis(vb[1:ctl.N], vmin, vmax, h, start=1,
-                                         clamp=True).tolist()
+    expect = [1] + zones_with_hysteresis(vb[1 : ctl.N], vmin, vmax, h, start=1, clamp=True).tolist()
     assert ctl.zone_rules.schedule(1, vb).tolist() == expect
     # and the plant's step uses it with hysteresis from the current zone
     for x, cur in ((2.1, 0), (1.9, 1), (30.0, 2), (3.0, None)):

@@ -1,4 +1,5 @@
 """Zone switching and standstill of the hybrid plant (models/plant.py)."""
+
 from __future__ import annotations
 
 import copy
@@ -19,16 +20,16 @@ def params():
 
 def test_hysteresis_keeps_zone_inside_band_and_leaves_outside(params):
     plant = HybridPlant(params, hysteresis_mps=0.25)
-    assert plant.select_zone(2.1, 0) == 0        # idle kept up to 2.0 + 0.25
-    assert plant.select_zone(2.26, 0) == 1       # then low
-    assert plant.select_zone(1.9, 1) == 1        # low kept down to 2.0 - 0.25
+    assert plant.select_zone(2.1, 0) == 0  # idle kept up to 2.0 + 0.25
+    assert plant.select_zone(2.26, 0) == 1  # then low
+    assert plant.select_zone(1.9, 1) == 1  # low kept down to 2.0 - 0.25
     assert plant.select_zone(1.74, 1) == 0
     assert plant.select_zone(5.2, 1) == 1
     assert plant.select_zone(5.3, 1) == 2
     assert plant.select_zone(4.8, 2) == 2
     assert plant.select_zone(4.7, 2) == 1
-    assert plant.select_zone(30.0, 2) == 2       # above the last zone: last zone
-    assert plant.select_zone(3.0, None) == 1     # no current zone: by speed
+    assert plant.select_zone(30.0, 2) == 2  # above the last zone: last zone
+    assert plant.select_zone(3.0, None) == 1  # no current zone: by speed
     assert plant.zone_by_speed(2.0) == 0 and plant.zone_by_speed(2.0001) == 1
 
 
@@ -36,8 +37,11 @@ def test_plant_is_continuous_where_zone_models_agree(params):
     p = copy.deepcopy(params)
     low = p.zones[1]
     for z in p.zones:  # every zone gets the low zone's model
-        z.offset_mps2, z.scale_mps2, z.brake_scale_mps2 = low.offset_mps2, low.scale_mps2, \
-            low.brake_scale_mps2
+        z.offset_mps2, z.scale_mps2, z.brake_scale_mps2 = (
+            low.offset_mps2,
+            low.scale_mps2,
+            low.brake_scale_mps2,
+        )
     plant = HybridPlant(p)
     u = np.array([0.3, 0.4, 0.0])
     s = np.array([0.0, 0.0, 0.1, 1.5])
@@ -58,8 +62,9 @@ def test_plant_is_continuous_where_zone_models_agree(params):
     plant2 = HybridPlant(params, hysteresis_mps=0.0)
     a_idle = plant2.step(np.array([0, 0, 0, 1.99]), u, 1e-4, 0).accel_mps2
     a_low = plant2.step(np.array([0, 0, 0, 2.01]), u, 1e-4, 0).accel_mps2
-    assert a_low - a_idle == pytest.approx(params.zones[1].accel_mps2(0.4, 0)
-                                           - params.zones[0].accel_mps2(0.4, 0))
+    assert a_low - a_idle == pytest.approx(
+        params.zones[1].accel_mps2(0.4, 0) - params.zones[0].accel_mps2(0.4, 0)
+    )
 
 
 @pytest.mark.parametrize("boundary", [2.0, 5.0])
@@ -76,6 +81,7 @@ def test_no_transition_chatter_with_noise_on_a_boundary(params, boundary):
             n += zone is not None and z != zone
             zone = z
         return n
+
     assert transitions(0.25) <= 1
     assert transitions(0.0) > 100  # the same noise without hysteresis chatters: the test can fail
 
@@ -105,8 +111,9 @@ def test_jacobians_match_finite_differences(params):
     plant = HybridPlant(params)
     rng = np.random.default_rng(SEED)
     for _ in range(20):
-        s = np.array([rng.normal(0, 10), rng.normal(0, 10), rng.uniform(-3, 3),
-                      rng.uniform(0.5, 15)])
+        s = np.array(
+            [rng.normal(0, 10), rng.normal(0, 10), rng.uniform(-3, 3), rng.uniform(0.5, 15)]
+        )
         u = np.array([rng.uniform(-6, 6), rng.uniform(0, 1), rng.uniform(0, 1)])
         zone = plant.zone_by_speed(s[IV])
         A, B = plant.jacobians(s, u, zone)

@@ -3,6 +3,7 @@ angle panels of Fig. 2 are scaled to the trusted samples (the standstill spikes 
 angle neither set the limits nor are drawn), a zone figure's time axis holds only that zone's
 samples (and says so when it has none), the replay figure plots the position error against
 time, and no legend sits over the data."""
+
 from __future__ import annotations
 
 import copy
@@ -13,8 +14,7 @@ import pytest
 from hmpc.models.identify.pipeline import concat_recordings, identify
 from hmpc.models.identify.steering import SteeringIdConfig
 from hmpc.models.params import load_params
-from hmpc.models.report.identification import (replay_figure, steering_figure, zone_axis,
-                                               zone_figure)
+from hmpc.models.report.identification import replay_figure, steering_figure, zone_axis, zone_figure
 from hmpc.models.sim.simulator import simulate_experiment
 from _data import REPORT_PARAMS
 
@@ -24,8 +24,9 @@ SEED = 3
 @pytest.fixture(scope="module")
 def result():
     truth = load_params(REPORT_PARAMS)
-    rec = concat_recordings([simulate_experiment(n, truth, seed=SEED)
-                             for n in ("arcs", "ramp_sequence")])
+    rec = concat_recordings(
+        [simulate_experiment(n, truth, seed=SEED) for n in ("arcs", "ramp_sequence")]
+    )
     return identify(rec, truth.vehicle)
 
 
@@ -128,4 +129,4 @@ def test_replay_figure_plots_the_position_error_against_time(result):
     assert np.allclose(y[ok], err[ok])
     # the replay's own rms figure is of the same size as the plotted error
     rms = result.steering.fits["position_replay"].rms_error
-    assert 0.2 * rms < np.sqrt(np.nanmean(err ** 2)) < 5 * rms
+    assert 0.2 * rms < np.sqrt(np.nanmean(err**2)) < 5 * rms

@@ -1,4 +1,5 @@
 """``hmpc simulate``: closed loop, experiments, JSON keys, plots, bad input (exit 2)."""
+
 from __future__ import annotations
 
 import json
@@ -15,8 +16,16 @@ from hmpc.models.sim.scenarios import make_scenario
 from hmpc.tools.cli import main
 
 PARAMS = str(REPORT_PARAMS)
-KEYS = ("speed_error_rms_mps", "lateral_error_rms_m", "pedal_switches_per_min",
-        "zone_transitions_per_min", "solve_time_ms", "steps", "failures", "internal_errors")
+KEYS = (
+    "speed_error_rms_mps",
+    "lateral_error_rms_m",
+    "pedal_switches_per_min",
+    "zone_transitions_per_min",
+    "solve_time_ms",
+    "steps",
+    "failures",
+    "internal_errors",
+)
 
 
 @pytest.fixture
@@ -37,8 +46,23 @@ def short_ref(tmp_path):
 
 def test_closed_loop_json_recording_and_plots(tmp_path, short_ref):
     out, js, plots = tmp_path / "run.csv", tmp_path / "run.json", tmp_path / "plots"
-    rc = main(["simulate", "--params", PARAMS, "--reference", str(short_ref), "--out", str(out),
-               "--json", str(js), "--plots", str(plots), "--seed", "3"])
+    rc = main(
+        [
+            "simulate",
+            "--params",
+            PARAMS,
+            "--reference",
+            str(short_ref),
+            "--out",
+            str(out),
+            "--json",
+            str(js),
+            "--plots",
+            str(plots),
+            "--seed",
+            "3",
+        ]
+    )
     assert rc == 0
     d = json.loads(js.read_text())
     assert set(KEYS) <= set(d)
@@ -72,8 +96,21 @@ def test_pid_and_plant_params(tmp_path, short_ref):
     weak = tmp_path / "weak.yaml"
     weak.write_text(yaml.safe_dump(data))
     js = tmp_path / "pid.json"
-    rc = main(["simulate", "--params", PARAMS, "--reference", str(short_ref), "--controller",
-               "pid", "--plant-params", str(weak), "--json", str(js)])
+    rc = main(
+        [
+            "simulate",
+            "--params",
+            PARAMS,
+            "--reference",
+            str(short_ref),
+            "--controller",
+            "pid",
+            "--plant-params",
+            str(weak),
+            "--json",
+            str(js),
+        ]
+    )
     assert rc == 0
     d = json.loads(js.read_text())
     assert d["controller"] == "pid" and d["plant_params"] == str(weak)
@@ -85,8 +122,21 @@ def test_pid_and_plant_params(tmp_path, short_ref):
 
 def test_experiment_writes_a_canonical_recording(tmp_path):
     out, js = tmp_path / "exp.csv", tmp_path / "exp.json"
-    rc = main(["simulate", "--experiment", "ramp_sequence", "--params", PARAMS, "--out", str(out),
-               "--seed", "1", "--json", str(js)])
+    rc = main(
+        [
+            "simulate",
+            "--experiment",
+            "ramp_sequence",
+            "--params",
+            PARAMS,
+            "--out",
+            str(out),
+            "--seed",
+            "1",
+            "--json",
+            str(js),
+        ]
+    )
     assert rc == 0
     rec = Recording.load(out)
     d = json.loads(js.read_text())
@@ -105,27 +155,44 @@ def test_a_canonical_recording_is_a_reference(tmp_path):
     --reference is followed along its driven path and speed (as ``hmpc replay`` does): the
     MPC on the same model that made the recording tracks it closely."""
     rec = tmp_path / "arcs.csv"
-    assert main(["simulate", "--experiment", "arcs", "--params", PARAMS, "--out", str(rec),
-                 "--seed", "1"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--experiment",
+                "arcs",
+                "--params",
+                PARAMS,
+                "--out",
+                str(rec),
+                "--seed",
+                "1",
+            ]
+        )
+        == 0
+    )
     js = tmp_path / "run.json"
     assert main(["simulate", "--params", PARAMS, "--reference", str(rec), "--json", str(js)]) == 0
     d = json.loads(js.read_text())
     r = Recording.load(rec)
     assert d["reference"] == "arcs"
-    assert d["steps"] * 0.1 == pytest.approx(r.time[-1] - r.time[0], abs=0.2)   # 0.1 s steps
+    assert d["steps"] * 0.1 == pytest.approx(r.time[-1] - r.time[0], abs=0.2)  # 0.1 s steps
     assert d["failures"] == 0
     assert d["speed_error_rms_mps"] < 0.3 and d["lateral_error_rms_m"] < 0.3
 
 
-@pytest.mark.parametrize("body, line, what", [
-    ("time,x,y,speed\n0,0,0,1\n0.1,0.1,0,1\n0.2,zz,0,1\n", 4, "not a number"),
-    ("time,x,y,speed\n0,0,0,1\n0,0.1,0,1\n", 3, "strictly increasing"),
-    ("time,x,y,speed\n0,0,0,1\n0.1,0.1,0,-1\n", 3, "speed must be"),
-    ("time,x,y,speed\n0,0,0,1\n0.1,0.1,0\n", 3, "expected 4 fields"),
-    ("time,x,y,speed\n0,0,0,1\n0.1,nan,0,1\n", 3, "not finite"),
-    ("time,x,y\n0,0,0\n", 1, "missing"),
-    ("time,x,y,speed,bogus\n0,0,0,1,2\n", 1, "unknown column"),
-])
+@pytest.mark.parametrize(
+    "body, line, what",
+    [
+        ("time,x,y,speed\n0,0,0,1\n0.1,0.1,0,1\n0.2,zz,0,1\n", 4, "not a number"),
+        ("time,x,y,speed\n0,0,0,1\n0,0.1,0,1\n", 3, "strictly increasing"),
+        ("time,x,y,speed\n0,0,0,1\n0.1,0.1,0,-1\n", 3, "speed must be"),
+        ("time,x,y,speed\n0,0,0,1\n0.1,0.1,0\n", 3, "expected 4 fields"),
+        ("time,x,y,speed\n0,0,0,1\n0.1,nan,0,1\n", 3, "not finite"),
+        ("time,x,y\n0,0,0\n", 1, "missing"),
+        ("time,x,y,speed,bogus\n0,0,0,1,2\n", 1, "unknown column"),
+    ],
+)
 def test_bad_reference_is_exit_2_with_file_and_line(tmp_path, capsys, body, line, what):
     path = tmp_path / "bad.csv"
     path.write_text(body)
@@ -163,9 +230,27 @@ def test_sensor_options_reach_the_run_and_the_json(tmp_path, short_ref, capsys):
     """The controller sees the plant through simulated sensors and the estimator;
     their settings are options, echoed in the JSON with the smoothness figures."""
     js = tmp_path / "s.json"
-    rc = main(["simulate", "--params", PARAMS, "--reference", str(short_ref), "--json", str(js),
-               "--sensor-noise-scale", "3", "--gnss-rate", "10", "--gnss-latency", "0.1",
-               "--gnss-outage", "2:4", "--gnss-outage", "5.5:6"])
+    rc = main(
+        [
+            "simulate",
+            "--params",
+            PARAMS,
+            "--reference",
+            str(short_ref),
+            "--json",
+            str(js),
+            "--sensor-noise-scale",
+            "3",
+            "--gnss-rate",
+            "10",
+            "--gnss-latency",
+            "0.1",
+            "--gnss-outage",
+            "2:4",
+            "--gnss-outage",
+            "5.5:6",
+        ]
+    )
     assert rc == 0
     d = json.loads(js.read_text())
     assert d["sensors"]["noise_scale"] == 3.0 and d["sensors"]["gnss_rate_hz"] == 10.0
@@ -183,13 +268,16 @@ def test_sensor_options_reach_the_run_and_the_json(tmp_path, short_ref, capsys):
     assert "smoothness: steering reversals" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("args, what", [
-    (["--gnss-outage", "4:2"], "--gnss-outage"),
-    (["--gnss-outage", "abc"], "T0:T1"),
-    (["--gnss-rate", "0"], "--gnss-rate"),
-    (["--sensor-noise-scale", "-1"], "--sensor-noise-scale"),
-    (["--position-noise", "-0.1"], "--position-noise"),
-])
+@pytest.mark.parametrize(
+    "args, what",
+    [
+        (["--gnss-outage", "4:2"], "--gnss-outage"),
+        (["--gnss-outage", "abc"], "T0:T1"),
+        (["--gnss-rate", "0"], "--gnss-rate"),
+        (["--sensor-noise-scale", "-1"], "--sensor-noise-scale"),
+        (["--position-noise", "-0.1"], "--position-noise"),
+    ],
+)
 def test_bad_sensor_option_is_exit_2(short_ref, capsys, args, what):
     rc = main(["simulate", "--params", PARAMS, "--reference", str(short_ref)] + args)
     assert rc == 2
@@ -204,15 +292,39 @@ def test_effect_option_runs_the_truth_plant_and_refuses_bad_specs(tmp_path, shor
     out = {}
     for name, extra in (("clean", []), ("grade", ["--effect", "road_grade:grade_rad=0.05"])):
         js = tmp_path / f"{name}.json"
-        assert main(["simulate", "--params", PARAMS, "--reference", str(short_ref),
-                     "--out", str(tmp_path / f"{name}.csv"), "--json", str(js)] + extra) == 0
+        assert (
+            main(
+                [
+                    "simulate",
+                    "--params",
+                    PARAMS,
+                    "--reference",
+                    str(short_ref),
+                    "--out",
+                    str(tmp_path / f"{name}.csv"),
+                    "--json",
+                    str(js),
+                ]
+                + extra
+            )
+            == 0
+        )
         out[name] = json.loads(js.read_text())
     assert out["clean"]["effects"] == []
     assert out["grade"]["effects"] == [{"type": "road_grade", "grade_rad": 0.05}]
     v = {k: Recording.load(tmp_path / f"{k}.csv")["speed"].mean() for k in out}
     assert v["grade"] < v["clean"] - 0.02
     capsys.readouterr()
-    rc = main(["simulate", "--params", PARAMS, "--reference", str(short_ref),
-               "--effect", "road_grade:slope=0.05"])
+    rc = main(
+        [
+            "simulate",
+            "--params",
+            PARAMS,
+            "--reference",
+            str(short_ref),
+            "--effect",
+            "road_grade:slope=0.05",
+        ]
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "'slope'" in err[0]

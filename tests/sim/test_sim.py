@@ -4,6 +4,7 @@ covering what each of the report's experiments should, and effects doing what th
 Seeds are fixed (printed in the parametrisation). Noise level "none" gives ideal sensors, on
 which the report's eqs. 1, 7 and 8 must hold exactly; "typical" is what identification sees.
 """
+
 import json
 import math
 
@@ -22,10 +23,29 @@ from hmpc.models.sim.plans import DEFAULT_SW_MAX_RAD, EXPERIMENTS
 from hmpc.models.sim.simulator import random_params, run_experiment, simulate_experiment
 from _data import PARAMS_DIR, bundled
 
-ALL_CHANNELS = ["time", "steering_wheel_angle", "wheel_speed_fl", "wheel_speed_fr",
-                "wheel_speed_rl", "wheel_speed_rr", "speed", "accel_pedal", "brake_pedal", "gear",
-                "engine_rpm", "yaw_rate", "accel_x", "accel_y", "x", "y", "z", "heading", "pitch",
-                "roll", "gps_speed"]
+ALL_CHANNELS = [
+    "time",
+    "steering_wheel_angle",
+    "wheel_speed_fl",
+    "wheel_speed_fr",
+    "wheel_speed_rl",
+    "wheel_speed_rr",
+    "speed",
+    "accel_pedal",
+    "brake_pedal",
+    "gear",
+    "engine_rpm",
+    "yaw_rate",
+    "accel_x",
+    "accel_y",
+    "x",
+    "y",
+    "z",
+    "heading",
+    "pitch",
+    "roll",
+    "gps_speed",
+]
 
 
 @pytest.fixture(scope="module")
@@ -93,10 +113,11 @@ def test_ideal_wheel_speeds_follow_eqs_2_to_6(seed):
     # rear axle: eq. 5 exact, and the exact inverse recovers the road-wheel angle
     np.testing.assert_allclose(rr - rl, yaw * tf, atol=1e-12)
     moving = v > 0.5
-    np.testing.assert_allclose(sn.road_wheel_angle_from_rear(rl, rr, b, tf)[moving], delta[moving],
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        sn.road_wheel_angle_from_rear(rl, rr, b, tf)[moving], delta[moving], atol=1e-9
+    )
     # front axle: fr^2 - fl^2 = 2 r T v cos(delta) exactly; eq. 5 within 1 % at small angles
-    np.testing.assert_allclose(fr ** 2 - fl ** 2, 2 * yaw * tf * v * np.cos(delta), atol=1e-10)
+    np.testing.assert_allclose(fr**2 - fl**2, 2 * yaw * tf * v * np.cos(delta), atol=1e-10)
     small = moving & (np.abs(delta) < 0.14) & (np.abs(yaw) > 0.05)
     assert small.sum() > 100
     ratio = ((fr - fl) / tf)[small] / yaw[small]
@@ -119,8 +140,9 @@ def test_ideal_accel_x_is_the_zone_model_of_the_pedals(name, seed):
     # and the speed really integrates it: v(t) - v(0) = integral of accel along the path
     run = run_experiment(name, p, seed=seed, noise="none")
     tr = run.truth
-    np.testing.assert_allclose(np.cumsum(tr["accel_mps2"])[:-1] * tr.dt_s, tr["v_mps"][1:],
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        np.cumsum(tr["accel_mps2"])[:-1] * tr.dt_s, tr["v_mps"][1:], atol=1e-9
+    )
 
 
 def test_pedals_never_both_and_speed_never_negative(report):
@@ -176,8 +198,12 @@ def test_quantisation_equals_cantools_encode_decode():
     db = load_dbc(bundled("dbc/toyota_rav4_2017.dbc.gz"))
     rng = np.random.default_rng(1)
     msg = db.get_message_by_name("WHEEL_SPEEDS")
-    wheels = {"WHEEL_SPEED_FL": "wheel_speed_fl", "WHEEL_SPEED_FR": "wheel_speed_fr",
-              "WHEEL_SPEED_RL": "wheel_speed_rl", "WHEEL_SPEED_RR": "wheel_speed_rr"}
+    wheels = {
+        "WHEEL_SPEED_FL": "wheel_speed_fl",
+        "WHEEL_SPEED_FR": "wheel_speed_fr",
+        "WHEEL_SPEED_RL": "wheel_speed_rl",
+        "WHEEL_SPEED_RR": "wheel_speed_rr",
+    }
     sigs = {s.channel: s for s in sn.CAN_SIGNALS}
     for v in rng.uniform(0.0, 20.0, (50, 4)):
         v = v + 0.0003  # keep away from exact half counts, where rounding conventions differ
@@ -193,8 +219,12 @@ def test_quantisation_equals_cantools_encode_decode():
 
 def test_can_messages_have_the_real_rates_and_are_held(report):
     r = simulate_experiment("ramps", report, seed=2)
-    for ch, period in (("wheel_speed_fl", 1 / 83.3), ("accel_pedal", 1 / 31.5),
-                       ("brake_pedal", 1 / 41.5), ("engine_rpm", 1 / 42.5)):
+    for ch, period in (
+        ("wheel_speed_fl", 1 / 83.3),
+        ("accel_pedal", 1 / 31.5),
+        ("brake_pedal", 1 / 41.5),
+        ("engine_rpm", 1 / 42.5),
+    ):
         t, _ = r.raw[ch]
         assert np.median(np.diff(t)) == pytest.approx(period, rel=0.02), ch
     t, v = r.raw["accel_pedal"]  # zero-order hold: each grid value is the last message
@@ -286,8 +316,9 @@ def test_steering_angle_range_scales_with_the_vehicle_file():
 # -------------------------------------------------------------------------- effects
 def test_steering_dead_time_delays_the_yaw_response(report):
     base = simulate_experiment("arcs", report, seed=1, noise="none", rate_hz=100.0)
-    late = simulate_experiment("arcs", report, seed=1, noise="none", rate_hz=100.0,
-                               effects=[fx.SteeringDeadTime(0.25)])
+    late = simulate_experiment(
+        "arcs", report, seed=1, noise="none", rate_hz=100.0, effects=[fx.SteeringDeadTime(0.25)]
+    )
     for r, expect in ((base, 0.0), (late, 0.25)):
         pred = r["gps_speed"] * np.sin(0.017 + 0.08 * r["steering_wheel_angle"]) / 2.65
         assert _lag_s(pred, r["yaw_rate"], 100.0) == pytest.approx(expect, abs=0.011)
@@ -320,12 +351,19 @@ def test_pedal_dead_time_delays_the_acceleration(report):
     assert np.abs(r["accel_x"] - model_now)[v > 0.3].max() > 0.2  # without the delay it fails
 
 
-@pytest.mark.parametrize("effect,check", [
-    (fx.AeroDrag(3.2e-4),
-     lambda v, res: np.testing.assert_allclose(res, -3.2e-4 * v ** 2, atol=0.01)),
-    (fx.RoadGrade(0.05), lambda v, res: np.testing.assert_allclose(res, -9.80665 * math.sin(0.05),
-                                                                    atol=0.01)),
-])
+@pytest.mark.parametrize(
+    "effect,check",
+    [
+        (
+            fx.AeroDrag(3.2e-4),
+            lambda v, res: np.testing.assert_allclose(res, -3.2e-4 * v**2, atol=0.01),
+        ),
+        (
+            fx.RoadGrade(0.05),
+            lambda v, res: np.testing.assert_allclose(res, -9.80665 * math.sin(0.05), atol=0.01),
+        ),
+    ],
+)
 def test_acceleration_effects_add_their_term(report, effect, check):
     r = simulate_experiment("ramp_sequence", report, seed=0, noise="none", effects=[effect])
     v = r["gps_speed"]
@@ -344,8 +382,9 @@ def test_road_grade_shows_in_pitch_and_height(report):
 
 def test_wheel_radius_error_scales_the_wheel_speeds(report):
     base = simulate_experiment("ramps", report, seed=0, noise="none")
-    off = simulate_experiment("ramps", report, seed=0, noise="none",
-                              effects=[fx.WheelRadiusError(1.03)])
+    off = simulate_experiment(
+        "ramps", report, seed=0, noise="none", effects=[fx.WheelRadiusError(1.03)]
+    )
     for ch in ("wheel_speed_fl", "wheel_speed_rr", "speed"):
         np.testing.assert_allclose(off[ch], 1.03 * base[ch], rtol=1e-12)
     np.testing.assert_array_equal(off["gps_speed"], base["gps_speed"])
@@ -370,19 +409,20 @@ def test_steering_nonlinearity_and_understeer_bend_the_steering_map(report):
     sw, v = r["steering_wheel_angle"], r["gps_speed"]
     d = sn.road_wheel_angle_from_rear(r["wheel_speed_rl"], r["wheel_speed_rr"], 2.65, 1.6)
     m = v > 0.5
-    np.testing.assert_allclose(d[m], (0.017 + 0.08 * (sw + k * sw ** 3))[m], atol=1e-9)
+    np.testing.assert_allclose(d[m], (0.017 + 0.08 * (sw + k * sw**3))[m], atol=1e-9)
     assert np.abs(d[m] - (0.017 + 0.08 * sw)[m]).max() > 0.09  # 14 % more angle at full lock
     K = 0.003
     r = simulate_experiment("arcs", report, seed=1, noise="none", effects=[fx.Understeer(K)])
     sw, v = r["steering_wheel_angle"], r["gps_speed"]
     d = sn.road_wheel_angle_from_rear(r["wheel_speed_rl"], r["wheel_speed_rr"], 2.65, 1.6)
     m = v > 0.5
-    expect = (0.017 + 0.08 * sw) * 2.65 / (2.65 + K * v ** 2)
+    expect = (0.017 + 0.08 * sw) * 2.65 / (2.65 + K * v**2)
     np.testing.assert_allclose(d[m], expect[m], atol=1e-9)
 
 
 def test_truth_plant_applies_effects_step_by_step(report):
     from hmpc.models.sim.truth_plant import TruthPlant
+
     tp = TruthPlant(report, [fx.SteeringDeadTime(0.1), fx.AeroDrag(1e-3)], dt_s=0.01)
     s = np.array([0.0, 0.0, 0.0, 10.0])
     sw_eff = []
@@ -399,16 +439,25 @@ def test_truth_plant_applies_effects_step_by_step(report):
 def test_effects_parse_from_text_and_reject_bad_specs():
     e = fx.parse_effect("steering_dead_time:delay_s=0.2")
     assert isinstance(e, fx.SteeringDeadTime) and e.delay_s == 0.2
-    for eff in (fx.AeroDrag(3e-4), fx.RoadGrade(-0.02), fx.WheelRadiusError(0.99),
-                fx.ClockOffset(-0.1), fx.SteeringLag(0.2), fx.PedalDeadTime(0.1),
-                fx.SteeringCubic(0.001), fx.Understeer(0.003)):
+    for eff in (
+        fx.AeroDrag(3e-4),
+        fx.RoadGrade(-0.02),
+        fx.WheelRadiusError(0.99),
+        fx.ClockOffset(-0.1),
+        fx.SteeringLag(0.2),
+        fx.PedalDeadTime(0.1),
+        fx.SteeringCubic(0.001),
+        fx.Understeer(0.003),
+    ):
         again = fx.effect_from_dict(eff.describe())
         assert type(again) is type(eff) and again.describe() == eff.describe()
-    for bad, match in (("warp_drive:x=1", "unknown effect"),
-                       ("steering_dead_time:delay=0.2", "delay_s"),
-                       ("steering_dead_time:delay_s=-1", "delay_s"),
-                       ("aero_drag:coeff_per_m=abc", "not a number"),
-                       ("road_grade:0.1", "key=value")):
+    for bad, match in (
+        ("warp_drive:x=1", "unknown effect"),
+        ("steering_dead_time:delay=0.2", "delay_s"),
+        ("steering_dead_time:delay_s=-1", "delay_s"),
+        ("aero_drag:coeff_per_m=abc", "not a number"),
+        ("road_grade:0.1", "key=value"),
+    ):
         with pytest.raises(InputError, match=match) as ei:
             fx.parse_effect(bad)
         assert "\n" not in str(ei.value)

@@ -4,6 +4,7 @@ All traffic goes over real loopback UDP sockets. Time is simulated (``SimClock``
 receiver and operator) except in the flood test, which runs a real periodic loop and counts
 its iterations against the periods that elapsed.
 """
+
 from __future__ import annotations
 
 import os
@@ -43,12 +44,15 @@ def test_key_readable_or_writable_by_others_is_refused(tmp_path, mode):
         L.load_key(p)
 
 
-@pytest.mark.parametrize("text, match", [
-    ("ab" * 31 + "\n", "31 bytes, needs at least 32"),
-    ("zz" * 32 + "\n", "not hex"),
-    ("ab" * 32 + "\n" + "cd" * 32 + "\n", "exactly one line"),
-    ("", "exactly one line"),
-])
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("ab" * 31 + "\n", "31 bytes, needs at least 32"),
+        ("zz" * 32 + "\n", "not hex"),
+        ("ab" * 32 + "\n" + "cd" * 32 + "\n", "exactly one line"),
+        ("", "exactly one line"),
+    ],
+)
 def test_bad_key_content_is_refused_naming_the_file(tmp_path, text, match):
     p = tmp_path / "bad.key"
     p.write_text(text)
@@ -69,8 +73,8 @@ def test_command_layout_is_fixed_and_big_endian():
     pkt = L.encode_command(KEY, cmd, seq=0x0102030405060708, t_send_s=1.5)
     assert len(pkt) == L.COMMAND_SIZE == 76
     assert pkt[:4] == bytes([1, 1, 1, 1])
-    assert pkt[4:12] == bytes(range(1, 9))                     # seq, network byte order
-    assert struct.unpack("!q", pkt[12:20])[0] == 1_500_000     # t_send [us]
+    assert pkt[4:12] == bytes(range(1, 9))  # seq, network byte order
+    assert struct.unpack("!q", pkt[12:20])[0] == 1_500_000  # t_send [us]
     assert struct.unpack("!ddd", pkt[20:44]) == (0.5, 0.25, 0.0)
     assert pkt[44:] == L._mac(KEY, pkt[:44])
 
@@ -81,18 +85,27 @@ def test_telemetry_round_trip_and_forgery():
         stats = p.rx.stats()
     vs = L.VehicleStatus(3.5, -0.25, 1, "low", "throttle")
     stop = L.StopRequest("link_lost", 10.0, 10.21)
-    pkt = L.encode_telemetry(KEY, 7, 12.0, engaged=False, mpc_in_control=False, link_held=True,
-                             vehicle=vs, stop=stop, stats=stats)
+    pkt = L.encode_telemetry(
+        KEY,
+        7,
+        12.0,
+        engaged=False,
+        mpc_in_control=False,
+        link_held=True,
+        vehicle=vs,
+        stop=stop,
+        stats=stats,
+    )
     tel = L.decode_telemetry(KEY, pkt)
     assert tel.vehicle == vs and tel.stop == stop and tel.seq == 7 and tel.link_held
     assert tel.accepted == 1 and tel.delivered == 1
     assert set(tel.rejected) == set(L.REASONS)
-    assert L.decode_telemetry(bytes(32), pkt) is None              # wrong key
+    assert L.decode_telemetry(bytes(32), pkt) is None  # wrong key
     bad = bytearray(pkt)
     bad[10] ^= 4
-    assert L.decode_telemetry(KEY, bytes(bad)) is None              # flipped bit
+    assert L.decode_telemetry(KEY, bytes(bad)) is None  # flipped bit
     cmd_pkt = L.encode_command(KEY, L.TeleopCommand(L.Mode.ENGAGE), 8, 12.0)
-    assert L.decode_telemetry(KEY, cmd_pkt) is None                 # a command is not telemetry
+    assert L.decode_telemetry(KEY, cmd_pkt) is None  # a command is not telemetry
 
 
 class _pair:
@@ -114,8 +127,10 @@ def security_rows():
     rows = run_security_cases(KEY, seed=SEED, n_random=10_000)
     print(f"security cases (seed {SEED}):")
     for r in rows:
-        print(f"  {r['case']:40s} sent {r['sent']:6d} rejected {r['rejected']:6d} "
-              f"delivered {r['delivered']} {r['reasons']}")
+        print(
+            f"  {r['case']:40s} sent {r['sent']:6d} rejected {r['rejected']:6d} "
+            f"delivered {r['delivered']} {r['reasons']}"
+        )
     return {r["case"].split(" (")[0]: r for r in rows}
 
 
@@ -220,10 +235,10 @@ def test_released_dead_man_requests_stop_at_once_and_latches():
         p.send(L.TeleopCommand.pedals(0.0, 0.2, 0.0, dead_man=False))
         assert [s.reason for s in p.stops] == ["dead_man_released"]
         assert p.stops[0].detected_t_s - t_rel <= 2 * PERIOD_S
-        assert len(p.commands) == n_before          # the releasing packet is not passed on
-        _run_periods(p, 5, send=True)               # dead-man held again: still stopped
+        assert len(p.commands) == n_before  # the releasing packet is not passed on
+        _run_periods(p, 5, send=True)  # dead-man held again: still stopped
         assert len(p.commands) == n_before and len(p.stops) == 1
-        p.engage()                                   # only an explicit engage resumes
+        p.engage()  # only an explicit engage resumes
         _run_periods(p, 1, send=True)
         assert p.commands[-1].mode == L.Mode.PEDALS and p.rx.stop is None
 
@@ -241,19 +256,23 @@ def test_disengage_requests_stop_and_handover_switches_source():
 
 def test_second_operator_may_take_the_link_only_after_it_is_lost():
     import socket
+
     with _pair() as p:
         p.engage()
         other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         other.bind(("127.0.0.1", 0))
         try:
+
             def from_other(mode):
                 p.op.seq += 1
-                other.sendto(L.encode_command(KEY, L.TeleopCommand(mode), p.op.seq, p.clock()),
-                             p.rx.address)
+                other.sendto(
+                    L.encode_command(KEY, L.TeleopCommand(mode), p.op.seq, p.clock()), p.rx.address
+                )
                 p.pump(1)
+
             from_other(L.Mode.ENGAGE)
             assert p.rx.rejected["second_operator"] == 1
-            _run_periods(p, 12, send=False)          # link lost: holder released
+            _run_periods(p, 12, send=False)  # link lost: holder released
             assert p.stops[-1].reason == "link_lost"
             from_other(L.Mode.ENGAGE)
             assert p.rx.holder == other.getsockname() and p.rx.engaged
@@ -268,6 +287,7 @@ def test_burst_beyond_the_budget_bounds_each_poll_and_ends_safe():
     with _pair(cfg) as p:
         p.engage()
         import socket
+
         junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         for i in range(1000):
             junk.sendto(bytes([i % 256]) * 76, p.rx.address)
@@ -322,9 +342,20 @@ def test_flood_of_random_datagrams_keeps_the_loop_rate():
     rx = L.LinkReceiver(KEY, ("127.0.0.1", 0))
     op = L.OperatorLink(KEY, rx.address)
     flooder = subprocess.Popen(
-        [sys.executable, "-c", _FLOODER, str(rx.address[1]), str(SEED), str(n_junk),
-         str(per_period), str(PERIOD_S)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-        text=True)
+        [
+            sys.executable,
+            "-c",
+            _FLOODER,
+            str(rx.address[1]),
+            str(SEED),
+            str(n_junk),
+            str(per_period),
+            str(PERIOD_S),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert flooder.stdout.readline().strip() == "ready"
         op.send(L.TeleopCommand(L.Mode.ENGAGE))
@@ -332,7 +363,7 @@ def test_flood_of_random_datagrams_keeps_the_loop_rate():
         flooder.stdin.flush()
         delivered, stops, per_poll = 0, [], []
         iterations, missed = 0, 0
-        run_s = n_junk / per_period * PERIOD_S + 0.5      # flood 2.0 s, loop 2.5 s
+        run_s = n_junk / per_period * PERIOD_S + 0.5  # flood 2.0 s, loop 2.5 s
         t0 = time.monotonic()
         next_t = t0
         while next_t - t0 < run_s:
@@ -358,12 +389,14 @@ def test_flood_of_random_datagrams_keeps_the_loop_rate():
             per_poll.append(res.datagrams)
         st = rx.stats()
         expected = iterations + missed
-        print(f"flood: {iterations} iterations of {expected} periods, missed {missed}, "
-              f"max datagrams per poll {max(per_poll)}, rejected {st['rejected_total']}, "
-              f"latency {st['latency_ms']}")
+        print(
+            f"flood: {iterations} iterations of {expected} periods, missed {missed}, "
+            f"max datagrams per poll {max(per_poll)}, rejected {st['rejected_total']}, "
+            f"latency {st['latency_ms']}"
+        )
         assert missed <= 0.1 * expected
         assert max(per_poll) <= rx.config.max_datagrams_per_poll
-        assert st["rejected_total"] == n_junk          # every junk datagram counted ...
+        assert st["rejected_total"] == n_junk  # every junk datagram counted ...
         assert delivered == op.sent == st["delivered"]  # ... none delivered, no good one lost
         assert stops == []
     finally:
@@ -385,11 +418,28 @@ def test_operator_accepts_only_fresh_authentic_telemetry():
         select.select([p.op.sock], [], [], 1.0)
         tel = p.op.poll_telemetry()
         assert tel is not None and tel.engaged and tel.vehicle == vs
-        pkt = L.encode_telemetry(KEY, tel.seq, p.clock(), engaged=False, mpc_in_control=False,
-                                 link_held=True, vehicle=vs, stop=None, stats=p.rx.stats())
-        forged = L.encode_telemetry(bytes(32), tel.seq + 5, p.clock(), engaged=False,
-                                    mpc_in_control=False, link_held=True, vehicle=vs, stop=None,
-                                    stats=p.rx.stats())
+        pkt = L.encode_telemetry(
+            KEY,
+            tel.seq,
+            p.clock(),
+            engaged=False,
+            mpc_in_control=False,
+            link_held=True,
+            vehicle=vs,
+            stop=None,
+            stats=p.rx.stats(),
+        )
+        forged = L.encode_telemetry(
+            bytes(32),
+            tel.seq + 5,
+            p.clock(),
+            engaged=False,
+            mpc_in_control=False,
+            link_held=True,
+            vehicle=vs,
+            stop=None,
+            stats=p.rx.stats(),
+        )
         for d in (pkt, forged):  # a replayed sequence number, a wrong key
             p.rx.sock.sendto(d, p.op.address)
         for _ in range(100):  # until both have been read (at most 1 s)

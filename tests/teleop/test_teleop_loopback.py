@@ -6,6 +6,7 @@ the loop's own (as in test_drive_faults.py), never wall-clock durations of the t
 
 The acceptance run (the scripted operator drives ramp_sequence and arcs; ``hmpc identify`` on
 the candump recovers the simulated car) takes about 70 s; the others about 5 s each."""
+
 from __future__ import annotations
 
 import socket
@@ -17,8 +18,17 @@ import yaml
 
 from _data import PARAMS_DIR, REPORT_PARAMS
 from _drive import params
-from _teleop import (DISENGAGE, ENGAGE, HANDOVER, KEY, TAKE_OVER, command_frames, pedals,
-                     script, teleop_run)
+from _teleop import (
+    DISENGAGE,
+    ENGAGE,
+    HANDOVER,
+    KEY,
+    TAKE_OVER,
+    command_frames,
+    pedals,
+    script,
+    teleop_run,
+)
 from hmpc.controller.actuation.drive import DriveConfig
 from hmpc.controller.actuation.watchdog import WatchdogConfig
 from hmpc.controller.teleop.link import LinkConfig, Mode, _CMD, _mac, _us
@@ -52,14 +62,16 @@ def test_rejected_packets_never_reach_the_bus(tmp_path):
             return
         now = time.time()
         good = _packet(KEY, link.seq, now, (0.4, 0.15, 0.0))
-        tampered = _CMD.pack(1, 1, 1, 1, link.seq + 1, _us(now), *EVIL) + good[_CMD.size:]
-        dgs = [tampered,                                              # bad_mac
-               _packet(wrong_key, link.seq + 1, now, EVIL),            # bad_mac
-               _packet(KEY, link.seq - 5, now, EVIL),                  # old_sequence
-               _packet(KEY, link.seq + 10_000, now - 0.5, EVIL),       # stale
-               _packet(KEY, link.seq + 20_000, now, EVIL)]             # second_operator
+        tampered = _CMD.pack(1, 1, 1, 1, link.seq + 1, _us(now), *EVIL) + good[_CMD.size :]
+        dgs = [
+            tampered,  # bad_mac
+            _packet(wrong_key, link.seq + 1, now, EVIL),  # bad_mac
+            _packet(KEY, link.seq - 5, now, EVIL),  # old_sequence
+            _packet(KEY, link.seq + 10_000, now - 0.5, EVIL),  # stale
+            _packet(KEY, link.seq + 20_000, now, EVIL),
+        ]  # second_operator
         for d in dgs[:4]:
-            link.sock.send(d)           # from the operator's own address: spoofed
+            link.sock.send(d)  # from the operator's own address: spoofed
         other.sendto(dgs[4], link.sock.getpeername())
 
     ops = script([(0.0, ENGAGE), (0.1, pedals(0.4, 0.15)), (2.1, DISENGAGE)])
@@ -68,17 +80,17 @@ def test_rejected_packets_never_reach_the_bus(tmp_path):
     finally:
         other.close()
     print(s["stop"], lk["rejected"], lk["latency_ms"], s["deadline_misses"], s["loop_period_ms"])
-    assert s["stop"]["reason"] == "operator_disengaged"      # the link was never lost
+    assert s["stop"]["reason"] == "operator_disengaged"  # the link was never lost
     rej = lk["rejected"]
     for reason in ("bad_mac", "old_sequence", "stale", "second_operator"):
         assert rej[reason] >= 80, reason
-    assert lk["accepted"] == op.link.sent                     # every operator packet, no more
+    assert lk["accepted"] == op.link.sent  # every operator packet, no more
     f = command_frames("bywire", log)
     on = f["steer_en"] > 0.5
-    assert on.sum() > 150                                    # 100 Hz for about 2 s
+    assert on.sum() > 150  # 100 Hz for about 2 s
     assert f["steer"][on].min() >= -1e-3 and f["steer"][on].max() <= 0.4 + 1e-3
     assert f["accel"].max() <= 0.15 + 1e-3
-    assert np.isclose(f["steer"][on], 0.4, atol=1e-3).sum() > 80    # the operator's angle
+    assert np.isclose(f["steer"][on], 0.4, atol=1e-3).sum() > 80  # the operator's angle
     assert s["limit_violations"] == 0 and s["frames_rejected_by_vehicle"] == 0
 
 
@@ -108,8 +120,7 @@ def test_cut_link_stops_within_timeout_plus_two_periods(tmp_path):
 def test_released_dead_man_stops_within_two_periods(tmp_path):
     """Toyota profile: the dead-man released at 1.5 s: a controlled stop starting within 2
     control periods of the releasing packet's arrival; its throttle never applies."""
-    ops = script([(0.0, ENGAGE), (0.1, pedals(0.0, 0.25)),
-                  (1.5, pedals(0.0, 0.9, dead_man=False))])
+    ops = script([(0.0, ENGAGE), (0.1, pedals(0.0, 0.25)), (1.5, pedals(0.0, 0.9, dead_man=False))])
     s, tr, lk, log, op = teleop_run("toyota", ops, tmp_path)
     st, ev = s["stop"], lk["stop"]
     print(st, ev)
@@ -124,9 +135,17 @@ def test_released_dead_man_stops_within_two_periods(tmp_path):
 def test_handover_to_the_mpc_and_back(tmp_path):
     """The operator drives straight, hands over to the MPC (figure8, joined at the car's speed)
     for 1.5 s while keeping the link alive, takes over with new pedals, then disengages."""
-    ops = script([(0.0, ENGAGE), (0.1, pedals(0.0, 0.25)), (1.5, HANDOVER),
-                  (1.56, pedals(0.0, 0.25)), (3.0, TAKE_OVER), (3.06, pedals(0.3, 0.1)),
-                  (3.8, DISENGAGE)])
+    ops = script(
+        [
+            (0.0, ENGAGE),
+            (0.1, pedals(0.0, 0.25)),
+            (1.5, HANDOVER),
+            (1.56, pedals(0.0, 0.25)),
+            (3.0, TAKE_OVER),
+            (3.06, pedals(0.3, 0.1)),
+            (3.8, DISENGAGE),
+        ]
+    )
     # The MPC's first steps after a handover are cold (a new reference, no plan to warm
     # them): 2-10 ms each on the quiet 2-core machine, 50-80 ms while it carried a load of 10,
     # when three late steps in a row tripped the watchdog's deadline stop (tested for itself in
@@ -136,7 +155,7 @@ def test_handover_to_the_mpc_and_back(tmp_path):
     print(s["stop"], lk["steps"], lk["handovers"], lk["take_overs"], s["deadline_misses"])
     assert s["stop"]["reason"] == "operator_disengaged"
     assert lk["handovers"] == 1 and lk["take_overs"] == 1
-    assert 60 <= lk["steps"]["mpc"] <= 85                   # 1.5 s at 50 Hz
+    assert 60 <= lk["steps"]["mpc"] <= 85  # 1.5 s at 50 Hz
     eng = np.asarray(tr["engaged"]) > 0.5
     sw, ap = np.asarray(tr["sw_cmd"])[eng], np.asarray(tr["ap_cmd"])[eng]
     who = np.array(op.src.history)
@@ -154,8 +173,11 @@ def test_handover_to_the_mpc_and_back(tmp_path):
 def _pedal_rows(name: str, t_from_s: float, t_to_s: float):
     """The pedal rows of a built-in experiment script between two of its times [s], from 0."""
     s = experiment_script(name, params(), seed=0)
-    return [(t - ENGAGE_LEAD_S - t_from_s, c) for t, c in zip(s.times_s, s.commands)
-            if c.mode == Mode.PEDALS and t_from_s <= t - ENGAGE_LEAD_S <= t_to_s]
+    return [
+        (t - ENGAGE_LEAD_S - t_from_s, c)
+        for t, c in zip(s.times_s, s.commands)
+        if c.mode == Mode.PEDALS and t_from_s <= t - ENGAGE_LEAD_S <= t_to_s
+    ]
 
 
 #: the parts of the report's experiments the acceptance drives (times [s] in each): the gentle
@@ -182,9 +204,20 @@ def test_loopback_identification_recovers_the_car(tmp_path):
     assert s["stop"]["reason"] == "operator_disengaged"
     assert s["limit_violations"] == 0 and lk["rejected_total"] == 0
     out = tmp_path / "id.yaml"
-    rc = main(["identify", str(log), "--dbc", str(PARAMS_DIR / "hmpc_bywire.dbc"),
-               "--signals", str(PARAMS_DIR / "hmpc_bywire.signals.yaml"),
-               "--vehicle", str(REPORT_PARAMS), "--out", str(out)])
+    rc = main(
+        [
+            "identify",
+            str(log),
+            "--dbc",
+            str(PARAMS_DIR / "hmpc_bywire.dbc"),
+            "--signals",
+            str(PARAMS_DIR / "hmpc_bywire.signals.yaml"),
+            "--vehicle",
+            str(REPORT_PARAMS),
+            "--out",
+            str(out),
+        ]
+    )
     assert rc == 0
     got = yaml.safe_load(out.read_text())
     truth = params()

@@ -6,6 +6,7 @@ test hosts the vehicle side (receiver + plant stand-in, real time) in a thread, 
 ``tmux send-keys`` and reads the screen with ``tmux capture-pane``. Waits poll for a condition
 with a generous limit; nothing asserts on speed.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -24,9 +25,10 @@ from hmpc.models.params import load_params
 from _data import REPORT_PARAMS
 
 TMUX = shutil.which("tmux")
-pytestmark = [pytest.mark.realtime,
-              pytest.mark.skipif(TMUX is None, reason="tmux is not installed "
-                                                         "(apt-get install -y tmux)")]
+pytestmark = [
+    pytest.mark.realtime,
+    pytest.mark.skipif(TMUX is None, reason="tmux is not installed (apt-get install -y tmux)"),
+]
 HMPC = str(Path(sys.executable).with_name("hmpc"))
 
 
@@ -45,8 +47,9 @@ class Tmux:
         self.base = [TMUX, "-S", str(sock)]
 
     def __call__(self, *args) -> str:
-        return subprocess.run(self.base + list(args), check=True, capture_output=True,
-                              text=True).stdout
+        return subprocess.run(
+            self.base + list(args), check=True, capture_output=True, text=True
+        ).stdout
 
     def screen(self) -> str:
         return self("capture-pane", "-p", "-t", "op")
@@ -76,8 +79,10 @@ def test_keyboard_operator_in_tmux(tmp_path):
     th = threading.Thread(target=serve, args=(rx, sink), kwargs={"until": done.is_set})
     th.start()
     tmux = Tmux(tmp_path / "tmux.sock")
-    cmd = (f"{HMPC} operator --key {key_path} --connect 127.0.0.1:{rx.address[1]} --keyboard "
-           f"--json {tmp_path / 'run.json'}; echo EXIT=$?; sleep 60")
+    cmd = (
+        f"{HMPC} operator --key {key_path} --connect 127.0.0.1:{rx.address[1]} --keyboard "
+        f"--json {tmp_path / 'run.json'}; echo EXIT=$?; sleep 60"
+    )
     try:
         tmux("new-session", "-d", "-s", "op", "-x", "150", "-y", "30", cmd)
         _wait(lambda: "hmpc operator" in tmux.screen(), "the operator screen")
@@ -85,16 +90,31 @@ def test_keyboard_operator_in_tmux(tmp_path):
         _wait(lambda: rx.engaged, "the vehicle side to be engaged")
         tmux.keys(*["Up"] * 6, *["Left"] * 3)
         pedals = lambda: [c for c in seen if c.mode == L.Mode.PEDALS]  # noqa: E731
-        _wait(lambda: any(c.values[1] == pytest.approx(0.3) and c.values[0] == pytest.approx(0.3)
-                          for c in pedals()), "accel 0.3 and steering 0.3 rad at the vehicle")
+        _wait(
+            lambda: any(
+                c.values[1] == pytest.approx(0.3) and c.values[0] == pytest.approx(0.3)
+                for c in pedals()
+            ),
+            "accel 0.3 and steering 0.3 rad at the vehicle",
+        )
         _wait(lambda: sink.state[3] > 1.0, "the simulated car to reach 1 m/s")
+
         def telemetry_shown():
             s = tmux.screen()
             return s if "yes, operator drives" in s and "throttle" in s else None
+
         screen = _wait(telemetry_shown, "telemetry on the screen")
         print(screen)
-        for s in ("speed", "m/s", "zone", "pedal mode", "latency", "received", "dead-man held",
-                  "steering +0.30 rad"):
+        for s in (
+            "speed",
+            "m/s",
+            "zone",
+            "pedal mode",
+            "latency",
+            "received",
+            "dead-man held",
+            "steering +0.30 rad",
+        ):
             assert s in screen, (s, screen)
         assert rx.rejected == {r: 0 for r in L.REASONS}
 

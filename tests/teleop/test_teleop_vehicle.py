@@ -1,6 +1,7 @@
 """The vehicle side's command source (controller/teleop/vehicle.py) without the drive loop: a
 real receiver on loopback UDP, a simulated clock, and the source's ``poll``/``step`` called as
 the drive loop calls them; and ``hmpc teleop``'s refusals of bad input."""
+
 from __future__ import annotations
 
 import inspect
@@ -19,8 +20,12 @@ from hmpc.controller.limits import ActuatorLimits, Command, apply_limits
 from hmpc.controller.mpc import MpcConfig, MpcController
 from hmpc.controller.teleop.link import LinkReceiver, Mode, OperatorLink, TeleopCommand
 from hmpc.controller.simclock import SimClock
-from hmpc.controller.teleop.vehicle import (HOLD_BRAKE, TeleopController, anchored_reference,
-                                            arc_reference)
+from hmpc.controller.teleop.vehicle import (
+    HOLD_BRAKE,
+    TeleopController,
+    anchored_reference,
+    arc_reference,
+)
 from hmpc.models.params import load_params
 from hmpc.models.sim.scenarios import make_scenario
 from hmpc.tools.cli import main
@@ -50,7 +55,7 @@ class Rig:
         self.src = TeleopController(self.rx, params, mpc, run_s=run_s, wall_clock=self.clock)
         self.ref = make_scenario("figure8", params)
         self.x = self.ref.initial_state(params)
-        self.src.step(self.x, self.ref, 0.0)     # the drive loop's warm-up call
+        self.src.step(self.x, self.ref, 0.0)  # the drive loop's warm-up call
         self.src.reset()
 
     @property
@@ -67,8 +72,12 @@ class Rig:
         gate = None
         for _ in range(ticks):
             self.clock.advance(0.01)
-            gate = self.src.poll(self.t, loop_state="engaged", speed_mps=float(self.x[3]),
-                                 steering_wheel_angle_rad=0.0)
+            gate = self.src.poll(
+                self.t,
+                loop_state="engaged",
+                speed_mps=float(self.x[3]),
+                steering_wheel_angle_rad=0.0,
+            )
         return gate
 
     def step(self):
@@ -102,11 +111,11 @@ def test_is_a_controller(rig):
 
 def test_engages_only_on_the_operators_engage_then_holds(rig):
     assert rig.idle().engage is False
-    assert rig.send(TeleopCommand.pedals(0.5, 0.3, 0.0)).engage is False   # not engaged: ignored
+    assert rig.send(TeleopCommand.pedals(0.5, 0.3, 0.0)).engage is False  # not engaged: ignored
     assert rig.rx.ignored_not_engaged == 1
     g = rig.send(TeleopCommand(Mode.ENGAGE))
     assert g.engage is True and g.stop == ""
-    res = rig.step()                                  # engaged, no driving command yet
+    res = rig.step()  # engaged, no driving command yet
     assert res.status == Status.HOLD
     assert res.command == Command(0.0, 0.0, HOLD_BRAKE)
     assert rig.src.history == ["hold"]
@@ -116,18 +125,20 @@ def test_pedals_go_through_the_same_limits_as_the_mpcs(rig, params):
     lim = ActuatorLimits.from_params(params)
     rig.send(TeleopCommand(Mode.ENGAGE))
     prev = rig.step().command
-    rig.send(TeleopCommand.pedals(20.0, 1.0, 0.0))   # far past every limit
+    rig.send(TeleopCommand.pedals(20.0, 1.0, 0.0))  # far past every limit
     res = rig.step()
     z = params.zones[res.zone]
     assert res.status == Status.OK
     assert res.command == apply_limits(Command(20.0, 1.0, 0.0), prev, lim, DT, z)
-    assert res.command.steering_wheel_angle_rad <= prev.steering_wheel_angle_rad \
-        + lim.steering_wheel_rate_max_radps * DT + 1e-12
+    assert (
+        res.command.steering_wheel_angle_rad
+        <= prev.steering_wheel_angle_rad + lim.steering_wheel_rate_max_radps * DT + 1e-12
+    )
     for _ in range(200):
         res = rig.step()
     assert res.command.steering_wheel_angle_rad == pytest.approx(lim.steering_wheel_angle_max_rad)
     assert res.command.accel_pedal <= (lim.accel_max_mps2 - z.offset_mps2) / z.scale_mps2 + 1e-12
-    rig.send(TeleopCommand.pedals(0.0, 0.6, 0.4))    # both pedals: the brake wins
+    rig.send(TeleopCommand.pedals(0.0, 0.6, 0.4))  # both pedals: the brake wins
     res = rig.step()
     assert res.command.accel_pedal == 0.0 and res.command.brake_pedal > 0.0
 
@@ -141,7 +152,7 @@ def test_released_dead_man_asks_for_a_stop_on_the_loops_clock(rig):
     ev = rig.src.stats()["stop"]
     assert ev["reason"] == "dead_man_released"
     assert ev["event_t_s"] == pytest.approx(t_release) and ev["detected_t_s"] == ev["event_t_s"]
-    assert rig.src.last.values == (0.0, 0.2, 0.0)     # the releasing packet's throttle: never
+    assert rig.src.last.values == (0.0, 0.2, 0.0)  # the releasing packet's throttle: never
 
 
 def test_lost_link_asks_for_a_stop_after_200_ms(rig):
@@ -151,15 +162,15 @@ def test_lost_link_asks_for_a_stop_after_200_ms(rig):
     gates = [rig.idle() for _ in range(25)]
     first = next(i for i, g in enumerate(gates) if g.stop)
     assert gates[first].stop == "link_lost"
-    assert first + 1 in (20, 21)      # the 20th silent 10 ms tick (21st: float rounding)
+    assert first + 1 in (20, 21)  # the 20th silent 10 ms tick (21st: float rounding)
     ev = rig.src.stats()["stop"]
     assert ev["event_t_s"] == pytest.approx(t_last)
     assert 0.2 - 1e-9 <= ev["detected_t_s"] - ev["event_t_s"] <= 0.21 + 1e-9
-    assert all(not g.stop for g in gates[first + 1:])  # asked once
+    assert all(not g.stop for g in gates[first + 1 :])  # asked once
 
 
 def test_duration_ends_the_run(params):
-    r = Rig(params, run_s=1000.05)                    # the rig's loop clock starts at 1000 s
+    r = Rig(params, run_s=1000.05)  # the rig's loop clock starts at 1000 s
     try:
         assert r.idle(3).stop == "" and r.idle(3).stop == "duration"
     finally:
@@ -179,7 +190,7 @@ def test_handover_to_the_mpc_and_take_over(params, mpc):
         a = r.src._anchor
         assert (a.x_m[0], a.y_m[0], a.heading_rad[0]) == pytest.approx((3.0, -2.0, 0.4))
         assert a.speed_mps[0] >= 2.0 and a.time_s[0] == pytest.approx(r.t)
-        r.send(TeleopCommand.pedals(0.1, 0.2, 0.0))     # the operator keeps the link alive
+        r.send(TeleopCommand.pedals(0.1, 0.2, 0.0))  # the operator keeps the link alive
         assert r.step().status.ok and r.src.history[-1] == "mpc"
         r.send(TeleopCommand(Mode.TAKE_OVER))
         r.send(TeleopCommand.pedals(0.3, 0.1, 0.0))
@@ -211,7 +222,7 @@ def test_references_are_followed_by_the_mpc_on_an_arc(params, mpc):
         for _ in range(10):
             r.send(TeleopCommand.references(3.0, 0.05), ticks=2)
             res = r.step()
-        assert res.command.steering_wheel_angle_rad > 0.0   # a left arc: steer left
+        assert res.command.steering_wheel_angle_rad > 0.0  # a left arc: steer left
     finally:
         r.close()
 
@@ -242,7 +253,7 @@ def test_link_json_keys(rig):
     rig.send(TeleopCommand(Mode.ENGAGE))
     for _ in range(5):
         rig.send(TeleopCommand.pedals(0.0, 0.1, 0.0), ticks=2)
-    rig.idle(8)                                       # one 100 ms gap (10 ticks)
+    rig.idle(8)  # one 100 ms gap (10 ticks)
     rig.send(TeleopCommand.pedals(0.0, 0.1, 0.0))
     s = rig.src.stats()
     for k in ("accepted", "rejected", "rejected_total", "latency_ms", "gaps", "steps", "stop"):
@@ -253,9 +264,23 @@ def test_link_json_keys(rig):
 
 # ------------------------------------------------------------------------------- CLI
 def _teleop(tmp_path, key, *extra):
-    return main(["teleop", "--params", str(REPORT_PARAMS), "--actuation",
-                 str(PARAMS_DIR / "bywire.actuation.yaml"), "--key", str(key), "--vehicle-sim",
-                 "--candump", str(tmp_path / "run.log"), "--duration", "0.5", *extra])
+    return main(
+        [
+            "teleop",
+            "--params",
+            str(REPORT_PARAMS),
+            "--actuation",
+            str(PARAMS_DIR / "bywire.actuation.yaml"),
+            "--key",
+            str(key),
+            "--vehicle-sim",
+            "--candump",
+            str(tmp_path / "run.log"),
+            "--duration",
+            "0.5",
+            *extra,
+        ]
+    )
 
 
 def _key(tmp_path, mode=0o600):

@@ -1,4 +1,5 @@
 """The gzip copies under tools/data are byte-identical to ../shared/data (when it is beside us)."""
+
 import gzip
 
 import pytest
@@ -11,19 +12,30 @@ BUNDLED = sorted(p.relative_to(DATA_DIR) for p in DATA_DIR.rglob("*.gz"))
 
 def test_bundle_is_complete_and_small():
     names = {str(p) for p in BUNDLED}
-    for need in ("dbc/toyota_rav4_2017.dbc.gz", "dbc/toyota_rav4_2019_tss2.dbc.gz",
-                 "rav4-comma2k19/can.log.gz", "rav4-comma2k19/nav.csv.gz",
-                 "rav4-comma2k19/imu.csv.gz", "rav4-comma2k19/reference_decoded.csv.gz",
-                 "rav4-comma2k19/reference_steering.csv.gz", "rav4-2019-verifiedcan/drive.csv.gz",
-                 "catvehicle-bagpy/catvehicle-vel.csv.gz", "catvehicle-bagpy/gps_odom.csv.gz",
-                 "f1tenth-frictionmaps/DS5_commandData.csv.gz",
-                 "f1tenth-frictionmaps/DS5_odomData.csv.gz",
-                 "f1tenth-frictionmaps/DS5_imuData.csv.gz",
-                 "f1tenth-frictionmaps/DS5_pfPoseData.csv.gz"):
+    for need in (
+        "dbc/toyota_rav4_2017.dbc.gz",
+        "dbc/toyota_rav4_2019_tss2.dbc.gz",
+        "rav4-comma2k19/can.log.gz",
+        "rav4-comma2k19/nav.csv.gz",
+        "rav4-comma2k19/imu.csv.gz",
+        "rav4-comma2k19/reference_decoded.csv.gz",
+        "rav4-comma2k19/reference_steering.csv.gz",
+        "rav4-2019-verifiedcan/drive.csv.gz",
+        "catvehicle-bagpy/catvehicle-vel.csv.gz",
+        "catvehicle-bagpy/gps_odom.csv.gz",
+        "f1tenth-frictionmaps/DS5_commandData.csv.gz",
+        "f1tenth-frictionmaps/DS5_odomData.csv.gz",
+        "f1tenth-frictionmaps/DS5_imuData.csv.gz",
+        "f1tenth-frictionmaps/DS5_pfPoseData.csv.gz",
+    ):
         assert need in names
-    for lic in ("dbc/LICENSE.opendbc", "rav4-comma2k19/LICENSE.comma2k19",
-                "rav4-2019-verifiedcan/LICENSE.VerifiedCAN", "catvehicle-bagpy/LICENSE",
-                "f1tenth-frictionmaps/LICENSE"):
+    for lic in (
+        "dbc/LICENSE.opendbc",
+        "rav4-comma2k19/LICENSE.comma2k19",
+        "rav4-2019-verifiedcan/LICENSE.VerifiedCAN",
+        "catvehicle-bagpy/LICENSE",
+        "f1tenth-frictionmaps/LICENSE",
+    ):
         assert (DATA_DIR / lic).is_file()
     total = sum(p.stat().st_size for p in DATA_DIR.rglob("*") if p.is_file())
     assert total <= 3 * 1024 * 1024
@@ -44,6 +56,7 @@ def test_bundled_copy_equals_shared(rel):
 def test_the_packages_own_lookup_finds_the_same_files():
     """hmpc.tools.datafiles (used by the demo and the benchmarks) points at the same folders."""
     from hmpc.tools import datafiles
+
     assert datafiles.DATA_DIR.resolve() == DATA_DIR.resolve()
     assert datafiles.PARAMS_DIR.resolve() == (REPO_DIR / "params").resolve()
     for rel in BUNDLED:

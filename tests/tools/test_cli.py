@@ -1,4 +1,5 @@
 """The ``hmpc`` entry point's own behaviour, and the benchmarks' verdicts."""
+
 from __future__ import annotations
 
 import copy

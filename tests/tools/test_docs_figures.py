@@ -8,6 +8,7 @@ prefix). The runs are deterministic (fixed data, fixed seeds), so a figure that 
 its tolerance means hmpc's behaviour changed and the docs, or the code, must be corrected.
 The "Known truth" figures are held by test_identify_sim.py.
 """
+
 from __future__ import annotations
 
 import json
@@ -28,10 +29,13 @@ COMMA_MAP = PARAMS_DIR / "toyota_rav4_2017.signals.yaml"
 
 
 def _comma_ingest(signals=COMMA_MAP):
-    return ingest_files(bundled("rav4-comma2k19/can.log.gz"),
-                        bundled("dbc/toyota_rav4_2017.dbc.gz"),
-                        signals, nav_path=bundled("rav4-comma2k19/nav.csv.gz"),
-                        imu_path=bundled("rav4-comma2k19/imu.csv.gz"))
+    return ingest_files(
+        bundled("rav4-comma2k19/can.log.gz"),
+        bundled("dbc/toyota_rav4_2017.dbc.gz"),
+        signals,
+        nav_path=bundled("rav4-comma2k19/nav.csv.gz"),
+        imu_path=bundled("rav4-comma2k19/imu.csv.gz"),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -83,13 +87,19 @@ def test_results_states_the_figures_pinned_here():
 
 # ---- Ingest
 
+
 def test_speedometer_reads_high_against_wheels_and_gnss(tmp_path):
     """docs/results.md: SPEED "reads 2.1% above the wheel mean and 1.3% above GNSS" (and the
     map: the wheel mean is 0.8% below GNSS). Measured 2.14%, 1.31%, -0.81%; tolerance 0.1
     point."""
     smap = yaml.safe_load(COMMA_MAP.read_text())
-    smap["channels"]["speed"] = {"message": "SPEED", "expr": "SPEED", "unit": "km/h", "bus": 0,
-                                 "required": True}
+    smap["channels"]["speed"] = {
+        "message": "SPEED",
+        "expr": "SPEED",
+        "unit": "km/h",
+        "bus": 0,
+        "required": True,
+    }
     path = tmp_path / "speedometer.signals.yaml"
     path.write_text(yaml.safe_dump(smap))
     rec = _comma_ingest(path).recording
@@ -129,6 +139,7 @@ def test_brake_pedal_is_the_drivers_switch(which, comma_ing, vcan_ing):
 
 # ---- Identify
 
+
 def test_comma_steering_gain_and_interval(comma_id):
     """docs/results.md: 0.038 [0.033, 0.043], not identifiable, 3 deg of steering-wheel range.
     Measured 0.03826 [0.03327, 0.04325]; tolerance 0.0005 (the text's rounding)."""
@@ -163,14 +174,29 @@ def test_verifiedcan_pedal_model_fails_and_acc_request_explains(vcan_id):
 
 # ---- Control
 
+
 @pytest.fixture(scope="module")
 def idle_runs(tmp_path_factory):
     out = tmp_path_factory.mktemp("idle")
     runs = {}
     for ctl in ("mpc", "pid"):
         js = out / f"{ctl}.json"
-        assert main(["simulate", "--params", str(REPORT_PARAMS), "--scenario", "idle_hold",
-                     "--controller", ctl, "--json", str(js)]) == 0
+        assert (
+            main(
+                [
+                    "simulate",
+                    "--params",
+                    str(REPORT_PARAMS),
+                    "--scenario",
+                    "idle_hold",
+                    "--controller",
+                    ctl,
+                    "--json",
+                    str(js),
+                ]
+            )
+            == 0
+        )
         runs[ctl] = json.loads(js.read_text())
     return runs
 
@@ -194,17 +220,19 @@ def test_idle_pid_switches_pedals_every_few_seconds(idle_runs):
 
 # ---- The README's worked example
 
+
 def _worked_example() -> list[tuple[list[list[str]], list[str]]]:
     """The README's worked example as (commands, quoted output lines) pairs: each ```sh block
     of the section with the ```text block that follows it."""
     text = README.read_text(encoding="utf-8")
-    section = text[text.index("## From a log to a controller"):text.index("## The pipeline")]
+    section = text[text.index("## From a log to a controller") : text.index("## The pipeline")]
     blocks = re.findall(r"```(sh|text)\n(.*?)```", section, flags=re.S)
     steps = []
     for (kind, body), (next_kind, quoted) in zip(blocks, blocks[1:]):
         if kind == "sh" and next_kind == "text":
-            commands = [shlex.split(line) for line in body.replace("\\\n", " ").splitlines()
-                        if line.strip()]
+            commands = [
+                shlex.split(line) for line in body.replace("\\\n", " ").splitlines() if line.strip()
+            ]
             steps.append((commands, [ln.rstrip() for ln in quoted.splitlines() if ln.strip()]))
     return steps
 
@@ -228,7 +256,7 @@ def test_readme_worked_example_prints_what_it_quotes(tmp_path, monkeypatch, caps
         out = capsys.readouterr()
         printed = [ln.rstrip() for ln in (out.out + out.err).splitlines()]
         for line in quoted:
-            head = line[:-len(" ...")] if line.endswith(" ...") else None
+            head = line[: -len(" ...")] if line.endswith(" ...") else None
             if not any(p == line or (head is not None and p.startswith(head)) for p in printed):
                 missing.append(f"{commands[0][:2]}: {line}")
     assert not missing, "README quotes lines the commands did not print:\n" + "\n".join(missing)

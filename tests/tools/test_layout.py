@@ -9,6 +9,7 @@
 - Every package's ``__init__.py`` says in a docstring of at least two lines what lives there
   and what it may import.
 """
+
 from __future__ import annotations
 
 import ast
@@ -20,14 +21,21 @@ from _data import REPO_DIR
 
 FOLDERS = ("models", "controller", "tools")
 #: stage -> the hmpc stages it must not import
-FORBIDDEN = {"models": ("hmpc.controller", "hmpc.tools"), "controller": ("hmpc.tools",),
-             "tools": ()}
+FORBIDDEN = {
+    "models": ("hmpc.controller", "hmpc.tools"),
+    "controller": ("hmpc.tools",),
+    "tools": (),
+}
 GENERIC = {"models", "controller", "tools"}
 
 
 def _sources() -> list[Path]:
-    files = sorted(p for d in FOLDERS for p in (REPO_DIR / d).rglob("*.py")
-                   if "data" not in p.relative_to(REPO_DIR).parts)
+    files = sorted(
+        p
+        for d in FOLDERS
+        for p in (REPO_DIR / d).rglob("*.py")
+        if "data" not in p.relative_to(REPO_DIR).parts
+    )
     assert len(files) > 40, "the source tree was not found"
     return files
 
@@ -49,8 +57,9 @@ def imports_of(path: Path, text: str | None = None) -> list[tuple[int, str]]:
     name, is_pkg = _module_name(path)
     package = name if is_pkg else name.rsplit(".", 1)[0]
     out = []
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8") if text is None else text,
-                                filename=str(path))):
+    for node in ast.walk(
+        ast.parse(path.read_text(encoding="utf-8") if text is None else text, filename=str(path))
+    ):
         if isinstance(node, ast.Import):
             out += [(node.lineno, a.name) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -58,7 +67,7 @@ def imports_of(path: Path, text: str | None = None) -> list[tuple[int, str]]:
                 base = package.split(".")
                 if node.level - 1 >= len(base):
                     raise AssertionError(f"{path}:{node.lineno}: relative import beyond hmpc")
-                base = base[:len(base) - (node.level - 1)]
+                base = base[: len(base) - (node.level - 1)]
                 mod = ".".join(base + ([node.module] if node.module else []))
             else:
                 mod = node.module or ""
@@ -75,8 +84,10 @@ def _is_under(mod: str, pkg: str) -> bool:
 def test_the_check_can_fail():
     """A planted forbidden import is found, in both spellings and inside a function."""
     probe = REPO_DIR / "models" / "logs" / "_layout_probe.py"  # never written: parsed as if
-    src = ("from ...controller import mpc\nimport hmpc.tools.cli\n"
-           "def f():\n    from ..plant import HybridPlant\n    from ... import tools\n")
+    src = (
+        "from ...controller import mpc\nimport hmpc.tools.cli\n"
+        "def f():\n    from ..plant import HybridPlant\n    from ... import tools\n"
+    )
     found = [m for _, m in imports_of(probe, src)]
     assert "hmpc.controller.mpc" in found and "hmpc.tools.cli" in found
     assert "hmpc.models.plant.HybridPlant" in found and "hmpc.tools" in found
@@ -96,9 +107,12 @@ def test_imports_flow_tools_controller_models(stage):
 
 
 def test_no_generic_top_level_imports():
-    bad = [f"{p.relative_to(REPO_DIR)}:{line}: imports {mod}"
-           for p in [*_sources(), *sorted((REPO_DIR / "tests").rglob("*.py"))]
-           for line, mod in imports_of(p) if mod.split(".")[0] in GENERIC]
+    bad = [
+        f"{p.relative_to(REPO_DIR)}:{line}: imports {mod}"
+        for p in [*_sources(), *sorted((REPO_DIR / "tests").rglob("*.py"))]
+        for line, mod in imports_of(p)
+        if mod.split(".")[0] in GENERIC
+    ]
     assert not bad, "import hmpc.models/controller/tools, never the bare name:\n" + "\n".join(bad)
 
 
@@ -121,7 +135,7 @@ def test_architecture_doc_names_every_package_and_module():
     """docs/architecture.md matches the tree: every package folder appears as a path, and
     every module of a package appears in that package's row of its Layout table."""
     arch = (REPO_DIR / "docs" / "architecture.md").read_text(encoding="utf-8")
-    layout = arch[arch.index("## Layout"):]
+    layout = arch[arch.index("## Layout") :]
     end = layout.find("\n## ")  # the Layout section ends at the next heading
     if end != -1:
         layout = layout[:end]
@@ -139,7 +153,10 @@ def test_architecture_doc_names_every_package_and_module():
             missing.append(f"{folder}/ (no row, not in the architecture)")
             continue
         for mod in sorted(init.parent.glob("*.py")):
-            if mod.stem != "__init__" and f"`{mod.stem}`" not in rows.get(folder, "") \
-                    and not (folder == "tools" and mod.stem.startswith(("cmd_", "bench_"))):
+            if (
+                mod.stem != "__init__"
+                and f"`{mod.stem}`" not in rows.get(folder, "")
+                and not (folder == "tools" and mod.stem.startswith(("cmd_", "bench_")))
+            ):
                 missing.append(f"{folder}/{mod.name}")
     assert not missing, "docs/architecture.md's Layout does not name:\n" + "\n".join(missing)

@@ -15,6 +15,7 @@ shows up as a failing ``test_*_catches_a_planted_violation``.
 - No import circles between hmpc's modules (function-level imports count).
 - No module over 800 lines; no issue numbers in code.
 """
+
 from __future__ import annotations
 
 import ast
@@ -30,9 +31,13 @@ SIM = "hmpc.models.sim"
 #: controller modules that stand in for the car or drive it offline, and so may use the
 #: simulator: the closed-loop harness, the simulated car on the bus, the offline replay (which
 #: runs the closed-loop harness) and the tele-op plant stand-in
-HARNESS = {"hmpc.controller.closed_loop", "hmpc.controller.actuation.vehicle_node",
-           "hmpc.controller.replay", "hmpc.controller.teleop.sink",
-           "hmpc.controller.teleop.selftest"}
+HARNESS = {
+    "hmpc.controller.closed_loop",
+    "hmpc.controller.actuation.vehicle_node",
+    "hmpc.controller.replay",
+    "hmpc.controller.teleop.sink",
+    "hmpc.controller.teleop.selftest",
+}
 MAX_LINES = 800
 ISSUE_RE = re.compile(r"\bissues?\s+#?\d+", re.IGNORECASE)
 
@@ -45,8 +50,12 @@ def _module_name(path: Path) -> str:
 
 
 def _sources() -> dict[str, Path]:
-    files = {_module_name(p): p for d in FOLDERS for p in sorted((REPO_DIR / d).rglob("*.py"))
-             if "data" not in p.relative_to(REPO_DIR).parts}
+    files = {
+        _module_name(p): p
+        for d in FOLDERS
+        for p in sorted((REPO_DIR / d).rglob("*.py"))
+        if "data" not in p.relative_to(REPO_DIR).parts
+    }
     assert len(files) > 60, "the source tree was not found"
     return files
 
@@ -120,14 +129,19 @@ def _package_faces(graph: dict[str, set[str]], sources: dict[str, Path]) -> dict
     """The graph without the edges a package's own ``__init__`` adds by re-exporting its
     members (a member importing a sibling through the package is not a circle of code)."""
     pkgs = {m for m, p in sources.items() if p.name == "__init__.py"}
-    return {m: {d for d in deps if not (m in pkgs and d.startswith(m + "."))}
-            for m, deps in graph.items()}
+    return {
+        m: {d for d in deps if not (m in pkgs and d.startswith(m + "."))}
+        for m, deps in graph.items()
+    }
 
 
 # ------------------------------------------------------------------------ the simulator
 def _on_car(sources: dict[str, Path]) -> list[str]:
-    return [m for m in sources if m.startswith("hmpc.controller.") and m not in HARNESS
-            and not m.endswith(".__init__")]
+    return [
+        m
+        for m in sources
+        if m.startswith("hmpc.controller.") and m not in HARNESS and not m.endswith(".__init__")
+    ]
 
 
 def _sim_chains(graph: dict[str, set[str]], modules: list[str]) -> list[str]:
@@ -150,8 +164,10 @@ def test_sim_rule_catches_a_planted_violation():
     """An on-car module that imports a harness module (which imports the simulator) inside a
     function is caught, as is a direct import."""
     sources = _sources()
-    texts = {"hmpc.controller.limits": "def f():\n    from hmpc.controller import closed_loop\n",
-             "hmpc.controller.pid": "import hmpc.models.sim.scenarios\n"}
+    texts = {
+        "hmpc.controller.limits": "def f():\n    from hmpc.controller import closed_loop\n",
+        "hmpc.controller.pid": "import hmpc.models.sim.scenarios\n",
+    }
     graph = _graph(sources, texts)
     bad = _sim_chains(graph, ["hmpc.controller.limits", "hmpc.controller.pid"])
     assert len(bad) == 2 and "hmpc.controller.closed_loop" in bad[0] + bad[1]
@@ -165,14 +181,15 @@ def test_the_harness_list_names_real_modules():
 # ------------------------------------------------------------------------ where things live
 def _defines(path: Path, name: str) -> bool:
     tree = ast.parse(path.read_text(encoding="utf-8"))
-    return any(isinstance(n, (ast.ClassDef, ast.FunctionDef)) and n.name == name
-               for n in tree.body)
+    return any(isinstance(n, (ast.ClassDef, ast.FunctionDef)) and n.name == name for n in tree.body)
 
 
 def test_reference_and_controller_building_live_outside_sim_and_tools():
     sources = _sources()
-    where = {n: [m for m, p in sources.items() if _defines(p, n)]
-             for n in ("Reference", "make_controller", "load_reference")}
+    where = {
+        n: [m for m, p in sources.items() if _defines(p, n)]
+        for n in ("Reference", "make_controller", "load_reference")
+    }
     assert where["Reference"] == ["hmpc.models.reference"], where
     assert where["load_reference"] == ["hmpc.models.reference"], where
     assert where["make_controller"] == ["hmpc.controller.build"], where
@@ -181,8 +198,12 @@ def test_reference_and_controller_building_live_outside_sim_and_tools():
 # ------------------------------------------------------------------------ subcommands
 def _cmd_cross_imports(graph: dict[str, set[str]]) -> list[str]:
     cmds = [m for m in graph if m.startswith("hmpc.tools.cmd_")]
-    return [f"{m} imports {d}" for m in cmds for d in sorted(graph[m])
-            if d.startswith("hmpc.tools.cmd_") or d == "hmpc.tools.cli"]
+    return [
+        f"{m} imports {d}"
+        for m in cmds
+        for d in sorted(graph[m])
+        if d.startswith("hmpc.tools.cmd_") or d == "hmpc.tools.cli"
+    ]
 
 
 def test_subcommand_modules_never_import_each_other():
@@ -194,7 +215,8 @@ def test_subcommand_rule_catches_a_planted_violation():
     sources = _sources()
     texts = {"hmpc.tools.cmd_drive": "def run(a):\n    from hmpc.tools.cmd_simulate import x\n"}
     assert _cmd_cross_imports(_graph(sources, texts)) == [
-        "hmpc.tools.cmd_drive imports hmpc.tools.cmd_simulate"]
+        "hmpc.tools.cmd_drive imports hmpc.tools.cmd_simulate"
+    ]
 
 
 # ------------------------------------------------------------------------ metrics, plots
@@ -206,17 +228,26 @@ def test_the_drive_loop_takes_its_metrics_from_the_metrics_module():
     sources = _sources()
     graph = _graph(sources)
     drive = [m for m in sources if m.startswith("hmpc.controller.actuation.")]
-    bad = [f"{m} -> {' -> '.join(c)}" for m in drive
-           if m != "hmpc.controller.actuation.vehicle_node"
-           and (c := _reaches(graph, m, "hmpc.controller.closed_loop"))]
+    bad = [
+        f"{m} -> {' -> '.join(c)}"
+        for m in drive
+        if m != "hmpc.controller.actuation.vehicle_node"
+        and (c := _reaches(graph, m, "hmpc.controller.closed_loop"))
+    ]
     assert not bad, "\n".join(bad)
     assert "hmpc.controller.metrics" in sources
 
 
 def _plotters(sources, texts=None) -> list[str]:
-    return [m for m in sources if not m.startswith("hmpc.models.report")
-            and any(n == "matplotlib" or n.startswith("matplotlib.")
-                    for n in _imports_of_module(sources, m, texts))]
+    return [
+        m
+        for m in sources
+        if not m.startswith("hmpc.models.report")
+        and any(
+            n == "matplotlib" or n.startswith("matplotlib.")
+            for n in _imports_of_module(sources, m, texts)
+        )
+    ]
 
 
 def test_plots_live_in_models_report():
@@ -247,10 +278,14 @@ def test_circle_rule_catches_a_planted_violation():
 
 # ------------------------------------------------------------------------ size, history
 def _long(sources: dict[str, Path], counts: dict[str, int] | None = None) -> list[str]:
-    counts = counts or {m: len(p.read_text(encoding="utf-8").splitlines())
-                        for m, p in sources.items()}
-    return [f"{sources[m].relative_to(REPO_DIR)}: {n} lines" for m, n in sorted(counts.items())
-            if n > MAX_LINES]
+    counts = counts or {
+        m: len(p.read_text(encoding="utf-8").splitlines()) for m, p in sources.items()
+    }
+    return [
+        f"{sources[m].relative_to(REPO_DIR)}: {n} lines"
+        for m, n in sorted(counts.items())
+        if n > MAX_LINES
+    ]
 
 
 def test_no_module_over_800_lines():
@@ -264,38 +299,58 @@ def test_size_rule_catches_a_planted_violation():
 
 
 def _issue_mentions(texts: dict[str, str]) -> list[str]:
-    return [f"{name}:{i}: {line.strip()}" for name, text in texts.items()
-            for i, line in enumerate(text.splitlines(), 1) if ISSUE_RE.search(line)]
+    return [
+        f"{name}:{i}: {line.strip()}"
+        for name, text in texts.items()
+        for i, line in enumerate(text.splitlines(), 1)
+        if ISSUE_RE.search(line)
+    ]
 
 
 def test_no_issue_numbers_in_code():
     """Project history lives in git log: no issue numbers in models/, controller/, tools/."""
-    texts = {str(p.relative_to(REPO_DIR)): p.read_text(encoding="utf-8")
-             for p in _sources().values()}
+    texts = {
+        str(p.relative_to(REPO_DIR)): p.read_text(encoding="utf-8") for p in _sources().values()
+    }
     bad = _issue_mentions(texts)
     assert not bad, "\n".join(bad)
 
 
 def test_issue_rule_catches_a_planted_violation():
-    assert len(_issue_mentions({"x.py": "a = 1  # the figure of issue 12\n# Issues 3 and 4\n"
-                                        "x = 'tissue 5'\n"})) == 2
+    assert (
+        len(
+            _issue_mentions(
+                {"x.py": "a = 1  # the figure of issue 12\n# Issues 3 and 4\nx = 'tissue 5'\n"}
+            )
+        )
+        == 2
+    )
 
 
 def test_nothing_points_at_the_shared_contract():
     """The contract and the house style live in docs/; only tests and benchmarks that read
     ../shared/data's extra recordings may name ../shared."""
     bad = []
-    roots = [REPO_DIR / d for d in (*FOLDERS, "params", "docs")] + [REPO_DIR / "README.md",
-                                                                     REPO_DIR / "Makefile"]
+    roots = [REPO_DIR / d for d in (*FOLDERS, "params", "docs")] + [
+        REPO_DIR / "README.md",
+        REPO_DIR / "Makefile",
+    ]
     for root in roots:
-        files = [root] if root.is_file() else sorted(p for p in root.rglob("*") if p.is_file()
-                                                     and p.suffix in (".py", ".md", ".yaml",
-                                                                      ".j2", ".txt", ""))
+        files = (
+            [root]
+            if root.is_file()
+            else sorted(
+                p
+                for p in root.rglob("*")
+                if p.is_file() and p.suffix in (".py", ".md", ".yaml", ".j2", ".txt", "")
+            )
+        )
         for p in files:
             if "data" in p.relative_to(REPO_DIR).parts:
                 continue
-            for i, line in enumerate(p.read_text(encoding="utf-8", errors="replace")
-                                     .splitlines(), 1):
+            for i, line in enumerate(
+                p.read_text(encoding="utf-8", errors="replace").splitlines(), 1
+            ):
                 if re.search(r"shared/(CONVENTIONS|STYLE)", line):
                     bad.append(f"{p.relative_to(REPO_DIR)}:{i}")
     assert not bad, "point at docs/conventions.md or docs/style.md:\n" + "\n".join(bad)

@@ -30,25 +30,66 @@ the front wheel speeds), params, zones, logs.recording and errors; never control
 Inside the package the modules import one way: config <- signals, deadtime <- zonefit <-
 sources, identifiable, command <- identify.
 """
-from hmpc.models.identify.longitudinal.config import (ACCEL_SOURCES, DEFAULT_ZONES, SOURCE_ORDER,
-                                                      LongitudinalIdConfig, zones_for_vehicle)
-from hmpc.models.identify.longitudinal.signals import (LongitudinalSignals, Pedals, ZoneMasks,
-                                                       accel_candidates, assign_zones, eq1_speed,
-                                                       lagged_pedals, longitudinal_signals,
-                                                       zone_masks)
+
+from hmpc.models.identify.longitudinal.config import (
+    ACCEL_SOURCES,
+    DEFAULT_ZONES,
+    SOURCE_ORDER,
+    LongitudinalIdConfig,
+    zones_for_vehicle,
+)
+from hmpc.models.identify.longitudinal.signals import (
+    LongitudinalSignals,
+    Pedals,
+    ZoneMasks,
+    accel_candidates,
+    assign_zones,
+    eq1_speed,
+    lagged_pedals,
+    longitudinal_signals,
+    zone_masks,
+)
 from hmpc.models.identify.longitudinal.deadtime import PedalDeadTime, pedal_dead_time_cv
-from hmpc.models.identify.longitudinal.zonefit import (ZoneFit, fit_zone, fos_candidates,
-                                                       ols_timed, speed_rmse)
+from hmpc.models.identify.longitudinal.zonefit import (
+    ZoneFit,
+    fit_zone,
+    fos_candidates,
+    ols_timed,
+    speed_rmse,
+)
 from hmpc.models.identify.longitudinal.sources import choose_accel_source, source_disagreements
 from hmpc.models.identify.longitudinal.identifiable import braking_evidence, zone_from_fit
 from hmpc.models.identify.longitudinal.command import COMMAND_CHANNELS, command_channel
 from hmpc.models.identify.longitudinal.identify import LongitudinalResult, identify_longitudinal
 
-__all__ = ["LongitudinalIdConfig", "LongitudinalResult", "identify_longitudinal",
-           "DEFAULT_ZONES", "SOURCE_ORDER", "ACCEL_SOURCES", "zones_for_vehicle",
-           "COMMAND_CHANNELS", "command_channel",
-           "LongitudinalSignals", "ZoneMasks", "Pedals", "PedalDeadTime", "ZoneFit",
-           "eq1_speed", "accel_candidates", "longitudinal_signals", "assign_zones", "zone_masks",
-           "lagged_pedals", "pedal_dead_time_cv", "choose_accel_source", "source_disagreements",
-           "fos_candidates", "ols_timed", "fit_zone", "speed_rmse", "zone_from_fit",
-           "braking_evidence"]
+__all__ = [
+    "LongitudinalIdConfig",
+    "LongitudinalResult",
+    "identify_longitudinal",
+    "DEFAULT_ZONES",
+    "SOURCE_ORDER",
+    "ACCEL_SOURCES",
+    "zones_for_vehicle",
+    "COMMAND_CHANNELS",
+    "command_channel",
+    "LongitudinalSignals",
+    "ZoneMasks",
+    "Pedals",
+    "PedalDeadTime",
+    "ZoneFit",
+    "eq1_speed",
+    "accel_candidates",
+    "longitudinal_signals",
+    "assign_zones",
+    "zone_masks",
+    "lagged_pedals",
+    "pedal_dead_time_cv",
+    "choose_accel_source",
+    "source_disagreements",
+    "fos_candidates",
+    "ols_timed",
+    "fit_zone",
+    "speed_rmse",
+    "zone_from_fit",
+    "braking_evidence",
+]

@@ -2,6 +2,7 @@
 number beside it), the default zones and the measured-acceleration sources, and the check of
 the configured zones. Imports hmpc.models.errors only.
 """
+
 from __future__ import annotations
 
 import math
@@ -12,7 +13,10 @@ from hmpc.models.errors import InputError
 
 #: default zones: the report's section V (name, v_min [m/s], v_max [m/s]).
 DEFAULT_ZONES: tuple[tuple[str, float, float], ...] = (
-    ("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
+    ("idle", 0.0, 2.0),
+    ("low", 2.0, 5.0),
+    ("high", 5.0, 20.0),
+)
 #: [m] the wheelbase the default zones were set for: the report's car (a passenger car).
 REFERENCE_WHEELBASE_M = 2.65
 
@@ -33,8 +37,10 @@ def zones_for_vehicle(vehicle) -> tuple[tuple[str, float, float], ...]:
     def two_digits(x: float) -> float:
         return float(f"{x:.2g}") if x > 0 else 0.0
 
-    return tuple((n, two_digits(lo * math.sqrt(f)), two_digits(hi * math.sqrt(f)))
-                 for n, lo, hi in DEFAULT_ZONES)
+    return tuple(
+        (n, two_digits(lo * math.sqrt(f)), two_digits(hi * math.sqrt(f)))
+        for n, lo, hi in DEFAULT_ZONES
+    )
 
 
 #: measured-acceleration sources, in the order of preference when held-out evidence does not
@@ -42,8 +48,12 @@ def zones_for_vehicle(vehicle) -> tuple[tuple[str, float, float], ...]:
 SOURCE_ORDER = ("wheel_speeds", "speed", "gps_speed", "accel_x")
 ACCEL_SOURCES = ("auto",) + SOURCE_ORDER
 #: the channel a source needs (named when it is absent)
-_SOURCE_CHANNEL = {"wheel_speeds": "wheel_speed_fl", "speed": "speed", "gps_speed": "gps_speed",
-                   "accel_x": "accel_x"}
+_SOURCE_CHANNEL = {
+    "wheel_speeds": "wheel_speed_fl",
+    "speed": "speed",
+    "gps_speed": "gps_speed",
+    "accel_x": "accel_x",
+}
 
 
 @dataclass(frozen=True)
@@ -116,9 +126,12 @@ def _check_config(cfg: LongitudinalIdConfig, path) -> list[tuple[str, float, flo
         raise InputError("no speed zones given", path)
     for i, (n, lo, hi) in enumerate(zones):
         if not hi > lo or (i and abs(lo - zones[i - 1][2]) > 1e-9) or (i == 0 and lo != 0.0):
-            raise InputError(f"zones must be contiguous from 0 m/s with v_max > v_min "
-                             f"(zone {n!r}: {lo}..{hi})", path)
+            raise InputError(
+                f"zones must be contiguous from 0 m/s with v_max > v_min (zone {n!r}: {lo}..{hi})",
+                path,
+            )
     if cfg.accel_source not in ACCEL_SOURCES:
-        raise InputError(f"unknown accel source {cfg.accel_source!r} (one of "
-                         f"{', '.join(ACCEL_SOURCES)})", path)
+        raise InputError(
+            f"unknown accel source {cfg.accel_source!r} (one of {', '.join(ACCEL_SOURCES)})", path
+        )
     return zones

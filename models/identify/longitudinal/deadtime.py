@@ -6,6 +6,7 @@ worse beyond fold-to-fold noise, and it is reported with its 95% held-out interv
 "not determined" and 0 is used. The held-out error of per-zone fits (:func:`_heldout_by_zone`)
 also scores the acceleration sources (``sources``).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -31,9 +32,17 @@ class PedalDeadTime:
     cv: dict = field(default_factory=dict)
 
 
-def _heldout_by_zone(pair, Y: np.ndarray, ok: np.ndarray, zid: np.ndarray,
-                     n_zones: int, fold: np.ndarray, k: int, fit_col: int,
-                     min_samples: int) -> np.ndarray:
+def _heldout_by_zone(
+    pair,
+    Y: np.ndarray,
+    ok: np.ndarray,
+    zid: np.ndarray,
+    n_zones: int,
+    fold: np.ndarray,
+    k: int,
+    fit_col: int,
+    min_samples: int,
+) -> np.ndarray:
     """Held-out SSE [k, columns of Y] of per-zone eq. 8 fits to the smoothed pedal ``pair``
     (``stats.heldout_sse``), summed over the zones with at least ``min_samples`` samples in
     ``ok``."""
@@ -46,8 +55,15 @@ def _heldout_by_zone(pair, Y: np.ndarray, ok: np.ndarray, zid: np.ndarray,
     return E
 
 
-def pedal_dead_time_cv(a_meas: np.ndarray, ok: np.ndarray, zid: np.ndarray, n_zones: int,
-                       lagged: list, cfg: LongitudinalIdConfig, dt_s: float) -> PedalDeadTime:
+def pedal_dead_time_cv(
+    a_meas: np.ndarray,
+    ok: np.ndarray,
+    zid: np.ndarray,
+    n_zones: int,
+    lagged: list,
+    cfg: LongitudinalIdConfig,
+    dt_s: float,
+) -> PedalDeadTime:
     """The pedal dead time by blocked cross-validation over the one-sample lag grid.
 
     For each lag the zone fits are made on all but one of ``cv_folds`` contiguous folds and
@@ -65,12 +81,17 @@ def pedal_dead_time_cv(a_meas: np.ndarray, ok: np.ndarray, zid: np.ndarray, n_zo
     K = max(3, int(cfg.cv_folds))
     fold = contiguous_fold_ids(len(a_meas), K)
     y = np.where(ok, a_meas, 0.0)[:, None]
-    E = np.array([_heldout_by_zone(p, y, ok, zid, n_zones, fold, K, 0,
-                                   cfg.min_samples(dt_s))[:, 0] for p in lagged])
+    E = np.array(
+        [
+            _heldout_by_zone(p, y, ok, zid, n_zones, fold, K, 0, cfg.min_samples(dt_s))[:, 0]
+            for p in lagged
+        ]
+    )
     keep = E.sum(axis=0) > 0
     if keep.sum() < 3:
-        return PedalDeadTime(0.0, nan, 0.0, "no zone had enough samples to estimate it: "
-                             "not determined, 0 used")
+        return PedalDeadTime(
+            0.0, nan, 0.0, "no zone had enough samples to estimate it: not determined, 0 used"
+        )
     E = E[:, keep]
     jb, within, crit = not_worse_than_best(E)
     lo = hi = jb
@@ -87,22 +108,32 @@ def pedal_dead_time_cv(a_meas: np.ndarray, ok: np.ndarray, zid: np.ndarray, n_zo
     gain = float(1.0 - mean[jb] / mean[0]) if mean[0] > 0 else 0.0
     interval: tuple[float, float] | None
     interval = ((lo - 0.5) * dt_s, (hi + 0.5) * dt_s)
-    cv = {"folds": int(E.shape[1]), "samples": int(ok.sum()), "t_critical": crit,
-          "heldout_rms_at_zero_mps2": float(np.sqrt(E[0].sum() / max(ok.sum(), 1))),
-          "heldout_rms_at_best_mps2": float(np.sqrt(E[jb].sum() / max(ok.sum(), 1)))}
+    cv = {
+        "folds": int(E.shape[1]),
+        "samples": int(ok.sum()),
+        "t_critical": crit,
+        "heldout_rms_at_zero_mps2": float(np.sqrt(E[0].sum() / max(ok.sum(), 1))),
+        "heldout_rms_at_best_mps2": float(np.sqrt(E[jb].sum() / max(ok.sum(), 1))),
+    }
     tau = best * dt_s
     note = None
     if jb == len(lagged) - 1:
-        note = (f"held-out error still falling at the search limit {cfg.dead_time_max_s:g} s: "
-                "not determined, 0 used")
+        note = (
+            f"held-out error still falling at the search limit {cfg.dead_time_max_s:g} s: "
+            "not determined, 0 used"
+        )
         interval = None
     elif within[0]:
         lo_s = max(interval[0], 0.0)
-        note = (f"no delay improves the held-out prediction beyond fold-to-fold noise (best "
-                f"{tau:.2f} s, 95% interval {lo_s:.2f}-{interval[1]:.2f} s"
-                + (" includes 0" if lo_s == 0.0 else "; no delay predicts as well within "
-                   "that noise") + "): not determined, 0 used")
+        note = (
+            f"no delay improves the held-out prediction beyond fold-to-fold noise (best "
+            f"{tau:.2f} s, 95% interval {lo_s:.2f}-{interval[1]:.2f} s"
+            + (" includes 0" if lo_s == 0.0 else "; no delay predicts as well within that noise")
+            + "): not determined, 0 used"
+        )
     elif gain < cfg.dead_time_min_gain:
-        note = (f"a dead time of {tau:.2f} s lowers the held-out error by only "
-                f"{100 * gain:.1f}% (< {100 * cfg.dead_time_min_gain:g}%): not determined, 0 used")
+        note = (
+            f"a dead time of {tau:.2f} s lowers the held-out error by only "
+            f"{100 * gain:.1f}% (< {100 * cfg.dead_time_min_gain:g}%): not determined, 0 used"
+        )
     return PedalDeadTime(0.0 if note else tau, tau, gain, note, interval, cv)

@@ -14,6 +14,7 @@ prior, or absorbing unobserved braking) is listed with its reason, naming the zo
 from, in ``report['not_identified']`` (``zones.<name>.<key>``), whether the zone was fitted or
 not; ``models.identify.pipeline`` names them under the top-level ``not_identified``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -51,8 +52,10 @@ def _rel_half_width(value: float, ci) -> float:
 
 
 #: a pedal's channel and what pressing it must do, by the zone key of its gain
-_GAIN_INPUT = {"scale_mps2": ("accel_pedal", "accelerate"),
-               "brake_scale_mps2": ("brake_pedal", "decelerate (the brake term is subtracted)")}
+_GAIN_INPUT = {
+    "scale_mps2": ("accel_pedal", "accelerate"),
+    "brake_scale_mps2": ("brake_pedal", "decelerate (the brake term is subtracted)"),
+}
 
 
 def drop_negative_gains(fits: list[ZoneFit]) -> None:
@@ -71,13 +74,19 @@ def drop_negative_gains(fits: list[ZoneFit]) -> None:
                 continue
             ci_key = key.replace("_mps2", "_ci95_mps2")
             lo, hi = rep.get(ci_key) or (v, v)
-            why = (f"gain not determined: {key} {v:.3g} m/s^2, its 95% interval [{lo:.3g}, "
-                   f"{hi:.3g}] spans 0" if hi > 0 else
-                   f"negative gain {v:.3g} m/s^2 [{lo:.3g}, {hi:.3g}]: pressing {channel} must "
-                   f"{does}; check the sign convention of {channel} (0 released, 1 pressed), or "
-                   "the input is not a pedal (a speed or torque command?)")
-            rep.setdefault("negative_gains", {})[key] = {"value": v, "ci95": [lo, hi],
-                                                         "reason": why}
+            why = (
+                f"gain not determined: {key} {v:.3g} m/s^2, its 95% interval [{lo:.3g}, "
+                f"{hi:.3g}] spans 0"
+                if hi > 0
+                else f"negative gain {v:.3g} m/s^2 [{lo:.3g}, {hi:.3g}]: pressing {channel} must "
+                f"{does}; check the sign convention of {channel} (0 released, 1 pressed), or "
+                "the input is not a pedal (a speed or torque command?)"
+            )
+            rep.setdefault("negative_gains", {})[key] = {
+                "value": v,
+                "ci95": [lo, hi],
+                "reason": why,
+            }
             rep[key], rep[ci_key] = None, None
 
 
@@ -86,8 +95,15 @@ def _negative_why(rep: dict, key: str) -> str | None:
     return (rep.get("negative_gains") or {}).get(key, {}).get("reason")
 
 
-def zone_from_fit(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig,
-                  has_brake: bool, path, disagreements: dict | None = None) -> Zone:
+def zone_from_fit(
+    i: int,
+    fits: list[ZoneFit],
+    zones,
+    cfg: LongitudinalIdConfig,
+    has_brake: bool,
+    path,
+    disagreements: dict | None = None,
+) -> Zone:
     """Zone ``i``'s written ``params.Zone``, with fallbacks for what its data did not exercise
     (module doc); sets ``fits[i].zone`` and the report's identifiable, note and written keys.
 
@@ -116,52 +132,74 @@ def zone_from_fit(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig,
         rep_off_ci = rep["offset_ci95_mps2"]
         if 0.5 * (rep_off_ci[1] - rep_off_ci[0]) > cfg.max_offset_ci_mps2:
             ident = False
-            notes.append(f"offset known only to +-{0.5 * (rep_off_ci[1] - rep_off_ci[0]):.2f} "
-                         "m/s^2")
+            notes.append(
+                f"offset known only to +-{0.5 * (rep_off_ci[1] - rep_off_ci[0]):.2f} m/s^2"
+            )
     sc, sc_ci, sc_ok = _zone_scale(i, fits, zones, cfg, path, notes)
     br, br_ci, br_ok = _zone_brake_scale(i, fits, zones, cfg, has_brake, notes)
     ident = ident and sc_ok and br_ok
     dis = (disagreements or {}).get("zones", {}).get(zname)
     if dis and dis["disagree"]:
         if dis["corroborated_by"]:
-            notes.append(f"{', '.join(dis['disagree'])} disagree(s) with {dis['chosen']} beyond "
-                         f"the intervals ({dis['likely_cause']}); {dis['chosen']} is "
-                         f"corroborated by {', '.join(dis['corroborated_by'])}")
+            notes.append(
+                f"{', '.join(dis['disagree'])} disagree(s) with {dis['chosen']} beyond "
+                f"the intervals ({dis['likely_cause']}); {dis['chosen']} is "
+                f"corroborated by {', '.join(dis['corroborated_by'])}"
+            )
         else:
             ident = False
-            notes.append(f"NOT identifiable: the acceleration sources disagree beyond their "
-                         f"intervals ({dis['chosen']} against {', '.join(dis['disagree'])}; "
-                         f"likely cause: {dis['likely_cause']})")
+            notes.append(
+                f"NOT identifiable: the acceleration sources disagree beyond their "
+                f"intervals ({dis['chosen']} against {', '.join(dis['disagree'])}; "
+                f"likely cause: {dis['likely_cause']})"
+            )
     note = "; ".join(notes) if notes else None
-    z = Zone(name=zname, v_min_mps=float(lo), v_max_mps=float(hi), offset_mps2=float(off),
-             scale_mps2=float(sc), brake_scale_mps2=float(br),
-             offset_ci95_mps2=_pair(rep_off_ci), scale_ci95_mps2=_pair(sc_ci),
-             brake_scale_ci95_mps2=_pair(br_ci), nmse_pct=_opt(rep.get("nmse_pct")),
-             speed_rmse_mps=_opt(rep.get("speed_rmse_mps")),
-             samples=float(rep["samples"]), identifiable=bool(ident), note=note)
+    z = Zone(
+        name=zname,
+        v_min_mps=float(lo),
+        v_max_mps=float(hi),
+        offset_mps2=float(off),
+        scale_mps2=float(sc),
+        brake_scale_mps2=float(br),
+        offset_ci95_mps2=_pair(rep_off_ci),
+        scale_ci95_mps2=_pair(sc_ci),
+        brake_scale_ci95_mps2=_pair(br_ci),
+        nmse_pct=_opt(rep.get("nmse_pct")),
+        speed_rmse_mps=_opt(rep.get("speed_rmse_mps")),
+        samples=float(rep["samples"]),
+        identifiable=bool(ident),
+        note=note,
+    )
     f.zone = z
     rep["identifiable"] = bool(ident)
     rep["note"] = note
-    rep["written"] = {"offset_mps2": z.offset_mps2, "scale_mps2": z.scale_mps2,
-                      "brake_scale_mps2": z.brake_scale_mps2}
+    rep["written"] = {
+        "offset_mps2": z.offset_mps2,
+        "scale_mps2": z.scale_mps2,
+        "brake_scale_mps2": z.brake_scale_mps2,
+    }
     return z
 
 
-def braking_evidence(sig: LongitudinalSignals, masks: ZoneMasks, zi: int, f: ZoneFit,
-                     cfg: LongitudinalIdConfig) -> dict:
+def braking_evidence(
+    sig: LongitudinalSignals, masks: ZoneMasks, zi: int, f: ZoneFit, cfg: LongitudinalIdConfig
+) -> dict:
     """Seconds in zone ``zi`` with the accelerator released and a deceleration more than
     ``braking_evidence_mps2`` below the zone's fitted offset (coasting): braking that eq. 8
     must explain, observed or not."""
     m = ~masks.bad & (masks.zid == zi) & (np.nan_to_num(sig.ap_raw) < cfg.pressed)
     off = f.report["offset_mps2"]
     decel = m & (sig.a_meas < off - cfg.braking_evidence_mps2)
-    return {"released_s": float(m.sum() * sig.dt_s),
-            "decel_beyond_coasting_s": float(decel.sum() * sig.dt_s),
-            "threshold_mps2": cfg.braking_evidence_mps2}
+    return {
+        "released_s": float(m.sum() * sig.dt_s),
+        "decel_beyond_coasting_s": float(decel.sum() * sig.dt_s),
+        "threshold_mps2": cfg.braking_evidence_mps2,
+    }
 
 
-def _zone_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig, path,
-                notes: list[str]):
+def _zone_scale(
+    i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig, path, notes: list[str]
+):
     """Zone ``i``'s throttle scale, its interval and whether it is identified; a zone that did
     not fit it copies the nearest zone's. Appends the reason to ``notes``."""
     f = fits[i]
@@ -171,29 +209,49 @@ def _zone_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig, p
     if sc is None:
         j = _nearest_fitted(i, fits, "scale_mps2")
         if j is None:
-            neg = next((w for g in fits if g.fitted
-                        for w in [_negative_why(g.report, "scale_mps2")] if w), None)
-            raise InputError((f"no zone has a usable accelerator gain ({neg})" if neg else
-                              "the accelerator pedal is never pressed long enough in any zone "
-                              f"(need {cfg.min_pressed_s} s)") + ": cannot identify eq. 8",
-                             path, channel="accel_pedal")
+            neg = next(
+                (w for g in fits if g.fitted for w in [_negative_why(g.report, "scale_mps2")] if w),
+                None,
+            )
+            raise InputError(
+                (
+                    f"no zone has a usable accelerator gain ({neg})"
+                    if neg
+                    else "the accelerator pedal is never pressed long enough in any zone "
+                    f"(need {cfg.min_pressed_s} s)"
+                )
+                + ": cannot identify eq. 8",
+                path,
+                channel="accel_pedal",
+            )
         sc = fits[j].report["scale_mps2"]
-        why = (_negative_why(rep, "scale_mps2") or
-               f"accelerator pressed only {rep['accel_pedal_pressed_s']:.1f} s "
-               f"({cfg.min_pressed_s:g} s needed)" if f.fitted else rep["not_fitted_because"])
+        why = (
+            _negative_why(rep, "scale_mps2")
+            or f"accelerator pressed only {rep['accel_pedal_pressed_s']:.1f} s "
+            f"({cfg.min_pressed_s:g} s needed)"
+            if f.fitted
+            else rep["not_fitted_because"]
+        )
         rep["not_identified"]["scale_mps2"] = f"{why}: copied from zone '{zones[j][0]}'"
-        notes.append(f"{why}: scale copied from zone '{zones[j][0]}'" if f.fitted else
-                     f"scale copied from zone '{zones[j][0]}'")
+        notes.append(
+            f"{why}: scale copied from zone '{zones[j][0]}'"
+            if f.fitted
+            else f"scale copied from zone '{zones[j][0]}'"
+        )
         return sc, sc_ci, False
     if _rel_half_width(sc, sc_ci) > cfg.max_rel_ci:
-        notes.append(f"scale known only to +-{100 * _rel_half_width(sc, sc_ci):.0f}%"
-                     if sc != 0 else "scale is zero")
+        notes.append(
+            f"scale known only to +-{100 * _rel_half_width(sc, sc_ci):.0f}%"
+            if sc != 0
+            else "scale is zero"
+        )
         return sc, sc_ci, False
     return sc, sc_ci, True
 
 
-def _zone_brake_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig,
-                      has_brake: bool, notes: list[str]):
+def _zone_brake_scale(
+    i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdConfig, has_brake: bool, notes: list[str]
+):
     """Zone ``i``'s brake scale, its interval and whether it is identified; a zone that did not
     fit it copies the nearest zone's, or the prior when none did. Appends the reason to
     ``notes``."""
@@ -203,34 +261,47 @@ def _zone_brake_scale(i: int, fits: list[ZoneFit], zones, cfg: LongitudinalIdCon
     br_ci = rep.get("brake_scale_ci95_mps2") if f.fitted else None
     if br is None:
         j = _nearest_fitted(i, fits, "brake_scale_mps2")
-        why = ("no brake_pedal channel" if not has_brake else
-               _negative_why(rep, "brake_scale_mps2") or
-               f"brake pressed only {rep['brake_pedal_pressed_s']:.1f} s" if f.fitted else
-               rep["not_fitted_because"])
+        why = (
+            "no brake_pedal channel"
+            if not has_brake
+            else _negative_why(rep, "brake_scale_mps2")
+            or f"brake pressed only {rep['brake_pedal_pressed_s']:.1f} s"
+            if f.fitted
+            else rep["not_fitted_because"]
+        )
         ni = rep["not_identified"]
         ev = rep.get("braking") or {}
         if ev.get("decel_beyond_coasting_s", 0.0) >= cfg.min_pressed_s:
-            absorbed = (f"the car decelerated {ev['decel_beyond_coasting_s']:.1f} s more than "
-                        f"{ev['threshold_mps2']:g} m/s^2 below coasting with the accelerator "
-                        "released: braking (pedal or ACC) that no channel observes, which the "
-                        "offset and scale absorb")
+            absorbed = (
+                f"the car decelerated {ev['decel_beyond_coasting_s']:.1f} s more than "
+                f"{ev['threshold_mps2']:g} m/s^2 below coasting with the accelerator "
+                "released: braking (pedal or ACC) that no channel observes, which the "
+                "offset and scale absorb"
+            )
             ni["offset_mps2"] = ni["scale_mps2"] = f"{why}: {absorbed}"
             why = f"{why}, yet {absorbed}"
         if j is not None:
             br = fits[j].report["brake_scale_mps2"]
             ni["brake_scale_mps2"] = f"{why}: copied from zone '{zones[j][0]}'"
-            notes.append(f"{why + ': ' if f.fitted else ''}brake scale copied from zone "
-                         f"'{zones[j][0]}'")
+            notes.append(
+                f"{why + ': ' if f.fitted else ''}brake scale copied from zone '{zones[j][0]}'"
+            )
         else:
             br = cfg.brake_scale_prior_mps2
-            ni["brake_scale_mps2"] = (f"{why}; no zone identified it: the prior "
-                                      f"{cfg.brake_scale_prior_mps2:g} m/s^2")
-            notes.append(f"{why + ' (in every zone): ' if f.fitted else ''}brake scale is the "
-                         f"prior {cfg.brake_scale_prior_mps2:g} m/s^2, not identified"
-                         + ("" if f.fitted else " in any zone"))
+            ni["brake_scale_mps2"] = (
+                f"{why}; no zone identified it: the prior {cfg.brake_scale_prior_mps2:g} m/s^2"
+            )
+            notes.append(
+                f"{why + ' (in every zone): ' if f.fitted else ''}brake scale is the "
+                f"prior {cfg.brake_scale_prior_mps2:g} m/s^2, not identified"
+                + ("" if f.fitted else " in any zone")
+            )
         return br, br_ci, False
     if _rel_half_width(br, br_ci) > cfg.max_rel_ci:
-        notes.append(f"brake scale known only to +-{100 * _rel_half_width(br, br_ci):.0f}%"
-                     if br != 0 else "brake scale is zero")
+        notes.append(
+            f"brake scale known only to +-{100 * _rel_half_width(br, br_ci):.0f}%"
+            if br != 0
+            else "brake scale is zero"
+        )
         return br, br_ci, False
     return br, br_ci, True

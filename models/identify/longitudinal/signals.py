@@ -24,6 +24,7 @@ equals eq. 8 applied to the smoothed pedals exactly, so smoothing biases nothing
 Savitzky-Golay smoother would bias the brake scale at pedal steps); ``accel_x`` is smoothed
 with the same matched kernel. Which candidate is used is decided in ``sources``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -126,8 +127,9 @@ def _pedals(sig: LongitudinalSignals, tau_s: float) -> Pedals:
     half-sample readings (``stats.half_sample_kernels``)."""
     dt = sig.dt_s
     ap, bp = delayed(sig.ap_raw, tau_s, dt), delayed(sig.bp_raw, tau_s, dt)
-    alt = tuple((apply_kernel(ap, g), apply_kernel(bp, g))
-                for g in half_sample_kernels(sig.d_ker, dt))
+    alt = tuple(
+        (apply_kernel(ap, g), apply_kernel(bp, g)) for g in half_sample_kernels(sig.d_ker, dt)
+    )
     return Pedals(ap, bp, sig.smooth(ap), sig.smooth(bp), alt)
 
 
@@ -139,56 +141,75 @@ def eq1_speed(rec: Recording, vehicle: Vehicle) -> tuple[np.ndarray, str]:
         InputError: none of them is in the recording (naming ``wheel_speed_fl``).
     """
     if "wheel_speed_fl" in rec and "wheel_speed_fr" in rec:
-        _, v = road_wheel_angle_from_front(rec["wheel_speed_fl"], rec["wheel_speed_fr"],
-                                           vehicle.wheelbase_m, vehicle.track_front_m)
+        _, v = road_wheel_angle_from_front(
+            rec["wheel_speed_fl"], rec["wheel_speed_fr"], vehicle.wheelbase_m, vehicle.track_front_m
+        )
         return v, "front-axle-centre speed from the CAN front wheel speeds"
     if "speed" in rec:
         return np.asarray(rec["speed"], dtype=float), "CAN 'speed' channel"
     if "gps_speed" in rec:
         return np.asarray(rec["gps_speed"], dtype=float), "GNSS ground speed ('gps_speed')"
-    raise InputError("no speed channel (front wheel speeds, 'speed' or 'gps_speed'): cannot "
-                     "assign speed zones", rec.meta.get("path"), channel="wheel_speed_fl")
+    raise InputError(
+        "no speed channel (front wheel speeds, 'speed' or 'gps_speed'): cannot assign speed zones",
+        rec.meta.get("path"),
+        channel="wheel_speed_fl",
+    )
 
 
-def accel_candidates(rec: Recording, v: np.ndarray, d_ker: np.ndarray, g_ker: np.ndarray,
-                     dt: float) -> tuple[dict, dict]:
+def accel_candidates(
+    rec: Recording, v: np.ndarray, d_ker: np.ndarray, g_ker: np.ndarray, dt: float
+) -> tuple[dict, dict]:
     """The measured accelerations the recording offers (module doc, "Acceleration"), each with
     its smoother: ``({source: (a [m/s^2], description)}, {source: why it is not a candidate})``
     in :data:`SOURCE_ORDER`."""
-    sg = (f"Savitzky-Golay slope over {len(d_ker)} samples ({len(d_ker) * dt:.2f} s); "
-          "regressors smoothed with the matched kernel")
+    sg = (
+        f"Savitzky-Golay slope over {len(d_ker)} samples ({len(d_ker) * dt:.2f} s); "
+        "regressors smoothed with the matched kernel"
+    )
     cands: dict[str, tuple[np.ndarray, str]] = {}
     skipped: dict[str, str] = {}
     has_wheels = "wheel_speed_fl" in rec and "wheel_speed_fr" in rec
     if has_wheels:
-        cands["wheel_speeds"] = (apply_kernel(v, d_ker), "d/dt of the front-axle-centre speed "
-                                 f"from the CAN front wheel speeds ({sg})")
+        cands["wheel_speeds"] = (
+            apply_kernel(v, d_ker),
+            f"d/dt of the front-axle-centre speed from the CAN front wheel speeds ({sg})",
+        )
     else:
         skipped["wheel_speeds"] = "no 'wheel_speed_fl'/'wheel_speed_fr' channel"
     if "speed" in rec and not has_wheels:
-        cands["speed"] = (apply_kernel(np.asarray(rec["speed"], dtype=float), d_ker),
-                          f"d/dt of the 'speed' channel ({sg})")
+        cands["speed"] = (
+            apply_kernel(np.asarray(rec["speed"], dtype=float), d_ker),
+            f"d/dt of the 'speed' channel ({sg})",
+        )
     else:
-        skipped["speed"] = ("the CAN 'speed' comes from the same wheel sensors as the wheel "
-                            "speeds (not an independent source)" if has_wheels
-                            else "no 'speed' channel")
+        skipped["speed"] = (
+            "the CAN 'speed' comes from the same wheel sensors as the wheel "
+            "speeds (not an independent source)"
+            if has_wheels
+            else "no 'speed' channel"
+        )
     if "gps_speed" in rec:
-        cands["gps_speed"] = (apply_kernel(np.asarray(rec["gps_speed"], dtype=float), d_ker),
-                              f"d/dt of the GNSS ground speed ({sg})")
+        cands["gps_speed"] = (
+            apply_kernel(np.asarray(rec["gps_speed"], dtype=float), d_ker),
+            f"d/dt of the GNSS ground speed ({sg})",
+        )
     else:
         skipped["gps_speed"] = "no 'gps_speed' channel"
     if "accel_x" in rec:
-        cands["accel_x"] = (apply_kernel(np.asarray(rec["accel_x"], dtype=float), g_ker),
-                            "accel_x channel (INS/IMU or the car's accelerometer, as ingested), "
-                            f"smoothed with the same kernel as the regressors "
-                            f"({len(g_ker) * dt:.2f} s)")
+        cands["accel_x"] = (
+            apply_kernel(np.asarray(rec["accel_x"], dtype=float), g_ker),
+            "accel_x channel (INS/IMU or the car's accelerometer, as ingested), "
+            f"smoothed with the same kernel as the regressors "
+            f"({len(g_ker) * dt:.2f} s)",
+        )
     else:
         skipped["accel_x"] = "no 'accel_x' channel"
     return cands, skipped
 
 
-def longitudinal_signals(rec: Recording, vehicle: Vehicle,
-                         cfg: LongitudinalIdConfig) -> LongitudinalSignals:
+def longitudinal_signals(
+    rec: Recording, vehicle: Vehicle, cfg: LongitudinalIdConfig
+) -> LongitudinalSignals:
     """Speed (eq. 1's v), every candidate measured acceleration with its smoother, and the raw
     pedals (module doc). ``a_meas`` is set to the configured source, or to the first candidate
     until :func:`choose_accel_source` decides. Raises InputError for an absent channel."""
@@ -198,23 +219,43 @@ def longitudinal_signals(rec: Recording, vehicle: Vehicle,
     cands, skipped = accel_candidates(rec, v, d_ker, g_ker, dt)
     src = cfg.accel_source
     if src == "auto" and not cands:
-        raise InputError("no acceleration source (wheel speeds, 'speed', 'gps_speed' or "
-                         "'accel_x')", rec.meta.get("path"), channel="wheel_speed_fl")
+        raise InputError(
+            "no acceleration source (wheel speeds, 'speed', 'gps_speed' or 'accel_x')",
+            rec.meta.get("path"),
+            channel="wheel_speed_fl",
+        )
     if src != "auto":
         if src not in cands:
-            raise InputError(f"acceleration source '{src}' unavailable: {skipped[src]}",
-                             rec.meta.get("path"), channel=_SOURCE_CHANNEL[src])
+            raise InputError(
+                f"acceleration source '{src}' unavailable: {skipped[src]}",
+                rec.meta.get("path"),
+                channel=_SOURCE_CHANNEL[src],
+            )
         cands = {src: cands[src]}
     first = next(iter(cands))
     has_brake = "brake_pedal" in rec
     ap_raw = np.asarray(rec["accel_pedal"], dtype=float)
     bp_raw = np.asarray(rec["brake_pedal"], dtype=float) if has_brake else np.zeros(len(rec))
-    return LongitudinalSignals(v, speed_src, cands[first][0], cands[first][1], d_ker, g_ker,
-                               ap_raw, bp_raw, has_brake, dt, first, cands, skipped)
+    return LongitudinalSignals(
+        v,
+        speed_src,
+        cands[first][0],
+        cands[first][1],
+        d_ker,
+        g_ker,
+        ap_raw,
+        bp_raw,
+        has_brake,
+        dt,
+        first,
+        cands,
+        skipped,
+    )
 
 
-def zone_masks(sig: LongitudinalSignals, zones, cfg: LongitudinalIdConfig,
-               accels=None) -> ZoneMasks:
+def zone_masks(
+    sig: LongitudinalSignals, zones, cfg: LongitudinalIdConfig, accels=None
+) -> ZoneMasks:
     """Zones by speed, and the samples usable for the fits: a sample is usable if its whole
     smoothing window shares its zone and is moving and finite (``sig.a_meas``, or every array
     of ``accels``)."""
@@ -222,7 +263,7 @@ def zone_masks(sig: LongitudinalSignals, zones, cfg: LongitudinalIdConfig,
     half = len(sig.d_ker) // 2 + 1
     zid = assign_zones(v, zones, cfg.hysteresis_mps)
     finite = np.isfinite(v) & np.isfinite(sig.ap_raw) & np.isfinite(sig.bp_raw)
-    for a in ([sig.a_meas] if accels is None else accels):
+    for a in [sig.a_meas] if accels is None else accels:
         finite &= np.isfinite(a)
     standstill = np.nan_to_num(v, nan=0.0) < cfg.v_stop_mps
     above = np.isfinite(v) & (v > zones[-1][2])
@@ -238,6 +279,10 @@ def lagged_pedals(sig: LongitudinalSignals, cfg: LongitudinalIdConfig) -> list:
     """The smoothed pedals (accelerator, brake) delayed by 0, 1, ... samples up to
     ``dead_time_max_s``: the lag grid of the dead time and the source choice."""
     dt = sig.dt_s
-    return [(sig.smooth(delayed(sig.ap_raw, lag * dt, dt)),
-             sig.smooth(delayed(sig.bp_raw, lag * dt, dt)))
-            for lag in range(int(round(cfg.dead_time_max_s / dt)) + 1)]
+    return [
+        (
+            sig.smooth(delayed(sig.ap_raw, lag * dt, dt)),
+            sig.smooth(delayed(sig.bp_raw, lag * dt, dt)),
+        )
+        for lag in range(int(round(cfg.dead_time_max_s / dt)) + 1)
+    ]

@@ -18,6 +18,7 @@ reconstructed by integrating the model from the measured speed at the start of e
 zone samples (runs cut at ``segment_s``, the MPC horizon scale of the report). The speed
 replay (:func:`speed_rmse`) is a score of the zone fit and lives beside it.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -50,8 +51,9 @@ def _runs(mask: np.ndarray, max_len: int):
             yield a, min(a + max_len, e)
 
 
-def speed_rmse(v_meas: np.ndarray, a_model: np.ndarray, mask: np.ndarray, dt_s: float,
-               segment_s: float) -> float:
+def speed_rmse(
+    v_meas: np.ndarray, a_model: np.ndarray, mask: np.ndarray, dt_s: float, segment_s: float
+) -> float:
     """RMS error [m/s] of the speed integrated from ``a_model`` over runs of ``mask``.
 
     Each run (cut at ``segment_s``) starts from the measured speed; the integrated speed never
@@ -69,11 +71,12 @@ def speed_rmse(v_meas: np.ndarray, a_model: np.ndarray, mask: np.ndarray, dt_s: 
     if not err:
         return float("nan")
     e = np.concatenate(err)
-    return float(np.sqrt(np.mean(e ** 2)))
+    return float(np.sqrt(np.mean(e**2)))
 
 
-def fos_candidates(rec: Recording, sig: LongitudinalSignals,
-                   ped: Pedals) -> tuple[list[str], np.ndarray]:
+def fos_candidates(
+    rec: Recording, sig: LongitudinalSignals, ped: Pedals
+) -> tuple[list[str], np.ndarray]:
     """The FOS candidate terms (module doc), smoothed: their names and matrix [N, M]."""
     n, dt, smooth = len(sig.v), sig.dt_s, sig.smooth
     cand = {"1": np.ones(n), "accel_pedal": ped.aps, "brake_pedal": ped.bps}
@@ -91,8 +94,9 @@ def fos_candidates(rec: Recording, sig: LongitudinalSignals,
 
 def _zone_design(aps: np.ndarray, bps: np.ndarray, use_a: bool, use_b: bool) -> np.ndarray:
     """Eq. 8's columns [1, accel_pedal (if used), -brake_pedal (if used)]."""
-    return np.column_stack([np.ones(len(aps))] + ([aps] if use_a else [])
-                           + ([-bps] if use_b else []))
+    return np.column_stack(
+        [np.ones(len(aps))] + ([aps] if use_a else []) + ([-bps] if use_b else [])
+    )
 
 
 def ols_timed(X: np.ndarray, alt_X: list, y: np.ndarray, m: np.ndarray):
@@ -115,8 +119,16 @@ def ols_timed(X: np.ndarray, alt_X: list, y: np.ndarray, m: np.ndarray):
     return r, ci, stat_hw, sys_hw
 
 
-def fit_zone(zi: int, zone, sig: LongitudinalSignals, masks: ZoneMasks, ped: Pedals,
-             names: list[str], P_all: np.ndarray, cfg: LongitudinalIdConfig) -> ZoneFit:
+def fit_zone(
+    zi: int,
+    zone,
+    sig: LongitudinalSignals,
+    masks: ZoneMasks,
+    ped: Pedals,
+    names: list[str],
+    P_all: np.ndarray,
+    cfg: LongitudinalIdConfig,
+) -> ZoneFit:
     """Eq. 8 by OLS with HAC intervals on one zone's usable samples, its metrics and the FOS
     term selection; a pedal term only when the pedal was pressed ``min_pressed_s`` in the zone.
     Not fitted (``fitted`` False) with less than ``min_zone_s`` of usable samples."""
@@ -125,12 +137,18 @@ def fit_zone(zi: int, zone, sig: LongitudinalSignals, masks: ZoneMasks, ped: Ped
     m = ~masks.bad & (masks.zid == zi)
     nz = int(m.sum())
     in_zone = np.isfinite(v) & (masks.zid == zi) & ~masks.standstill
-    rep: dict = {"name": zname, "v_min_mps": lo, "v_max_mps": hi, "samples": nz,
-                 "seconds_in_zone": float(in_zone.sum() * dt),
-                 "samples_excluded": int(in_zone.sum() - nz)}
+    rep: dict = {
+        "name": zname,
+        "v_min_mps": lo,
+        "v_max_mps": hi,
+        "samples": nz,
+        "seconds_in_zone": float(in_zone.sum() * dt),
+        "samples_excluded": int(in_zone.sum() - nz),
+    }
     if nz < cfg.min_samples(dt):
-        rep["not_fitted_because"] = (f"no usable data ({nz} samples, {nz * dt:.1f} s; "
-                                     f"{cfg.min_zone_s:g} s needed)")
+        rep["not_fitted_because"] = (
+            f"no usable data ({nz} samples, {nz * dt:.1f} s; {cfg.min_zone_s:g} s needed)"
+        )
         rep["note"] = f"{rep['not_fitted_because']}: not identified"
         return ZoneFit(None, False, rep)
     pressed_a = float(np.sum(m & (ped.ap > cfg.pressed)) * dt)
@@ -139,8 +157,9 @@ def fit_zone(zi: int, zone, sig: LongitudinalSignals, masks: ZoneMasks, ped: Ped
     use_a = pressed_a >= cfg.min_pressed_s
     use_b = sig.has_brake and pressed_b >= cfg.min_pressed_s
     X = _zone_design(ped.aps, ped.bps, use_a, use_b)
-    r, ci, stat_hw, sys_hw = ols_timed(X, [_zone_design(a, b, use_a, use_b) for a, b in ped.alt],
-                                       a_meas, m)
+    r, ci, stat_hw, sys_hw = ols_timed(
+        X, [_zone_design(a, b, use_a, use_b) for a, b in ped.alt], a_meas, m
+    )
     coef, ci = list(r.coef), list(ci)
     off, off_ci = coef.pop(0), ci.pop(0)
     sc, sc_ci = (coef.pop(0), ci.pop(0)) if use_a else (None, None)
@@ -148,28 +167,39 @@ def fit_zone(zi: int, zone, sig: LongitudinalSignals, masks: ZoneMasks, ped: Ped
     a_fit = X @ r.coef
     resid = a_meas[m] - a_fit[m]
     var = float(np.var(a_meas[m]))
-    nmse = 100.0 * float(np.mean(resid ** 2)) / var if var > 0 else float("nan")
+    nmse = 100.0 * float(np.mean(resid**2)) / var if var > 0 else float("nan")
     # model acceleration from the unsmoothed (delayed) pedals, for the speed reconstruction
     a_raw = off + (sc or 0.0) * np.nan_to_num(ped.ap) - (br or 0.0) * np.nan_to_num(ped.bp)
     srmse = speed_rmse(v, a_raw, m, dt, cfg.segment_s)
-    rep.update({
-        "offset_mps2": off, "offset_ci95_mps2": list(off_ci),
-        "scale_mps2": sc, "scale_ci95_mps2": None if sc_ci is None else list(sc_ci),
-        "brake_scale_mps2": br,
-        "brake_scale_ci95_mps2": None if br_ci is None else list(br_ci),
-        "nmse_pct": nmse, "speed_rmse_mps": srmse,
-        "accel_rms_mps2": float(np.sqrt(np.mean(a_meas[m] ** 2))),
-        "residual_rms_mps2": float(np.sqrt(np.mean(resid ** 2))),
-        "ci_method": r.method + " + half-sample pedal timing bound",
-        "ci_statistical_half_width": [float(x) for x in stat_hw],
-        "ci_timing_half_width": [float(x) for x in sys_hw],
-        "fos": _fos_report(m, a_meas, names, P_all, dt, cfg),
-    })
+    rep.update(
+        {
+            "offset_mps2": off,
+            "offset_ci95_mps2": list(off_ci),
+            "scale_mps2": sc,
+            "scale_ci95_mps2": None if sc_ci is None else list(sc_ci),
+            "brake_scale_mps2": br,
+            "brake_scale_ci95_mps2": None if br_ci is None else list(br_ci),
+            "nmse_pct": nmse,
+            "speed_rmse_mps": srmse,
+            "accel_rms_mps2": float(np.sqrt(np.mean(a_meas[m] ** 2))),
+            "residual_rms_mps2": float(np.sqrt(np.mean(resid**2))),
+            "ci_method": r.method + " + half-sample pedal timing bound",
+            "ci_statistical_half_width": [float(x) for x in stat_hw],
+            "ci_timing_half_width": [float(x) for x in sys_hw],
+            "fos": _fos_report(m, a_meas, names, P_all, dt, cfg),
+        }
+    )
     return ZoneFit(None, True, rep, a_fit)
 
 
-def _fos_report(m: np.ndarray, a_meas: np.ndarray, names: list[str], P_all: np.ndarray,
-                dt: float, cfg: LongitudinalIdConfig) -> dict | None:
+def _fos_report(
+    m: np.ndarray,
+    a_meas: np.ndarray,
+    names: list[str],
+    P_all: np.ndarray,
+    dt: float,
+    cfg: LongitudinalIdConfig,
+) -> dict | None:
     """FOS term selection on a zone's samples ``m`` (None with fewer than 20 complete rows).
 
     Candidates missing on more than 10% of the zone's samples are left out (e.g. an ACC
@@ -183,10 +213,20 @@ def _fos_report(m: np.ndarray, a_meas: np.ndarray, names: list[str], P_all: np.n
     # hold-out blocks of fos_block_s, shortened so that even a short zone keeps some
     block = max(min(int(round(cfg.fos_block_s / dt)), int(mf.sum()) // 8), 5)
     Pz = P_all[np.ix_(mf, keep)]
-    fr = fos(Pz, a_meas[mf], [names[j] for j in keep], force=["1"],
-             max_terms=cfg.fos_max_terms, block_len=block)
+    fr = fos(
+        Pz,
+        a_meas[mf],
+        [names[j] for j in keep],
+        force=["1"],
+        max_terms=cfg.fos_max_terms,
+        block_len=block,
+    )
     var_f = float(np.var(a_meas[mf]))
-    return {**fr.to_dict(), "samples": int(mf.sum()),
-            "nmse_pct": 100.0 * float(np.mean((a_meas[mf] - fr.predict(Pz)) ** 2))
-            / var_f if var_f > 0 else None,
-            "candidates_left_out": [names[j] for j in range(len(names)) if j not in keep]}
+    return {
+        **fr.to_dict(),
+        "samples": int(mf.sum()),
+        "nmse_pct": 100.0 * float(np.mean((a_meas[mf] - fr.predict(Pz)) ** 2)) / var_f
+        if var_f > 0
+        else None,
+        "candidates_left_out": [names[j] for j in range(len(names)) if j not in keep],
+    }

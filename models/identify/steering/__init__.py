@@ -28,24 +28,62 @@ controller or tools. Inside the package the modules import one way:
 config, kinematics <- signals <- deadtime, fits <- replay, identifiable, reconcile <- selection
 <- identify.
 """
+
 from hmpc.models.identify.steering.config import SteeringIdConfig
-from hmpc.models.identify.steering.kinematics import (rear_axle_speed, road_wheel_angle_from_front,
-                                                      road_wheel_angle_from_yaw)
-from hmpc.models.identify.steering.signals import (SampleMasks, SteeringSignals,
-                                                   steering_signals, trustworthy_samples)
-from hmpc.models.identify.steering.deadtime import (DeadTime, dead_time_cv, delayed,
-                                                    estimate_dead_time, xcorr_dead_time)
+from hmpc.models.identify.steering.kinematics import (
+    rear_axle_speed,
+    road_wheel_angle_from_front,
+    road_wheel_angle_from_yaw,
+)
+from hmpc.models.identify.steering.signals import (
+    SampleMasks,
+    SteeringSignals,
+    steering_signals,
+    trustworthy_samples,
+)
+from hmpc.models.identify.steering.deadtime import (
+    DeadTime,
+    dead_time_cv,
+    delayed,
+    estimate_dead_time,
+    xcorr_dead_time,
+)
 from hmpc.models.identify.steering.fits import MapFit, direct_fits
 from hmpc.models.identify.steering.identifiable import identifiability, understeer_testability
-from hmpc.models.identify.steering.reconcile import (SENSOR_HEADLINE, disagreement,
-                                                     negative_gains, sensor_comparison)
+from hmpc.models.identify.steering.reconcile import (
+    SENSOR_HEADLINE,
+    disagreement,
+    negative_gains,
+    sensor_comparison,
+)
 from hmpc.models.identify.steering.selection import agreement_a_b, choose_fit, cross_validate
 from hmpc.models.identify.steering.identify import SteeringResult, identify_steering
 
-__all__ = ["SteeringIdConfig", "SteeringResult", "MapFit", "identify_steering",
-           "SteeringSignals", "SampleMasks", "DeadTime", "steering_signals", "trustworthy_samples",
-           "estimate_dead_time", "dead_time_cv", "direct_fits", "rear_axle_speed", "choose_fit",
-           "cross_validate", "disagreement", "agreement_a_b", "negative_gains",
-           "sensor_comparison", "understeer_testability", "SENSOR_HEADLINE",
-           "identifiability", "road_wheel_angle_from_front", "road_wheel_angle_from_yaw",
-           "xcorr_dead_time", "delayed"]
+__all__ = [
+    "SteeringIdConfig",
+    "SteeringResult",
+    "MapFit",
+    "identify_steering",
+    "SteeringSignals",
+    "SampleMasks",
+    "DeadTime",
+    "steering_signals",
+    "trustworthy_samples",
+    "estimate_dead_time",
+    "dead_time_cv",
+    "direct_fits",
+    "rear_axle_speed",
+    "choose_fit",
+    "cross_validate",
+    "disagreement",
+    "agreement_a_b",
+    "negative_gains",
+    "sensor_comparison",
+    "understeer_testability",
+    "SENSOR_HEADLINE",
+    "identifiability",
+    "road_wheel_angle_from_front",
+    "road_wheel_angle_from_yaw",
+    "xcorr_dead_time",
+    "delayed",
+]

@@ -2,6 +2,7 @@
 its number, and their scaling to the vehicle's size (:meth:`SteeringIdConfig.for_vehicle`).
 Imports nothing of hmpc.
 """
+
 from __future__ import annotations
 
 import math
@@ -132,8 +133,9 @@ class SteeringIdConfig:
         known = {f.name for f in fields(cls)}
         bad = [k for k in overrides if k not in known]
         if bad:
-            raise ValueError(f"unknown steering threshold '{bad[0]}' (one of "
-                             f"{', '.join(sorted(known))})")
+            raise ValueError(
+                f"unknown steering threshold '{bad[0]}' (one of {', '.join(sorted(known))})"
+            )
         f = min(1.0, float(vehicle.wheelbase_m) / REFERENCE_WHEELBASE_M)
         base = cls()
         scaled = {}

@@ -7,6 +7,7 @@ error is not worse than the best lag's beyond the fold-to-fold noise (fold-paire
 a delay is used only when lag 0 lies outside it; otherwise it is "not determined" and 0 is
 used. The fits use the steering-wheel angle delayed by it (:func:`delayed`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -37,8 +38,15 @@ def delayed(x: np.ndarray, delay_s: float, dt_s: float) -> np.ndarray:
     return out
 
 
-def xcorr_dead_time(u: np.ndarray, y: np.ndarray, mask: np.ndarray, dt_s: float, *,
-                    min_lag_s: float, max_lag_s: float) -> tuple[float, float]:
+def xcorr_dead_time(
+    u: np.ndarray,
+    y: np.ndarray,
+    mask: np.ndarray,
+    dt_s: float,
+    *,
+    min_lag_s: float,
+    max_lag_s: float,
+) -> tuple[float, float]:
     """Lag [s] at which ``corr(u(t - lag), y(t))`` peaks over ``mask``, and the peak correlation.
 
     Both series are mean-removed over ``mask`` and zero elsewhere; the correlation at each lag
@@ -53,15 +61,15 @@ def xcorr_dead_time(u: np.ndarray, y: np.ndarray, mask: np.ndarray, dt_s: float,
     lags = np.arange(int(np.floor(min_lag_s / dt_s)), int(np.ceil(max_lag_s / dt_s)) + 1)
     nfft = 1 << int(np.ceil(np.log2(2 * n)))
     A, C = np.fft.rfft(a, nfft), np.fft.rfft(c, nfft)
-    cc = np.fft.irfft(C * np.conj(A), nfft)       # cc[l] = sum_t y[t] u[t - l]
+    cc = np.fft.irfft(C * np.conj(A), nfft)  # cc[l] = sum_t y[t] u[t - l]
     a2 = np.fft.irfft(np.fft.rfft(a * a, nfft) * np.conj(np.fft.rfft(m.astype(float), nfft)), nfft)
     c2 = np.fft.irfft(np.fft.rfft(c * c, nfft) * np.conj(np.fft.rfft(m.astype(float), nfft)), nfft)
     # energy of u over samples t-l with t in mask and of y over t with t-l in mask
     vals: list[float] = []
     for lag_i in lags:
         num = cc[lag_i % nfft]
-        ea = a2[(-lag_i) % nfft]   # sum_t a[t-l]^2 m[t]
-        ec = c2[lag_i % nfft]      # sum_t c[t]^2 m[t-l]
+        ea = a2[(-lag_i) % nfft]  # sum_t a[t-l]^2 m[t]
+        ec = c2[lag_i % nfft]  # sum_t c[t]^2 m[t-l]
         vals.append(num / np.sqrt(ea * ec) if ea > 0 and ec > 0 else 0.0)
     scores = np.array(vals)
     k = int(np.argmax(scores))
@@ -103,33 +111,44 @@ class DeadTime:
         def fin(v):
             return float(v) if np.isfinite(v) else None
 
-        return {"estimate_s": fin(self.estimate_s), "interval_s": [fin(v) for v in self.interval_s],
-                "used": self.used, "determined": self.used,
-                "note": (f"dead time {self.tau_s:.3f} s" if self.used else
-                         "not determined: no lag predicts held-out data better than no delay "
-                         "beyond the fold-to-fold noise"),
-                "source": self.source, "peak_correlation": fin(self.peak_corr),
-                "by_source": {k: {"lag_s": fin(v[0]), "peak_correlation": fin(v[1])}
-                              for k, v in self.by_source.items()},
-                "cv": self.cv,
-                "method": "blocked cross-validation of eq. 7 over a one-sample lag grid "
-                          "(fold-paired t-test against the best lag; parabolic refinement); "
-                          "cross-check: cross-correlation of Savitzky-Golay derivatives "
-                          f"({smooth_s} s)"}
+        return {
+            "estimate_s": fin(self.estimate_s),
+            "interval_s": [fin(v) for v in self.interval_s],
+            "used": self.used,
+            "determined": self.used,
+            "note": (
+                f"dead time {self.tau_s:.3f} s"
+                if self.used
+                else "not determined: no lag predicts held-out data better than no delay "
+                "beyond the fold-to-fold noise"
+            ),
+            "source": self.source,
+            "peak_correlation": fin(self.peak_corr),
+            "by_source": {
+                k: {"lag_s": fin(v[0]), "peak_correlation": fin(v[1])}
+                for k, v in self.by_source.items()
+            },
+            "cv": self.cv,
+            "method": "blocked cross-validation of eq. 7 over a one-sample lag grid "
+            "(fold-paired t-test against the best lag; parabolic refinement); "
+            "cross-check: cross-correlation of Savitzky-Golay derivatives "
+            f"({smooth_s} s)",
+        }
 
 
 def _shifted(x: np.ndarray, lag: int) -> np.ndarray:
     """``x[t - lag]`` on the same grid (integer lag in samples), NaN where it reaches outside."""
     out = np.full(len(x), np.nan)
     if lag >= 0:
-        out[lag:] = x[:len(x) - lag]
+        out[lag:] = x[: len(x) - lag]
     else:
         out[:lag] = x[-lag:]
     return out
 
 
-def dead_time_cv(sw: np.ndarray, meas: np.ndarray, mask: np.ndarray, dt_s: float,
-                 cfg: SteeringIdConfig) -> dict | None:
+def dead_time_cv(
+    sw: np.ndarray, meas: np.ndarray, mask: np.ndarray, dt_s: float, cfg: SteeringIdConfig
+) -> dict | None:
     """Held-out evidence for a steering dead time, on a one-sample lag grid.
 
     For each lag L in [``dead_time_min_s``, ``dead_time_max_s``] eq. 7 (linear) is fitted to the
@@ -142,8 +161,10 @@ def dead_time_cv(sw: np.ndarray, meas: np.ndarray, mask: np.ndarray, dt_s: float
     sample beyond the grid lags at its ends (the grid's resolution). None: too few samples.
     """
     n = len(sw)
-    lags = np.arange(int(np.ceil(cfg.dead_time_min_s / dt_s - 1e-9)),
-                     int(np.floor(cfg.dead_time_max_s / dt_s + 1e-9)) + 1)
+    lags = np.arange(
+        int(np.ceil(cfg.dead_time_min_s / dt_s - 1e-9)),
+        int(np.floor(cfg.dead_time_max_s / dt_s + 1e-9)) + 1,
+    )
     K = max(3, int(cfg.dead_time_cv_folds))
     fold = np.minimum(np.arange(n) * K // n, K - 1)
     xs = [_shifted(sw, int(L)) for L in lags]
@@ -189,17 +210,23 @@ def dead_time_cv(sw: np.ndarray, meas: np.ndarray, mask: np.ndarray, dt_s: float
     j0 = int(np.flatnonzero(lags == 0)[0]) if 0 in lags else None
     used = j0 is not None and not within[j0]
     # the grid resolves lags to one sample: the interval reaches half a sample beyond its ends
-    return {"best_s": best * dt_s,
-            "interval_s": [(float(lags[lo]) - 0.5) * dt_s, (float(lags[hi]) + 0.5) * dt_s],
-            "used": bool(used), "folds": int(Kk), "samples": int(ok.sum()),
-            "excess_at_zero": (float(D[j0].mean() / mean[jb]) if j0 is not None
-                               and mean[jb] > 0 else None),
-            "excess_at_zero_t": (float(D[j0].mean() / se[j0]) if j0 is not None and se[j0] > 0
-                                 else None), "t_critical": crit}
+    return {
+        "best_s": best * dt_s,
+        "interval_s": [(float(lags[lo]) - 0.5) * dt_s, (float(lags[hi]) + 0.5) * dt_s],
+        "used": bool(used),
+        "folds": int(Kk),
+        "samples": int(ok.sum()),
+        "excess_at_zero": (
+            float(D[j0].mean() / mean[jb]) if j0 is not None and mean[jb] > 0 else None
+        ),
+        "excess_at_zero_t": (
+            float(D[j0].mean() / se[j0]) if j0 is not None and se[j0] > 0 else None
+        ),
+        "t_critical": crit,
+    }
 
 
-def estimate_dead_time(sig: SteeringSignals, usable: np.ndarray,
-                       cfg: SteeringIdConfig) -> DeadTime:
+def estimate_dead_time(sig: SteeringSignals, usable: np.ndarray, cfg: SteeringIdConfig) -> DeadTime:
     """Dead time: each measured road-wheel angle (wheel speeds; yaw rate) is cross-correlated
     with the steering-wheel angle (a cross-check, derivatives); the source with the best peak is
     then cross-validated over the lag grid (:func:`dead_time_cv`), which decides whether a
@@ -214,13 +241,22 @@ def estimate_dead_time(sig: SteeringSignals, usable: np.ndarray,
     nan = float("nan")
     if not meas:
         return DeadTime(0.0, nan, nan, False, "none (no measured road-wheel angle)", {})
-    dead = {k: xcorr_dead_time(d_sw, savgol_derivative(m, dt, cfg.smooth_s), usable, dt,
-                               min_lag_s=cfg.dead_time_min_s, max_lag_s=cfg.dead_time_max_s)
-            for k, m in meas.items()}
+    dead = {
+        k: xcorr_dead_time(
+            d_sw,
+            savgol_derivative(m, dt, cfg.smooth_s),
+            usable,
+            dt,
+            min_lag_s=cfg.dead_time_min_s,
+            max_lag_s=cfg.dead_time_max_s,
+        )
+        for k, m in meas.items()
+    }
     src = max(dead, key=lambda k: np.nan_to_num(dead[k][1], nan=-1))
     cv = dead_time_cv(sig.sw, meas[src], usable, dt, cfg)
     if cv is None:
         return DeadTime(0.0, nan, dead[src][1], False, src, dead)
     tau = cv["best_s"] if cv["used"] else 0.0
-    return DeadTime(float(tau), cv["best_s"], dead[src][1], cv["used"], src, dead,
-                    tuple(cv["interval_s"]), cv)
+    return DeadTime(
+        float(tau), cv["best_s"], dead[src][1], cv["used"], src, dead, tuple(cv["interval_s"]), cv
+    )

@@ -20,6 +20,7 @@ follow from it and the yaw rate.
 **Intervals**: 95%, from sandwich covariances that allow correlated residuals
 (``models.identify.stats``) over time-block clusters, Student-t critical values.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -28,8 +29,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import t as student_t
 
-from hmpc.models.identify.stats import (Z95, block_cov, ols_hac, quantisation_cov,
-                                       quantisation_step)
+from hmpc.models.identify.stats import Z95, block_cov, ols_hac, quantisation_cov, quantisation_step
 from hmpc.models.identify.steering.config import SteeringIdConfig
 from hmpc.models.identify.steering.kinematics import rear_axle_speed, road_wheel_angle_from_yaw
 from hmpc.models.identify.steering.signals import SteeringSignals
@@ -52,20 +52,36 @@ class MapFit:
     extra: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return {"method": self.method, "offset_rad": self.offset_rad, "scale": self.scale,
-                "offset_ci95_rad": list(self.offset_ci95_rad), "scale_ci95": list(self.scale_ci95),
-                "offset_scale_correlation": self.corr, "samples": self.samples,
-                f"rms_error_{self.rms_unit}": self.rms_error, "ci_method": self.ci_method,
-                **self.extra}
+        return {
+            "method": self.method,
+            "offset_rad": self.offset_rad,
+            "scale": self.scale,
+            "offset_ci95_rad": list(self.offset_ci95_rad),
+            "scale_ci95": list(self.scale_ci95),
+            "offset_scale_correlation": self.corr,
+            "samples": self.samples,
+            f"rms_error_{self.rms_unit}": self.rms_error,
+            "ci_method": self.ci_method,
+            **self.extra,
+        }
 
 
 def _fit_front(delta_a, sw_d, steady) -> MapFit:
     X = np.column_stack([np.ones_like(sw_d), sw_d])
     r = ols_hac(X, delta_a, steady)
-    return MapFit("wheel_speed_difference", float(r.coef[0]), float(r.coef[1]),
-                  (float(r.ci95[0, 0]), float(r.ci95[0, 1])),
-                  (float(r.ci95[1, 0]), float(r.ci95[1, 1])), float(r.corr[0, 1]), r.n,
-                  r.rmse, "rad", r.method, {"condition_number": r.cond})
+    return MapFit(
+        "wheel_speed_difference",
+        float(r.coef[0]),
+        float(r.coef[1]),
+        (float(r.ci95[0, 0]), float(r.ci95[0, 1])),
+        (float(r.ci95[1, 0]), float(r.ci95[1, 1])),
+        float(r.corr[0, 1]),
+        r.n,
+        r.rmse,
+        "rad",
+        r.method,
+        {"condition_number": r.cond},
+    )
 
 
 def _fit_yaw(yaw, v, sw_d, steady, b, x0, k_max: float | None = None) -> MapFit:
@@ -90,10 +106,13 @@ def _fit_yaw(yaw, v, sw_d, steady, b, x0, k_max: float | None = None) -> MapFit:
 
     if fit_k:
         assert k_max is not None
-        sol = least_squares(res, np.array([x0[0], x0[1], 0.0, 0.25 * k_max]), method="trf",
-                            bounds=([-np.inf, -np.inf, -np.inf, 0.0],
-                                    [np.inf, np.inf, np.inf, k_max]),
-                            x_scale=np.array([0.01, 0.01, 0.001, 0.1]))
+        sol = least_squares(
+            res,
+            np.array([x0[0], x0[1], 0.0, 0.25 * k_max]),
+            method="trf",
+            bounds=([-np.inf, -np.inf, -np.inf, 0.0], [np.inf, np.inf, np.inf, k_max]),
+            x_scale=np.array([0.01, 0.01, 0.001, 0.1]),
+        )
     else:
         sol = least_squares(res, np.array([x0[0], x0[1], 0.0]), method="lm")
     th = sol.x
@@ -114,25 +133,38 @@ def _fit_yaw(yaw, v, sw_d, steady, b, x0, k_max: float | None = None) -> MapFit:
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     d = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
     corr = np.divide(cov, d, out=np.zeros_like(cov), where=d > 0)
-    extra = {"yaw_rate_bias_radps": float(th[2]),
-             "yaw_rate_bias_ci95_radps": [float(th[2] - crit * se[2]),
-                                          float(th[2] + crit * se[2])],
-             "offset_bias_correlation": float(corr[0, 2])}
+    extra = {
+        "yaw_rate_bias_radps": float(th[2]),
+        "yaw_rate_bias_ci95_radps": [float(th[2] - crit * se[2]), float(th[2] + crit * se[2])],
+        "offset_bias_correlation": float(corr[0, 2]),
+    }
     if fit_k:
         assert k_max is not None
         k, hk = float(th[3]), float(crit * se[3])
-        extra.update({"speed_point_k": k, "speed_point_k_ci95": [k - hk, k + hk],
-                      "speed_point_x_m": float(b * np.sqrt(k)),
-                      "speed_point_source": "estimated with the map: |x| of the speed's point "
-                                            "from the rear axle (the sign is not observable)",
-                      "speed_point_at_bound": bool(min(k, k_max - k) < 1e-6)})
-    return MapFit("yaw_rate", float(th[0]), float(th[1]),
-                  (float(th[0] - crit * se[0]), float(th[0] + crit * se[0])),
-                  (float(th[1] - crit * se[1]), float(th[1] + crit * se[1])), float(corr[0, 1]),
-                  len(i), float(np.sqrt(np.mean(sol.fun ** 2))), "radps",
-                  f"time-block cluster-robust sandwich (Jacobian), t({G - 1})"
-                  + (f" + rounding of the yaw rate ({q:.2g} rad/s steps)" if q is not None else ""),
-                  extra)
+        extra.update(
+            {
+                "speed_point_k": k,
+                "speed_point_k_ci95": [k - hk, k + hk],
+                "speed_point_x_m": float(b * np.sqrt(k)),
+                "speed_point_source": "estimated with the map: |x| of the speed's point "
+                "from the rear axle (the sign is not observable)",
+                "speed_point_at_bound": bool(min(k, k_max - k) < 1e-6),
+            }
+        )
+    return MapFit(
+        "yaw_rate",
+        float(th[0]),
+        float(th[1]),
+        (float(th[0] - crit * se[0]), float(th[0] + crit * se[0])),
+        (float(th[1] - crit * se[1]), float(th[1] + crit * se[1])),
+        float(corr[0, 1]),
+        len(i),
+        float(np.sqrt(np.mean(sol.fun**2))),
+        "radps",
+        f"time-block cluster-robust sandwich (Jacobian), t({G - 1})"
+        + (f" + rounding of the yaw rate ({q:.2g} rad/s steps)" if q is not None else ""),
+        extra,
+    )
 
 
 def _speed_point_update(sig: SteeringSignals, fit: MapFit) -> None:
@@ -146,8 +178,14 @@ def _speed_point_update(sig: SteeringSignals, fit: MapFit) -> None:
     sig.v_front = np.hypot(sig.v_rear, sig.b * r)
 
 
-def _fit_direct(sig: SteeringSignals, sw_d: np.ndarray, mask: np.ndarray, cfg: SteeringIdConfig,
-                methods=("wheel_speed_difference", "yaw_rate"), start=None) -> dict[str, MapFit]:
+def _fit_direct(
+    sig: SteeringSignals,
+    sw_d: np.ndarray,
+    mask: np.ndarray,
+    cfg: SteeringIdConfig,
+    methods=("wheel_speed_difference", "yaw_rate"),
+    start=None,
+) -> dict[str, MapFit]:
     """The direct fits the channels support, on ``mask``: (a) on the wheel-speed angle, (b) on
     the yaw rate (started from (a), ``start``, or a linear fit of its own angle; the speed's
     point estimated when unknown). A yaw-rate fit that does not converge is left out."""
@@ -159,18 +197,29 @@ def _fit_direct(sig: SteeringSignals, sw_d: np.ndarray, mask: np.ndarray, cfg: S
         try:
             if x0 is None:
                 assert sig.v_src is not None  # the yaw-rate method needs a speed
-                x0 = _fit_front(road_wheel_angle_from_yaw(sig.yaw, sig.v_src, sig.b), sw_d,
-                                mask & np.isfinite(sig.v_src) & (np.nan_to_num(sig.v_src) > 0))
+                x0 = _fit_front(
+                    road_wheel_angle_from_yaw(sig.yaw, sig.v_src, sig.b),
+                    sw_d,
+                    mask & np.isfinite(sig.v_src) & (np.nan_to_num(sig.v_src) > 0),
+                )
             k_max = cfg.speed_point_k_max if sig.speed_point_unknown else None
-            fits["yaw_rate"] = _fit_yaw(sig.yaw, sig.v_src if k_max else sig.v_rear, sw_d,
-                                        mask, sig.b, (x0.offset_rad, x0.scale), k_max)
+            fits["yaw_rate"] = _fit_yaw(
+                sig.yaw,
+                sig.v_src if k_max else sig.v_rear,
+                sw_d,
+                mask,
+                sig.b,
+                (x0.offset_rad, x0.scale),
+                k_max,
+            )
         except (ValueError, np.linalg.LinAlgError):
             pass
     return fits
 
 
-def direct_fits(sig: SteeringSignals, sw_d: np.ndarray, steady: np.ndarray,
-                cfg: SteeringIdConfig | None = None) -> dict[str, MapFit]:
+def direct_fits(
+    sig: SteeringSignals, sw_d: np.ndarray, steady: np.ndarray, cfg: SteeringIdConfig | None = None
+) -> dict[str, MapFit]:
     """The direct fits of eq. 7 on the trustworthy samples (:func:`_fit_direct`); a yaw-rate
     fit that estimated its speed's point updates ``sig``'s axle speeds."""
     fits = _fit_direct(sig, sw_d, steady, cfg or SteeringIdConfig())
@@ -183,6 +232,9 @@ def _yaw_angle(sig: SteeringSignals, fit: MapFit) -> np.ndarray:
     """The yaw-rate road-wheel angle [rad] with ``fit``'s gyro bias (and speed point) applied."""
     bias = fit.extra["yaw_rate_bias_radps"]
     k = fit.extra.get("speed_point_k")
-    v_r = sig.v_rear if k is None else rear_axle_speed(sig.v_src, sig.yaw - bias,
-                                                       (sig.b * np.sqrt(k), 0.0))
+    v_r = (
+        sig.v_rear
+        if k is None
+        else rear_axle_speed(sig.v_src, sig.yaw - bias, (sig.b * np.sqrt(k), 0.0))
+    )
     return road_wheel_angle_from_yaw(sig.yaw, v_r, sig.b, bias)

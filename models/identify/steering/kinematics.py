@@ -19,13 +19,15 @@ road-wheel angle delta of the virtual middle tyre follow:
 
 Imports numpy only.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 
-def road_wheel_angle_from_front(fl_mps, fr_mps, wheelbase_m: float,
-                                track_front_m: float) -> tuple[np.ndarray, np.ndarray]:
+def road_wheel_angle_from_front(
+    fl_mps, fr_mps, wheelbase_m: float, track_front_m: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(a) Road-wheel angle [rad] and front-axle-centre speed [m/s] from the front wheel speeds.
 
     Exact inverse of the no-slip rigid-body relations (module doc), in closed form: with
@@ -51,8 +53,9 @@ def road_wheel_angle_from_front(fl_mps, fr_mps, wheelbase_m: float,
     return np.where(moving, delta, np.nan), np.where(np.isfinite(Q), v, np.nan)
 
 
-def road_wheel_angle_from_yaw(yaw_rate_radps, v_rear_mps, wheelbase_m: float,
-                              yaw_bias_radps: float = 0.0) -> np.ndarray:
+def road_wheel_angle_from_yaw(
+    yaw_rate_radps, v_rear_mps, wheelbase_m: float, yaw_bias_radps: float = 0.0
+) -> np.ndarray:
     """(b) Road-wheel angle [rad] = atan(b (r - bias) / v_R), v_R the rear-axle speed [m/s]."""
     r = np.asarray(yaw_rate_radps, dtype=float) - yaw_bias_radps
     v = np.asarray(v_rear_mps, dtype=float)

@@ -12,6 +12,7 @@ separated from the map the replay is marked untrusted and never chosen. Its 95% 
 come from the cluster-robust sandwich with the replay windows as clusters
 (``models.identify.stats.cluster_cov``), Student-t critical values.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -55,7 +56,7 @@ class _Replay:
         self.inwin = self.win_id >= 0
         sel = np.zeros(len(x), dtype=bool)
         for i0, i1 in windows:
-            sel[i0 + stride:i1:stride] = True
+            sel[i0 + stride : i1 : stride] = True
         self.res_idx = np.flatnonzero(sel)
         self.groups = np.concatenate([self.win_id[self.res_idx]] * 2)
         self.x, self.y, self.psi, self.v = x, y, psi, v
@@ -105,14 +106,29 @@ def _fit_replay(rec, v_front, sw_d, usable, dt, b, cfg, x0, lever=None):
     wins = _windows(ok, n_win)
     if len(wins) < 3:
         return None, 0
-    rp = _Replay(wins, x, y, np.unwrap(np.nan_to_num(psi)), np.nan_to_num(v_front),
-                 np.nan_to_num(sw_d), dt, b, max(1, cfg.replay_stride), lever)
+    rp = _Replay(
+        wins,
+        x,
+        y,
+        np.unwrap(np.nan_to_num(psi)),
+        np.nan_to_num(v_front),
+        np.nan_to_num(sw_d),
+        dt,
+        b,
+        max(1, cfg.replay_stride),
+        lever,
+    )
     theta0 = np.asarray(x0, dtype=float)[:2]
     if lever is None:
         lo_x, hi_x = cfg.lever_arm_x_bounds_m[0], b + cfg.lever_arm_x_bounds_m[1]
         theta0 = np.append(theta0, 0.5 * b)
-        sol = least_squares(rp.residuals, theta0, method="trf", x_scale=np.array([0.01, 0.01, 1.0]),
-                            bounds=([-np.inf, -np.inf, lo_x], [np.inf, np.inf, hi_x]))
+        sol = least_squares(
+            rp.residuals,
+            theta0,
+            method="trf",
+            x_scale=np.array([0.01, 0.01, 1.0]),
+            bounds=([-np.inf, -np.inf, lo_x], [np.inf, np.inf, hi_x]),
+        )
     else:
         sol = least_squares(rp.residuals, theta0, method="lm", x_scale=np.array([0.01, 0.01]))
     if lever is None:
@@ -124,17 +140,27 @@ def _fit_replay(rec, v_front, sw_d, usable, dt, b, cfg, x0, lever=None):
     d = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
     corr_m = np.divide(cov, d, out=np.zeros_like(cov), where=d > 0)
     corr = float(corr_m[0, 1])
-    extra = {"windows": G, "window_s": cfg.window_s, "status": int(sol.status),
-             "initial": [float(v) for v in x0], "trusted": True}
+    extra = {
+        "windows": G,
+        "window_s": cfg.window_s,
+        "status": int(sol.status),
+        "initial": [float(v) for v in x0],
+        "trusted": True,
+    }
     if lever is not None:
         extra["nav_lever_arm_m"] = [float(lever[0]), float(lever[1])]
         extra["lever_arm_source"] = "geometry (vehicle.nav_lever_arm_m)"
     else:
         lx, half = float(sol.x[2]), float(crit * se[2])
         c_lever = float(np.max(np.abs(corr_m[2, :2])))
-        extra.update({"nav_lever_arm_m": [lx, 0.0], "lever_arm_x_ci95_m": [lx - half, lx + half],
-                      "lever_arm_source": "estimated with the map (y taken as 0)",
-                      "lever_arm_map_correlation": c_lever})
+        extra.update(
+            {
+                "nav_lever_arm_m": [lx, 0.0],
+                "lever_arm_x_ci95_m": [lx - half, lx + half],
+                "lever_arm_source": "estimated with the map (y taken as 0)",
+                "lever_arm_map_correlation": c_lever,
+            }
+        )
         why = []
         if c_lever > cfg.max_param_corr:
             why.append(f"the lever arm's x is correlated {c_lever:.3f} with the map")
@@ -144,11 +170,21 @@ def _fit_replay(rec, v_front, sw_d, usable, dt, b, cfg, x0, lever=None):
             why.append(f"the lever arm's x ({lx:.2f} m) is at its bound")
         if why:
             extra["trusted"] = False
-            extra["untrusted_because"] = ("the position's reference point is not in the geometry "
-                                          "(vehicle.nav_lever_arm_m) and " + "; ".join(why))
-    fit = MapFit("position_replay", float(sol.x[0]), float(sol.x[1]),
-                 (float(sol.x[0] - crit * se[0]), float(sol.x[0] + crit * se[0])),
-                 (float(sol.x[1] - crit * se[1]), float(sol.x[1] + crit * se[1])), corr,
-                 len(rp.res_idx), float(np.sqrt(np.mean(sol.fun ** 2))), "m",
-                 f"cluster-robust sandwich over {G} replay windows, t({G - 1})", extra)
+            extra["untrusted_because"] = (
+                "the position's reference point is not in the geometry "
+                "(vehicle.nav_lever_arm_m) and " + "; ".join(why)
+            )
+    fit = MapFit(
+        "position_replay",
+        float(sol.x[0]),
+        float(sol.x[1]),
+        (float(sol.x[0] - crit * se[0]), float(sol.x[0] + crit * se[0])),
+        (float(sol.x[1] - crit * se[1]), float(sol.x[1] + crit * se[1])),
+        corr,
+        len(rp.res_idx),
+        float(np.sqrt(np.mean(sol.fun**2))),
+        "m",
+        f"cluster-robust sandwich over {G} replay windows, t({G - 1})",
+        extra,
+    )
     return (fit, rp, sol.x), G

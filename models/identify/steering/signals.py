@@ -20,6 +20,7 @@ than ``MIN_FIT_SAMPLES`` pass (a fast slalom: beyond the tyres' linear range at 
 steering fast in between), the fits take the samples without the transient check, else every
 moving forward sample, and the map is NOT identifiable with what was let in named.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -31,8 +32,11 @@ from hmpc.models.params import Vehicle
 from hmpc.models.logs.recording import Recording
 from hmpc.models.identify.stats import dilate, savgol_derivative
 from hmpc.models.identify.steering.config import SteeringIdConfig
-from hmpc.models.identify.steering.kinematics import (rear_axle_speed, road_wheel_angle_from_front,
-                                                      road_wheel_angle_from_yaw)
+from hmpc.models.identify.steering.kinematics import (
+    rear_axle_speed,
+    road_wheel_angle_from_front,
+    road_wheel_angle_from_yaw,
+)
 
 
 #: the four wheel speeds, which the wheel-speed-difference method needs
@@ -100,8 +104,9 @@ class SampleMasks:
     relaxed: str | None = None
 
 
-def _dropped(masks: list[tuple[str, np.ndarray, float | None, str]],
-             steady: np.ndarray) -> list[dict]:
+def _dropped(
+    masks: list[tuple[str, np.ndarray, float | None, str]], steady: np.ndarray
+) -> list[dict]:
     """Each sample not in ``steady`` counted under the first of ``masks`` (reason, mask,
     threshold, text) that holds for it; reasons that drop nothing are left out."""
     left = ~steady
@@ -112,8 +117,9 @@ def _dropped(masks: list[tuple[str, np.ndarray, float | None, str]],
         if n:
             out.append({"reason": reason, "samples": n, "threshold": threshold, "text": text})
     if left.any():  # nothing above: never expected; counted so that the total holds
-        out.append({"reason": "other", "samples": int(left.sum()), "threshold": None,
-                    "text": "other"})
+        out.append(
+            {"reason": "other", "samples": int(left.sum()), "threshold": None, "text": "other"}
+        )
     return out
 
 
@@ -121,7 +127,8 @@ def dropped_text(dropped: list[dict], total: int) -> str:
     """One line: how many of ``total`` samples each reason dropped, largest first."""
     parts = [f"{d['samples']} {d['text']}" for d in sorted(dropped, key=lambda d: -d["samples"])]
     return f"dropped {sum(d['samples'] for d in dropped)} of {total}: " + (
-        "; ".join(parts) if parts else "none")
+        "; ".join(parts) if parts else "none"
+    )
 
 
 def steering_signals(rec: Recording, vehicle: Vehicle) -> SteeringSignals:
@@ -153,10 +160,14 @@ def steering_signals(rec: Recording, vehicle: Vehicle) -> SteeringSignals:
         kw["v_src"] = v_rear
     else:
         fl = fr = rl = rr = delta_a = None
-        skipped["wheel_speed_difference"] = (f"no channel '{missing_ws}' (needs the four wheel "
-                                             "speeds)")
-        src = ("gps_speed" if lever is not None and yaw is not None and "gps_speed" in rec
-               else next((c for c in SPEED_CHANNELS if c in rec), None))
+        skipped["wheel_speed_difference"] = (
+            f"no channel '{missing_ws}' (needs the four wheel speeds)"
+        )
+        src = (
+            "gps_speed"
+            if lever is not None and yaw is not None and "gps_speed" in rec
+            else next((c for c in SPEED_CHANNELS if c in rec), None)
+        )
         if src is None:
             why = "no speed: no wheel speeds, no channel 'speed' and no channel 'gps_speed'"
             skipped.setdefault("yaw_rate", why)
@@ -167,28 +178,47 @@ def steering_signals(rec: Recording, vehicle: Vehicle) -> SteeringSignals:
             if src == "gps_speed" and lever is not None and yaw is not None:
                 v_rear = rear_axle_speed(v_src, yaw, lever)
                 v_front = np.hypot(v_rear, b * yaw)
-                note = (f"rear- and front-axle speeds from 'gps_speed' at the geometry's "
-                        f"nav_lever_arm_m {list(lever)} and the yaw rate")
+                note = (
+                    f"rear- and front-axle speeds from 'gps_speed' at the geometry's "
+                    f"nav_lever_arm_m {list(lever)} and the yaw rate"
+                )
                 unknown = False
             else:
                 v_front = v_rear = v_src
                 unknown = True
-                note = (f"'{src}' at an unknown body point: " +
-                        ("its distance from the rear axle is estimated with the map by the "
-                         "yaw-rate fit" if yaw is not None else
-                         "taken as the front-axle speed (no yaw rate to place it)"))
-            kw.update(speed_source=src, v_src=v_src, speed_point_unknown=unknown,
-                      speed_note=note)
+                note = f"'{src}' at an unknown body point: " + (
+                    "its distance from the rear axle is estimated with the map by the yaw-rate fit"
+                    if yaw is not None
+                    else "taken as the front-axle speed (no yaw rate to place it)"
+                )
+            kw.update(speed_source=src, v_src=v_src, speed_point_unknown=unknown, speed_note=note)
     if yaw is None:
         skipped.setdefault("yaw_rate", "no channel 'yaw_rate'")
     if missing_pos is not None:
         skipped.setdefault("position_replay", f"no channel '{missing_pos}' (needs x, y, heading)")
     if len(skipped) == 3:
-        raise InputError("no steering method has its channels: " + "; ".join(
-            f"{m}: {why}" for m, why in skipped.items()), rec.meta.get("path"),
-            channel=missing_ws or "yaw_rate")
-    return SteeringSignals(sw, fl, fr, rl, rr, delta_a, v_front, v_rear, yaw, 1.0 / rec.rate_hz,
-                           b, T, skipped=skipped, **kw)
+        raise InputError(
+            "no steering method has its channels: "
+            + "; ".join(f"{m}: {why}" for m, why in skipped.items()),
+            rec.meta.get("path"),
+            channel=missing_ws or "yaw_rate",
+        )
+    return SteeringSignals(
+        sw,
+        fl,
+        fr,
+        rl,
+        rr,
+        delta_a,
+        v_front,
+        v_rear,
+        yaw,
+        1.0 / rec.rate_hz,
+        b,
+        T,
+        skipped=skipped,
+        **kw,
+    )
 
 
 def _measured_angle(sig: SteeringSignals) -> np.ndarray:
@@ -201,8 +231,7 @@ def _measured_angle(sig: SteeringSignals) -> np.ndarray:
     return np.where(np.isfinite(sig.v_rear), 0.0, np.nan)
 
 
-def trustworthy_samples(rec: Recording, sig: SteeringSignals,
-                        cfg: SteeringIdConfig) -> SampleMasks:
+def trustworthy_samples(rec: Recording, sig: SteeringSignals, cfg: SteeringIdConfig) -> SampleMasks:
     """The samples to trust (module doc), with a count per reason of exclusion (the slip check
     needs the wheel speeds: None when they are absent).
 
@@ -218,14 +247,18 @@ def trustworthy_samples(rec: Recording, sig: SteeringSignals,
         with np.errstate(invalid="ignore"):
             slip = np.abs(v_rear - v_front * np.cos(delta_m)) / np.maximum(v_front, 1e-6)
     accel = savgol_derivative(v_rear, dt, cfg.smooth_s)
-    lat = v_rear ** 2 * np.tan(np.nan_to_num(delta_m)) / sig.b
+    lat = v_rear**2 * np.tan(np.nan_to_num(delta_m)) / sig.b
     sw_rate = savgol_derivative(sw, dt, cfg.smooth_s)
     reverse = np.zeros(len(sw), dtype=bool)
     if "gear" in rec:
         reverse = np.asarray([str(g) == "R" for g in rec["gear"]])
-    bad_usable = ~(moving & (np.nan_to_num(slip, nan=1.0) <= cfg.slip_max)
-                   & (np.abs(np.nan_to_num(accel, nan=1e9)) <= cfg.accel_max_mps2)
-                   & (np.abs(lat) <= cfg.lat_accel_max_mps2) & ~reverse)
+    bad_usable = ~(
+        moving
+        & (np.nan_to_num(slip, nan=1.0) <= cfg.slip_max)
+        & (np.abs(np.nan_to_num(accel, nan=1e9)) <= cfg.accel_max_mps2)
+        & (np.abs(lat) <= cfg.lat_accel_max_mps2)
+        & ~reverse
+    )
     if sig.yaw is not None:
         bad_usable |= ~np.isfinite(sig.yaw)
     guard = int(round(cfg.guard_s / dt))
@@ -234,10 +267,14 @@ def trustworthy_samples(rec: Recording, sig: SteeringSignals,
     steady = usable & ~dilate(transient, guard)
     excluded = {
         "not_moving_or_missing": int(np.sum(~moving)),
-        "wheel_slip": (int(np.sum(moving & (np.nan_to_num(slip, nan=1.0) > cfg.slip_max)))
-                       if sig.delta_a is not None else None),
-        "longitudinal_accel": int(np.sum(moving & (np.abs(np.nan_to_num(accel, nan=0)) >
-                                                   cfg.accel_max_mps2))),
+        "wheel_slip": (
+            int(np.sum(moving & (np.nan_to_num(slip, nan=1.0) > cfg.slip_max)))
+            if sig.delta_a is not None
+            else None
+        ),
+        "longitudinal_accel": int(
+            np.sum(moving & (np.abs(np.nan_to_num(accel, nan=0)) > cfg.accel_max_mps2))
+        ),
         "lateral_accel": int(np.sum(moving & (np.abs(lat) > cfg.lat_accel_max_mps2))),
         "reverse": int(np.sum(reverse)),
         "steering_transient": int(np.sum(usable & ~steady)),
@@ -249,36 +286,75 @@ def trustworthy_samples(rec: Recording, sig: SteeringSignals,
         # caller flags the map NOT identifiable, naming what was let in
         forward = moving & ~reverse & (np.isfinite(sig.yaw) if sig.yaw is not None else True)
         for what, mask, use in (
-                ("fast steering (tyre relaxation and yaw lag in the fits)", usable, usable),
-                ("fast steering, wheel slip, hard acceleration and lateral acceleration beyond "
-                 f"{cfg.lat_accel_max_mps2:g} m/s^2 (side slip in the fits)", forward, forward)):
+            ("fast steering (tyre relaxation and yaw lag in the fits)", usable, usable),
+            (
+                "fast steering, wheel slip, hard acceleration and lateral acceleration beyond "
+                f"{cfg.lat_accel_max_mps2:g} m/s^2 (side slip in the fits)",
+                forward,
+                forward,
+            ),
+        ):
             if mask.sum() >= MIN_FIT_SAMPLES:
                 relaxed, steady, usable = what, mask, use
                 break
     with np.errstate(invalid="ignore"):
-        dropped = _dropped([
-            ("missing", ~(np.isfinite(sw) & np.isfinite(v_rear))
-             | (~np.isfinite(sig.yaw) if sig.yaw is not None else False),
-             None, "with a channel missing (NaN)"),
-            ("reverse", reverse, None, "in reverse gear"),
-            ("slow", ~moving, cfg.v_min_mps, f"slower than {cfg.v_min_mps:.3g} m/s"),
-            ("wheel_slip", np.nan_to_num(slip, nan=1.0) > cfg.slip_max, cfg.slip_max,
-             f"with wheel slip above {100 * cfg.slip_max:g}%"),
-            ("longitudinal_accel", np.abs(np.nan_to_num(accel, nan=1e9)) > cfg.accel_max_mps2,
-             cfg.accel_max_mps2, f"accelerating beyond {cfg.accel_max_mps2:g} m/s^2"),
-            ("lateral_accel", ~(np.abs(lat) <= cfg.lat_accel_max_mps2), cfg.lat_accel_max_mps2,
-             f"with lateral acceleration beyond {cfg.lat_accel_max_mps2:g} m/s^2"),
-            ("guard_margin", ~usable, cfg.guard_s,
-             f"within {cfg.guard_s:g} s of a dropped sample"),
-            ("steering_transient", transient, cfg.sw_rate_max_radps,
-             f"steering faster than {cfg.sw_rate_max_radps:.3g} rad/s"),
-            ("transient_guard", ~steady, cfg.guard_s,
-             f"within {cfg.guard_s:g} s of fast steering"),
-        ], steady)
+        dropped = _dropped(
+            [
+                (
+                    "missing",
+                    ~(np.isfinite(sw) & np.isfinite(v_rear))
+                    | (~np.isfinite(sig.yaw) if sig.yaw is not None else False),
+                    None,
+                    "with a channel missing (NaN)",
+                ),
+                ("reverse", reverse, None, "in reverse gear"),
+                ("slow", ~moving, cfg.v_min_mps, f"slower than {cfg.v_min_mps:.3g} m/s"),
+                (
+                    "wheel_slip",
+                    np.nan_to_num(slip, nan=1.0) > cfg.slip_max,
+                    cfg.slip_max,
+                    f"with wheel slip above {100 * cfg.slip_max:g}%",
+                ),
+                (
+                    "longitudinal_accel",
+                    np.abs(np.nan_to_num(accel, nan=1e9)) > cfg.accel_max_mps2,
+                    cfg.accel_max_mps2,
+                    f"accelerating beyond {cfg.accel_max_mps2:g} m/s^2",
+                ),
+                (
+                    "lateral_accel",
+                    ~(np.abs(lat) <= cfg.lat_accel_max_mps2),
+                    cfg.lat_accel_max_mps2,
+                    f"with lateral acceleration beyond {cfg.lat_accel_max_mps2:g} m/s^2",
+                ),
+                (
+                    "guard_margin",
+                    ~usable,
+                    cfg.guard_s,
+                    f"within {cfg.guard_s:g} s of a dropped sample",
+                ),
+                (
+                    "steering_transient",
+                    transient,
+                    cfg.sw_rate_max_radps,
+                    f"steering faster than {cfg.sw_rate_max_radps:.3g} rad/s",
+                ),
+                (
+                    "transient_guard",
+                    ~steady,
+                    cfg.guard_s,
+                    f"within {cfg.guard_s:g} s of fast steering",
+                ),
+            ],
+            steady,
+        )
     if steady.sum() < MIN_FIT_SAMPLES:
-        raise InputError(f"only {int(steady.sum())} trustworthy steering samples of {len(sw)} "
-                         f"({dropped_text(dropped, len(sw))}; thresholds for a "
-                         f"{sig.b:g} m wheelbase, --steering-threshold overrides them): "
-                         "cannot identify the steering map", rec.meta.get("path"),
-                         channel="steering_wheel_angle")
+        raise InputError(
+            f"only {int(steady.sum())} trustworthy steering samples of {len(sw)} "
+            f"({dropped_text(dropped, len(sw))}; thresholds for a "
+            f"{sig.b:g} m wheelbase, --steering-threshold overrides them): "
+            "cannot identify the steering map",
+            rec.meta.get("path"),
+            channel="steering_wheel_angle",
+        )
     return SampleMasks(usable, steady, excluded, dropped, relaxed)
