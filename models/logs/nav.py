@@ -107,6 +107,14 @@ class NavColumns:
                 path,
                 key="nav.yaw_rate_unit",
             )
+        if (self.lat is None) != (self.lon is None):
+            raise ParamError(
+                "give both lat and lon, or neither", path, key="nav.lat" if self.lon else "nav.lon"
+            )
+        if (self.x is None) != (self.y is None):
+            raise ParamError(
+                "give both x and y, or neither", path, key="nav.x" if self.y else "nav.y"
+            )
         geo = self.lat is not None and self.lon is not None
         local = self.x is not None and self.y is not None
         if geo == local:

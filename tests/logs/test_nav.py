@@ -374,3 +374,18 @@ def test_corrupted_nav_files_only_raise_inputerror(edits):
         assert len(t) >= 1 and np.all(np.diff(t) > 0)
         for ch, (_t, v) in out.items():
             assert np.all(np.isfinite(v)), ch
+
+
+@pytest.mark.parametrize(
+    "given,key",
+    [
+        ({"lon": None, "x": "x", "y": "y"}, "nav.lon"),
+        ({"lat": None, "lon": None, "x": "x"}, "nav.y"),
+    ],
+)
+def test_half_a_position_pair_is_refused_naming_the_missing_key(given, key):
+    """lat without lon (or x without y) is a mapping mistake, named before any file is read."""
+    cols = NavColumns(**given)
+    with pytest.raises(ParamError) as exc:
+        cols.check("cols.yaml")
+    assert exc.value.key == key
