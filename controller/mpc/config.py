@@ -25,7 +25,7 @@ class MpcConfig:
     # noise-free sensors a straight run has no steering reversal; with them, a car whose
     # steering gain exceeds the model's, the loop's margin smaller, wanders the wheel by
     # +-1 deg at 8 m/s to follow mm of estimate error). 2 keeps the tracking at a few cm
-    # (tests/test_smooth_control.py, docs/results.md)
+    # (tests/controller/test_smooth_control.py, docs/results.md)
     w_lateral: float = 2.0
     w_heading: float = 4.0  # per rad^2 of heading error, per s
     w_speed: float = 10.0  # per (m/s)^2 of speed error, per s
@@ -106,7 +106,7 @@ class MpcConfig:
     # the previous plan, shifted, and the next step continues from the iterate. OSQP's own
     # "solved" on these QPs allows eps_abs + eps_rel |z|, with positions of 100 m and more in
     # |z|: 0.1 and more; capped iterates sit at 0.1-0.25 for many steps on a hard stretch
-    # (tests/test_mpc_extensions.py's drag run). 0.5 (m, m/s or rad of dynamics somewhere
+    # (tests/controller/test_mpc_extensions.py's drag run). 0.5 (m, m/s or rad of dynamics somewhere
     # along the horizon; the command is the first stages, which the next steps refine). The
     # gradient (dual) residual OSQP accepts is eps_abs + eps_rel |q| and more, |q| of some
     # hundreds from the replan terms: 0.3 and more; capped iterates reach 1.3 (the idle

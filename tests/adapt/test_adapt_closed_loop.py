@@ -6,7 +6,7 @@ What is checked here: the learned values untouched by a 2 s GNSS outage, a froze
 channel and a yaw-rate spike; the CLI's JSON, learned file and plots; and a run that could not
 follow its reference (the steering wheel at its lock, a car that never pulls away) saying so
 with exit 1. The acceptance per hidden set (learned values, tracking against the truth's
-controller, smoothness) is tests/test_adapt_sets.py."""
+controller, smoothness) is tests/adapt/test_adapt_sets.py."""
 
 from __future__ import annotations
 

@@ -70,8 +70,8 @@ def _summary(dg):
 #: (tests/diagnose/test_diagnose_sensors.py)
 SENSOR_PAIR_IDS = {"wheel_speed_scale", "accelerometer_lag", "sensor_mounting"}
 #: catalogue ids of powertrains and commands this generator does not have (a gearbox, a
-#: recording without its brake, a speed-commanded car): tests/test_diagnose_powertrain_indep.py
-#: on tests/indep/powertrain_truth.py
+#: recording without its brake, a speed-commanded car):
+#: tests/diagnose/test_diagnose_powertrain_indep.py on tests/indep/powertrain_truth.py
 POWERTRAIN_IDS = {"gears", "unobserved_braking", "actuator_saturation"}
 
 
