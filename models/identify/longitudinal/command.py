@@ -38,18 +38,13 @@ import numpy as np
 from hmpc.models.errors import InputError
 from hmpc.models.params import COMMAND_GAIN_KEYS, CommandZone, Vehicle
 from hmpc.models.logs.recording import Recording
-from hmpc.models.identify.stats import apply_kernel, half_sample_kernels, matched_kernels
+from hmpc.models.identify.stats import apply_kernel, half_sample_kernels
 from hmpc.models.identify.steering import delayed
-from hmpc.models.identify.longitudinal.config import (
-    _SOURCE_CHANNEL,
-    LongitudinalIdConfig,
-    _check_config,
-)
+from hmpc.models.identify.longitudinal.config import LongitudinalIdConfig, _check_config
 from hmpc.models.identify.longitudinal.deadtime import pedal_dead_time_cv
 from hmpc.models.identify.longitudinal.signals import (
     LongitudinalSignals,
-    accel_candidates,
-    eq1_speed,
+    signals_with_inputs,
     zone_masks,
 )
 from hmpc.models.identify.longitudinal.sources import choose_accel_source
@@ -94,41 +89,15 @@ def _signals(
     rec: Recording, vehicle: Vehicle, cfg: LongitudinalIdConfig, inp: str
 ) -> LongitudinalSignals:
     """Speed, candidate accelerations and the raw command (in ``ap_raw``; no brake term)."""
-    dt = 1.0 / rec.rate_hz
-    v, speed_src = eq1_speed(rec, vehicle)
-    d_ker, g_ker = matched_kernels(dt, cfg.smooth_s)
-    cands, skipped = accel_candidates(rec, v, d_ker, g_ker, dt)
-    src = cfg.accel_source
-    if src == "auto" and not cands:
-        raise InputError(
-            "no acceleration source ('speed', 'gps_speed' or 'accel_x')",
-            rec.meta.get("path"),
-            channel="speed",
-        )
-    if src != "auto":
-        if src not in cands:
-            raise InputError(
-                f"acceleration source '{src}' unavailable: {skipped[src]}",
-                rec.meta.get("path"),
-                channel=_SOURCE_CHANNEL[src],
-            )
-        cands = {src: cands[src]}
-    first = next(iter(cands))
     cmd = np.asarray(rec[inp], dtype=float)
-    return LongitudinalSignals(
-        v,
-        speed_src,
-        cands[first][0],
-        cands[first][1],
-        d_ker,
-        g_ker,
+    return signals_with_inputs(
+        rec,
+        vehicle,
+        cfg,
         cmd,
         np.zeros(len(rec)),
         False,
-        dt,
-        first,
-        cands,
-        skipped,
+        no_source=("no acceleration source ('speed', 'gps_speed' or 'accel_x')", "speed"),
     )
 
 

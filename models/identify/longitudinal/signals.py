@@ -213,17 +213,44 @@ def longitudinal_signals(
     """Speed (eq. 1's v), every candidate measured acceleration with its smoother, and the raw
     pedals (module doc). ``a_meas`` is set to the configured source, or to the first candidate
     until :func:`choose_accel_source` decides. Raises InputError for an absent channel."""
+    has_brake = "brake_pedal" in rec
+    ap_raw = np.asarray(rec["accel_pedal"], dtype=float)
+    bp_raw = np.asarray(rec["brake_pedal"], dtype=float) if has_brake else np.zeros(len(rec))
+    return signals_with_inputs(
+        rec,
+        vehicle,
+        cfg,
+        ap_raw,
+        bp_raw,
+        has_brake,
+        no_source=(
+            "no acceleration source (wheel speeds, 'speed', 'gps_speed' or 'accel_x')",
+            "wheel_speed_fl",
+        ),
+    )
+
+
+def signals_with_inputs(
+    rec: Recording,
+    vehicle: Vehicle,
+    cfg: LongitudinalIdConfig,
+    ap_raw: np.ndarray,
+    bp_raw: np.ndarray,
+    has_brake: bool,
+    *,
+    no_source: tuple[str, str],
+) -> LongitudinalSignals:
+    """:class:`LongitudinalSignals` for the given raw inputs (the pedals, or a command in
+    ``ap_raw`` with no brake term): speed, the candidate accelerations the configuration
+    allows, the first of them as ``a_meas``. ``no_source``: the error text and channel named
+    when the recording has no acceleration source."""
     dt = 1.0 / rec.rate_hz
     v, speed_src = eq1_speed(rec, vehicle)
     d_ker, g_ker = matched_kernels(dt, cfg.smooth_s)
     cands, skipped = accel_candidates(rec, v, d_ker, g_ker, dt)
     src = cfg.accel_source
     if src == "auto" and not cands:
-        raise InputError(
-            "no acceleration source (wheel speeds, 'speed', 'gps_speed' or 'accel_x')",
-            rec.meta.get("path"),
-            channel="wheel_speed_fl",
-        )
+        raise InputError(no_source[0], rec.meta.get("path"), channel=no_source[1])
     if src != "auto":
         if src not in cands:
             raise InputError(
@@ -233,9 +260,6 @@ def longitudinal_signals(
             )
         cands = {src: cands[src]}
     first = next(iter(cands))
-    has_brake = "brake_pedal" in rec
-    ap_raw = np.asarray(rec["accel_pedal"], dtype=float)
-    bp_raw = np.asarray(rec["brake_pedal"], dtype=float) if has_brake else np.zeros(len(rec))
     return LongitudinalSignals(
         v,
         speed_src,
