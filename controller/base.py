@@ -3,7 +3,7 @@
 A controller (MPC, NMPC, PID, and the operator pass-through to come) implements
 :class:`Controller`: ``reset()`` before a run, then one ``step(state, reference, t_s)`` per
 control period, which RETURNS a :class:`ControlResult` (it never sends the command; the
-loop that owns the bus does, STYLE.md 1). A step never raises and never returns None: it
+loop that owns the bus does, docs/style.md 1). A step never raises and never returns None: it
 always returns a safe command and a :class:`Status` that says how it was obtained, with a
 free-text ``reason`` for people (never parsed).
 

@@ -1,7 +1,7 @@
 """Actuator and comfort limits, and the function that enforces them on every command.
 
 The limits are frozen dataclasses with the unit in every name and the reason for every
-default in a comment (STYLE.md 3). :func:`apply_limits` is applied after the optimiser,
+default in a comment (docs/style.md 3). :func:`apply_limits` is applied after the optimiser,
 again, independently of it: whatever a controller computes, the command that leaves the
 controller step has its steering angle and rate clamped, pedals in [0, 1] and rate-limited,
 and never throttle and brake together.
@@ -71,7 +71,7 @@ class ActuatorLimits:
     # Speed: 20 m/s, the top of the report's highest zone (section V); above it the zone
     # models are not identified.
     speed_max_mps: float = 20.0
-    # Pedals: fractions of travel, physically 0..1 (CONVENTIONS.md).
+    # Pedals: fractions of travel, physically 0..1 (docs/conventions.md).
     pedal_min: float = 0.0
     pedal_max: float = 1.0
     # Pedal rates (pressing only): full travel in 0.5 s. A backstop independent of the

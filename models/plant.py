@@ -8,7 +8,7 @@ counter-clockwise), with (x, y) the front-wheel point as in eq. 1. Input
     x' = v cos(psi + delta),  y' = v sin(psi + delta),  psi' = v sin(delta) / b (eq. 1)
     v' = offset_z + scale_z * accel_pedal - brake_scale_z * brake_pedal       (eq. 8, zone z)
 
-This module is the ONE place where this physics is written (STYLE.md 13): the plant, the
+This module is the ONE place where this physics is written (docs/style.md 13): the plant, the
 MPC (:func:`derivative_batch`, :func:`jacobians_batch`), the CasADi NMPC
 (:func:`bicycle_rates` with ``ops=casadi``), identification (the steering replay, the
 longitudinal zone assignment) and ``Params.zone_for`` all call the functions below.

@@ -1,4 +1,4 @@
-"""Frame builders: one small pure function per outgoing message (STYLE.md 2).
+"""Frame builders: one small pure function per outgoing message (docs/style.md 2).
 
 Each takes physical command values, the enable state and the rolling counter, and returns the
 ``can.Message`` to send: the profile's constants, the command signals, the enable bits and the

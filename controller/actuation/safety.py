@@ -1,4 +1,4 @@
-"""Safety limits of the actuation profiles, applied twice, independently (STYLE.md 3).
+"""Safety limits of the actuation profiles, applied twice, independently (docs/style.md 3).
 
 1. After the controller, a **limiter** makes each command comply (``ToyotaTorqueLimiter``,
    ``clip_accel``, ``AngleLimiter``, ``clip_pedals``): it computes the largest allowed step.
@@ -252,7 +252,7 @@ class AngleLimits:
     # Below this speed the ISO bounds (which grow as 1/v^2) are evaluated at this speed: the
     # lock and the actuator rate bind there anyway.
     v_floor_mps: float = 1.0
-    # Pedals: fractions of travel (CONVENTIONS.md); pressing rate full travel in 0.5 s
+    # Pedals: fractions of travel (docs/conventions.md); pressing rate full travel in 0.5 s
     # (controller/limits.py's backstop); releasing is always allowed.
     pedal_rate_max_ps: float = 2.0
     # a pedal below this counts as released (0.5 % sensor resolution order)

@@ -408,7 +408,7 @@ def _parse_channel(ch: str, entry: Any, db, err, lines) -> ChannelMap:
     if ch not in CHANNELS or ch == "time":
         close = difflib.get_close_matches(ch, [c for c in CHANNELS if c != "time"], n=1)
         hint = f" (did you mean '{close[0]}'?)" if close else ""
-        raise err(f"unknown channel{hint}; channels are those of CONVENTIONS.md", *base)
+        raise err(f"unknown channel{hint}; channels are those of docs/conventions.md", *base)
     if not isinstance(entry, dict):
         raise err("entry must be a mapping with message, expr, unit", *base)
     for k in entry:

@@ -301,7 +301,7 @@ def _parse_channel(ch: str, entry: Any, err, lines) -> TopicChannel:
     if ch not in CHANNELS or ch == "time":
         close = difflib.get_close_matches(ch, [c for c in CHANNELS if c != "time"], n=1)
         hint = f" (did you mean '{close[0]}'?)" if close else ""
-        raise err(f"unknown channel{hint}; channels are those of CONVENTIONS.md", *base)
+        raise err(f"unknown channel{hint}; channels are those of docs/conventions.md", *base)
     if ch in STRING_CHANNELS:
         raise err(
             f"{ch} cannot be read from a topic (it needs a value table: use a signal map)", *base

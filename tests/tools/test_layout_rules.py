@@ -351,6 +351,6 @@ def test_nothing_points_at_the_shared_contract():
             for i, line in enumerate(
                 p.read_text(encoding="utf-8", errors="replace").splitlines(), 1
             ):
-                if re.search(r"shared/(CONVENTIONS|STYLE)", line):
+                if re.search(r"shared/(CONVENTIONS|STYLE)|\b(CONVENTIONS|STYLE)\.md", line):
                     bad.append(f"{p.relative_to(REPO_DIR)}:{i}")
     assert not bad, "point at docs/conventions.md or docs/style.md:\n" + "\n".join(bad)
