@@ -40,6 +40,7 @@ recording tells the two apart).
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -116,6 +117,9 @@ class LonData:
     #: gear index per sample (-1: unknown) and the gears found (``models.diagnose.gears``)
     gear: np.ndarray | None = None
     gear_info: dict = field(default_factory=dict)
+    #: what depends on the fields above alone, computed once (a copy made with
+    #: ``dataclasses.replace`` starts empty)
+    _memo: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def commanded(self) -> bool:
@@ -331,6 +335,14 @@ def fit_inputs(d: LonData, spec: LonSpec) -> np.ndarray:
     applied as a target speed nears), so that advance shows as a v-slope: -0.0009 1/s per
     10 ms on independent recordings (CommonRoad generator, clean, truth sets A, B, C), an
     apparent negative rolling resistance of -0.0007 to -0.0015 1/s."""
+    # a hypothesis's grid and its neighbours ask for the same inputs again and again (the
+    # baseline's most of all): the last few are kept, read-only, with the ``d.U`` they came
+    # from (the input alignment tries shifted copies of it; a kept one holds its ``id``)
+    memo = d._memo.setdefault("fit_inputs", OrderedDict())
+    key = (id(d.U), spec.by_gear, spec.delay_s, spec.tau_s)
+    if key in memo:
+        memo.move_to_end(key)
+        return memo[key][1]
     U = inputs(d, spec)
     out = np.full_like(U, np.nan)
     for a, b in d.segs:
@@ -338,7 +350,15 @@ def fit_inputs(d: LonData, spec: LonSpec) -> np.ndarray:
             out[a:b, j] = savgol_derivative(
                 causal_integral(U[a:b, j], d.dt), d.dt, DiagnoseConfig.deriv_window_s
             )
+    out.setflags(write=False)
+    memo[key] = (d.U, out)
+    if len(memo) > _FIT_INPUTS_KEPT:
+        memo.popitem(last=False)
     return out
+
+
+#: how many :func:`fit_inputs` results a recording keeps (each n x inputs floats)
+_FIT_INPUTS_KEPT = 8
 
 
 def causal_integral(u: np.ndarray, dt: float) -> np.ndarray:
@@ -380,8 +400,12 @@ def group_of(d: LonData, spec: LonSpec, v: np.ndarray, idx=None) -> np.ndarray:
 def model_regressors(d: LonData, spec: LonSpec, U: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``U`` as eq. 8's regressors at speed ``v`` (``lon_inputs.regressors``; a column beyond
     the recorded inputs, the released pedal of ``gears``, as it is)."""
-    pad = np.zeros(U.shape[1] - len(d.input_names), bool)
-    return regressors(U, np.r_[d.tracking, pad], v, spec.sat_level, np.r_[d.command_cols, pad])
+    key = ("columns", U.shape[1])
+    if key not in d._memo:
+        pad = np.zeros(U.shape[1] - len(d.input_names), bool)
+        d._memo[key] = (np.r_[d.tracking, pad], np.r_[d.command_cols, pad])
+    tracking, commands = d._memo[key]
+    return regressors(U, tracking, v, spec.sat_level, commands)
 
 
 def target(d: LonData, spec: LonSpec) -> np.ndarray:
@@ -435,43 +459,78 @@ def _at_zone_edge(d: LonData) -> np.ndarray:
 def fit_samples(d: LonData, X: np.ndarray, zone: np.ndarray) -> np.ndarray:
     """The samples a zone fit may use: moving, measured, with a finite design row, and not
     where the zone is ambiguous (near a zone change, or at a zone boundary)."""
-    return (
-        d.ok
-        & (d.vs > DiagnoseConfig.v_stop_mps)
-        & np.isfinite(d.a)
-        & np.isfinite(X).all(axis=1)
-        & ~_near_zone_change(zone, d.dt)
-        & ~_at_zone_edge(d)
-    )
+    return _usable(d, zone) & np.isfinite(X).all(axis=1)
+
+
+def _usable(d: LonData, zone: np.ndarray) -> np.ndarray:
+    """:func:`fit_samples` before the design row's own check (the same for every fit with this
+    zone per sample, so computed once)."""
+    key = ("usable", zone.tobytes())
+    if key not in d._memo:
+        d._memo[key] = (
+            d.ok
+            & (d.vs > DiagnoseConfig.v_stop_mps)
+            & np.isfinite(d.a)
+            & ~_near_zone_change(zone, d.dt)
+            & ~_at_zone_edge(d)
+        )
+    return d._memo[key]
 
 
 def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None) -> LonModel:
     """Equation-error fit of the baseline and the extension jointly on ``mask`` (leaving out
     the samples whose zone is ambiguous: near a zone change, or at a zone boundary)."""
     U = fit_inputs(d, spec) if U is None else U
-    X, zone = _design(d, U, spec)
-    use = mask & fit_samples(d, X, zone) & np.isfinite(target(d, spec))
     nz, m = n_groups(d, spec), U.shape[1]
+    zone = group_of(d, spec, d.vs)
+    R = model_regressors(d, spec, U, d.vs)
+    e = ext_column(d, spec, d.vs)
+    # the rows of :func:`_design` with a finite entry in every column
+    finite = np.isfinite(R).all(axis=1)
+    if e is not None:
+        finite &= np.isfinite(e)
+    use = mask & _usable(d, zone) & finite & np.isfinite(target(d, spec))
     cols, fitted = [], []
     for z in range(nz):
         if (use & (zone == z)).sum() >= max(50, int(2.0 / d.dt)):
             fitted.append(z)
             cols += list(range(z * (1 + m), (z + 1) * (1 + m)))
-    ext = X.shape[1] > nz * (1 + m)
+    ext = e is not None
+    n_cols = nz * (1 + m) + ext
     if ext:
-        cols.append(X.shape[1] - 1)
+        cols.append(n_cols - 1)
     if not fitted:
         return LonModel(spec, np.zeros((nz, 1 + m)), 0.0, [], float("inf"), 0, 0)
-    Xs = X[use][:, cols]
+    # :func:`_design`'s rows ``use`` and columns ``cols``, built for those alone (a design of
+    # every sample and column, copied and masked, costs more than the fit on a long recording)
+    idx = np.flatnonzero(use)
+    zi, Ri = zone[idx], R[idx]
+    ei = e[idx] if e is not None else None
+    in_zone = {z: zi == z for z in fitted}
     # an input never used in a zone is not fitted there: below 0.01 (the threshold of
     # ``_covered``) only the decaying tail of a lag reaches the training samples (a driver's
     # pedal released seconds before), and a gain fitted on such a tail is arbitrary
-    floor = np.array([INPUT_USED if c < nz * (1 + m) and c % (1 + m) else 1e-12 for c in cols])
-    keep = np.abs(Xs).max(axis=0) > floor
-    cols = [c for c, k in zip(cols, keep) if k]
-    Xs = Xs[:, keep]
+    kept = []
+    for c in cols:
+        z, j = divmod(c, 1 + m)
+        if ei is not None and c == n_cols - 1:
+            used = np.abs(ei).max() > 1e-12
+        else:
+            used = j == 0 or np.abs(Ri[in_zone[z], j - 1]).max() > INPUT_USED
+        if used:
+            kept.append(c)
+    cols = kept
+    Xs = np.zeros((idx.size, len(cols)))
+    for k, c in enumerate(cols):
+        z, j = divmod(c, 1 + m)
+        if ei is not None and c == n_cols - 1:
+            Xs[:, k] = ei
+        elif j == 0:
+            Xs[in_zone[z], k] = 1.0
+        else:
+            Xs[in_zone[z], k] = Ri[in_zone[z], j - 1]
     bounds = {}
-    if ext and cols[-1] == X.shape[1] - 1:
+    if ext and cols[-1] == n_cols - 1:
         assert spec.term is not None  # ext: the model carries a linear term
         bounds[len(cols) - 1] = LINEAR_EXT[spec.term][1]
     coef, sse = lstsq_bounded(Xs, target(d, spec)[use], bounds)
