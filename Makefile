@@ -35,11 +35,15 @@ typecheck: $(STAMP)
 	@mkdir -p $(VENV)/mypy-root && ln -sfn "$(CURDIR)" $(VENV)/mypy-root/hmpc
 	$(BIN)/mypy
 
-# The real-time tests run after the CPU-bound ones, three at a time: each keeps a 50-100 Hz
-# loop and uses about a quarter of a core (measured: 106 s CPU in 155 s wall for all 31).
+# The real-time tests run after the CPU-bound ones, six at a time: each keeps a 50-100 Hz
+# loop and uses about a sixth of a core. The tests marked long go first, each to a worker of
+# its own (tests/conftest.py). That run collects only the files that hold real-time tests, and
+# both let Python cache its bytecode (which PYTHONDONTWRITEBYTECODE would stop): every worker
+# and every subprocess would otherwise compile and assertion-rewrite the same modules again.
+REALTIME_FILES = $(shell grep -rl --include='test_*.py' 'mark.realtime' tests)
 test: $(STAMP) sysdeps lint typecheck
-	$(BIN)/python -m pytest -q -n 2 -m 'not realtime' tests
-	$(BIN)/python -m pytest -q -n 3 -m realtime tests
+	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -q -n 2 -m 'not realtime' tests
+	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -q -n 6 --dist load -m realtime $(REALTIME_FILES)
 
 # bench_ingest exits 1 when it misses a target, bench_identify when its accuracy check fails;
 # bench_mpc prints PASS/MISS against its target.

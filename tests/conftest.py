@@ -86,6 +86,23 @@ def vcan_ingest(vcan_log, vcan_dbc):
     )
 
 
+@pytest.hookimpl(trylast=True)  # after ``-m`` has deselected
+def pytest_collection_modifyitems(session, config, items):
+    """The tests marked ``long`` first, each followed by one other test, the rest in their
+    order. xdist's ``load`` schedule hands each worker two consecutive tests to start with, so
+    every long test starts at once on a worker of its own; a parallel run then ends no later
+    than its longest test plus start-up. The order is a pure function of the collection, the
+    same in every xdist worker, as xdist requires."""
+    long = [it for it in items if it.get_closest_marker("long") is not None]
+    rest = [it for it in items if it.get_closest_marker("long") is None]
+    order = []
+    for it in long:
+        order.append(it)
+        if rest:
+            order.append(rest.pop(0))
+    items[:] = order + rest
+
+
 def pytest_configure(config):
     """BLAS on one thread in every test process, as ``hmpc``'s CLI and drive loop run it:
     with two xdist workers on two cores, OpenBLAS's own threads oversubscribe the cores and

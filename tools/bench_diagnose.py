@@ -361,10 +361,11 @@ def ideal_model(truth, effects):
     return m
 
 
-def closed_loop(seed: int, cases=None, lag_methods=()) -> list[dict]:
+def closed_loop(seed: int, cases=None, lag_methods=(), with_truth: bool = True) -> list[dict]:
     """Per benchmark effect: the MPC on the ground-truth plant with the report's baseline
     model and with the extended model, both from ``diagnose`` on that case's recording; with
-    an actuator lag found, also with each of ``lag_methods`` (``MpcController.lag_method``)."""
+    an actuator lag found, also with each of ``lag_methods`` (``MpcController.lag_method``).
+    ``with_truth``: also with the true model without the effect (the row's ``truth``)."""
     from hmpc.models.sim.scenarios import make_scenario
 
     rows = []
@@ -390,7 +391,7 @@ def closed_loop(seed: int, cases=None, lag_methods=()) -> list[dict]:
             ("extended", ext),
             ("ideal", ideal),
         ):
-            if model is not None:
+            if model is not None and (with_truth or label != "truth"):
                 row[label] = _track(model, truth, make_effects(), ref)
         key = "lateral_rmse_m" if subsystem == "steering" else "speed_rmse_mps"
         if "actuator_lag" in ext.extensions:
@@ -401,9 +402,9 @@ def closed_loop(seed: int, cases=None, lag_methods=()) -> list[dict]:
         row.update(metric=key, change=(e - b) / b if b > 0 else 0.0)
         rows.append(row)
         print(
-            f"  {case:28s} {scn:9s} {key:15s} true model without the effect "
-            f"{row['truth'][key]:.4f}  "
-            f"baseline {b:.4f}  extended {e:.4f}  ({100 * row['change']:+.1f} %)"
+            f"  {case:28s} {scn:9s} {key:15s} "
+            + (f"true model without the effect {row['truth'][key]:.4f}  " if with_truth else "")
+            + f"baseline {b:.4f}  extended {e:.4f}  ({100 * row['change']:+.1f} %)"
             + (
                 f"  ideal (true model with the effect) {row['ideal'][key]:.4f}"
                 if "ideal" in row

@@ -40,6 +40,7 @@ def _identify(log, dbc, signals, tmp_path):
     return yaml.safe_load(out.read_text()), json.loads(js.read_text())
 
 
+@pytest.mark.long
 def test_steering_map_recovered_from_a_toyota_drive_of_arcs(tmp_path):
     """One Toyota drive of the report's arcs (the first 30 s: clockwise at 2.8 m/s,
     counter-clockwise at 2.4 m/s, III-A.1), read back by ``hmpc identify``; one drive, two
@@ -98,6 +99,7 @@ def _yaw_rate_offset_tied_to_the_gyro_bias(yaw: dict, st: dict, truth) -> None:
     assert "yaw-rate sensor's bias" in verdict["note"], verdict["note"]
 
 
+@pytest.mark.long
 def test_zone_models_recovered_from_a_bywire_drive_of_ramps(tmp_path):
     res, log = drive("bywire", "ramps", 51.0, tmp_path)
     assert res.summary["limit_violations"] == 0

@@ -55,6 +55,7 @@ def _drive(tmp_path, params_path, hidden, name, *extra):
     return rc, out
 
 
+@pytest.mark.long
 def test_drive_adapt_learns_the_steering_map_and_tracks_like_the_truth(tmp_path):
     params = load_params(REPORT_PARAMS)
     truth = hidden_params(params, 2)

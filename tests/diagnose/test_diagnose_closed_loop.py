@@ -25,6 +25,7 @@ def rows():
             "actuator_lag",
             "aero_drag",
         ],
+        with_truth=False,
     )
     return {r["case"]: r for r in got}
 

@@ -189,6 +189,7 @@ RAMP_SEQUENCE_S = (0.0, 49.0)
 ARCS_S = (0.0, 16.0)
 
 
+@pytest.mark.long
 def test_loopback_identification_recovers_the_car(tmp_path):
     """The scripted operator drives ramp_sequence and arcs through the
     link into the simulator node (by-wire kit: continuous pedal positions on the bus); ``hmpc
