@@ -19,6 +19,7 @@ from hmpc.models.catalogue import CATALOGUE
 from hmpc.models.diagnose import longitudinal as lon
 from hmpc.models.diagnose.common import DiagnoseConfig
 from hmpc.models.diagnose.hypothesis import HypothesisScore
+from hmpc.models.diagnose.lon_samples import fit_samples
 from hmpc.models.identify.fos import fos
 
 
@@ -67,7 +68,7 @@ def fos_selects(
     # a zone change, or a speed at a zone boundary): there the measured dv/dt is neither
     # zone's law, and its error, larger than a resistance's within-zone slope, decides FOS's
     # hold-out instead of the term
-    use = lon.fit_samples(d, X, zone)
+    use = fit_samples(d, X, zone)
     Xs = X[use]
     keep = np.abs(Xs).max(axis=0) > 1e-12
     Xs = Xs[:, keep]

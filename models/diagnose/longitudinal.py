@@ -62,6 +62,7 @@ from hmpc.models.diagnose.gear_data import gear_index
 from hmpc.models.diagnose.hypothesis import grid_search, sse_per_sample
 from hmpc.models.diagnose.lon_grade import measured_grade
 from hmpc.models.diagnose.lon_inputs import COMMANDS, INPUT_USED, choose_inputs, regressors
+from hmpc.models.diagnose.lon_samples import usable
 from hmpc.models.identify.stats import savgol_derivative
 
 DEFAULT_ZONES = (("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
@@ -428,55 +429,6 @@ def _design(d: LonData, U: np.ndarray, spec: LonSpec):
     return X, zone
 
 
-def _near_zone_change(zone: np.ndarray, dt: float) -> np.ndarray:
-    """Samples whose derivative window spans a zone change: the measured dv/dt there mixes two
-    zones' models (eq. 8 jumps at a boundary), so the fit leaves them out."""
-    ch = np.concatenate([[False], zone[1:] != zone[:-1]])
-    w = int(DiagnoseConfig.deriv_window_s / dt) | 1
-    return np.convolve(ch.astype(float), np.ones(w), mode="same") > 0
-
-
-#: [m/s] half-width of the speed band around a zone boundary whose samples the fit leaves out:
-#: which zone's law acts there is not known to better than this (the recorded speed is a mean
-#: of wheel speeds, the law's speed another point of the car: 2-3 % apart in turns, 0.05-0.1
-#: m/s at the 2 and 5 m/s boundaries; plus the smoothing). Where the two zones' accelerations
-#: have opposite signs with the pedals released (a creeping car: idle offset > 0 > low offset)
-#: the car settles AT the boundary, its speed chattering between the zones, and its measured
-#: acceleration there (about 0) is neither zone's law: fitted as one zone it pulls that zone's
-#: offset (independent recordings, truth C: 14 s coasting at 2 m/s moved the low-zone offset
-#: by 0.02 m/s^2, and a v-dependent creep term then "explained" 11-16 % of a clean replay)
-ZONE_EDGE_BAND_MPS = 0.1
-
-
-def _at_zone_edge(d: LonData) -> np.ndarray:
-    """Samples whose smoothed speed is within :data:`ZONE_EDGE_BAND_MPS` of a zone boundary."""
-    edges = np.array([z[2] for z in d.zones[:-1]])
-    if edges.size == 0:
-        return np.zeros(d.n, bool)
-    return (np.abs(d.vs[:, None] - edges[None, :]) < ZONE_EDGE_BAND_MPS).any(axis=1)
-
-
-def fit_samples(d: LonData, X: np.ndarray, zone: np.ndarray) -> np.ndarray:
-    """The samples a zone fit may use: moving, measured, with a finite design row, and not
-    where the zone is ambiguous (near a zone change, or at a zone boundary)."""
-    return _usable(d, zone) & np.isfinite(X).all(axis=1)
-
-
-def _usable(d: LonData, zone: np.ndarray) -> np.ndarray:
-    """:func:`fit_samples` before the design row's own check (the same for every fit with this
-    zone per sample, so computed once)."""
-    key = ("usable", zone.tobytes())
-    if key not in d._memo:
-        d._memo[key] = (
-            d.ok
-            & (d.vs > DiagnoseConfig.v_stop_mps)
-            & np.isfinite(d.a)
-            & ~_near_zone_change(zone, d.dt)
-            & ~_at_zone_edge(d)
-        )
-    return d._memo[key]
-
-
 def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None) -> LonModel:
     """Equation-error fit of the baseline and the extension jointly on ``mask`` (leaving out
     the samples whose zone is ambiguous: near a zone change, or at a zone boundary)."""
@@ -489,7 +441,7 @@ def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None
     finite = np.isfinite(R).all(axis=1)
     if e is not None:
         finite &= np.isfinite(e)
-    use = mask & _usable(d, zone) & finite & np.isfinite(target(d, spec))
+    use = mask & usable(d, zone) & finite & np.isfinite(target(d, spec))
     cols, fitted = [], []
     for z in range(nz):
         if (use & (zone == z)).sum() >= max(50, int(2.0 / d.dt)):
