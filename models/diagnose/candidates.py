@@ -19,7 +19,7 @@ from hmpc.models.catalogue import CATALOGUE
 from hmpc.models.diagnose import longitudinal as lon
 from hmpc.models.diagnose.common import DiagnoseConfig
 from hmpc.models.diagnose.hypothesis import HypothesisScore
-from hmpc.models.diagnose.lon_samples import fit_samples
+from hmpc.models.diagnose.lon_data import fit_samples
 from hmpc.models.identify.fos import fos
 
 

@@ -46,7 +46,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from hmpc.models.constants import G_MPS2
 from hmpc.models.diagnose.common import (
     DiagnoseConfig,
     bic,
@@ -61,8 +60,8 @@ from hmpc.models.diagnose.common import (
 from hmpc.models.diagnose.gear_data import gear_index
 from hmpc.models.diagnose.hypothesis import grid_search, sse_per_sample
 from hmpc.models.diagnose.lon_grade import measured_grade
-from hmpc.models.diagnose.lon_inputs import COMMANDS, INPUT_USED, choose_inputs, regressors
-from hmpc.models.diagnose.lon_samples import usable
+from hmpc.models.diagnose.lon_inputs import INPUT_USED, choose_inputs, regressors
+from hmpc.models.diagnose.lon_data import LonData, usable
 from hmpc.models.identify.stats import savgol_derivative
 
 DEFAULT_ZONES = (("idle", 0.0, 2.0), ("low", 2.0, 5.0), ("high", 5.0, 20.0))
@@ -90,75 +89,6 @@ HYPOTHESES = (
     "road_grade",
     "idle_creep",
 )
-
-
-@dataclass
-class LonData:
-    """Longitudinal channels on the recording grid (NaN where missing)."""
-
-    t: np.ndarray
-    dt: float
-    v: np.ndarray  #: measured speed [m/s]
-    vs: np.ndarray  #: smoothed speed [m/s]
-    a: np.ndarray  #: measured dv/dt [m/s^2]
-    U: np.ndarray  #: inputs [n, m]
-    input_names: list[str]
-    idle: np.ndarray  #: throttle released (bool)
-    grade: np.ndarray | None  #: measured grade [rad]
-    grade_source: str
-    zones: tuple
-    segs: list[tuple[int, int]]
-    ok: np.ndarray  #: samples inside a usable segment
-    _grade_cache: dict = field(default_factory=dict, repr=False)
-    #: [s] the inputs' timing against the speed applied to ``U`` (:func:`input_alignment`)
-    input_shift_s: float = 0.0
-    #: input channels the recording does not hold (``lon_inputs.choose_inputs``)
-    absent_inputs: list = field(default_factory=list)
-    input_notes: list = field(default_factory=list)
-    #: gear index per sample (-1: unknown) and the gears found (``models.diagnose.gears``)
-    gear: np.ndarray | None = None
-    gear_info: dict = field(default_factory=dict)
-    #: what depends on the fields above alone, computed once (a copy made with
-    #: ``dataclasses.replace`` starts empty)
-    _memo: dict = field(default_factory=dict, init=False, repr=False, compare=False)
-
-    @property
-    def commanded(self) -> bool:
-        """The car follows a command (an ACC's acceleration request or a by-wire speed
-        command: a controller of its own closes the loop)."""
-        return any(c in self.input_names for c in COMMANDS)
-
-    @property
-    def tracking(self) -> np.ndarray:
-        """Per input column: a speed command (regressor ``speed_cmd - v``)."""
-        return np.array([nm == "speed_cmd" for nm in self.input_names], bool)
-
-    @property
-    def command_cols(self) -> np.ndarray:
-        """Per input column: a command (what ``actuator_saturation`` clips)."""
-        return np.array([nm in COMMANDS for nm in self.input_names], bool)
-
-    def grade_accel(self, rate_per_s: float) -> np.ndarray:
-        """g sin(theta) [m/s^2] the car has not compensated: all of it (``rate_per_s`` 0), or
-        what a compensation F = 1 / (T s + 1), T = 1 / rate, has not yet caught up with (per
-        segment, starting compensated)."""
-        key = round(float(rate_per_s), 6)
-        if key not in self._grade_cache:
-            assert self.grade is not None  # asked for only with a grade
-            gs = G_MPS2 * np.sin(self.grade)
-            if key > 0:
-                al = 1.0 - np.exp(-self.dt * key)
-                out = np.full_like(gs, np.nan)
-                for a, b in self.segs:
-                    x = gs[a:b]
-                    out[a:b] = x - lfilter([al], [1.0, al - 1.0], x, zi=[(1.0 - al) * x[0]])[0]
-                gs = out
-            self._grade_cache[key] = gs
-        return self._grade_cache[key]
-
-    @property
-    def n(self) -> int:
-        return len(self.t)
 
 
 def prepare(ch: dict, zones=None, cfg: DiagnoseConfig = DiagnoseConfig()) -> LonData:

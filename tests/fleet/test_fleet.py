@@ -356,6 +356,17 @@ def test_a_corrupt_drive_fails_alone_and_the_rest_finish(fleet, tmp_path, capsys
     assert link.endswith("report/index.html") and (tmp_path / "html" / link).resolve().exists()
 
 
+def _signal_state(pid: int) -> str:
+    """What the kernel says of ``pid``'s signals and process group as SIGINT is sent (for the
+    failure message: a run that finished as if no Ctrl-C came)."""
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            lines = [ln.strip() for ln in fh if ln.startswith(("State", "Sig", "Threads"))]
+        return f"pgid {os.getpgid(pid)}; " + "; ".join(lines)
+    except OSError as exc:
+        return f"pid {pid}: {exc}"
+
+
 def test_ctrl_c_leaves_every_finished_drive_usable_and_a_rerun_does_the_rest(fleet, tmp_path):
     """SIGINT to the whole process group (what Ctrl-C in a terminal sends) once the first
     drive is in the store."""
@@ -384,13 +395,14 @@ def test_ctrl_c_leaves_every_finished_drive_usable_and_a_rerun_does_the_rest(fle
             if any((store / "drives").glob("*/status.json")) or p.poll() is not None:
                 break
             time.sleep(0.05)
+        sent = _signal_state(p.pid)
         os.killpg(p.pid, signal.SIGINT)
         out, err = p.communicate(timeout=120)
     finally:
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
     run = json.loads((tmp_path / "run.json").read_text())
-    assert p.returncode == 130 and run["interrupted"], err[-2000:]
+    assert p.returncode == 130 and run["interrupted"], (sent, out[-1000:], err[-2000:])
     assert "Traceback" not in err
     finished = sorted(d.name for d in (store / "drives").iterdir())
     assert finished and len(finished) < 2 * DRIVES_PER_VEHICLE
