@@ -86,13 +86,28 @@ def vcan_ingest(vcan_log, vcan_dbc):
     )
 
 
-@pytest.hookimpl(trylast=True)  # after ``-m`` has deselected
+@pytest.hookimpl(hookwrapper=True)
 def pytest_collection_modifyitems(session, config, items):
-    """The tests marked ``long`` first, each followed by one other test, the rest in their
+    """Before ``-m`` deselects: every real-time test sits in a file that says
+    ``mark.realtime``, the files ``make test`` runs in its real-time phase (a test marked
+    another way would run in neither phase).
+
+    After: the tests marked ``long`` first, each followed by one other test, the rest in their
     order. xdist's ``load`` schedule hands each worker two consecutive tests to start with, so
     every long test starts at once on a worker of its own; a parallel run then ends no later
     than its longest test plus start-up. The order is a pure function of the collection, the
     same in every xdist worker, as xdist requires."""
+    said: dict = {}
+    for it in items:
+        if it.get_closest_marker("realtime") is not None:
+            if it.path not in said:
+                said[it.path] = "mark.realtime" in it.path.read_text()
+            if not said[it.path]:
+                raise pytest.UsageError(
+                    f"{it.nodeid}: marked realtime, but its file does not say 'mark.realtime' "
+                    "(make test runs the real-time tests of the files that do)"
+                )
+    yield
     long = [it for it in items if it.get_closest_marker("long") is not None]
     rest = [it for it in items if it.get_closest_marker("long") is None]
     order = []
