@@ -345,18 +345,30 @@ def target(d: LonData, spec: LonSpec) -> np.ndarray:
 
 
 def _design(d: LonData, U: np.ndarray, spec: LonSpec):
+    """Eq. 8's design over every sample and column (:func:`_columns`), and the zone per
+    sample."""
     nz, m = n_groups(d, spec), U.shape[1]
     zone = group_of(d, spec, d.vs)
-    U = model_regressors(d, spec, U, d.vs)
-    X = np.zeros((d.n, nz * (1 + m)))
-    rows = np.arange(d.n)
-    X[rows, zone * (1 + m)] = 1.0
-    for j in range(m):
-        X[rows, zone * (1 + m) + 1 + j] = U[:, j]
     e = ext_column(d, spec, d.vs)
-    if e is not None:
-        X = np.column_stack([X, e])
-    return X, zone
+    cols = range(nz * (1 + m) + (e is not None))
+    return _columns(zone, model_regressors(d, spec, U, d.vs), e, nz, cols), zone
+
+
+def _columns(zone: np.ndarray, R: np.ndarray, e: np.ndarray | None, nz: int, cols) -> np.ndarray:
+    """Columns ``cols`` of eq. 8's design for samples in zones ``zone`` with regressors ``R``
+    [n, m]: column z (1 + m) is zone z's offset (1 in its samples, 0 elsewhere), z (1 + m) + 1 + j
+    its input j, and column nz (1 + m) the extension ``e`` when there is one."""
+    m = R.shape[1]
+    X = np.zeros((len(zone), len(cols)))
+    for k, c in enumerate(cols):
+        z, j = divmod(c, 1 + m)
+        if e is not None and c == nz * (1 + m):
+            X[:, k] = e
+        elif j == 0:
+            X[zone == z, k] = 1.0
+        else:
+            X[zone == z, k] = R[zone == z, j - 1]
+    return X
 
 
 def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None) -> LonModel:
@@ -383,12 +395,11 @@ def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None
         cols.append(n_cols - 1)
     if not fitted:
         return LonModel(spec, np.zeros((nz, 1 + m)), 0.0, [], float("inf"), 0, 0)
-    # :func:`_design`'s rows ``use`` and columns ``cols``, built for those alone (a design of
-    # every sample and column, copied and masked, costs more than the fit on a long recording)
+    # the design's rows ``use`` and columns ``cols`` alone (:func:`_columns`): a design of
+    # every sample and column, copied and masked, costs more than the fit on a long recording
     idx = np.flatnonzero(use)
     zi, Ri = zone[idx], R[idx]
     ei = e[idx] if e is not None else None
-    in_zone = {z: zi == z for z in fitted}
     # an input never used in a zone is not fitted there: below 0.01 (the threshold of
     # ``_covered``) only the decaying tail of a lag reaches the training samples (a driver's
     # pedal released seconds before), and a gain fitted on such a tail is arbitrary
@@ -398,19 +409,11 @@ def fit(d: LonData, spec: LonSpec, mask: np.ndarray, U: np.ndarray | None = None
         if ei is not None and c == n_cols - 1:
             used = np.abs(ei).max() > 1e-12
         else:
-            used = j == 0 or np.abs(Ri[in_zone[z], j - 1]).max() > INPUT_USED
+            used = j == 0 or np.abs(Ri[zi == z, j - 1]).max() > INPUT_USED
         if used:
             kept.append(c)
     cols = kept
-    Xs = np.zeros((idx.size, len(cols)))
-    for k, c in enumerate(cols):
-        z, j = divmod(c, 1 + m)
-        if ei is not None and c == n_cols - 1:
-            Xs[:, k] = ei
-        elif j == 0:
-            Xs[in_zone[z], k] = 1.0
-        else:
-            Xs[in_zone[z], k] = Ri[in_zone[z], j - 1]
+    Xs = _columns(zi, Ri, ei, nz, cols)
     bounds = {}
     if ext and cols[-1] == n_cols - 1:
         assert spec.term is not None  # ext: the model carries a linear term
