@@ -300,8 +300,8 @@ class DriveLoop:
     def run(self) -> DriveResult:
         # BLAS on one thread for the whole run: every matrix of the loop is small (EKF 7x7,
         # the terminal cost's 3x3 DARE; the QP is OSQP's own C), where OpenBLAS's threads
-        # only add wake-up latency: control.dlqr took 33 ms median with two threads on a
-        # loaded 2-core machine against 1.1 ms on one (the loop's period is 20 ms)
+        # only add wake-up latency: a 3x3 DARE took 33 ms median with two threads on a loaded
+        # 2-core machine against 1.1 ms on one (the loop's period is 20 ms)
         with threadpool_limits(limits=1, user_api="blas"), _frozen_heap():
             return self._run()
 

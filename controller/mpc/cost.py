@@ -3,7 +3,7 @@ and the values of P and q written each step.
 
 - tracking: lateral and heading error to the reference path, speed error to the speed
   profile (per stage, weights per second of horizon);
-- terminal cost from python-control's ``dlqr`` on the path-error linearisation;
+- terminal cost: the DARE solution (dlqr) on the path-error linearisation;
 - effort: pedal changes cost more than steering changes (report VI: "velocity control
   should have a higher cost"; checked in :class:`MpcConfig`);
 - smoothness, terms of their own beside tracking: the change of the input rates (second
@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.linalg import solve_discrete_are
 
 from hmpc.models.plant import HybridPlant, bicycle_jacobian
 
@@ -79,7 +80,7 @@ _BLAS_THREADS = None  # threadpoolctl's controller of the loaded BLAS libraries,
 
 
 def _one_blas_thread():
-    """Context in which BLAS runs on one thread: the 3x3 DARE (``control.dlqr``) calls
+    """Context in which BLAS runs on one thread: the 3x3 DARE (scipy's) calls
     LAPACK's triangular solve, which OpenBLAS spreads over its threads; on a loaded machine
     waking them costs many times the solve itself (tools/bench_mpc.py's p99). Same
     arithmetic on one thread for matrices this small."""
@@ -241,19 +242,20 @@ class QpCost:
         return out
 
     def lqr_terminal(self, v_mps: float, delta_rad: float, plant: HybridPlant) -> np.ndarray:
-        """3x3 DARE solution on (lateral, heading, speed) errors, from control.dlqr, about
-        ``plant``'s eq. 1 (cached per rounded speed and road-wheel angle).
+        """3x3 DARE solution on (lateral, heading, speed) errors about ``plant``'s eq. 1
+        (cached per rounded speed and road-wheel angle).
 
         The error model is eq. 1 linearised in the path's frame (vehicle heading plus
         road-wheel angle along the path tangent): the lateral error rate is the y' row of
-        ``models.plant.bicycle_jacobian`` there."""
+        ``models.plant.bicycle_jacobian`` there. Solved by ``scipy.linalg.
+        solve_discrete_are``, what ``control.dlqr`` solves it with, called directly: a cache
+        miss is a step of the 50 Hz loop, and python-control's checks and its gain and
+        closed-loop poles, which are not used here, took half the miss's time."""
         vq = max(round(v_mps * 2) / 2, 0.5)
         dq = round(delta_rad * 20) / 20
         key = (vq, dq)
         P3 = self._lqr_cache.get(key)
         if P3 is None:
-            import control  # python-control: dlqr
-
             c, dt, pl = self.config, self.dt, plant
             j = bicycle_jacobian(-dq, vq, dq, pl.wheelbase_m, pl.scale, ops=math)
             Ac = np.array([[0.0, j.dy_dpsi, j.dy_dv], [0.0, 0.0, j.dpsi_dv], [0.0, 0.0, 0.0]])
@@ -263,8 +265,7 @@ class QpCost:
             Q = np.diag([c.w_lateral, c.w_heading, c.w_speed]) * dt
             R = np.diag([c.r_terminal_steer, c.r_terminal_accel]) * dt
             with _one_blas_thread():
-                _K, P3, _E = control.dlqr(Ad, Bd, Q, R)
-            P3 = np.asarray(P3)
+                P3 = solve_discrete_are(Ad, Bd, Q, R)
             if len(self._lqr_cache) > 512:
                 self._lqr_cache.clear()
             self._lqr_cache[key] = P3
