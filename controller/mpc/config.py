@@ -96,9 +96,10 @@ class MpcConfig:
     # OSQP
     # iteration caps: a warm-started solve (a previous plan, shifted) converges in a few tens
     # of iterations; the few that do not (a pedal-mode or zone change moves many bounds at
-    # once) are cut here so that a step's time stays bounded (tools/bench_mpc.py). A cold
-    # start (no plan: the first step, the first after a standstill hold) gets the solver's
-    # own default, once.
+    # once, a stop coming) are cut here so that a step's time stays bounded
+    # (tools/bench_mpc.py). A cold start (no plan: the first step, the first after a
+    # standstill hold) gets the solver's own default, once. 40 cut the brake's convergence
+    # when stopping: idle_hold's speed RMS over 8 sensor seeds went from 0.021 to 0.031 m/s.
     max_iter: int = 50
     max_iter_cold: int = 4000
     # the iteration cap's use of an unfinished iterate (OSQP stopped at ``max_iter``): used
@@ -114,7 +115,13 @@ class MpcConfig:
     capped_prim_tol: float = 0.5
     capped_dual_tol: float = 5.0
     eps_abs: float = 1e-3  # 1 mm, 1 mm/s: far below what the plant can act on
-    eps_rel: float = 1e-3
+    # relative to the largest of |q|, |P z|, |A'y| (dual) and |A z|, |z| (primal). |q|
+    # reaches 50 from the standstill penalty (``w_standstill`` dt at 0.1 s stages) when a
+    # stop is in the horizon, and the brake plan seconds ahead, which no command uses, then
+    # converges slowest: at 1e-3 5 % of the warm solves at 0.1 s stages on ramp_sequence
+    # stopped at the iteration cap on a gradient residual of 0.06-0.08 in those stages'
+    # brake, at 2e-3 0.3 %; idle_hold's speed RMS over 8 sensor seeds 0.022 and 0.019 m/s
+    eps_rel: float = 2e-3
     # OSQP: test convergence every this many iterations. Warm-started (shifted primal and
     # dual) the QP converges in a few tens of iterations: a sparser test runs far past that
     check_termination: int = 5
@@ -127,6 +134,13 @@ class MpcConfig:
     rho: float = 0.1
     adaptive_rho_interval: int = 10
     adaptive_rho_tolerance: float = 3.0
+    # OSQP's Ruiz equilibration passes (its ``scaling``; its default 10). OSQP scales the data
+    # again on every update of P and A, so each pass is paid every step: at 0.1 s stages the
+    # update took 0.46 ms with ten (p50; the KKT refactorisation alone 0.13 ms) and 0.21 ms
+    # with two, at the same iteration counts on ramp_sequence, figure8, arcs and idle_hold
+    # (tools/bench_mpc.py). One pass needed more iterations on arcs, and its 5-iteration
+    # iterates were further from converged (tests/controller/test_mpc_cap.py)
+    osqp_scaling: int = 2
     # OSQP relaxation (its default 1.6): from a shifted warm start strong over-relaxation
     # overshoots, and 1.2 stops in fewer iterations (tools/bench_mpc.py); 1.0 stops as early
     # but with a less converged steering plan (the MPC/NMPC agreement test,
@@ -187,6 +201,8 @@ class MpcConfig:
         ):
             if getattr(self, name) < 0:
                 raise ValueError(f"MpcConfig.{name} must be >= 0")
+        if self.osqp_scaling < 0:
+            raise ValueError("MpcConfig.osqp_scaling must be >= 0")
         if self.check_termination < 1 or self.adaptive_rho_interval < 0:
             raise ValueError(
                 "MpcConfig: check_termination must be >= 1 and adaptive_rho_interval >= 0"

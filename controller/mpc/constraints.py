@@ -85,8 +85,9 @@ class QpConstraints:
         self._u0 = np.full(L.m, np.inf)
         self._l0[L.r_sr] = -lim.steering_wheel_rate_max_radps * dt
         self._u0[L.r_sr] = lim.steering_wheel_rate_max_radps * dt
-        self._l0[L.r_jl] = -lim.jerk_max_mps3 * dt
-        self._u0[L.r_jh] = lim.jerk_max_mps3 * dt
+        # jerk rows in speed units (QpLayout): the change of acceleration per stage times dt
+        self._l0[L.r_jl] = -lim.jerk_max_mps3 * dt * L.jerk_row_scale
+        self._u0[L.r_jh] = lim.jerk_max_mps3 * dt * L.jerk_row_scale
         self._u0[L.r_vh] = lim.speed_max_mps
         self._l0[L.r_s] = 0.0
         # input bounds: steering
@@ -124,8 +125,8 @@ class QpConstraints:
         lo[L.r_sr] = srlo
         hi[L.r_sr] = srhi
         jd = self.limits.jerk_max_mps3 * self.dt
-        lo[L.r_jl.start] = stage.a_prev_mps2 - jd
-        hi[L.r_jh.start] = stage.a_prev_mps2 + jd
+        lo[L.r_jl.start] = (stage.a_prev_mps2 - jd) * L.jerk_row_scale
+        hi[L.r_jh.start] = (stage.a_prev_mps2 + jd) * L.jerk_row_scale
         lo[L.r_vl] = stage.band.v_lo_mps
         hi[L.r_vh] = stage.band.v_hi_mps
         return lo, hi

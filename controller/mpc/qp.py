@@ -119,23 +119,28 @@ class QpLayout:
             if k:
                 put(row + k, iu(k - 1, 0), -1.0)
         row += N
-        inv = 1.0 / dt_s
         # acceleration limits: no rows. Within a stage the acceleration (v_{k+1} - v_k)/dt
         # is exactly affine in the one free pedal (zone offset + scale * accel pedal, or
         # offset - brake_scale * brake pedal): they are bounds on that pedal
         # (controller/mpc/constraints.py), the same caps apply_limits puts on the command.
-        # jerk low / high (per stage): a_k - a_{k-1}; a_{-1} enters the bounds
+        # jerk low / high (per stage): (a_k - a_{k-1}) dt = v_{k+1} - 2 v_k + v_{k-1}, with
+        # a_{-1} in the bounds; the slack (jerk violation, m/s^2 per stage) enters times dt.
+        # The rows are written in speed units, the unit of the dynamics and speed-band rows
+        # they meet: divided by dt (coefficients 1/dt, 2/dt) the same constraint took OSQP
+        # longer, a third of the warm solves at 0.1 s stages stopping at the iteration cap
+        # on ramp_sequence against 5 % (tools/bench_mpc.py)
+        self.jerk_row_scale = dt_s  # a jerk row's value per m/s^2 per stage
         for sign, name in ((1.0, "r_jl"), (-1.0, "r_jh")):
             setattr(self, name, slice(row, row + N))
             for k in range(N):
                 if k == 0:
-                    put(row, ix(1, 3), inv)
-                    put(row, ix(0, 3), -inv)
+                    put(row, ix(1, 3), 1.0)
+                    put(row, ix(0, 3), -1.0)
                 else:
-                    put(row + k, ix(k + 1, 3), inv)
-                    put(row + k, ix(k, 3), -2 * inv)
-                    put(row + k, ix(k - 1, 3), inv)
-                put(row + k, isl(k, 0), sign)
+                    put(row + k, ix(k + 1, 3), 1.0)
+                    put(row + k, ix(k, 3), -2.0)
+                    put(row + k, ix(k - 1, 3), 1.0)
+                put(row + k, isl(k, 0), sign * dt_s)
             row += N
         # speed low: v_{k+1} + s1 >= lo ; speed high: v_{k+1} - s2 <= hi
         self.r_vl = slice(row, row + N)
@@ -297,6 +302,7 @@ class QpSolver:
                 adaptive_rho_interval=cfg.adaptive_rho_interval,
                 adaptive_rho_tolerance=cfg.adaptive_rho_tolerance,
                 alpha=cfg.admm_alpha,
+                scaling=cfg.osqp_scaling,
             )
             if cfg.time_limit_s > 0:
                 settings["time_limit"] = cfg.time_limit_s
