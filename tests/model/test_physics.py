@@ -232,6 +232,35 @@ def test_hysteresis_edges():
     assert zones_with_hysteresis(v[:3], V_MIN, V_MAX, h, start=1).tolist() == [1, 1, 1]
 
 
+def test_a_speed_sequence_takes_the_per_sample_rule_at_every_sample():
+    """``zones_with_hysteresis`` (a search per zone held) against ``zone_with_hysteresis``
+    applied sample by sample from the previous sample's zone: random zone tables and
+    hysteresis, random walks and draws from the band edges, NaN, every kind of start."""
+    rng = np.random.default_rng(SEED)
+    for _ in range(2000):
+        edges = np.sort(rng.uniform(0.5, 30.0, int(rng.integers(1, 5)))).tolist()
+        vmin, vmax = [0.0] + edges[:-1], edges
+        h = float(rng.choice([0.0, 0.1, 0.5, 2.0]))
+        n = int(rng.integers(0, 60))
+        kind = int(rng.integers(0, 3))
+        if kind == 0:
+            v = rng.uniform(-1.0, 35.0, n)
+        elif kind == 1:
+            v = np.cumsum(rng.normal(0.0, 1.0, n)) + rng.uniform(0.0, 30.0)
+        else:  # exactly on the bands' edges
+            v = rng.choice(
+                np.array([*vmax, *(x + h for x in vmax), *(x - h for x in vmax), np.nan]), n
+            )
+        start = [None, -1, 0, len(vmax) - 1, int(rng.integers(0, len(vmax)))][rng.integers(0, 5)]
+        clamp = bool(rng.integers(0, 2))
+        cur, expect = start, []
+        for x in v.tolist():
+            cur = zone_with_hysteresis(x, cur, vmin, vmax, h, clamp=clamp)
+            expect.append(cur)
+        got = zones_with_hysteresis(v, vmin, vmax, h, start=start, clamp=clamp)
+        assert got.tolist() == expect, (v, vmin, vmax, h, start, clamp)
+
+
 def test_every_user_calls_the_one_zone_rule(plant):
     """Params.zone_for, the plant, identification's assign_zones and the MPC's schedule give
     the zone rule's answers (the same speeds, including the edges)."""
