@@ -265,6 +265,10 @@ def run_closed_loop(
                 t_w = time.thread_time()
                 _adapt(adapter, fb.estimator, controller, t)
                 log.pending_adapt_s += time.thread_time() - t_w
+            if adapter is None:  # offset-free steering (a learner takes the offset itself)
+                correct = getattr(controller, "use_steering_correction", None)
+                if correct is not None:
+                    correct(fb.estimator.steering_correction_rad(), t)
             c_w = time.thread_time()
             res = controller.step(meas, reference, t)
             log.step_cpu_t.append(time.thread_time() - c_w)

@@ -633,6 +633,10 @@ class DriveLoop:
         t_ref = float(ref.time_s[0]) + t
         if self.adapter is not None:
             self._adapt(r, t)
+        elif r.ekf is not None:  # offset-free steering (a learner takes the offset itself)
+            correct = getattr(self.controller, "use_steering_correction", None)
+            if correct is not None:
+                correct(r.ekf.steering_correction_rad(), t_ref)
         res = self.controller.step(r.est.copy(), ref, t_ref)
         if fault_active(self.faults, "solver_failure", t):
             res = replace(res, status=Status.SHIFTED_PLAN, reason="solver failure (injected)")

@@ -157,6 +157,14 @@ class Estimator(Ekf):
             return math.nan, math.nan
         return self._xm[IV], self._xm[IBR]
 
+    def steering_correction_rad(self) -> float:
+        """The filter's correction to eq. 7's road-wheel angle now (``delta_offset_rad``) [rad],
+        a Python float; 0.0 before the first fix (its prior). What the MPC's offset-free
+        steering reads (``MpcController.use_steering_correction``)."""
+        if not self.initialized:
+            return 0.0
+        return float(self._xm[IDOFF])
+
     def use_model(self, model) -> None:
         """Predict with new model values (``controller.adapt.LearnedModel``): eq. 7's offset
         and scale, eq. 8 per zone. The road-wheel angle the filter holds is kept: the change of

