@@ -77,9 +77,11 @@ class MpcConfig:
     # file whose straight-ahead is 10 deg of steering wheel off otherwise drives a straight
     # road 0.25 m off the path, met by a loop without integral action: on ramp_sequence,
     # hidden sets 1-16 without learning, steering reversals >= 1 deg 3.9-15.5 a minute
-    # without it, 5.8-9.7 with it, figure8's lateral RMS within 5 % either way
+    # without it, 3.9-9.7 with it, figure8's lateral RMS within 5 % either way
     # (tools/adaptation_figures.py). With a learner (``--adapt``) the loops do not feed it:
-    # the learner takes the offset, and the estimator's correction is what it left.
+    # the learner takes the offset, and the estimator's correction is what it left. Its one
+    # measured cost: bench_diagnose's rack-nonlinearity case with the extended model tracks
+    # 0.147 m RMS with it against 0.116 m without (docs/results.md, Diagnosis).
     steer_correction_tau_s: float = 3.0
     steer_correction_gate_rad: float = 0.02
     w_steer_level: float = 0.02  # per (sw - feedforward)^2 / max^2 per s
