@@ -79,9 +79,11 @@ class MpcConfig:
     # hidden sets 1-16 without learning, steering reversals >= 1 deg 3.9-15.5 a minute
     # without it, 3.9-9.7 with it, figure8's lateral RMS within 5 % either way
     # (tools/adaptation_figures.py). With a learner (``--adapt``) the loops do not feed it:
-    # the learner takes the offset, and the estimator's correction is what it left. Its one
-    # measured cost: bench_diagnose's rack-nonlinearity case with the extended model tracks
-    # 0.147 m RMS with it against 0.116 m without (docs/results.md, Diagnosis).
+    # the learner takes the offset, and the estimator's correction is what it left. Not
+    # taken with a steering extension in the model (rack nonlinearity, understeer): the
+    # estimator's eq. 7 lacks it, so its correction holds the extension's residual from the
+    # last curve (bench_diagnose's rack-nonlinearity case with the extended model: 0.147 m
+    # lateral RMS with the correction, 0.116 m without; the true model's 0.115).
     steer_correction_tau_s: float = 3.0
     steer_correction_gate_rad: float = 0.02
     w_steer_level: float = 0.02  # per (sw - feedforward)^2 / max^2 per s

@@ -230,10 +230,15 @@ class MpcController:
         (``Estimator.steering_correction_rad``) at ``t_s`` [s], low-passed
         (``config.steer_correction_tau_s``), is added to the model's steering offset. Taken
         in only while the last command steers straight by the model (within
-        ``config.steer_correction_gate_rad``), held otherwise; the loops call it every control
-        step before :meth:`step` when no learner runs (a learner takes the offset itself)."""
+        ``config.steer_correction_gate_rad``), held otherwise, and not at all when the model
+        has a steering extension; the loops call it every control step before :meth:`step`
+        when no learner runs (a learner takes the offset itself)."""
         tau = self.config.steer_correction_tau_s
-        if tau <= 0 or not math.isfinite(delta_rad):
+        ext = self.plant.ext
+        if tau <= 0 or not math.isfinite(delta_rad) or (ext is not None and ext.steering):
+            # a steering extension (rack nonlinearity, understeer) gives eq. 7 another shape,
+            # which the estimator's eq. 7 lacks: its correction then holds that shape's
+            # residual from the last curve, not an offset
             return
         t_prev, self._steer_corr_t = self._steer_corr_t, float(t_s)
         prev, pl = self._last_cmd, self.plant

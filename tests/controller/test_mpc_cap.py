@@ -6,6 +6,7 @@ accelerations."""
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -136,6 +137,14 @@ def test_offset_free_steering_follows_the_estimators_correction_only_when_straig
     )
     assert ctl.plant.offset_rad == pytest.approx(off0 + 0.002 + corr, abs=1e-15)
     assert ctl.params.steering.offset_rad == off0 + 0.002
+    # a steering extension (here: a stand-in saying the model has one): nothing is taken
+    ext, ctl.plant.ext = ctl.plant.ext, SimpleNamespace(steering=True)
+    ctl._last_cmd = replace(ctl._last_cmd, steering_wheel_angle_rad=0.0)
+    before = ctl.plant.offset_rad
+    ctl.use_steering_correction(0.05, t + 12.0)
+    ctl.use_steering_correction(0.05, t + 15.0)
+    assert ctl.plant.offset_rad == before
+    ctl.plant.ext = ext
     ctl.reset()
     assert ctl._steer_corr == 0.0 and ctl.plant.offset_rad == ctl._offset_model
     off = MpcController(params, MpcConfig(steer_correction_tau_s=0.0))
