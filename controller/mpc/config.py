@@ -79,7 +79,10 @@ class MpcConfig:
     # hidden sets 1-16 without learning, steering reversals >= 1 deg 3.9-15.5 a minute
     # without it, 3.9-9.7 with it, figure8's lateral RMS within 5 % either way
     # (tools/adaptation_figures.py). With a learner (``--adapt``) the loops do not feed it:
-    # the learner takes the offset, and the estimator's correction is what it left. Not
+    # the learner takes the offset, and the estimator's correction is what it left. The
+    # correction is seen through the yaw rate: without a yaw-rate channel it stays at the
+    # estimator's prior, 0 (so does this). The gate is an angle, not a radius: a scale error
+    # of 25 % puts at most 5 mrad into the correction at 0.02 rad, on any wheelbase. Not
     # taken with a steering extension in the model (rack nonlinearity, understeer): the
     # estimator's eq. 7 lacks it, so its correction holds the extension's residual from the
     # last curve (bench_diagnose's rack-nonlinearity case with the extended model: 0.147 m
