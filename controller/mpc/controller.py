@@ -536,15 +536,19 @@ class MpcController:
         previous plan shifted in time to the stage times ``tk``, or without one a cold
         guess (a speed ramp towards the reference; ``horizon.path_reference`` puts it on
         the path). Sets the warm start's shift."""
-        N, dt = self.N, self.dt
+        N, dt, L = self.N, self.dt, self.layout
         plan = self._plan
         if plan is not None:
+            # stage k of the plan and of now are the same stage length apart: the states and
+            # inputs interpolated linearly between the plan's stages, its last one held
             Xp, Up = plan.states, plan.inputs
-            tp = plan.t0_s + self._t_stages
-            Xb = np.column_stack([np.interp(tk, tp, Xp[:, j]) for j in range(NX)])
-            Ub = np.column_stack([np.interp(tk[:-1], tp[:-1], Up[:, j]) for j in range(NU)])
-            a_prev = float(np.interp(tk[0], tp[:-1], np.diff(Xp[:, 3]) / dt))
-            self._shift_stages = (float(tk[0]) - plan.t0_s) / dt
+            sh = (float(tk[0]) - plan.t0_s) / dt
+            z = L.nominal_shift(np.concatenate((Xp.ravel(), Up.ravel())), sh)
+            Xb = z[: L.nx_all].reshape(N + 1, NX)
+            Ub = z[L.nx_all :].reshape(N, NU)
+            tp = plan.t0_s + self._t_stages[:N]
+            a_prev = float(np.interp(tk[0], tp, np.diff(Xp[:, 3]) / dt))
+            self._shift_stages = sh
             return Xb, Ub, a_prev
         self._shift_stages = None
         v_r0 = ref.speed_at(tk).tolist()

@@ -8,10 +8,10 @@ values are written in to CSC order. Each step the cost (controller/mpc/cost.py) 
 constraints (controller/mpc/constraints.py) write new values in that order;
 :class:`QpSolver` hands them to OSQP (``update(Px=, Ax=, q=, l=, u=)``: no new pattern, no
 new solver) and warm-starts it from the previous solution, primal and dual, shifted in time
-by the stages elapsed (:class:`_Shift`). A warm-started solve stops at ``MpcConfig.max_iter``
-iterations: its iterate is used when close enough (``capped_prim_tol``, ``capped_dual_tol``),
-else the step fails (the controller shifts its last plan) and the next solve continues from
-that iterate.
+by the stages elapsed (:class:`_Shift`). A warm-started solve stops at
+``MpcConfig.warm_iteration_cap`` iterations: its iterate is used when close enough
+(``capped_prim_tol``, ``capped_dual_tol``), else the step fails (the controller shifts its
+last plan) and the next solve continues from that iterate.
 """
 
 from __future__ import annotations
@@ -170,6 +170,9 @@ class QpLayout:
         self.A, self.A_perm = _pattern(ar, ac, self.m, self.n)
         self.slack_shift = _Shift([(slice(0, NS * N), NS)])  # warm start: slacks
         self.dual_shift = _Shift(self.row_blocks)  # and the dual
+        self.nominal_shift = _Shift(  # a plan's states and inputs, to the new stage times
+            [(slice(0, self.nx_all), NX), (slice(self.nx_all, self.nx_all + self.nu_all), NU)]
+        )
         self.primal_shift = _Shift(
             [
                 (slice(0, self.nx_all), NX),  # an unfinished iterate
@@ -295,7 +298,7 @@ class QpSolver:
                 polishing=False,
                 eps_abs=cfg.eps_abs,
                 eps_rel=cfg.eps_rel,
-                max_iter=cfg.max_iter,
+                max_iter=cfg.warm_iteration_cap,
                 adaptive_rho=cfg.adaptive_rho,
                 rho=cfg.rho,
                 check_termination=cfg.check_termination,
@@ -307,7 +310,7 @@ class QpSolver:
             if cfg.time_limit_s > 0:
                 settings["time_limit"] = cfg.time_limit_s
             self.solver.setup(Pm, q, Am, lo, hi, **settings)
-            self._max_iter = cfg.max_iter
+            self._max_iter = cfg.warm_iteration_cap
             # OSQP 1.x's extension object: its update and solve called directly save the
             # Python wrapper's per-call bookkeeping (about 0.1 ms a step); None: the wrapper
             raw = getattr(self.solver, "_solver", None)
@@ -330,7 +333,7 @@ class QpSolver:
             else:
                 self.solver.update(Px=Pdata, Ax=Adata, q=q, l=lo, u=hi)  # values in place
             self._update_s = time.perf_counter() - t_up  # includes OSQP's KKT refactorisation
-        cap = cfg.max_iter if shift_stages is not None else cfg.max_iter_cold
+        cap = cfg.warm_iteration_cap if shift_stages is not None else cfg.max_iter_cold
         if cap != self._max_iter:  # a cold start (no plan to shift) has its own cap
             self.solver.update_settings(max_iter=cap)
             self._max_iter = cap

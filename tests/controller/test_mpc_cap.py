@@ -52,6 +52,22 @@ def test_a_cold_start_keeps_its_own_cap(params):
     assert r.status == "solved" and r.iterations > 3  # the cold start was not capped
 
 
+def test_the_warm_cap_follows_the_stage_count_unless_set(params):
+    """0 (the default): 50 iterations up to 60 stages, 40 beyond (an iteration costs in
+    proportion to the stages); a set ``max_iter`` wins; OSQP is given the cap."""
+    assert MpcConfig().warm_iteration_cap == 50  # 0.2 s stages, 50
+    assert MpcConfig(horizon_s=12.0).warm_iteration_cap == 50  # 60 stages
+    assert MpcConfig(horizon_s=12.2).warm_iteration_cap == 40  # 61
+    assert MpcConfig(dt_s=0.1).warm_iteration_cap == 40  # 100
+    assert MpcConfig(dt_s=0.1, max_iter=70).warm_iteration_cap == 70
+    with pytest.raises(ValueError, match="max_iter"):
+        MpcConfig(max_iter=-1)
+    ctl = MpcController(params, MpcConfig(dt_s=0.1))
+    ref = straight(5.0, seconds=20.0, v_end=7.0)
+    out = drive(ctl, ref, params, 1.0)
+    assert out[-1][2].ok and ctl.qp.solver.settings.max_iter == 40
+
+
 def test_the_plan_rewritten_for_new_values_means_the_same_angle_and_accelerations(params):
     ref = straight(3.0, seconds=30.0, v_end=7.0)
     ctl = MpcController(params)
