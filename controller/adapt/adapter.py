@@ -11,6 +11,11 @@ Per control step, in this order, the loop calls:
    loop hands it to the controller's and the estimator's ``use_model``), else None;
 3. :meth:`ModelAdapter.commanded` with the command sent to the actuators.
 
+A period's acceleration for eq. 8 is the accelerometer's (its bias against the speed's change
+taken out) while the car runs straight, else the change of the estimator's speed: in a turn an
+accelerometer away from eq. 1's front-axle point does not read that point's acceleration
+(``AdaptConfig.long_imu_delta_max_rad``).
+
 **Validity** (openpilot's ``valid`` flags): a filter's values (the steering map; a zone) are
 used together once it has taken ``MIN_UPDATES`` samples, while none of them is at its bound
 and its last samples agree with it; otherwise the file's values are used, and the change to
@@ -121,6 +126,9 @@ class ModelAdapter:
             raise ValueError("the online model estimator needs a complete model")
         c = self.cfg = config or AdaptConfig()
         self.params = params
+        st = params.steering
+        assert st is not None  # a complete model
+        self._eq7_file = (float(st.offset_rad), float(st.scale))  # the straight-running gate
         self.period_s = float(period_s)
         veh = params.vehicle
         self.signals = PeriodSignals(c, float(veh.track_rear_m or veh.track_front_m))
@@ -244,16 +252,21 @@ class ModelAdapter:
         changed = force = self._force_push
         self._force_push = False
         sw = sig.sum_sw / sig.n_sw if sig.n_sw else math.nan
+        dv_dt = (v_mps - v_prev) / dt if v_prev == v_prev else 0.0
+        straight = self._straight(sw, sig)
         if sig.n_acc:
             accel = sig.sum_acc / sig.n_acc
-            if v_prev == v_prev:  # the accelerometer's bias against the speed's change
+            if v_prev == v_prev and straight:  # the accelerometer's bias against the speed
                 lam = math.exp(-dt / self.cfg.accel_bias_window_s)
                 self._ab_num = lam * self._ab_num + accel * dt - (v_mps - v_prev)
                 self._ab_den = lam * self._ab_den + dt
             t0 = self.cfg.accel_bias_prior_s  # the bias's MAP estimate (config)
             accel -= self._ab_num * self._ab_den / (self._ab_den * self._ab_den + t0 * t0)
         else:
-            accel = (v_mps - v_prev) / dt if v_prev == v_prev else 0.0
+            accel = dv_dt
+        # eq. 8's sample: the accelerometer while straight, else the speed's change
+        n_acc = sig.n_acc if straight else 0
+        accel8 = accel if n_acc else dv_dt
         fy, fn = self._fit_y, self._fit_ny
         self.zones.advance()
         if sig.n_yaw and sw == sw and v >= self.cfg.steer_v_min_mps and not suspect:
@@ -275,9 +288,9 @@ class ModelAdapter:
             fy[1] += accel
             fn[1] += 1
             z = self.zones.zone_of(v_lo, v_hi)
-            if z >= 0:
+            if z >= 0 and (n_acc or v_prev == v_prev):
                 self._drift_all()
-                self.zones.learn(z, accel, sig.n_acc)
+                self.zones.learn(z, accel8, n_acc)
                 changed = True
         sig.clear()
         self._fit_periods += 1
@@ -294,6 +307,17 @@ class ModelAdapter:
             self._t_push, self._changed = t_s, False
             return self._push_if_changed(t_s, force)
         return None
+
+    def _straight(self, sw_rad: float, sig: PeriodSignals) -> bool:
+        """Whether the period's accelerometer reading stands for eq. 8's acceleration: the
+        car ran straight (``AdaptConfig.long_imu_delta_max_rad``, ``long_imu_yaw_max_radps``;
+        without a steering angle or a yaw rate, not known to have turned)."""
+        c = self.cfg
+        if sw_rad == sw_rad:
+            off, scale = self._eq7_file
+            if abs(off + scale * sw_rad) > c.long_imu_delta_max_rad:
+                return False
+        return not (sig.n_yaw and abs(sig.sum_yaw / sig.n_yaw) > c.long_imu_yaw_max_radps)
 
     def _fit_period(self, t_s: float) -> None:
         """The response fits' period that ended at ``t_s``: each channel's mean response,

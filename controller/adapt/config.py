@@ -101,6 +101,17 @@ class AdaptConfig:
     #: and the controller's speed by its integral.
     accel_bias_window_s: float = 120.0
     accel_bias_prior_s: float = 2.0
+    #: the accelerometer stands for eq. 8's acceleration (the change of eq. 1's front-axle
+    #: speed) only while the car runs straight: road-wheel angle (the file's eq. 7) within
+    #: [rad] and yaw rate within [rad/s]. In a turn an accelerometer elsewhere on the body
+    #: reads cos(delta) of it plus the centripetal term yaw_rate^2 times its distance ahead
+    #: of the rear axle: 0.1 rad is 0.5 % of a gain, 0.15 rad/s 0.045 m/s^2 at 2 m. Such a
+    #: period's acceleration is the speed change of eq. 1's point instead (the state
+    #: estimator's speed). On CommonRoad recordings with the accelerometer at the rear axle
+    #: (tests/adapt/test_adapt_indep.py) the accelerometer in turns took the idle zone's
+    #: accelerator gain 5.6-9.8 % low and the low zone's offset 15 % off.
+    long_imu_delta_max_rad: float = 0.1
+    long_imu_yaw_max_radps: float = 0.15
     #: [m/s^2] a measured acceleration beyond this is not a car on a road.
     long_accel_abs_max_mps2: float = 8.0
     #: prior 1-sigma: [m/s^2] offset (grade of 1 %, drag) and [1] relative gains (a full car
