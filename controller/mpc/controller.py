@@ -539,8 +539,8 @@ class MpcController:
         N, dt, L = self.N, self.dt, self.layout
         plan = self._plan
         if plan is not None:
-            # stage k of the plan and of now are the same stage length apart: the states and
-            # inputs interpolated linearly between the plan's stages, its last one held
+            # now's stage times are the plan's moved by ``sh`` stages: each state and input
+            # interpolated linearly between the plan's stages, its last stage held
             Xp, Up = plan.states, plan.inputs
             sh = (float(tk[0]) - plan.t0_s) / dt
             z = L.nominal_shift(np.concatenate((Xp.ravel(), Up.ravel())), sh)
