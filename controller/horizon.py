@@ -136,9 +136,8 @@ class SolveOutcome:
             preemptions excluded).
         update_time_s: time writing the new values into the solver [s].
         iterations: solver iterations.
-        capped: the solver stopped at its iteration cap
-            (``MpcConfig.warm_iteration_cap``) and its
-            iterate was close enough to use (``MpcConfig.capped_prim_tol``,
+        capped: the solver stopped at its iteration cap (``MpcConfig.warm_iteration_cap``)
+            and its iterate was close enough to use (``MpcConfig.capped_prim_tol``,
             ``capped_dual_tol``).
     """
 

@@ -285,6 +285,9 @@ class ModelAdapter:
                 fn[0] += 1
         self._sw_prev = sw
         if v_lo >= self.cfg.long_v_min_mps and (sig.n_acc or v_prev == v_prev):
+            # the dead-time and lag fit keeps the accelerometer in turns too: its offset and
+            # gain are free (controller/adapt/timing.py), so a reading scaled by cos(delta)
+            # moves no timing, and the speed's change would add its noise to every period
             fy[1] += accel
             fn[1] += 1
             z = self.zones.zone_of(v_lo, v_hi)

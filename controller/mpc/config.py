@@ -144,8 +144,8 @@ class MpcConfig:
     # reaches 50 from the standstill penalty (``w_standstill`` dt at 0.1 s stages) when a
     # stop is in the horizon, and the brake plan seconds ahead, which no command uses, then
     # converges slowest: at 1e-3 5 % of the warm solves at 0.1 s stages on ramp_sequence
-    # stopped at the iteration cap on a gradient residual of 0.06-0.08 in those stages'
-    # brake, at 2e-3 0.3 %; idle_hold's speed RMS over 8 sensor seeds 0.022 and 0.019 m/s
+    # stopped at an iteration cap of 50 on a gradient residual of 0.06-0.08 in those
+    # stages' brake, at 2e-3 0.3 %; idle_hold's speed RMS over 8 sensor seeds 0.022 and 0.019 m/s
     eps_rel: float = 2e-3
     # OSQP: test convergence every this many iterations. Warm-started (shifted primal and
     # dual) the QP converges in a few tens of iterations: a sparser test runs far past that
@@ -154,16 +154,16 @@ class MpcConfig:
     # far more iterations on these QPs (tools/bench_mpc.py). Adapted every this many
     # iterations (0: OSQP's timing-based choice, which adapts too late for a 15-iteration
     # solve); each adaptation refactorises the KKT matrix, as costly as the step's data
-    # update, so at most ``max_iter / adaptive_rho_interval`` of them per solve
+    # update, so at most ``warm_iteration_cap / adaptive_rho_interval`` of them per solve
     adaptive_rho: bool = True
     rho: float = 0.1
     adaptive_rho_interval: int = 10
     adaptive_rho_tolerance: float = 3.0
     # OSQP's Ruiz equilibration passes (its ``scaling``; its default 10). OSQP scales the data
     # again on every update of P and A, so each pass is paid every step: at 0.1 s stages the
-    # update took 0.46 ms with ten (p50; the KKT refactorisation alone 0.13 ms) and 0.21 ms
-    # with two, at the same iteration counts on ramp_sequence, figure8, arcs and idle_hold
-    # (tools/bench_mpc.py). One pass needed more iterations on arcs, and its 5-iteration
+    # update took 0.46 ms with ten (p50 in the loop; the KKT refactorisation alone 0.13 ms)
+    # and 0.21 ms with two, at the same iteration counts on ramp_sequence, figure8, arcs and
+    # idle_hold (tools/bench_mpc.py). One pass needed more iterations on arcs, and its 5-iteration
     # iterates were further from converged (tests/controller/test_mpc_cap.py)
     osqp_scaling: int = 2
     # OSQP relaxation (its default 1.6): from a shifted warm start strong over-relaxation

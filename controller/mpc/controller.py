@@ -540,7 +540,7 @@ class MpcController:
         plan = self._plan
         if plan is not None:
             # now's stage times are the plan's moved by ``sh`` stages: each state and input
-            # interpolated linearly between the plan's stages, its last stage held
+            # interpolated linearly between the plan's stages, its first and last held beyond
             Xp, Up = plan.states, plan.inputs
             sh = (float(tk[0]) - plan.t0_s) / dt
             z = L.nominal_shift(np.concatenate((Xp.ravel(), Up.ravel())), sh)

@@ -196,8 +196,9 @@ def _pattern(rows, cols, m, n):
 class _Shift:
     """Shifts a vector made of per-stage blocks ((slice, entries per stage), contiguous
     from 0) in time by ``sh`` stages: each entry is linearly interpolated between the same
-    entry of stages floor(k + sh) and the next, clipped to its block's last stage (the
-    warm start, :meth:`QpSolver.warm_start_vectors`).
+    entry of stages floor(k + sh) and the next, clipped to its block's first and last stage
+    (the warm start, :meth:`QpSolver.warm_start_vectors`; the nominal, the controller's
+    ``_nominal``).
 
     The interpolation indices and weights are kept for the last few shifts: at a steady
     control rate the shift takes only a few values (the same period, up to round-off)."""
