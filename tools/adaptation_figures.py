@@ -101,7 +101,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from hmpc.models.report.adaptation import plot_adaptation
 
-    seeds = [int(s) for s in args.seeds.split(",")]
+    try:
+        seeds = [int(s) for s in args.seeds.split(",")]
+    except ValueError:
+        ap.error(f"--seeds {args.seeds}: give whole numbers separated by commas")
+    if args.png:  # made before the runs: a missing folder must not end minutes of work
+        Path(args.png).mkdir(parents=True, exist_ok=True)
     params = load_params(PARAMS_DIR / "report_2008.yaml")
     rows: dict = {sc: [] for sc in SCENARIOS}
     for seed in seeds:

@@ -63,6 +63,7 @@ class ZoneLearner:
         self._v_max = [z.v_max_mps for z in params.zones]
         self.filters = [self._filter(z) for z in params.zones]
         self._acc_var = float(accel_noise_mps2) ** 2
+        self._dv_var = (c.long_speed_change_noise_mps / self.period_s) ** 2
         n = 3 if inputs == "pedals" else 2
         self._h = [1.0] + [0.0] * (n - 1)
         self._free = [True] + [False] * (n - 1)
@@ -148,7 +149,9 @@ class ZoneLearner:
 
     def learn(self, zone: int, accel_mps2: float, n_acc: int) -> bool:
         """One sample of ``zone`` (from :meth:`zone_of`): the period's mean acceleration
-        [m/s^2] over ``n_acc`` samples, against the commands' means of :meth:`advance`."""
+        [m/s^2] over ``n_acc`` accelerometer samples, or with ``n_acc`` 0 the speed's change
+        over the period (``AdaptConfig.long_speed_change_noise_mps``), against the commands'
+        means of :meth:`advance`."""
         c = self.cfg
         if abs(accel_mps2) > c.long_accel_abs_max_mps2:
             self.samples["gated"] += 1
@@ -160,7 +163,7 @@ class ZoneLearner:
         else:
             h[1] = u[0]
             free[1] = abs(u[0]) > c.long_cmd_min_mps2
-        r = self._acc_var / max(n_acc, 1) + c.long_noise_floor_mps2**2
+        r = (self._acc_var / n_acc if n_acc else self._dv_var) + c.long_noise_floor_mps2**2
         ok = self.filters[zone].update(h, accel_mps2, r, free)
         self.samples["used" if ok else "gated"] += 1
         return ok
