@@ -163,6 +163,7 @@ class MpcController:
         self.zone_rules = ZoneRules(params, self.config, self.mode_config, self.limits, self.plant)
         self.delay = DelayCompensation(params, self.plant, self.dt, self.N)
         self.cost = QpCost(self.config, self.limits, self.layout)
+        self.cost.warm_terminal(self.plant, self.limits.speed_max_mps)
         self.constraints = QpConstraints(self.layout, self.limits, self.plant)
         self.qp = QpSolver(self.layout, self.config)
         self._pedal = PedalModeLogic(self.mode_config)

@@ -68,6 +68,24 @@ def test_the_warm_cap_follows_the_stage_count_unless_set(params):
     assert out[-1][2].ok and ctl.qp.solver.settings.max_iter == 40
 
 
+def test_a_straight_roads_terminal_costs_are_solved_before_the_first_step(params, monkeypatch):
+    """Each terminal cost is a DARE (0.4-1 ms); a straight road's, for every cached speed up
+    to the speed limit, are solved when the controller is built, so that a drive that
+    speeds up on a straight road solves none in its control steps."""
+    import hmpc.controller.mpc.cost as cost_mod
+
+    ctl = MpcController(params)
+    calls = []
+    real = cost_mod.solve_discrete_are
+    monkeypatch.setattr(cost_mod, "solve_discrete_are", lambda *a: calls.append(a) or real(*a))
+    out = drive(ctl, straight(3.0, seconds=30.0, v_end=15.0), params, 6.0)
+    assert out[-1][1][3] > 5.0 and all(r.ok for _, _, r in out)  # it sped up
+    assert not calls
+    # a curve's are solved on first use
+    ctl.cost.lqr_terminal(5.0, 0.1, ctl.plant)
+    assert len(calls) == 1
+
+
 def test_the_plan_rewritten_for_new_values_means_the_same_angle_and_accelerations(params):
     ref = straight(3.0, seconds=30.0, v_end=7.0)
     ctl = MpcController(params)
