@@ -200,8 +200,12 @@ def test_loopback_identification_recovers_the_car(tmp_path):
     t0 = rows[-1][0] + 0.02
     rows += [(t0 + t, c) for t, c in _pedal_rows("arcs", *ARCS_S)]
     rows.append((rows[-1][0] + 0.02, DISENGAGE))
-    s, tr, lk, log, op = teleop_run("bywire", script(rows), tmp_path, run_s=200.0)
-    print(s["stop"], s["deadline_misses"], lk["latency_ms"], lk["gaps"])
+    for _attempt in range(2):  # once more after a host stall (tests/_drive.py's rule)
+        s, tr, lk, log, op = teleop_run("bywire", script(rows), tmp_path, run_s=200.0)
+        print(s["stop"], s["deadline_misses"], lk["latency_ms"], lk["gaps"])
+        if s["stop"]["reason"] != "deadline_misses":
+            break
+        print(f"host stall: deadline_misses at t = {s['stop']['t_s']} s; run again")
     assert s["stop"]["reason"] == "operator_disengaged"
     assert s["limit_violations"] == 0 and lk["rejected_total"] == 0
     out = tmp_path / "id.yaml"
