@@ -245,9 +245,11 @@ class QpCost:
         """The terminal costs of a straight road solved now, for every cached speed up to
         ``v_max_mps``: each is a 0.4-1 ms DARE that would otherwise fall on a control step
         the first time the horizon's end reaches that speed (on ramp_sequence they were the
-        16 slowest steps of 1,550 at 0.2 s stages). About 15 ms for 20 m/s. A learned
-        steering scale drops the cache (``MpcController.use_model``); it refills on use."""
-        for k in range(1, int(v_max_mps * 2) + 1):
+        16 slowest steps of 1,550 at 0.2 s stages). About 15 ms for 20 m/s; at most the
+        speeds to 100 m/s (a limit set higher is not a road car's: the rest are solved on use).
+        A learned steering scale drops the cache (``MpcController.use_model``); it refills on
+        use."""
+        for k in range(1, int(min(v_max_mps, 100.0) * 2) + 1):
             self.lqr_terminal(0.5 * k, 0.0, plant)
 
     def lqr_terminal(self, v_mps: float, delta_rad: float, plant: HybridPlant) -> np.ndarray:
