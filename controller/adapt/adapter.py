@@ -129,6 +129,7 @@ class ModelAdapter:
         st = params.steering
         assert st is not None  # a complete model
         self._eq7_file = (float(st.offset_rad), float(st.scale))  # the straight-running gate
+        self._wheelbase_m = float(params.vehicle.wheelbase_m)
         self.period_s = float(period_s)
         veh = params.vehicle
         self.signals = PeriodSignals(c, float(veh.track_rear_m or veh.track_front_m))
@@ -253,7 +254,8 @@ class ModelAdapter:
         self._force_push = False
         sw = sig.sum_sw / sig.n_sw if sig.n_sw else math.nan
         dv_dt = (v_mps - v_prev) / dt if v_prev == v_prev else 0.0
-        straight = self._straight(sw, sig)
+        yaw_mean = sig.sum_yaw / sig.n_yaw if sig.n_yaw else math.nan
+        straight = self._straight(sw, yaw_mean)
         if sig.n_acc:
             accel = sig.sum_acc / sig.n_acc
             if v_prev == v_prev and straight:  # the accelerometer's bias against the speed
@@ -270,7 +272,7 @@ class ModelAdapter:
         fy, fn = self._fit_y, self._fit_ny
         self.zones.advance()
         if sig.n_yaw and sw == sw and v >= self.cfg.steer_v_min_mps and not suspect:
-            yaw = sig.sum_yaw / sig.n_yaw - gyro_bias_radps
+            yaw = yaw_mean - gyro_bias_radps
             if sig.n_sw >= 2 and sig.t_sw_last > sig.t_sw_first:
                 sw_rate = (sig.sw_last - sig.sw_first) / (sig.t_sw_last - sig.t_sw_first)
             else:
@@ -311,16 +313,18 @@ class ModelAdapter:
             return self._push_if_changed(t_s, force)
         return None
 
-    def _straight(self, sw_rad: float, sig: PeriodSignals) -> bool:
+    def _straight(self, sw_rad: float, yaw_rate_radps: float) -> bool:
         """Whether the period's accelerometer reading stands for eq. 8's acceleration: the
-        car ran straight (``AdaptConfig.long_imu_delta_max_rad``, ``long_imu_yaw_max_radps``;
-        without a steering angle or a yaw rate, not known to have turned)."""
+        car ran straight (``AdaptConfig.long_imu_delta_max_rad``,
+        ``long_imu_centripetal_max_mps2``); a NaN steering angle or yaw rate (none this
+        period) does not say it turned."""
         c = self.cfg
-        if sw_rad == sw_rad:
-            off, scale = self._eq7_file
-            if abs(off + scale * sw_rad) > c.long_imu_delta_max_rad:
-                return False
-        return not (sig.n_yaw and abs(sig.sum_yaw / sig.n_yaw) > c.long_imu_yaw_max_radps)
+        off, scale = self._eq7_file
+        if abs(off + scale * sw_rad) > c.long_imu_delta_max_rad:
+            return False
+        return not yaw_rate_radps * yaw_rate_radps * self._wheelbase_m > (
+            c.long_imu_centripetal_max_mps2
+        )
 
     def _fit_period(self, t_s: float) -> None:
         """The response fits' period that ended at ``t_s``: each channel's mean response,

@@ -103,15 +103,17 @@ class AdaptConfig:
     accel_bias_prior_s: float = 2.0
     #: the accelerometer stands for eq. 8's acceleration (the change of eq. 1's front-axle
     #: speed) only while the car runs straight: road-wheel angle (the file's eq. 7) within
-    #: [rad] and yaw rate within [rad/s]. In a turn an accelerometer elsewhere on the body
-    #: reads cos(delta) of it plus the centripetal term yaw_rate^2 times its distance ahead
-    #: of the rear axle: 0.1 rad is 0.5 % of a gain, 0.15 rad/s 0.045 m/s^2 at 2 m. Such a
-    #: period's acceleration is the speed change of eq. 1's point instead (the state
-    #: estimator's speed). On CommonRoad recordings with the accelerometer at the rear axle
-    #: (tests/adapt/test_adapt_indep.py) the accelerometer in turns took the idle zone's
-    #: accelerator gain 5.6-9.8 % low and the low zone's offset 15 % off.
+    #: [rad], and the centripetal term yaw_rate^2 x wheelbase within [m/s^2]. In a turn an
+    #: accelerometer elsewhere on the body reads cos(delta) of eq. 8's acceleration plus
+    #: yaw_rate^2 times its distance ahead of the rear axle (at most about a wheelbase):
+    #: 0.1 rad is 0.5 % of a gain; 0.06 m/s^2 is a yaw rate of 0.15 rad/s on a 2.65 m
+    #: wheelbase and 0.43 rad/s on a 1:10 car's 0.33 m. Such a period's acceleration is the
+    #: speed change of eq. 1's point instead (the state estimator's speed). On CommonRoad
+    #: recordings with the accelerometer at the rear axle (tests/adapt/test_adapt_indep.py)
+    #: the accelerometer in turns took the idle zone's accelerator gain 5.6-9.8 % low and
+    #: the low zone's offset 15 % off.
     long_imu_delta_max_rad: float = 0.1
-    long_imu_yaw_max_radps: float = 0.15
+    long_imu_centripetal_max_mps2: float = 0.06
     #: [m/s] noise of the state estimator's speed change over one control period, for the
     #: periods whose acceleration is that change (no accelerometer, or a turn). On hmpc's
     #: simulator at the default sensors in a 50 Hz loop the estimate's speed error is
